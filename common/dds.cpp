@@ -1,0 +1,153 @@
+#include "dds.h"
+
+#include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <random>
+
+namespace farm::dds {
+
+using eprosima::fastrtps::types::ReturnCode_t;
+
+namespace {
+
+bool file_exists(const std::string& p) { return std::ifstream(p).good(); }
+
+// The profiles file a process uses when none is given: next to the binary's install prefix, then
+// the source tree it was built from.
+std::string default_profiles_file() {
+  char exe[4096] = {0};
+  ssize_t n = readlink("/proc/self/exe", exe, sizeof(exe) - 1);
+  if (n > 0) {
+    std::string dir(exe, static_cast<size_t>(n));
+    dir = dir.substr(0, dir.rfind('/'));
+    for (const char* rel : {"/../share/farm/fastdds_profiles.xml", "/fastdds_profiles.xml"}) {
+      if (file_exists(dir + rel)) return dir + rel;
+    }
+  }
+  return FARM_DEFAULT_PROFILES;
+}
+
+}  // namespace
+
+bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
+  std::string a = argv[i];
+  auto value = [&]() -> std::string {
+    if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+    return argv[++i];
+  };
+  if (a == "--domain") {
+    std::string v = value();
+    try {
+      opts.domain = std::stoi(v);
+    } catch (...) {
+      throw std::invalid_argument("--domain expects an integer 0..232, got '" + v + "'");
+    }
+    if (opts.domain < 0 || opts.domain > 232)
+      throw std::invalid_argument("--domain expects an integer 0..232, got '" + v + "'");
+    return true;
+  }
+  if (a == "--dds-profiles") {
+    opts.profiles_file = value();
+    return true;
+  }
+  return false;
+}
+
+Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(opts.domain) {
+  auto* factory = fdds::DomainParticipantFactory::get_instance();
+  const char* env = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
+  if (!opts.profiles_file.empty()) {
+    profiles_file_ = opts.profiles_file;
+  } else if (env && *env) {
+    profiles_file_ = env;  // the factory has already loaded it
+  } else {
+    profiles_file_ = default_profiles_file();
+  }
+  if (!file_exists(profiles_file_)) {
+    throw std::runtime_error("DDS profiles file not found: " + profiles_file_);
+  }
+  if (!(env && *env && profiles_file_ == env)) {
+    if (factory->load_XML_profiles_file(profiles_file_) != ReturnCode_t::RETCODE_OK) {
+      throw std::runtime_error("cannot load DDS profiles from " + profiles_file_ +
+                               " (see Fast DDS's XML parser messages above)");
+    }
+  }
+  fdds::DomainParticipantQos pqos;
+  if (factory->get_participant_qos_from_profile("farm_participant", pqos) != ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
+  }
+  pqos.name(participant_name);
+  participant_ = factory->create_participant(opts.domain, pqos);
+  if (!participant_) {
+    throw std::runtime_error("cannot create DDS participant on domain " +
+                             std::to_string(opts.domain));
+  }
+  publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
+  subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
+  if (!publisher_ || !subscriber_) throw std::runtime_error("cannot create DDS publisher/subscriber");
+}
+
+Bus::~Bus() {
+  if (participant_) {
+    participant_->delete_contained_entities();
+    fdds::DomainParticipantFactory::get_instance()->delete_participant(participant_);
+  }
+}
+
+fdds::Topic* Bus::topic(const std::string& name, fdds::TypeSupport type) {
+  auto it = topics_.find(name);
+  if (it != topics_.end()) return it->second;
+  type.register_type(participant_);
+  fdds::Topic* t = participant_->create_topic(name, type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+  if (!t) throw std::runtime_error("cannot create DDS topic " + name);
+  topics_[name] = t;
+  return t;
+}
+
+void to_wire(const PolicyParams& p, const std::string& experiment_id, farm::msg::PolicyWeights& w) {
+  w.experiment_id(experiment_id);
+  w.version(p.version);
+  w.head(static_cast<int32_t>(p.head));
+  w.layer_sizes(std::vector<int32_t>(p.layout.sizes.begin(), p.layout.sizes.end()));
+  w.activation(static_cast<int32_t>(p.layout.activation));
+  w.log_std_min(p.log_std_min);
+  w.log_std_max(p.log_std_max);
+  w.obs_mean(p.obs_mean);
+  w.obs_std(p.obs_std);
+  w.parameters(p.params);
+}
+
+PolicyParams from_wire(const farm::msg::PolicyWeights& w) {
+  PolicyParams p;
+  p.version = w.version();
+  if (w.head() != static_cast<int32_t>(PolicyHead::kSquashedGaussian))
+    throw std::invalid_argument("PolicyWeights: unknown policy head " + std::to_string(w.head()));
+  p.head = static_cast<PolicyHead>(w.head());
+  if (w.activation() != 0 && w.activation() != 1)
+    throw std::invalid_argument("PolicyWeights: unknown activation " + std::to_string(w.activation()));
+  p.layout.activation = static_cast<Activation>(w.activation());
+  p.layout.sizes.assign(w.layer_sizes().begin(), w.layer_sizes().end());
+  p.log_std_min = w.log_std_min();
+  p.log_std_max = w.log_std_max();
+  p.obs_mean = w.obs_mean();
+  p.obs_std = w.obs_std();
+  p.params = w.parameters();
+  return p;
+}
+
+std::string hostname() {
+  char buf[256] = {0};
+  if (gethostname(buf, sizeof(buf) - 1) != 0) return "unknown";
+  return buf;
+}
+
+uint64_t random_session_id() {
+  std::random_device rd;
+  return (static_cast<uint64_t>(rd()) << 32) ^ rd() ^
+         static_cast<uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+}
+
+}  // namespace farm::dds

@@ -1,0 +1,156 @@
+// The farm's DDS plumbing: one participant per process, typed writers and readers whose QoS
+// comes from named profiles in deploy/fastdds_profiles.xml. Only ingest, the weight publisher
+// and the process mains use this; the learning code never sees DDS.
+#pragma once
+
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/DataReaderListener.hpp>
+#include <fastdds/dds/subscriber/SampleInfo.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/topic/Topic.hpp>
+#include <fastdds/dds/topic/TypeSupport.hpp>
+
+#include <chrono>
+#include <condition_variable>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+
+#include "farmPubSubTypes.h"
+#include "mlp.h"
+
+namespace farm::dds {
+
+namespace fdds = eprosima::fastdds::dds;
+
+inline constexpr const char* kSpecTopic = "farm/ExperimentSpec";
+inline constexpr const char* kBatchTopic = "farm/TransitionBatch";
+inline constexpr const char* kWeightsTopic = "farm/PolicyWeights";
+inline constexpr const char* kWorkerStatusTopic = "farm/WorkerStatus";
+inline constexpr const char* kLearnerStatsTopic = "farm/LearnerStats";
+
+struct BusOptions {
+  int domain = 0;
+  // Empty: FASTRTPS_DEFAULT_PROFILES_FILE if set (Fast DDS loads it itself), else the
+  // profiles file shipped in deploy/.
+  std::string profiles_file;
+};
+
+// Adds --domain N and --dds-profiles FILE to a main's flag handling; returns true if consumed.
+bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts);
+
+class Bus {
+ public:
+  Bus(const BusOptions& opts, const std::string& participant_name);
+  ~Bus();
+  Bus(const Bus&) = delete;
+  Bus& operator=(const Bus&) = delete;
+
+  fdds::DomainParticipant* participant() { return participant_; }
+  fdds::Publisher* publisher() { return publisher_; }
+  fdds::Subscriber* subscriber() { return subscriber_; }
+  int domain() const { return domain_; }
+  const std::string& profiles_file() const { return profiles_file_; }
+  // Registers the type once and returns the topic (one per name per participant).
+  fdds::Topic* topic(const std::string& name, fdds::TypeSupport type);
+
+ private:
+  fdds::DomainParticipant* participant_ = nullptr;
+  fdds::Publisher* publisher_ = nullptr;
+  fdds::Subscriber* subscriber_ = nullptr;
+  std::map<std::string, fdds::Topic*> topics_;
+  std::string profiles_file_;
+  int domain_ = 0;
+};
+
+template <class T, class PubSubType>
+class Writer {
+ public:
+  Writer(Bus& bus, const std::string& topic_name, const std::string& profile) : bus_(bus) {
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
+    writer_ = bus.publisher()->create_datawriter_with_profile(t, profile);
+    if (!writer_) {
+      throw std::runtime_error("cannot create DDS writer for " + topic_name + " with profile '" +
+                               profile + "' (is it in " + bus.profiles_file() + "?)");
+    }
+  }
+  ~Writer() { bus_.publisher()->delete_datawriter(writer_); }
+  // Blocks up to the profile's max_blocking_time when the reliable history is full; returns
+  // false then, and the caller retries: a batch is never dropped on the writer side.
+  bool write(T& sample) { return writer_->write(&sample); }
+  int matched() const {
+    fdds::PublicationMatchedStatus st;
+    writer_->get_publication_matched_status(st);
+    return st.current_count;
+  }
+  bool wait_for_acks(double seconds) {
+    return writer_->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(seconds)) ==
+           eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK;
+  }
+
+ private:
+  Bus& bus_;
+  fdds::DataWriter* writer_ = nullptr;
+};
+
+template <class T, class PubSubType>
+class Reader : public fdds::DataReaderListener {
+ public:
+  Reader(Bus& bus, const std::string& topic_name, const std::string& profile) : bus_(bus) {
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
+    reader_ = bus.subscriber()->create_datareader_with_profile(t, profile, this);
+    if (!reader_) {
+      throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" +
+                               profile + "' (is it in " + bus.profiles_file() + "?)");
+    }
+  }
+  ~Reader() override {
+    reader_->set_listener(nullptr);
+    bus_.subscriber()->delete_datareader(reader_);
+  }
+  // Takes the next valid sample, if any; never blocks.
+  bool take(T& out) {
+    fdds::SampleInfo info;
+    while (reader_->take_next_sample(&out, &info) == eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
+      if (info.valid_data) return true;
+    }
+    return false;
+  }
+  // Waits until data may be available or the timeout passes.
+  void wait(double seconds) {
+    std::unique_lock<std::mutex> lk(mu_);
+    cv_.wait_for(lk, std::chrono::duration<double>(seconds), [&] { return pending_; });
+    pending_ = false;
+  }
+  int matched() const {
+    fdds::SubscriptionMatchedStatus st;
+    reader_->get_subscription_matched_status(st);
+    return st.current_count;
+  }
+  void on_data_available(fdds::DataReader*) override {
+    std::lock_guard<std::mutex> lk(mu_);
+    pending_ = true;
+    cv_.notify_all();
+  }
+
+ private:
+  Bus& bus_;
+  fdds::DataReader* reader_ = nullptr;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool pending_ = false;
+};
+
+// PolicyWeights <-> PolicyParams. from_wire throws std::invalid_argument on inconsistent data.
+void to_wire(const PolicyParams& p, const std::string& experiment_id, farm::msg::PolicyWeights& w);
+PolicyParams from_wire(const farm::msg::PolicyWeights& w);
+
+std::string hostname();
+uint64_t random_session_id();
+
+}  // namespace farm::dds

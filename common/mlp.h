@@ -1,0 +1,78 @@
+// Policy network layout shared by the learner (LibTorch, training) and the workers (Eigen,
+// inference). The flat parameter order is the contract: for each layer, the weight matrix
+// [out x in] row-major (torch::nn::Linear's own layout), then its bias [out].
+#pragma once
+
+#include <Eigen/Dense>
+#include <cstdint>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace farm {
+
+enum class Activation : int32_t { kRelu = 0, kTanh = 1 };
+
+// How the network output turns into an action.
+enum class PolicyHead : int32_t {
+  // SAC: output [mean | log_std] (2 x act_dim); a = tanh(mean + std * eps), in [-1, 1].
+  kSquashedGaussian = 0,
+};
+
+struct MlpLayout {
+  std::vector<int> sizes;  // [input, hidden..., output]
+  Activation activation = Activation::kRelu;
+  size_t num_params() const;
+  std::string describe() const;  // e.g. "3-64-64-2 relu"
+};
+
+// Feed-forward network evaluated in Eigen on a batch of rows. Allocates only when the batch
+// grows, so a worker's hot loop does not allocate.
+class EigenMlp {
+ public:
+  using Matrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  EigenMlp() = default;
+  // Throws std::invalid_argument if params.size() != layout.num_params().
+  EigenMlp(const MlpLayout& layout, const std::vector<float>& params);
+  const MlpLayout& layout() const { return layout_; }
+  // in: [rows x sizes.front()], out: [rows x sizes.back()].
+  void forward(const float* in, int rows, float* out);
+
+ private:
+  MlpLayout layout_;
+  std::vector<Matrix> weights_;                              // [out x in]
+  std::vector<Eigen::Matrix<float, 1, Eigen::Dynamic>> biases_;
+  std::vector<Matrix> acts_;                                 // scratch per layer
+};
+
+// A policy as the workers run it: observation normalizer + network + head.
+struct PolicyParams {
+  uint64_t version = 0;
+  PolicyHead head = PolicyHead::kSquashedGaussian;
+  MlpLayout layout;
+  std::vector<float> obs_mean;  // empty: no normalization
+  std::vector<float> obs_std;
+  std::vector<float> params;
+  float log_std_min = -20.f;
+  float log_std_max = 2.f;
+};
+
+class Policy {
+ public:
+  Policy() = default;
+  explicit Policy(const PolicyParams& p);  // throws std::invalid_argument on inconsistent sizes
+  uint64_t version() const { return p_.version; }
+  int obs_dim() const;
+  int act_dim() const;
+  // obs: [rows x obs_dim]; actions: [rows x act_dim] in [-1, 1]; log_prob: [rows] (may be null).
+  // deterministic: the mode (tanh(mean)), no noise, log_prob of the mode is not computed.
+  void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions,
+           float* log_prob);
+
+ private:
+  PolicyParams p_;
+  EigenMlp net_;
+  std::vector<float> normed_, out_;
+};
+
+}  // namespace farm

@@ -1,0 +1,160 @@
+#include "ingest.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace farm {
+
+namespace {
+
+std::string all_finite(const std::vector<float>& v, const char* name) {
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (!std::isfinite(v[i])) return std::string("non-finite value in ") + name + " at index " + std::to_string(i);
+  }
+  return "";
+}
+
+std::string size_is(size_t got, size_t want, const char* name) {
+  if (got == want) return "";
+  return std::string(name) + " has " + std::to_string(got) + " values, expected " + std::to_string(want);
+}
+
+}  // namespace
+
+Ingest::Ingest(std::string experiment_id, int obs_dim, int act_dim)
+    : experiment_id_(std::move(experiment_id)), obs_dim_(obs_dim), act_dim_(act_dim) {}
+
+std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
+  if (b.experiment_id() != experiment_id_)
+    return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
+  if (b.worker_id().empty()) return "empty worker id";
+  if (static_cast<int>(b.obs_dim()) != obs_dim_ || static_cast<int>(b.act_dim()) != act_dim_)
+    return "dims obs " + std::to_string(b.obs_dim()) + " act " + std::to_string(b.act_dim()) +
+           ", expected obs " + std::to_string(obs_dim_) + " act " + std::to_string(act_dim_);
+  const size_t T = b.num_steps(), N = b.num_envs();
+  if (T == 0 && !b.end_of_stream()) return "empty batch (0 steps) without end_of_stream";
+  if (T > 0 && N == 0) return "0 environments";
+  if (T * N > (size_t(1) << 28)) return "implausible batch size " + std::to_string(T) + "x" + std::to_string(N);
+  const size_t TN = T * N, od = obs_dim_, ad = act_dim_;
+  for (auto r : {size_is(b.observations().size(), TN * od, "observations"),
+                 size_is(b.actions().size(), TN * ad, "actions"),
+                 size_is(b.rewards().size(), TN, "rewards"),
+                 size_is(b.terminated().size(), TN, "terminated"),
+                 size_is(b.truncated().size(), TN, "truncated"),
+                 size_is(b.log_probs().size(), TN, "log_probs"),
+                 size_is(b.next_observations().size(), T > 0 ? N * od : 0, "next_observations"),
+                 size_is(b.final_observations().size(), b.final_index().size() * od, "final_observations")}) {
+    if (!r.empty()) return r;
+  }
+  for (auto r : {all_finite(b.observations(), "observations"), all_finite(b.actions(), "actions"),
+                 all_finite(b.rewards(), "rewards"), all_finite(b.log_probs(), "log_probs"),
+                 all_finite(b.next_observations(), "next_observations"),
+                 all_finite(b.final_observations(), "final_observations")}) {
+    if (!r.empty()) return r;
+  }
+  for (float a : b.actions()) {
+    if (a < -1.0001f || a > 1.0001f) return "action " + std::to_string(a) + " outside [-1, 1]";
+  }
+  // Every step that ended an episode carries its true final observation, and only those.
+  size_t k = 0;
+  for (size_t i = 0; i < TN; ++i) {
+    uint8_t te = b.terminated()[i], tr = b.truncated()[i];
+    if (te > 1 || tr > 1) return "flag value other than 0/1 at step index " + std::to_string(i);
+    bool done = te || tr;
+    bool listed = k < b.final_index().size() && b.final_index()[k] == i;
+    if (done != listed) return "final_index does not match the done flags at step index " + std::to_string(i);
+    if (listed) ++k;
+  }
+  if (k != b.final_index().size()) return "final_index has entries out of order or out of range";
+  for (const auto& e : b.episodes()) {
+    if (e.env() >= N) return "episode summary for env " + std::to_string(e.env()) + " of " + std::to_string(N);
+    if (!std::isfinite(e.episode_return())) return "non-finite episode return";
+  }
+  return "";
+}
+
+std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
+                           Transitions& out, std::vector<FinishedEpisode>& episodes) {
+  if (b.experiment_id() != experiment_id_) {
+    // Another experiment on the same domain: not ours to account, but never silently taken.
+    ++counters_.foreign;
+    ++counters_.invalid;
+    return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
+  }
+  WorkerAccount& w = workers_[{b.worker_id(), b.worker_session()}];
+  if (w.worker_id.empty()) {
+    w.worker_id = b.worker_id();
+    w.session = b.worker_session();
+  }
+  w.last_seen = now;
+  const uint64_t seq = b.sequence_number();
+
+  // Sequence accounting happens before the content check: an invalid batch still used its number.
+  if (seq < w.next_sequence) {
+    auto it = std::find(w.missing.begin(), w.missing.end(), seq);
+    if (it == w.missing.end()) {
+      ++w.duplicates;
+      ++counters_.duplicate;
+      return "duplicate sequence number " + std::to_string(seq) + " from " + b.worker_id();
+    }
+    w.missing.erase(it);  // late, not lost after all
+    --w.lost;
+    --counters_.lost;
+  } else {
+    for (uint64_t s = w.next_sequence; s < seq; ++s) {
+      if (w.missing.size() < 4096) w.missing.push_back(s);
+    }
+    w.lost += seq - w.next_sequence;
+    counters_.lost += seq - w.next_sequence;
+    w.next_sequence = seq + 1;
+  }
+  if (b.end_of_stream()) w.ended = true;
+
+  std::string why = check(b);
+  if (!why.empty()) {
+    ++w.invalid;
+    ++counters_.invalid;
+    return why;
+  }
+  ++w.received;
+  ++counters_.ok;
+  counters_.lag_sum += current_version >= b.policy_version() ? double(current_version - b.policy_version()) : 0.0;
+
+  const size_t T = b.num_steps(), N = b.num_envs(), od = obs_dim_, ad = act_dim_;
+  const size_t TN = T * N;
+  w.env_steps += TN;
+  counters_.env_steps += TN;
+  out.obs.insert(out.obs.end(), b.observations().begin(), b.observations().end());
+  out.actions.insert(out.actions.end(), b.actions().begin(), b.actions().end());
+  out.rewards.insert(out.rewards.end(), b.rewards().begin(), b.rewards().end());
+  out.terminated.insert(out.terminated.end(), b.terminated().begin(), b.terminated().end());
+  size_t base = out.next_obs.size();
+  out.next_obs.resize(base + TN * od);
+  float* nx = out.next_obs.data() + base;
+  size_t k = 0;
+  for (size_t i = 0; i < TN; ++i) {
+    const float* src;
+    if (k < b.final_index().size() && b.final_index()[k] == i) {
+      src = b.final_observations().data() + k * od;  // the episode ended: its true last observation
+      ++k;
+    } else if (i + N < TN) {
+      src = b.observations().data() + (i + N) * od;
+    } else {
+      src = b.next_observations().data() + (i + N - TN) * od;
+    }
+    std::copy(src, src + od, nx + i * od);
+  }
+  out.n += static_cast<int64_t>(TN);
+  (void)ad;
+  for (const auto& e : b.episodes()) {
+    episodes.push_back({b.worker_id(), e.episode_return(), e.length(), e.metrics()});
+  }
+  return "";
+}
+
+void Ingest::restore(const std::map<Key, WorkerAccount>& workers, const IngestCounters& counters) {
+  workers_ = workers;
+  counters_ = counters;
+}
+
+}  // namespace farm

@@ -1,0 +1,76 @@
+// Ingest: the learner's door. Every TransitionBatch is checked here (experiment, shapes, finite
+// numbers, flags) and every per-worker sequence number is accounted (lost, duplicate, invalid).
+// A bad batch is counted with its reason and never reaches a buffer.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "farm.h"
+
+namespace farm {
+
+// Transitions flattened for a replay buffer: row i is (obs, action, reward, terminated, next_obs).
+struct Transitions {
+  int64_t n = 0;
+  std::vector<float> obs, actions, rewards, next_obs;
+  std::vector<uint8_t> terminated;
+  void clear() { n = 0; obs.clear(); actions.clear(); rewards.clear(); next_obs.clear(); terminated.clear(); }
+};
+
+struct FinishedEpisode {
+  std::string worker_id;
+  float episode_return = 0.f;
+  uint32_t length = 0;
+  std::vector<float> metrics;
+};
+
+struct WorkerAccount {
+  std::string worker_id;
+  uint64_t session = 0;
+  uint64_t next_sequence = 0;   // the next sequence number expected
+  uint64_t received = 0;        // accepted batches
+  uint64_t lost = 0;            // sequence numbers never seen (gaps)
+  uint64_t duplicates = 0;
+  uint64_t invalid = 0;
+  uint64_t env_steps = 0;
+  bool ended = false;           // end_of_stream seen
+  double last_seen = 0.0;       // seconds on the learner's clock
+  std::vector<uint64_t> missing;  // gap sequence numbers that may still arrive late
+};
+
+struct IngestCounters {
+  uint64_t ok = 0, lost = 0, duplicate = 0, invalid = 0, foreign = 0;
+  uint64_t env_steps = 0;
+  double lag_sum = 0.0;  // sum over accepted batches of (current version - batch version)
+};
+
+class Ingest {
+ public:
+  Ingest(std::string experiment_id, int obs_dim, int act_dim);
+
+  // Checks one batch. On success appends its transitions to `out`, its finished episodes to
+  // `episodes`, and returns an empty string; otherwise returns why it was refused.
+  std::string accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
+                     Transitions& out, std::vector<FinishedEpisode>& episodes);
+
+  const IngestCounters& counters() const { return counters_; }
+  using Key = std::pair<std::string, uint64_t>;  // (worker id, session)
+  const std::map<Key, WorkerAccount>& workers() const { return workers_; }
+  // Restores accounting from a checkpoint, so batches sent while the learner was away count as lost.
+  void restore(const std::map<Key, WorkerAccount>& workers, const IngestCounters& counters);
+
+  // The shape/number check alone, exposed for tests and tools; "" when valid.
+  std::string check(const farm::msg::TransitionBatch& b) const;
+
+ private:
+  std::string experiment_id_;
+  int obs_dim_, act_dim_;
+  IngestCounters counters_;
+  std::map<Key, WorkerAccount> workers_;
+};
+
+}  // namespace farm

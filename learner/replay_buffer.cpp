@@ -1,0 +1,184 @@
+#include "replay_buffer.h"
+
+#include <cassert>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <stdexcept>
+
+namespace farm {
+
+namespace {
+
+constexpr char kMagic[8] = {'F', 'A', 'R', 'M', 'R', 'B', '0', '1'};
+
+struct FileHeader {
+  char magic[8];
+  int32_t obs_dim, act_dim;
+  int64_t capacity, size, next, total_added;
+};
+
+std::string describe_dims(int64_t capacity, int obs_dim, int act_dim) {
+  return "capacity " + std::to_string(capacity) + ", obs_dim " + std::to_string(obs_dim) +
+         ", act_dim " + std::to_string(act_dim);
+}
+
+}  // namespace
+
+ReplayBuffer::ReplayBuffer(int64_t capacity, int obs_dim, int act_dim)
+    : capacity_(capacity), obs_dim_(obs_dim), act_dim_(act_dim) {
+  if (capacity <= 0 || obs_dim <= 0 || act_dim <= 0)
+    throw std::invalid_argument("ReplayBuffer: expected positive sizes, got " +
+                                describe_dims(capacity, obs_dim, act_dim));
+  const auto f32 = torch::TensorOptions().dtype(torch::kFloat32);
+  obs_ = torch::empty({capacity, obs_dim}, f32);
+  actions_ = torch::empty({capacity, act_dim}, f32);
+  rewards_ = torch::empty({capacity}, f32);
+  terminated_ = torch::empty({capacity}, f32);
+  next_obs_ = torch::empty({capacity, obs_dim}, f32);
+  obs_p_ = obs_.data_ptr<float>();
+  actions_p_ = actions_.data_ptr<float>();
+  rewards_p_ = rewards_.data_ptr<float>();
+  terminated_p_ = terminated_.data_ptr<float>();
+  next_obs_p_ = next_obs_.data_ptr<float>();
+}
+
+void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs,
+                             const float* actions, const float* rewards,
+                             const uint8_t* terminated, const float* next_obs) {
+  assert(dst + n <= capacity_);
+  std::memcpy(obs_p_ + dst * obs_dim_, obs + src * obs_dim_, sizeof(float) * n * obs_dim_);
+  std::memcpy(actions_p_ + dst * act_dim_, actions + src * act_dim_, sizeof(float) * n * act_dim_);
+  std::memcpy(rewards_p_ + dst, rewards + src, sizeof(float) * n);
+  for (int64_t i = 0; i < n; ++i) terminated_p_[dst + i] = terminated[src + i] ? 1.f : 0.f;
+  std::memcpy(next_obs_p_ + dst * obs_dim_, next_obs + src * obs_dim_,
+              sizeof(float) * n * obs_dim_);
+}
+
+void ReplayBuffer::add(const float* obs, const float* action, float reward, bool terminated,
+                       const float* next_obs) {
+  const uint8_t t = terminated ? 1 : 0;
+  copy_rows(next_, 0, 1, obs, action, &reward, &t, next_obs);
+  next_ = (next_ + 1) % capacity_;
+  if (size_ < capacity_) ++size_;
+  ++total_added_;
+}
+
+void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
+                         const uint8_t* terminated, const float* next_obs) {
+  if (n <= 0) return;
+  total_added_ += n;
+  // Rows that would be overwritten within this same call are never copied.
+  int64_t src = 0;
+  if (n > capacity_) {
+    src = n - capacity_;
+    next_ = (next_ + src) % capacity_;
+    n = capacity_;
+  }
+  const int64_t first = std::min(n, capacity_ - next_);
+  copy_rows(next_, src, first, obs, actions, rewards, terminated, next_obs);
+  if (n > first) copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs);
+  next_ = (next_ + n) % capacity_;
+  size_ = std::min(capacity_, size_ + n);
+}
+
+SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {
+  if (size_ == 0) throw std::logic_error("ReplayBuffer::sample: the buffer is empty");
+  const auto f32 = torch::TensorOptions().dtype(torch::kFloat32);
+  SampledBatch b;
+  b.obs = torch::empty({batch_size, obs_dim_}, f32);
+  b.actions = torch::empty({batch_size, act_dim_}, f32);
+  b.rewards = torch::empty({batch_size}, f32);
+  b.terminated = torch::empty({batch_size}, f32);
+  b.next_obs = torch::empty({batch_size, obs_dim_}, f32);
+  float* obs = b.obs.data_ptr<float>();
+  float* act = b.actions.data_ptr<float>();
+  float* rew = b.rewards.data_ptr<float>();
+  float* term = b.terminated.data_ptr<float>();
+  float* next_obs = b.next_obs.data_ptr<float>();
+  std::uniform_int_distribution<int64_t> pick(0, size_ - 1);
+  const size_t obs_bytes = sizeof(float) * obs_dim_, act_bytes = sizeof(float) * act_dim_;
+  for (int i = 0; i < batch_size; ++i) {
+    const int64_t j = pick(rng);
+    std::memcpy(obs + int64_t(i) * obs_dim_, obs_p_ + j * obs_dim_, obs_bytes);
+    std::memcpy(act + int64_t(i) * act_dim_, actions_p_ + j * act_dim_, act_bytes);
+    rew[i] = rewards_p_[j];
+    term[i] = terminated_p_[j];
+    std::memcpy(next_obs + int64_t(i) * obs_dim_, next_obs_p_ + j * obs_dim_, obs_bytes);
+  }
+  return b;
+}
+
+void ReplayBuffer::save(const std::string& file) const {
+  const std::string tmp = file + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) throw std::runtime_error("replay buffer " + tmp + ": cannot open for writing");
+    FileHeader h{};
+    std::memcpy(h.magic, kMagic, sizeof kMagic);
+    h.obs_dim = obs_dim_;
+    h.act_dim = act_dim_;
+    h.capacity = capacity_;
+    h.size = size_;
+    h.next = next_;
+    h.total_added = total_added_;
+    out.write(reinterpret_cast<const char*>(&h), sizeof h);
+    // Until the ring has wrapped, rows [0, size) are exactly the stored ones; after, size == capacity.
+    auto put = [&](const float* p, int64_t cols) {
+      out.write(reinterpret_cast<const char*>(p), std::streamsize(sizeof(float) * size_ * cols));
+    };
+    put(obs_p_, obs_dim_);
+    put(actions_p_, act_dim_);
+    put(rewards_p_, 1);
+    put(terminated_p_, 1);
+    put(next_obs_p_, obs_dim_);
+    out.flush();
+    if (!out) throw std::runtime_error("replay buffer " + tmp + ": write failed");
+  }
+  if (std::rename(tmp.c_str(), file.c_str()) != 0)
+    throw std::runtime_error("replay buffer " + file + ": cannot rename " + tmp + " to it");
+}
+
+void ReplayBuffer::load(const std::string& file) {
+  std::ifstream in(file, std::ios::binary | std::ios::ate);
+  if (!in) throw std::runtime_error("replay buffer " + file + ": cannot open for reading");
+  const int64_t file_bytes = in.tellg();
+  in.seekg(0);
+  FileHeader h{};
+  if (file_bytes < int64_t(sizeof h) || !in.read(reinterpret_cast<char*>(&h), sizeof h))
+    throw std::runtime_error("replay buffer " + file + ": truncated header");
+  if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0)
+    throw std::runtime_error("replay buffer " + file + ": not a replay buffer file (bad magic)");
+  if (h.obs_dim != obs_dim_ || h.act_dim != act_dim_ || h.capacity != capacity_)
+    throw std::runtime_error("replay buffer " + file + ": file has " +
+                             describe_dims(h.capacity, h.obs_dim, h.act_dim) + ", expected " +
+                             describe_dims(capacity_, obs_dim_, act_dim_));
+  if (h.size < 0 || h.size > h.capacity || h.next < 0 || h.next >= h.capacity ||
+      h.total_added < h.size || (h.size < h.capacity && h.next != h.size))
+    throw std::runtime_error("replay buffer " + file + ": inconsistent header (size " +
+                             std::to_string(h.size) + ", next " + std::to_string(h.next) +
+                             ", total_added " + std::to_string(h.total_added) + ")");
+  const int64_t expected = int64_t(sizeof h) + int64_t(sizeof(float)) * h.size *
+                                                   (2 * int64_t(obs_dim_) + act_dim_ + 2);
+  if (file_bytes != expected)
+    throw std::runtime_error("replay buffer " + file + ": " + std::to_string(file_bytes) +
+                             " bytes, expected " + std::to_string(expected) + " for " +
+                             std::to_string(h.size) + " rows");
+  auto get = [&](float* p, int64_t cols) {
+    in.read(reinterpret_cast<char*>(p), std::streamsize(sizeof(float) * h.size * cols));
+  };
+  get(obs_p_, obs_dim_);
+  get(actions_p_, act_dim_);
+  get(rewards_p_, 1);
+  get(terminated_p_, 1);
+  get(next_obs_p_, obs_dim_);
+  if (!in) {
+    size_ = next_ = total_added_ = 0;
+    throw std::runtime_error("replay buffer " + file + ": read failed; buffer cleared");
+  }
+  size_ = h.size;
+  next_ = h.next;
+  total_added_ = h.total_added;
+}
+
+}  // namespace farm

@@ -1,0 +1,58 @@
+// The task interface every robot implements. A Task is what does not change while simulating
+// (the MuJoCo model, constants from the config); a TaskState is where one episode is (mjData,
+// RNG, counters). A worker holds one Task and N TaskStates.
+#pragma once
+
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "farm_config.pb.h"
+
+struct mjModel_;
+struct mjData_;
+
+namespace farm::robots {
+
+struct TaskSpec {
+  std::string name;
+  int obs_dim = 0;
+  int act_dim = 0;               // actions are in [-1, 1]; the task scales them
+  int max_episode_steps = 0;     // truncation
+  std::vector<std::string> metric_names;  // per-episode metrics, reported with every episode
+};
+
+struct TaskState {
+  virtual ~TaskState();
+  mjData_* data = nullptr;       // owned; freed by the destructor
+  std::mt19937_64 rng;
+  int step = 0;                  // steps in the current episode
+  double episode_return = 0.0;
+};
+
+struct StepResult {
+  float reward = 0.f;
+  bool terminated = false;       // a true end (fall, goal): do not bootstrap
+  bool truncated = false;        // time limit: bootstrap
+};
+
+class Task {
+ public:
+  virtual ~Task();
+  virtual const TaskSpec& spec() const = 0;
+  virtual const mjModel_* model() const = 0;
+  virtual std::unique_ptr<TaskState> make_state() const = 0;
+  // Starts an episode; writes obs_dim floats.
+  virtual void reset(TaskState& s, uint64_t seed, float* obs) const = 0;
+  // One agent step (may run several physics steps); writes the next observation.
+  virtual StepResult step(TaskState& s, const float* action, float* obs) const = 0;
+  // Writes metric_names.size() floats about the episode that just ended.
+  virtual void episode_metrics(const TaskState& s, float* out) const;
+};
+
+// Builds the task named by cfg.name(); throws std::invalid_argument naming the known tasks.
+std::unique_ptr<Task> make_task(const config::TaskConfig& cfg);
+std::vector<std::string> task_names();
+
+}  // namespace farm::robots

@@ -1,0 +1,94 @@
+// Config errors must name the file, the line and the field, and defaults must be the schema's.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+
+#include "config.h"
+
+using farm::ConfigError;
+using farm::parse_config_text;
+
+namespace {
+
+std::string error_of(const std::string& text) {
+  try {
+    parse_config_text(text, "exp.txtpb");
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(Config, DefaultsComeFromTheSchema) {
+  auto c = parse_config_text("experiment_id: \"a\"\n", "exp.txtpb");
+  EXPECT_EQ(c.sac().batch_size(), 256);
+  EXPECT_DOUBLE_EQ(c.sac().gamma(), 0.99);
+  EXPECT_DOUBLE_EQ(c.sac().tau(), 0.005);
+  EXPECT_TRUE(std::isnan(c.sac().target_entropy()));
+  EXPECT_DOUBLE_EQ(c.task().pendulum().max_torque(), 2.0);
+  EXPECT_EQ(c.task().pendulum().max_episode_steps(), 200);
+  EXPECT_EQ(farm::sac_hidden(c.sac()), (std::vector<int>{256, 256}));
+  EXPECT_EQ(c.task().name(), "pendulum");
+}
+
+TEST(Config, MisspelledFieldNamesFileLineAndField) {
+  std::string e = error_of("experiment_id: \"a\"\nsac {\n  batch_size: 64\n  lerning_rate: 0.1\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
+  EXPECT_NE(e.find("lerning_rate"), std::string::npos) << e;
+}
+
+TEST(Config, WrongTypeNamesTheLine) {
+  std::string e = error_of("experiment_id: \"a\"\nseed: \"many\"\n");
+  EXPECT_NE(e.find("exp.txtpb:2:"), std::string::npos) << e;
+}
+
+TEST(Config, OutOfRangeValueNamesFieldLineAndExpectation) {
+  std::string e = error_of("experiment_id: \"a\"\n\nsac {\n  gamma: 0.9\n  batch_size: -3\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:5:"), std::string::npos) << e;
+  EXPECT_NE(e.find("sac.batch_size"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected > 0, got -3"), std::string::npos) << e;
+}
+
+TEST(Config, NestedTaskFieldIsLocated) {
+  std::string e = error_of("experiment_id: \"a\"\ntask {\n  pendulum {\n    dt: 0\n  }\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
+  EXPECT_NE(e.find("task.pendulum.dt"), std::string::npos) << e;
+}
+
+TEST(Config, MissingExperimentIdIsRequired) {
+  std::string e = error_of("seed: 3\n");
+  EXPECT_NE(e.find("experiment_id"), std::string::npos) << e;
+  EXPECT_NE(e.find("required"), std::string::npos) << e;
+}
+
+TEST(Config, UnknownAlgorithmListsTheKnownOnes) {
+  std::string e = error_of("experiment_id: \"a\"\nalgorithm: \"sacc\"\n");
+  EXPECT_NE(e.find("exp.txtpb:2:"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected one of: sac"), std::string::npos) << e;
+}
+
+TEST(Config, MissingFileIsNamed) {
+  try {
+    farm::load_config_file("/nonexistent/dir/exp.txtpb");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent/dir/exp.txtpb"), std::string::npos);
+  }
+}
+
+TEST(Config, ShippedConfigsLoad) {
+  for (const char* f : {"deploy/configs/pendulum_sac.txtpb"}) {
+    std::string path = std::string(FARM_SOURCE_DIR) + "/" + f;
+    EXPECT_NO_THROW(farm::load_config_file(path)) << path;
+  }
+}
+
+TEST(Config, TextRoundTrip) {
+  auto c = parse_config_text("experiment_id: \"rt\"\nsac { hidden: 64 hidden: 64 }\n", "x");
+  auto d = parse_config_text(farm::config_to_text(c), "y");
+  EXPECT_EQ(d.experiment_id(), "rt");
+  EXPECT_EQ(farm::sac_hidden(d.sac()), (std::vector<int>{64, 64}));
+}
