@@ -43,6 +43,9 @@ class EigenMlp {
   std::vector<Matrix> weights_;                              // [out x in]
   std::vector<Eigen::Matrix<float, 1, Eigen::Dynamic>> biases_;
   std::vector<Matrix> acts_;                                 // scratch per layer
+  // [in x out] copies for layers at least as wide out as in, evaluated as sums of columns
+  // (faster there than row dot products); empty for the other layers.
+  std::vector<Matrix> weights_t_;
 };
 
 // A policy as the workers run it: observation normalizer + network + head.
@@ -68,8 +71,14 @@ class Policy {
   // deterministic: the mode (tanh(mean)), no noise, log_prob of the mode is not computed.
   void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions,
            float* log_prob);
+  // As act(), but row r draws its noise from row_rngs[r] only, so a row's action does not
+  // depend on which other rows share the call (rollouts reproducible across thread splits).
+  void act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic,
+                   float* actions, float* log_prob);
 
  private:
+  void act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride,
+                bool deterministic, float* actions, float* log_prob);
   PolicyParams p_;
   EigenMlp net_;
   std::vector<float> normed_, out_;

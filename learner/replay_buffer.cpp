@@ -1,5 +1,6 @@
 #include "replay_buffer.h"
 
+#include <algorithm>
 #include <cassert>
 #include <cstdio>
 #include <cstring>
@@ -123,7 +124,8 @@ void ReplayBuffer::save(const std::string& file) const {
     h.next = next_;
     h.total_added = total_added_;
     out.write(reinterpret_cast<const char*>(&h), sizeof h);
-    // Until the ring has wrapped, rows [0, size) are exactly the stored ones; after, size == capacity.
+    // Until the ring has wrapped, rows [0, size) are exactly the stored ones; after it, size is
+    // the capacity.
     auto put = [&](const float* p, int64_t cols) {
       out.write(reinterpret_cast<const char*>(p), std::streamsize(sizeof(float) * size_ * cols));
     };

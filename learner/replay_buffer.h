@@ -18,7 +18,8 @@ struct SampledBatch {
 
 class ReplayBuffer {
  public:
-  // Storage is reserved up front but not touched, so a large capacity costs memory only as it fills.
+  // Storage is reserved up front but not touched, so a large capacity costs memory only as it
+  // fills.
   ReplayBuffer(int64_t capacity, int obs_dim, int act_dim);
 
   void add(const float* obs, const float* action, float reward, bool terminated,

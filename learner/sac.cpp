@@ -1,1 +1,410 @@
-// placeholder: being written
+#include "sac.h"
+
+#include <dlfcn.h>
+#include <malloc.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+#include "config.h"
+
+namespace farm {
+
+namespace {
+
+// Matches torch::nn::Linear's default init (kaiming_uniform with a = sqrt(5) reduces to this), so
+// the fused critics start from the same distribution as sb3's nn.Linear critics.
+void linear_init_(torch::Tensor t, int64_t fan_in) {
+  const double bound = 1.0 / std::sqrt(double(fan_in));
+  t.uniform_(-bound, bound);
+}
+
+// Plain MLP of torch::nn::Linear layers, so that weight.flatten() then bias is the flat layout the
+// workers' EigenMlp reads.
+struct ActorImpl : torch::nn::Module {
+  explicit ActorImpl(const std::vector<int64_t>& sizes) {
+    for (size_t i = 0; i + 1 < sizes.size(); ++i)
+      layers.push_back(register_module("l" + std::to_string(i),
+                                       torch::nn::Linear(sizes[i], sizes[i + 1])));
+  }
+  torch::Tensor forward(torch::Tensor x) {
+    for (size_t i = 0; i < layers.size(); ++i) {
+      x = layers[i]->forward(x);
+      if (i + 1 < layers.size()) x.relu_();
+    }
+    return x;
+  }
+  std::vector<torch::nn::Linear> layers;
+};
+TORCH_MODULE(Actor);
+
+// Both critics in one module, evaluated together as batched matmuls over a leading critic
+// dimension of 2: half the ops of two separate MLPs, which is what bounds small-network updates on
+// CPU. Weights are stored [critic, in, out] so no transpose is needed per call.
+struct TwinCriticImpl : torch::nn::Module {
+  explicit TwinCriticImpl(const std::vector<int64_t>& sizes) {
+    torch::NoGradGuard no_grad;
+    for (size_t i = 0; i + 1 < sizes.size(); ++i) {
+      const std::string k = std::to_string(i);
+      w.push_back(register_parameter("w" + k, torch::empty({2, sizes[i], sizes[i + 1]})));
+      b.push_back(register_parameter("b" + k, torch::empty({2, 1, sizes[i + 1]})));
+      linear_init_(w.back(), sizes[i]);
+      linear_init_(b.back(), sizes[i]);
+    }
+  }
+  // obs [B, obs], act [B, act] -> [2, B]: row 0 is Q1, row 1 is Q2.
+  torch::Tensor forward(const torch::Tensor& obs, const torch::Tensor& act) {
+    const auto sa = torch::cat({obs, act}, 1);
+    torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
+    for (size_t i = 0; i < w.size(); ++i) {
+      x = torch::baddbmm(b[i], x, w[i]);
+      if (i + 1 < w.size()) x.relu_();
+    }
+    return x.squeeze(-1);
+  }
+  std::vector<torch::Tensor> w, b;
+};
+TORCH_MODULE(TwinCritic);
+
+// One network's parameters made views of a single contiguous buffer. Adam and the polyak update
+// then run a handful of ops on one tensor instead of a handful per parameter tensor: on small
+// networks the per-op overhead, not the arithmetic, is what an update costs.
+struct FlatParams {
+  explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
+    int64_t n = 0;
+    for (const auto& p : params) n += p.numel();
+    flat = torch::empty({n});
+    torch::NoGradGuard no_grad;
+    int64_t offset = 0;
+    for (auto& p : params) {
+      const auto view = flat.narrow(0, offset, p.numel()).view(p.sizes());
+      view.copy_(p);
+      p.set_(view);
+      offset += p.numel();
+    }
+  }
+  std::vector<torch::Tensor> params;  // the module's own parameter tensors, in module order
+  torch::Tensor flat;
+};
+
+std::string shape_str(c10::IntArrayRef s) {
+  std::ostringstream o;
+  o << s;
+  return o.str();
+}
+
+std::string sizes_str(const std::vector<int64_t>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + std::to_string(v[i]);
+  return s;
+}
+
+// Parameters are stored by name so a file from a network of other sizes is caught by name and
+// shape instead of being silently reinterpreted.
+void write_params(torch::serialize::OutputArchive& root, const std::string& key,
+                  const torch::nn::Module& m) {
+  torch::serialize::OutputArchive a;
+  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach());
+  root.write(key, a);
+}
+
+// Reads and checks every tensor before anything is changed; returns them in named_parameters order.
+std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
+                                       const torch::nn::Module& m, const std::string& file) {
+  torch::serialize::InputArchive a;
+  if (!root.try_read(key, a))
+    throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "'");
+  std::vector<torch::Tensor> out;
+  for (const auto& p : m.named_parameters()) {
+    torch::Tensor t;
+    if (!a.try_read(p.key(), t))
+      throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "." + p.key() + "'");
+    if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
+      throw std::runtime_error("sac checkpoint " + file + ": '" + key + "." + p.key() +
+                               "' has shape " + shape_str(t.sizes()) + ", expected " +
+                               shape_str(p.value().sizes()));
+    out.push_back(t);
+  }
+  return out;
+}
+
+void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
+  torch::NoGradGuard no_grad;
+  for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
+}
+
+// autograd::grad computes only what these parameters need (the actor loss runs through the
+// critics without producing critic weight gradients), and the result replaces the previous .grad
+// instead of accumulating into it: zero_grad(set_to_none) without a pass of its own.
+void step(torch::optim::Optimizer& opt, FlatParams& net, const torch::Tensor& loss) {
+  const auto grads = torch::autograd::grad({loss}, net.params);
+  std::vector<torch::Tensor> flat;
+  flat.reserve(grads.size());
+  for (const auto& g : grads) flat.push_back(g.view(-1));
+  net.flat.mutable_grad() = torch::cat(flat);
+  opt.step();
+}
+
+void step(torch::optim::Optimizer& opt, const torch::Tensor& param, const torch::Tensor& loss) {
+  param.mutable_grad() = torch::autograd::grad({loss}, {param})[0];
+  opt.step();
+}
+
+}  // namespace
+
+torch::Tensor sac_critic_target(const torch::Tensor& reward, const torch::Tensor& terminated,
+                                const torch::Tensor& next_q1, const torch::Tensor& next_q2,
+                                const torch::Tensor& next_log_prob, double alpha, double gamma) {
+  auto soft_v = torch::min(next_q1, next_q2).sub_(next_log_prob, alpha);
+  return torch::addcmul(reward, soft_v, 1.0 - terminated, gamma);
+}
+
+torch::Tensor sac_temperature_loss(const torch::Tensor& log_alpha, const torch::Tensor& log_prob,
+                                   double target_entropy) {
+  return -(log_alpha * (log_prob + target_entropy).detach()).mean();
+}
+
+torch::Tensor squashed_gaussian_log_prob(const torch::Tensor& mean, const torch::Tensor& log_std,
+                                         const torch::Tensor& pre_tanh) {
+  static const double kHalfLog2Pi = 0.5 * std::log(2.0 * M_PI);
+  const auto z = (pre_tanh - mean) * torch::exp(-log_std);
+  const auto gaussian = -0.5 * z.square() - log_std - kHalfLog2Pi;
+  const auto squash = torch::log(1.0 - torch::tanh(pre_tanh).square() + 1e-6);
+  return (gaussian - squash).sum(-1);
+}
+
+void configure_compute(int threads) {
+  torch::set_num_threads(threads);
+  // Looked up at run time: torch may be linked against a BLAS without this entry point.
+  using SetThreads = void (*)(int);
+  if (auto f = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads")))
+    f(threads);
+#ifdef __GLIBC__
+  // Fixed thresholds (which also turn off glibc's adaptive ones): tensors below 64 MiB come from
+  // the heap, and up to 256 MiB of free heap is kept rather than trimmed.
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
+#endif
+}
+
+struct Sac::Impl {
+  Impl(const config::SacConfig& c, int obs, int act)
+      : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
+        target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
+        actor(layer_sizes(obs, 2 * act)), critic(layer_sizes(obs + act, 1)),
+        critic_target(layer_sizes(obs + act, 1)), actor_p(*actor), critic_p(*critic),
+        target_p(*critic_target) {
+    {
+      torch::NoGradGuard no_grad;
+      target_p.flat.copy_(critic_p.flat);
+      for (auto& t : target_p.params) t.requires_grad_(false);
+    }
+    log_alpha = torch::full({1}, std::log(cfg.initial_alpha()), torch::requires_grad());
+    // Each optimizer owns one flat buffer; its .grad is the concatenated parameter gradients.
+    actor_opt = std::make_unique<torch::optim::Adam>(
+        std::vector<torch::Tensor>{actor_p.flat}, torch::optim::AdamOptions(cfg.actor_lr()));
+    critic_opt = std::make_unique<torch::optim::Adam>(
+        std::vector<torch::Tensor>{critic_p.flat}, torch::optim::AdamOptions(cfg.critic_lr()));
+    alpha_opt = std::make_unique<torch::optim::Adam>(
+        std::vector<torch::Tensor>{log_alpha}, torch::optim::AdamOptions(cfg.alpha_lr()));
+  }
+
+  std::vector<int64_t> layer_sizes(int in, int out) const {
+    std::vector<int64_t> s{in};
+    s.insert(s.end(), hidden.begin(), hidden.end());
+    s.push_back(out);
+    return s;
+  }
+
+  // Reparameterized sample: returns (tanh action, log_prob [B]).
+  std::pair<torch::Tensor, torch::Tensor> sample(const torch::Tensor& obs) {
+    const auto out = actor->forward(obs);
+    const auto mean = out.narrow(1, 0, act_dim);
+    const auto log_std =
+        out.narrow(1, act_dim, act_dim).clamp(cfg.log_std_min(), cfg.log_std_max());
+    const auto pre_tanh = torch::addcmul(mean, torch::exp(log_std), torch::randn_like(mean));
+    return {torch::tanh(pre_tanh), squashed_gaussian_log_prob(mean, log_std, pre_tanh)};
+  }
+
+  config::SacConfig cfg;
+  int obs_dim, act_dim;
+  std::vector<int> hidden;
+  double target_entropy;
+  Actor actor;
+  TwinCritic critic, critic_target;
+  FlatParams actor_p, critic_p, target_p;
+  torch::Tensor log_alpha;
+  std::unique_ptr<torch::optim::Adam> actor_opt, critic_opt, alpha_opt;
+  int64_t updates = 0;
+};
+
+// Construction order matters: the seed must be set before the networks are initialized.
+static const config::SacConfig& seeded(const config::SacConfig& cfg, uint64_t seed) {
+  torch::manual_seed(seed);
+  return cfg;
+}
+
+Sac::Sac(const config::SacConfig& cfg, int obs_dim, int act_dim, uint64_t seed)
+    : impl_(std::make_unique<Impl>(seeded(cfg, seed), obs_dim, act_dim)) {}
+Sac::~Sac() = default;
+Sac::Sac(Sac&&) noexcept = default;
+Sac& Sac::operator=(Sac&&) noexcept = default;
+
+SacStats Sac::update(const SampledBatch& batch) {
+  Impl& s = *impl_;
+  SacStats st;
+  auto [pi_action, log_prob] = s.sample(batch.obs);
+
+  // sb3 order: the temperature used by both losses is the one before this update's alpha step.
+  const double alpha = std::exp(s.log_alpha.item<double>());
+  const auto alpha_loss = sac_temperature_loss(s.log_alpha, log_prob, s.target_entropy);
+  step(*s.alpha_opt, s.log_alpha, alpha_loss);
+
+  torch::Tensor target;
+  {
+    torch::NoGradGuard no_grad;
+    auto [next_action, next_log_prob] = s.sample(batch.next_obs);
+    const auto next_q = s.critic_target->forward(batch.next_obs, next_action);
+    target = sac_critic_target(batch.rewards, batch.terminated, next_q[0], next_q[1],
+                               next_log_prob, alpha, s.cfg.gamma());
+  }
+  const auto q = s.critic->forward(batch.obs, batch.actions);
+  // Mean over both critics' rows = sb3's 0.5 * (mse(q1) + mse(q2)).
+  const auto critic_loss = torch::mse_loss(q, target.unsqueeze(0).expand_as(q));
+  step(*s.critic_opt, s.critic_p, critic_loss);
+
+  const auto q_pi = s.critic->forward(batch.obs, pi_action);
+  const auto actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
+  step(*s.actor_opt, s.actor_p, actor_loss);
+
+  {
+    torch::NoGradGuard no_grad;
+    // target + tau * (online - target) = (1 - tau) * target + tau * online, in one op.
+    s.target_p.flat.lerp_(s.critic_p.flat, s.cfg.tau());
+    st.critic_loss = critic_loss.item<double>();
+    st.actor_loss = actor_loss.item<double>();
+    st.alpha_loss = alpha_loss.item<double>();
+    st.entropy = -log_prob.mean().item<double>();
+    st.q_mean = q.mean().item<double>();
+  }
+  st.alpha = alpha;
+  ++s.updates;
+  return st;
+}
+
+PolicyParams Sac::export_policy(uint64_t version) const {
+  const Impl& s = *impl_;
+  PolicyParams p;
+  p.version = version;
+  p.head = PolicyHead::kSquashedGaussian;
+  p.layout.activation = Activation::kRelu;
+  p.layout.sizes.push_back(s.obs_dim);
+  p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
+  p.layout.sizes.push_back(2 * s.act_dim);
+  p.log_std_min = float(s.cfg.log_std_min());
+  p.log_std_max = float(s.cfg.log_std_max());
+  // The actor's flat buffer is already in the workers' order: per layer, weight [out x in]
+  // row-major, then bias.
+  const float* d = s.actor_p.flat.data_ptr<float>();
+  p.params.assign(d, d + s.actor_p.flat.numel());
+  return p;
+}
+
+int64_t Sac::updates() const { return impl_->updates; }
+int Sac::obs_dim() const { return impl_->obs_dim; }
+int Sac::act_dim() const { return impl_->act_dim; }
+const std::vector<int>& Sac::hidden() const { return impl_->hidden; }
+double Sac::alpha() const { return std::exp(impl_->log_alpha.item<double>()); }
+double Sac::target_entropy() const { return impl_->target_entropy; }
+
+torch::Tensor Sac::deterministic_action(const torch::Tensor& obs) const {
+  torch::NoGradGuard no_grad;
+  return torch::tanh(impl_->actor->forward(obs).narrow(1, 0, impl_->act_dim));
+}
+
+std::vector<torch::Tensor> Sac::actor_parameters() const { return impl_->actor_p.params; }
+std::vector<torch::Tensor> Sac::critic_parameters() const { return impl_->critic_p.params; }
+std::vector<torch::Tensor> Sac::target_critic_parameters() const { return impl_->target_p.params; }
+
+void Sac::save(const std::string& dir) const {
+  const Impl& s = *impl_;
+  std::filesystem::create_directories(dir);
+  const std::string file = dir + "/sac.pt", tmp = file + ".tmp";
+  try {
+    torch::serialize::OutputArchive root;
+    std::vector<int64_t> meta{s.obs_dim, s.act_dim};
+    meta.insert(meta.end(), s.hidden.begin(), s.hidden.end());
+    root.write("meta", torch::tensor(meta, torch::kInt64));
+    write_params(root, "actor", *s.actor);
+    write_params(root, "critic", *s.critic);
+    write_params(root, "critic_target", *s.critic_target);
+    const std::pair<const char*, torch::optim::Optimizer*> opts[] = {
+        {"actor_optim", s.actor_opt.get()},
+        {"critic_optim", s.critic_opt.get()},
+        {"alpha_optim", s.alpha_opt.get()}};
+    for (const auto& [key, opt] : opts) {
+      torch::serialize::OutputArchive a;
+      opt->save(a);
+      root.write(key, a);
+    }
+    root.write("log_alpha", s.log_alpha.detach());
+    root.write("updates", torch::full({1}, s.updates, torch::kInt64));
+    root.save_to(tmp);
+  } catch (const c10::Error& e) {
+    throw std::runtime_error("sac checkpoint " + tmp + ": " + e.what_without_backtrace());
+  }
+  if (std::rename(tmp.c_str(), file.c_str()) != 0)
+    throw std::runtime_error("sac checkpoint " + file + ": cannot rename " + tmp + " to it");
+}
+
+void Sac::load(const std::string& dir) {
+  Impl& s = *impl_;
+  const std::string file = dir + "/sac.pt";
+  auto fail = [&](const std::string& what) {
+    return std::runtime_error("sac checkpoint " + file + ": " + what);
+  };
+  try {
+    torch::serialize::InputArchive root;
+    root.load_from(file);
+
+    torch::Tensor meta;
+    if (!root.try_read("meta", meta)) throw fail("no 'meta'");
+    std::vector<int64_t> want{s.obs_dim, s.act_dim};
+    want.insert(want.end(), s.hidden.begin(), s.hidden.end());
+    const int64_t* m = meta.data_ptr<int64_t>();
+    const std::vector<int64_t> got(m, m + meta.numel());
+    if (got != want)
+      throw fail("networks are obs,act,hidden = " + sizes_str(got) + ", expected " +
+                 sizes_str(want));
+
+    const auto actor = read_params(root, "actor", *s.actor, file);
+    const auto critic = read_params(root, "critic", *s.critic, file);
+    const auto target = read_params(root, "critic_target", *s.critic_target, file);
+    torch::Tensor log_alpha, updates;
+    if (!root.try_read("log_alpha", log_alpha) || log_alpha.sizes() != s.log_alpha.sizes())
+      throw fail("missing or misshapen 'log_alpha'");
+    if (!root.try_read("updates", updates) || updates.numel() != 1)
+      throw fail("missing or misshapen 'updates'");
+    torch::serialize::InputArchive actor_opt, critic_opt, alpha_opt;
+    if (!root.try_read("actor_optim", actor_opt) || !root.try_read("critic_optim", critic_opt) ||
+        !root.try_read("alpha_optim", alpha_opt))
+      throw fail("missing optimizer state");
+
+    copy_into(s.actor_p.params, actor);
+    copy_into(s.critic_p.params, critic);
+    copy_into(s.target_p.params, target);
+    copy_into({s.log_alpha}, {log_alpha});
+    s.actor_opt->load(actor_opt);
+    s.critic_opt->load(critic_opt);
+    s.alpha_opt->load(alpha_opt);
+    s.updates = updates.item<int64_t>();
+  } catch (const c10::Error& e) {
+    throw fail(e.what_without_backtrace());
+  }
+}
+
+}  // namespace farm

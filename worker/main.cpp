@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -30,11 +31,14 @@ struct Options {
   int threads = 1;
   std::string id;
   double log_every = 5.0;
+  // Fault injection for reliability tests: corrupt the batch with this sequence number (NaN).
+  int64_t inject_nan_batch = -1;
 };
 
 void usage() {
   std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D]\n"
                "                   [--dds-profiles FILE] [--log-every SECONDS]\n"
+               "                   [--inject-nan-batch SEQ]   (fault injection for tests)\n"
                "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
                "the experiment's worker.envs_per_worker) on the given number of threads.\n";
 }
@@ -63,6 +67,7 @@ Options parse(int argc, char** argv) {
     else if (a == "--threads") o.threads = int_flag(a, value(), 1, 1024);
     else if (a == "--id") o.id = value();
     else if (a == "--log-every") o.log_every = int_flag(a, value(), 1, 3600);
+    else if (a == "--inject-nan-batch") o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
     else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
     else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
@@ -234,6 +239,10 @@ class Worker {
     b.end_of_stream(end_of_stream);
     if (!end_of_stream) {
       to_wire(batch_, b);
+      if (int64_t(sequence_) == opt_.inject_nan_batch && !b.observations().empty()) {
+        b.observations()[0] = std::nanf("");
+        log("fault injection: batch " + std::to_string(sequence_) + " carries a NaN");
+      }
     } else {
       b.obs_dim(spec_.obs_dim());
       b.act_dim(spec_.act_dim());

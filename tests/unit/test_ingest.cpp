@@ -1,1 +1,181 @@
+// Batch validation and sequence accounting: a bad batch is refused with its reason and counted;
+// every sequence number is accounted as received, lost, duplicate or invalid.
 #include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "ingest.h"
+
+using farm::Ingest;
+using farm::Transitions;
+using farm::FinishedEpisode;
+
+namespace {
+
+constexpr int kObs = 2, kAct = 1;
+
+// T=3 steps x N=2 envs; env 1 ends an episode at t=1 (truncated).
+farm::msg::TransitionBatch make_batch(uint64_t seq, const std::string& exp = "exp") {
+  farm::msg::TransitionBatch b;
+  b.experiment_id(exp);
+  b.worker_id("w1");
+  b.worker_session(7);
+  b.sequence_number(seq);
+  b.policy_version(3);
+  const int T = 3, N = 2;
+  b.num_steps(T);
+  b.num_envs(N);
+  b.obs_dim(kObs);
+  b.act_dim(kAct);
+  std::vector<float> obs;
+  for (int t = 0; t < T; ++t)
+    for (int n = 0; n < N; ++n) { obs.push_back(10.f * t + n); obs.push_back(-(10.f * t + n)); }
+  b.observations(obs);
+  b.actions({0.1f, -0.2f, 0.3f, -0.4f, 0.5f, -0.6f});
+  b.rewards({1, 2, 3, 4, 5, 6});
+  b.terminated({0, 0, 0, 0, 0, 0});
+  b.truncated({0, 0, 0, 1, 0, 0});
+  b.log_probs({0, 0, 0, 0, 0, 0});
+  b.next_observations({30.f, -30.f, 31.f, -31.f});
+  b.final_index({3});  // t=1, n=1
+  b.final_observations({99.f, -99.f});
+  farm::msg::EpisodeSummary e;
+  e.env(1);
+  e.episode_return(-123.f);
+  e.length(200);
+  b.episodes({e});
+  return b;
+}
+
+struct Fixture : ::testing::Test {
+  Ingest ingest{"exp", kObs, kAct};
+  Transitions out;
+  std::vector<FinishedEpisode> eps;
+  std::string take(const farm::msg::TransitionBatch& b) { return ingest.accept(b, 5, 0.0, out, eps); }
+};
+
+}  // namespace
+
+TEST_F(Fixture, ValidBatchBecomesTransitionsWithTrueNextObservations) {
+  ASSERT_EQ(take(make_batch(0)), "");
+  ASSERT_EQ(out.n, 6);
+  // Row i = t*N+n. Row 0 (t0,n0) -> obs of t1,n0 = (10,-10).
+  EXPECT_FLOAT_EQ(out.next_obs[0 * kObs], 10.f);
+  // Row 3 (t1,n1) ended an episode: its next obs is the true final observation, not the reset one.
+  EXPECT_FLOAT_EQ(out.next_obs[3 * kObs], 99.f);
+  EXPECT_FLOAT_EQ(out.next_obs[3 * kObs + 1], -99.f);
+  // Rows of the last step bootstrap from next_observations.
+  EXPECT_FLOAT_EQ(out.next_obs[4 * kObs], 30.f);
+  EXPECT_FLOAT_EQ(out.next_obs[5 * kObs], 31.f);
+  EXPECT_EQ(out.terminated[3], 0);  // truncation is not termination
+  ASSERT_EQ(eps.size(), 1u);
+  EXPECT_FLOAT_EQ(eps[0].episode_return, -123.f);
+  EXPECT_EQ(ingest.counters().ok, 1u);
+  EXPECT_EQ(ingest.counters().env_steps, 6u);
+  EXPECT_DOUBLE_EQ(ingest.counters().lag_sum, 2.0);
+}
+
+TEST_F(Fixture, WrongShapeIsRefusedAndCounted) {
+  auto b = make_batch(0);
+  b.rewards({1, 2, 3});
+  std::string why = take(b);
+  EXPECT_NE(why.find("rewards has 3 values, expected 6"), std::string::npos) << why;
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_EQ(out.n, 0);
+}
+
+TEST_F(Fixture, WrongDimsAreRefused) {
+  auto b = make_batch(0);
+  b.obs_dim(3);
+  EXPECT_NE(take(b).find("expected obs 2"), std::string::npos);
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+}
+
+TEST_F(Fixture, NaNIsRefusedAndTrainingDataStaysClean) {
+  auto b = make_batch(0);
+  auto o = b.observations();
+  o[5] = std::nanf("");
+  b.observations(o);
+  std::string why = take(b);
+  EXPECT_NE(why.find("non-finite value in observations at index 5"), std::string::npos) << why;
+  EXPECT_EQ(out.n, 0);
+  // The next good batch is taken, and the bad one is counted invalid, not lost.
+  EXPECT_EQ(take(make_batch(1)), "");
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_EQ(ingest.counters().lost, 0u);
+  EXPECT_EQ(ingest.counters().ok, 1u);
+}
+
+TEST_F(Fixture, InfiniteRewardAndOutOfRangeActionAreRefused) {
+  auto b = make_batch(0);
+  auto r = b.rewards();
+  r[2] = INFINITY;
+  b.rewards(r);
+  EXPECT_NE(take(b).find("rewards"), std::string::npos);
+  auto c = make_batch(1);
+  auto a = c.actions();
+  a[0] = 3.f;
+  c.actions(a);
+  EXPECT_NE(take(c).find("outside [-1, 1]"), std::string::npos);
+  EXPECT_EQ(ingest.counters().invalid, 2u);
+}
+
+TEST_F(Fixture, WrongExperimentIsRefused) {
+  std::string why = take(make_batch(0, "other"));
+  EXPECT_NE(why.find("'other' is not 'exp'"), std::string::npos) << why;
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_TRUE(ingest.workers().empty());
+}
+
+TEST_F(Fixture, DoneFlagsMustMatchFinalIndex) {
+  auto b = make_batch(0);
+  b.truncated({0, 0, 0, 0, 0, 0});
+  EXPECT_NE(take(b).find("final_index does not match"), std::string::npos);
+}
+
+TEST_F(Fixture, GapsAreCountedLostAndLateArrivalsRecovered) {
+  EXPECT_EQ(take(make_batch(0)), "");
+  EXPECT_EQ(take(make_batch(3)), "");
+  EXPECT_EQ(ingest.counters().lost, 2u);
+  EXPECT_EQ(take(make_batch(2)), "");  // late, not lost after all
+  EXPECT_EQ(ingest.counters().lost, 1u);
+  const auto& w = ingest.workers().at({"w1", 7});
+  EXPECT_EQ(w.received, 3u);
+  EXPECT_EQ(w.lost, 1u);
+  EXPECT_EQ(w.next_sequence, 4u);
+}
+
+TEST_F(Fixture, DuplicatesAreRefusedAndCounted) {
+  EXPECT_EQ(take(make_batch(0)), "");
+  EXPECT_EQ(take(make_batch(1)), "");
+  std::string why = take(make_batch(1));
+  EXPECT_NE(why.find("duplicate sequence number 1"), std::string::npos) << why;
+  EXPECT_EQ(ingest.counters().duplicate, 1u);
+  EXPECT_EQ(ingest.counters().ok, 2u);
+  EXPECT_EQ(out.n, 12);
+}
+
+TEST_F(Fixture, RestartedWorkerHasItsOwnSequenceSpace) {
+  EXPECT_EQ(take(make_batch(0)), "");
+  auto b = make_batch(0);
+  b.worker_session(8);
+  EXPECT_EQ(take(b), "");
+  EXPECT_EQ(ingest.counters().duplicate, 0u);
+  EXPECT_EQ(ingest.workers().size(), 2u);
+}
+
+TEST_F(Fixture, EndOfStreamMayBeEmpty) {
+  farm::msg::TransitionBatch b;
+  b.experiment_id("exp");
+  b.worker_id("w1");
+  b.worker_session(7);
+  b.sequence_number(0);
+  b.obs_dim(kObs);
+  b.act_dim(kAct);
+  b.end_of_stream(true);
+  EXPECT_EQ(take(b), "");
+  EXPECT_TRUE(ingest.workers().at({"w1", 7}).ended);
+  b.end_of_stream(false);
+  b.sequence_number(1);
+  EXPECT_NE(take(b).find("empty batch"), std::string::npos);
+}

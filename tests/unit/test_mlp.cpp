@@ -1,1 +1,244 @@
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "mlp.h"
+
+namespace farm {
+namespace {
+
+// 2-2-1: W1 = [[1, -2], [0.5, 1]], b1 = [0.1, -0.3], W2 = [[2, -1]], b2 = [0.5].
+std::vector<float> tiny_params() { return {1.f, -2.f, 0.5f, 1.f, 0.1f, -0.3f, 2.f, -1.f, 0.5f}; }
+
+float tiny_by_hand(float x0, float x1, Activation act) {
+  auto f = [act](float v) { return act == Activation::kRelu ? std::max(v, 0.f) : std::tanh(v); };
+  const float h0 = f(1.f * x0 - 2.f * x1 + 0.1f);
+  const float h1 = f(0.5f * x0 + 1.f * x1 - 0.3f);
+  return 2.f * h0 - 1.f * h1 + 0.5f;
+}
+
+TEST(MlpLayout, CountsAndDescribes) {
+  MlpLayout l{{3, 64, 64, 2}, Activation::kRelu};
+  EXPECT_EQ(l.num_params(), size_t(3 * 64 + 64 + 64 * 64 + 64 + 64 * 2 + 2));
+  EXPECT_EQ(l.describe(), "3-64-64-2 relu");
+  EXPECT_EQ((MlpLayout{{2, 2, 1}, Activation::kTanh}).describe(), "2-2-1 tanh");
+}
+
+TEST(EigenMlp, TinyNetMatchesHandComputation) {
+  for (Activation act : {Activation::kRelu, Activation::kTanh}) {
+    EigenMlp net(MlpLayout{{2, 2, 1}, act}, tiny_params());
+    // The second row drives the first hidden unit negative, where relu and tanh differ.
+    const std::vector<float> in = {1.f, 0.5f, -1.f, 1.f, 0.3f, -0.7f};
+    std::vector<float> out(3, -99.f);
+    net.forward(in.data(), 3, out.data());
+    for (int r = 0; r < 3; ++r) {
+      EXPECT_NEAR(out[r], tiny_by_hand(in[2 * r], in[2 * r + 1], act), 1e-6)
+          << "row " << r << " activation " << int(act);
+    }
+  }
+  // Exact values for relu: row 2 gives hidden [0, 0.2], output 0.3.
+  EigenMlp net(MlpLayout{{2, 2, 1}, Activation::kRelu}, tiny_params());
+  const float in[2] = {-1.f, 1.f};
+  float out = 0.f;
+  net.forward(in, 1, &out);
+  EXPECT_NEAR(out, 0.3f, 1e-6);
+}
+
+TEST(EigenMlp, WrongParamCountThrowsWithMessage) {
+  std::vector<float> p = tiny_params();
+  p.pop_back();
+  try {
+    EigenMlp net(MlpLayout{{2, 2, 1}, Activation::kRelu}, p);
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("expected 9"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("got 8"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("2-2-1 relu"), std::string::npos) << msg;
+  }
+  PolicyParams pp;
+  pp.layout = {{3, 64, 64, 2}, Activation::kRelu};
+  pp.params.assign(12, 0.f);
+  try {
+    Policy policy(pp);
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_STREQ(e.what(), "policy params: expected 4546 floats for layout 3-64-64-2 relu, got 12");
+  }
+}
+
+TEST(EigenMlp, RowResultsDoNotDependOnBatch) {
+  std::mt19937 g(3);
+  std::normal_distribution<float> n;
+  MlpLayout layout{{5, 37, 64, 6}, Activation::kTanh};
+  std::vector<float> params(layout.num_params());
+  for (auto& v : params) v = 0.3f * n(g);
+  EigenMlp net(layout, params);
+  const int rows = 13;
+  std::vector<float> in(rows * 5), all(rows * 6), one(6);
+  for (auto& v : in) v = n(g);
+  net.forward(in.data(), rows, all.data());
+  for (int r = 0; r < rows; ++r) {
+    net.forward(in.data() + r * 5, 1, one.data());
+    for (int j = 0; j < 6; ++j) ASSERT_EQ(one[j], all[r * 6 + j]) << "row " << r;
+  }
+}
+
+// 2-2-2 policy (act_dim 1): hidden = relu(W1 x + b1), out = [mean, log_std].
+PolicyParams small_policy(float log_std_bias) {
+  PolicyParams p;
+  p.version = 7;
+  p.layout = {{2, 2, 2}, Activation::kRelu};
+  p.params = {0.5f, -0.25f, 0.2f, 0.4f, 0.1f, 0.0f,  // W1, b1
+              0.6f, -0.3f, 0.05f, 0.1f,              // W2
+              0.05f, log_std_bias};                  // b2
+  return p;
+}
+
+void mean_and_log_std(const PolicyParams& p, float x0, float x1, float* mean, float* log_std) {
+  const float* w = p.params.data();
+  const float h0 = std::max(0.f, w[0] * x0 + w[1] * x1 + w[4]);
+  const float h1 = std::max(0.f, w[2] * x0 + w[3] * x1 + w[5]);
+  *mean = w[6] * h0 + w[7] * h1 + w[10];
+  *log_std = w[8] * h0 + w[9] * h1 + w[11];
+}
+
+double gaussian_tanh_log_prob(double a, double mean, double log_std) {
+  const double u = std::atanh(a);
+  const double z = (u - mean) / std::exp(log_std);
+  return -0.5 * z * z - log_std - 0.5 * std::log(2 * M_PI) - std::log(1 - a * a + 1e-6);
+}
+
+TEST(Policy, SquashedGaussianLogProbMatchesDirectComputation) {
+  const PolicyParams p = small_policy(-0.7f);
+  Policy policy(p);
+  EXPECT_EQ(policy.obs_dim(), 2);
+  EXPECT_EQ(policy.act_dim(), 1);
+  EXPECT_EQ(policy.version(), 7u);
+  std::mt19937_64 rng(11);
+  const int rows = 4000;
+  std::vector<float> obs(rows * 2), act(rows), lp(rows);
+  for (int r = 0; r < rows; ++r) {
+    obs[2 * r] = 0.8f;
+    obs[2 * r + 1] = -0.4f;
+  }
+  policy.act(obs.data(), rows, rng, false, act.data(), lp.data());
+  float mean, log_std;
+  mean_and_log_std(p, 0.8f, -0.4f, &mean, &log_std);
+  double sum = 0, sum2 = 0;
+  for (int r = 0; r < rows; ++r) {
+    ASSERT_GT(act[r], -1.f);
+    ASSERT_LT(act[r], 1.f);
+    EXPECT_NEAR(lp[r], gaussian_tanh_log_prob(act[r], mean, log_std), 2e-3) << "row " << r;
+    const double u = std::atanh(double(act[r]));
+    sum += u;
+    sum2 += u * u;
+  }
+  // The pre-tanh samples are N(mean, exp(log_std)): checks the noise is actually applied.
+  const double m = sum / rows, sd = std::sqrt(sum2 / rows - m * m);
+  EXPECT_NEAR(m, mean, 0.03);
+  EXPECT_NEAR(sd, std::exp(log_std), 0.03);
+}
+
+TEST(Policy, LogStdIsClamped) {
+  PolicyParams p = small_policy(5.f);  // log_std > log_std_max
+  p.log_std_max = -1.f;
+  Policy policy(p);
+  std::mt19937_64 rng(5);
+  const int rows = 4000;
+  std::vector<float> obs(rows * 2, 0.f), act(rows), lp(rows);
+  policy.act(obs.data(), rows, rng, false, act.data(), lp.data());
+  float mean, log_std;
+  mean_and_log_std(p, 0.f, 0.f, &mean, &log_std);
+  double sum2 = 0;
+  for (int r = 0; r < rows; ++r) {
+    EXPECT_NEAR(lp[r], gaussian_tanh_log_prob(act[r], mean, -1.0), 2e-3);
+    const double u = std::atanh(double(act[r])) - mean;
+    sum2 += u * u;
+  }
+  EXPECT_NEAR(std::sqrt(sum2 / rows), std::exp(-1.0), 0.02);
+}
+
+TEST(Policy, DeterministicIsTanhOfMean) {
+  const PolicyParams p = small_policy(0.3f);
+  Policy policy(p);
+  std::mt19937_64 rng(1);
+  const std::vector<float> obs = {0.8f, -0.4f, -2.f, 3.f};
+  float act[2], lp[2] = {9.f, 9.f};
+  policy.act(obs.data(), 2, rng, true, act, lp);
+  for (int r = 0; r < 2; ++r) {
+    float mean, log_std;
+    mean_and_log_std(p, obs[2 * r], obs[2 * r + 1], &mean, &log_std);
+    EXPECT_NEAR(act[r], std::tanh(mean), 1e-6);
+    EXPECT_EQ(lp[r], 0.f);
+  }
+}
+
+TEST(Policy, NormalizerIsApplied) {
+  PolicyParams p = small_policy(0.f);
+  p.obs_mean = {1.f, -2.f};
+  p.obs_std = {2.f, 0.5f};
+  Policy normalized(p);
+  Policy plain(small_policy(0.f));
+  std::mt19937_64 rng(1);
+  const float obs[2] = {3.f, -1.5f};
+  const float pre_normalized[2] = {(3.f - 1.f) / 2.f, (-1.5f + 2.f) / 0.5f};
+  float a = 0, b = 0;
+  normalized.act(obs, 1, rng, true, &a, nullptr);
+  plain.act(pre_normalized, 1, rng, true, &b, nullptr);
+  EXPECT_FLOAT_EQ(a, b);
+  float c = 0;
+  plain.act(obs, 1, rng, true, &c, nullptr);
+  EXPECT_NE(a, c);
+}
+
+TEST(Policy, PerRowNoiseDoesNotDependOnBatch) {
+  Policy policy(small_policy(-0.5f));
+  const int rows = 6;
+  std::vector<float> obs(rows * 2);
+  for (int i = 0; i < rows * 2; ++i) obs[i] = 0.1f * i - 0.5f;
+  std::vector<std::mt19937_64> rngs_a, rngs_b;
+  for (int r = 0; r < rows; ++r) {
+    rngs_a.emplace_back(100 + r);
+    rngs_b.emplace_back(100 + r);
+  }
+  std::vector<float> act_a(rows), lp_a(rows), act_b(rows), lp_b(rows);
+  policy.act_per_row(obs.data(), rows, rngs_a.data(), false, act_a.data(), lp_a.data());
+  policy.act_per_row(obs.data(), 2, rngs_b.data(), false, act_b.data(), lp_b.data());
+  policy.act_per_row(obs.data() + 4, rows - 2, rngs_b.data() + 2, false, act_b.data() + 2,
+                     lp_b.data() + 2);
+  for (int r = 0; r < rows; ++r) {
+    EXPECT_EQ(act_a[r], act_b[r]);
+    EXPECT_EQ(lp_a[r], lp_b[r]);
+  }
+  EXPECT_NE(act_a[0], act_a[1]);
+}
+
+TEST(Policy, RejectsInconsistentParams) {
+  PolicyParams odd = small_policy(0.f);
+  odd.layout = {{2, 2, 3}, Activation::kRelu};
+  odd.params.assign(odd.layout.num_params(), 0.f);
+  EXPECT_THROW(Policy{odd}, std::invalid_argument);
+
+  PolicyParams bad_norm = small_policy(0.f);
+  bad_norm.obs_mean = {0.f, 0.f, 0.f};
+  bad_norm.obs_std = {1.f, 1.f, 1.f};
+  EXPECT_THROW(Policy{bad_norm}, std::invalid_argument);
+
+  PolicyParams zero_std = small_policy(0.f);
+  zero_std.obs_mean = {0.f, 0.f};
+  zero_std.obs_std = {1.f, 0.f};
+  try {
+    Policy policy(zero_std);
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("obs_std[1]"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace farm

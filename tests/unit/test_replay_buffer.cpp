@@ -1,1 +1,205 @@
+#include "replay_buffer.h"
+
 #include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <random>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace farm {
+namespace {
+
+constexpr int kObs = 3, kAct = 2;
+
+// Transition k is recognizable from any of its fields: obs = (k, k+0.25, k+0.5), action = (-k,
+// -k-0.5), reward = 10k, next_obs = obs + 1000, terminated when k % 3 == 0.
+struct Rows {
+  std::vector<float> obs, act, rew, next_obs;
+  std::vector<uint8_t> term;
+  void push(int k) {
+    for (int j = 0; j < kObs; ++j) obs.push_back(k + 0.25f * j);
+    for (int j = 0; j < kAct; ++j) act.push_back(-k - 0.5f * j);
+    rew.push_back(10.f * k);
+    term.push_back(k % 3 == 0);
+    for (int j = 0; j < kObs; ++j) next_obs.push_back(k + 0.25f * j + 1000.f);
+  }
+};
+
+Rows make_rows(int from, int to) {
+  Rows r;
+  for (int k = from; k < to; ++k) r.push(k);
+  return r;
+}
+
+void add_one_by_one(ReplayBuffer& b, int from, int to) {
+  for (int k = from; k < to; ++k) {
+    Rows r = make_rows(k, k + 1);
+    b.add(r.obs.data(), r.act.data(), r.rew[0], r.term[0], r.next_obs.data());
+  }
+}
+
+void add_block(ReplayBuffer& b, int from, int to) {
+  Rows r = make_rows(from, to);
+  b.add_n(to - from, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data());
+}
+
+// Every sampled row must be one whole stored transition; returns the ids seen.
+std::multiset<int> check_rows(const SampledBatch& s) {
+  std::multiset<int> ids;
+  const int64_t n = s.obs.size(0);
+  EXPECT_EQ(s.obs.sizes(), (std::vector<int64_t>{n, kObs}));
+  EXPECT_EQ(s.actions.sizes(), (std::vector<int64_t>{n, kAct}));
+  EXPECT_EQ(s.rewards.sizes(), (std::vector<int64_t>{n}));
+  EXPECT_EQ(s.terminated.sizes(), (std::vector<int64_t>{n}));
+  EXPECT_EQ(s.next_obs.sizes(), (std::vector<int64_t>{n, kObs}));
+  auto o = s.obs.accessor<float, 2>(), a = s.actions.accessor<float, 2>(),
+       no = s.next_obs.accessor<float, 2>();
+  auto r = s.rewards.accessor<float, 1>(), t = s.terminated.accessor<float, 1>();
+  for (int64_t i = 0; i < n; ++i) {
+    const int k = int(o[i][0]);
+    for (int j = 0; j < kObs; ++j) {
+      EXPECT_EQ(o[i][j], k + 0.25f * j);
+      EXPECT_EQ(no[i][j], k + 0.25f * j + 1000.f);
+    }
+    for (int j = 0; j < kAct; ++j) EXPECT_EQ(a[i][j], -k - 0.5f * j);
+    EXPECT_EQ(r[i], 10.f * k);
+    EXPECT_EQ(t[i], k % 3 == 0 ? 1.f : 0.f);
+    ids.insert(k);
+  }
+  return ids;
+}
+
+std::string temp_file(const std::string& name) {
+  return (std::filesystem::temp_directory_path() /
+          (name + "_" + std::to_string(::getpid()) + ".bin")).string();
+}
+
+TEST(ReplayBuffer, CountsBeforeAndAfterWrap) {
+  ReplayBuffer b(10, kObs, kAct);
+  EXPECT_EQ(b.size(), 0);
+  EXPECT_EQ(b.capacity(), 10);
+  add_one_by_one(b, 0, 7);
+  EXPECT_EQ(b.size(), 7);
+  EXPECT_EQ(b.total_added(), 7);
+  add_block(b, 7, 12);
+  EXPECT_EQ(b.size(), 10);
+  EXPECT_EQ(b.total_added(), 12);
+  add_one_by_one(b, 12, 25);
+  EXPECT_EQ(b.size(), 10);
+  EXPECT_EQ(b.total_added(), 25);
+}
+
+TEST(ReplayBuffer, SamplesAreStoredTransitions) {
+  ReplayBuffer b(64, kObs, kAct);
+  add_block(b, 0, 40);
+  std::mt19937_64 rng(7);
+  const auto ids = check_rows(b.sample(4096, rng));
+  for (int id : ids) EXPECT_TRUE(id >= 0 && id < 40) << id;
+  // 4096 uniform draws over 40 rows miss one with probability ~40 * exp(-102): all must show up.
+  EXPECT_EQ(std::set<int>(ids.begin(), ids.end()).size(), 40u);
+}
+
+// After wrapping, exactly the newest `capacity` transitions remain, whichever add path filled it.
+TEST(ReplayBuffer, WraparoundKeepsNewestRows) {
+  for (int mode = 0; mode < 3; ++mode) {
+    ReplayBuffer b(16, kObs, kAct);
+    if (mode == 0) add_one_by_one(b, 0, 45);
+    if (mode == 1) {  // blocks that straddle the end of the ring
+      add_block(b, 0, 11);
+      add_block(b, 11, 30);
+      add_block(b, 30, 45);
+    }
+    if (mode == 2) add_block(b, 0, 45);  // one block larger than the capacity
+    EXPECT_EQ(b.size(), 16);
+    EXPECT_EQ(b.total_added(), 45);
+    std::mt19937_64 rng(mode);
+    const auto ids = check_rows(b.sample(2048, rng));
+    const std::set<int> seen(ids.begin(), ids.end());
+    std::set<int> want;
+    for (int k = 45 - 16; k < 45; ++k) want.insert(k);
+    EXPECT_EQ(seen, want) << "mode " << mode;
+  }
+}
+
+TEST(ReplayBuffer, SampleIsDeterministicForASeed) {
+  ReplayBuffer b(32, kObs, kAct);
+  add_block(b, 0, 32);
+  std::mt19937_64 r1(3), r2(3);
+  const auto s1 = b.sample(64, r1), s2 = b.sample(64, r2);
+  EXPECT_TRUE(torch::equal(s1.obs, s2.obs));
+  EXPECT_TRUE(torch::equal(s1.next_obs, s2.next_obs));
+}
+
+TEST(ReplayBuffer, SampleFromEmptyThrows) {
+  ReplayBuffer b(4, kObs, kAct);
+  std::mt19937_64 rng(1);
+  EXPECT_THROW(b.sample(8, rng), std::logic_error);
+}
+
+TEST(ReplayBuffer, SaveLoadRoundTrip) {
+  for (int n : {5, 23}) {  // partly filled, and wrapped
+    ReplayBuffer b(16, kObs, kAct);
+    add_block(b, 0, n);
+    const std::string file = temp_file("rb_roundtrip");
+    b.save(file);
+    ReplayBuffer c(16, kObs, kAct);
+    add_block(c, 500, 503);  // whatever was there is replaced
+    c.load(file);
+    std::remove(file.c_str());
+    EXPECT_EQ(c.size(), b.size());
+    EXPECT_EQ(c.total_added(), b.total_added());
+    std::mt19937_64 r1(11), r2(11);
+    const auto s1 = b.sample(256, r1), s2 = c.sample(256, r2);
+    EXPECT_TRUE(torch::equal(s1.obs, s2.obs));
+    EXPECT_TRUE(torch::equal(s1.actions, s2.actions));
+    EXPECT_TRUE(torch::equal(s1.rewards, s2.rewards));
+    EXPECT_TRUE(torch::equal(s1.terminated, s2.terminated));
+    EXPECT_TRUE(torch::equal(s1.next_obs, s2.next_obs));
+    // The ring position survives too: the next adds overwrite the same (oldest) rows in both.
+    add_block(b, 100, 110);
+    add_block(c, 100, 110);
+    std::mt19937_64 r3(12), r4(12);
+    EXPECT_TRUE(torch::equal(b.sample(256, r3).obs, c.sample(256, r4).obs));
+  }
+}
+
+TEST(ReplayBuffer, LoadRejectsMismatchNamingFile) {
+  ReplayBuffer b(16, kObs, kAct);
+  add_block(b, 0, 9);
+  const std::string file = temp_file("rb_mismatch");
+  b.save(file);
+  auto expect_error = [&](ReplayBuffer& other, const std::string& what) {
+    try {
+      other.load(file);
+      ADD_FAILURE() << "no error for " << what;
+    } catch (const std::runtime_error& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(file), std::string::npos) << msg;
+      EXPECT_NE(msg.find(what), std::string::npos) << msg;
+    }
+    EXPECT_EQ(other.size(), 0);
+  };
+  ReplayBuffer wrong_obs(16, kObs + 1, kAct), wrong_act(16, kObs, kAct + 1),
+      wrong_cap(17, kObs, kAct);
+  expect_error(wrong_obs, "obs_dim 3");
+  expect_error(wrong_act, "act_dim 2");
+  expect_error(wrong_cap, "capacity 16");
+
+  // A truncated file is caught before any row is read.
+  std::filesystem::resize_file(file, std::filesystem::file_size(file) - 4);
+  ReplayBuffer same(16, kObs, kAct);
+  expect_error(same, "bytes");
+  std::remove(file.c_str());
+
+  ReplayBuffer missing(16, kObs, kAct);
+  EXPECT_THROW(missing.load(file), std::runtime_error);
+}
+
+}  // namespace
+}  // namespace farm

@@ -1,1 +1,270 @@
+#include "sac.h"
+
 #include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace farm {
+namespace {
+
+config::SacConfig small_config() {
+  config::SacConfig cfg;
+  cfg.add_hidden(32);
+  cfg.add_hidden(32);
+  return cfg;
+}
+
+SampledBatch random_batch(int rows, int obs_dim, int act_dim, uint64_t seed) {
+  torch::manual_seed(seed);
+  SampledBatch b;
+  b.obs = torch::randn({rows, obs_dim});
+  b.actions = torch::rand({rows, act_dim}) * 2 - 1;
+  b.rewards = torch::randn({rows});
+  b.terminated = (torch::rand({rows}) < 0.1).to(torch::kFloat32);
+  b.next_obs = torch::randn({rows, obs_dim});
+  return b;
+}
+
+std::vector<torch::Tensor> copies(const std::vector<torch::Tensor>& ts) {
+  std::vector<torch::Tensor> out;
+  for (const auto& t : ts) out.push_back(t.detach().clone());
+  return out;
+}
+
+std::string temp_dir(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  return d.string();
+}
+
+TEST(SacMath, CriticTargetHandComputed) {
+  const auto r = torch::tensor({1.f, 1.f});
+  const auto done = torch::tensor({0.f, 1.f});
+  const auto q1 = torch::tensor({2.f, 2.f}), q2 = torch::tensor({3.f, 3.f});
+  const auto logp = torch::tensor({-1.f, -1.f});
+  const auto y = sac_critic_target(r, done, q1, q2, logp, 0.5, 0.9);
+  // 1 + 0.9 * (min(2, 3) - 0.5 * -1) = 3.25; a terminated transition does not bootstrap.
+  EXPECT_NEAR(y[0].item<float>(), 3.25f, 1e-6f);
+  EXPECT_NEAR(y[1].item<float>(), 1.f, 1e-6f);
+  // The smaller critic is the one used, whichever it is.
+  const auto y2 = sac_critic_target(r, done, q2 * 0 + 4.f, q1, logp, 0.5, 0.9);
+  EXPECT_NEAR(y2[0].item<float>(), 3.25f, 1e-6f);
+}
+
+TEST(SacMath, TemperatureLossValueAndGradientSign) {
+  auto log_alpha = torch::full({1}, 0.3, torch::requires_grad());
+  // Entropy 0.5 above a target of -1: alpha must go down, so the gradient is positive.
+  auto logp = torch::tensor({-0.25f, -0.75f}, torch::requires_grad());
+  auto loss = sac_temperature_loss(log_alpha, logp, -1.0);
+  EXPECT_NEAR(loss.item<float>(), -0.3f * (-0.5f - 1.f), 1e-6f);
+  loss.backward();
+  EXPECT_NEAR(log_alpha.grad().item<float>(), 1.5f, 1e-6f);
+  EXPECT_FALSE(logp.grad().defined()) << "the policy must get no gradient from the alpha loss";
+
+  // Entropy -2 below the target: alpha must go up.
+  log_alpha.mutable_grad().reset();
+  sac_temperature_loss(log_alpha, torch::tensor({2.f}), -1.0).backward();
+  EXPECT_NEAR(log_alpha.grad().item<float>(), -1.f, 1e-6f);
+}
+
+TEST(SacMath, SquashedGaussianLogProbMatchesDirectFormula) {
+  torch::manual_seed(3);
+  const auto mean = torch::randn({5, 3}), log_std = torch::rand({5, 3}) * 2 - 1.5;
+  const auto pre = mean + log_std.exp() * torch::randn({5, 3});
+  const auto got = squashed_gaussian_log_prob(mean, log_std, pre);
+  ASSERT_EQ(got.sizes(), (std::vector<int64_t>{5}));
+  for (int i = 0; i < 5; ++i) {
+    double want = 0;
+    for (int j = 0; j < 3; ++j) {
+      const double m = mean[i][j].item<double>(), s = std::exp(log_std[i][j].item<double>());
+      const double x = pre[i][j].item<double>(), a = std::tanh(x);
+      want += -0.5 * ((x - m) / s) * ((x - m) / s) - std::log(s) - 0.5 * std::log(2 * M_PI);
+      want -= std::log(1 - a * a + 1e-6);
+    }
+    EXPECT_NEAR(got[i].item<double>(), want, 1e-4) << i;
+  }
+}
+
+TEST(Sac, ConfigDefaultsAreUsed) {
+  config::SacConfig cfg;
+  Sac sac(cfg, 3, 2, 1);
+  EXPECT_EQ(sac.hidden(), (std::vector<int>{256, 256}));
+  EXPECT_DOUBLE_EQ(sac.target_entropy(), -2.0);
+  EXPECT_NEAR(sac.alpha(), cfg.initial_alpha(), 1e-6);
+  cfg.set_target_entropy(-0.5);
+  cfg.set_initial_alpha(0.2);
+  Sac other(cfg, 3, 2, 1);
+  EXPECT_DOUBLE_EQ(other.target_entropy(), -0.5);
+  EXPECT_NEAR(other.alpha(), 0.2, 1e-6);
+}
+
+TEST(Sac, TargetsStartEqualAndMoveByTau) {
+  const auto cfg = small_config();
+  Sac sac(cfg, 3, 1, 7);
+  const auto online0 = copies(sac.critic_parameters());
+  const auto target0 = copies(sac.target_critic_parameters());
+  ASSERT_EQ(online0.size(), target0.size());
+  for (size_t i = 0; i < online0.size(); ++i) EXPECT_TRUE(torch::equal(online0[i], target0[i]));
+
+  // Make target and online differ, so the polyak step is visible.
+  for (int k = 0; k < 3; ++k) sac.update(random_batch(64, 3, 1, 100 + k));
+  const auto target_before = copies(sac.target_critic_parameters());
+  sac.update(random_batch(64, 3, 1, 200));
+  const auto online_after = sac.critic_parameters();
+  const auto target_after = sac.target_critic_parameters();
+  const double tau = cfg.tau();
+  double moved = 0;
+  for (size_t i = 0; i < target_after.size(); ++i) {
+    const auto want = (1 - tau) * target_before[i] + tau * online_after[i];
+    EXPECT_TRUE(torch::allclose(target_after[i], want, 1e-5, 1e-7)) << "param " << i;
+    moved += (target_after[i] - target_before[i]).abs().sum().item<double>();
+  }
+  EXPECT_GT(moved, 0.0);
+  EXPECT_EQ(sac.updates(), 4);
+}
+
+TEST(Sac, CriticLossDecreasesOnFixedData) {
+  auto cfg = small_config();
+  cfg.set_gamma(0.5);  // a short horizon so the fixed point is reached within the test
+  Sac sac(cfg, 3, 1, 11);
+  const auto data = random_batch(128, 3, 1, 12);
+  // Rewards a smooth function of the state, so there is something to fit.
+  SampledBatch b = data;
+  b.rewards = torch::sin(data.obs.select(1, 0)) + 0.5 * data.actions.select(1, 0);
+  std::vector<double> losses;
+  for (int i = 0; i < 400; ++i) losses.push_back(sac.update(b).critic_loss);
+  auto mean_of = [&](int from, int to) {
+    double s = 0;
+    for (int i = from; i < to; ++i) s += losses[i];
+    return s / (to - from);
+  };
+  const double first = mean_of(0, 20), last = mean_of(380, 400);
+  EXPECT_TRUE(std::isfinite(last));
+  EXPECT_LT(last, 0.5 * first) << "first " << first << ", last " << last;
+}
+
+// A one-step contextual bandit (every transition terminal, so Q is the reward): the actor must
+// move its mean toward the best action, which checks the sign of every loss end to end.
+TEST(Sac, ActorLearnsContextualBandit) {
+  auto cfg = small_config();
+  cfg.set_actor_lr(1e-3);
+  cfg.set_critic_lr(1e-3);
+  Sac sac(cfg, 1, 1, 31);
+  auto best = [](const torch::Tensor& obs) { return 0.6 * obs.select(1, 0); };
+  torch::manual_seed(32);
+  const auto probe = torch::rand({64, 1}) * 2 - 1;
+  auto error = [&] {
+    return (sac.deterministic_action(probe).select(1, 0) - best(probe)).abs().mean().item<double>();
+  };
+  const double before = error();
+  for (int i = 0; i < 3000; ++i) {
+    SampledBatch b;
+    b.obs = torch::rand({128, 1}) * 2 - 1;
+    b.actions = torch::rand({128, 1}) * 2 - 1;
+    b.rewards = -(b.actions.select(1, 0) - best(b.obs)).square();
+    b.terminated = torch::ones({128});
+    b.next_obs = b.obs;
+    sac.update(b);
+  }
+  const double after = error();
+  EXPECT_LT(after, 0.1) << "before " << before;
+  EXPECT_LT(after, 0.5 * before);
+}
+
+TEST(Sac, StatsAreFinite) {
+  Sac sac(small_config(), 3, 1, 5);
+  const auto st = sac.update(random_batch(32, 3, 1, 6));
+  for (double v : {st.critic_loss, st.actor_loss, st.alpha, st.alpha_loss, st.entropy, st.q_mean})
+    EXPECT_TRUE(std::isfinite(v));
+  EXPECT_NEAR(st.alpha, 1.0, 1e-6) << "the alpha reported is the one the update used";
+  // One Adam step moves log_alpha by about the learning rate.
+  EXPECT_NEAR(std::log(sac.alpha()), 0.0, 1.5 * small_config().alpha_lr());
+  EXPECT_NE(sac.alpha(), 1.0);
+}
+
+TEST(Sac, SaveLoadRoundTrip) {
+  const auto cfg = small_config();
+  Sac a(cfg, 3, 2, 21);
+  for (int k = 0; k < 5; ++k) a.update(random_batch(32, 3, 2, 300 + k));
+  const std::string dir = temp_dir("sac_roundtrip");
+  a.save(dir);
+
+  Sac b(cfg, 3, 2, 99);
+  b.load(dir);
+  EXPECT_EQ(b.updates(), a.updates());
+  EXPECT_NEAR(b.alpha(), a.alpha(), 0);
+  torch::manual_seed(4);
+  const auto obs = torch::randn({16, 3});
+  EXPECT_TRUE(torch::equal(a.deterministic_action(obs), b.deterministic_action(obs)));
+  const auto at = a.target_critic_parameters(), bt = b.target_critic_parameters();
+  for (size_t i = 0; i < at.size(); ++i) EXPECT_TRUE(torch::equal(at[i], bt[i]));
+
+  // Optimizer state came back too: the same next update gives the same networks.
+  const auto batch = random_batch(32, 3, 2, 400);
+  torch::manual_seed(8);
+  a.update(batch);
+  torch::manual_seed(8);
+  b.update(batch);
+  const auto ap = a.actor_parameters(), bp = b.actor_parameters();
+  for (size_t i = 0; i < ap.size(); ++i) EXPECT_TRUE(torch::equal(ap[i], bp[i])) << i;
+  const auto ac = a.critic_parameters(), bc = b.critic_parameters();
+  for (size_t i = 0; i < ac.size(); ++i) EXPECT_TRUE(torch::equal(ac[i], bc[i])) << i;
+  EXPECT_NEAR(a.alpha(), b.alpha(), 0);
+  std::filesystem::remove_all(dir);
+}
+
+TEST(Sac, LoadRejectsOtherShapesNamingFile) {
+  const std::string dir = temp_dir("sac_mismatch");
+  Sac(small_config(), 3, 1, 1).save(dir);
+  auto expect_error = [&](Sac& other) {
+    try {
+      other.load(dir);
+      ADD_FAILURE() << "no error";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find(dir + "/sac.pt"), std::string::npos) << e.what();
+    }
+  };
+  config::SacConfig wider;
+  wider.add_hidden(64);
+  wider.add_hidden(32);
+  Sac other_hidden(wider, 3, 1, 1), other_obs(small_config(), 4, 1, 1);
+  expect_error(other_hidden);
+  expect_error(other_obs);
+  Sac missing(small_config(), 3, 1, 1);
+  std::filesystem::remove_all(dir);
+  expect_error(missing);
+}
+
+TEST(Sac, ExportPolicyLayout) {
+  auto cfg = small_config();
+  cfg.set_log_std_min(-5);
+  cfg.set_log_std_max(1);
+  Sac sac(cfg, 3, 2, 1);
+  const PolicyParams p = sac.export_policy(42);
+  EXPECT_EQ(p.version, 42u);
+  EXPECT_EQ(p.head, PolicyHead::kSquashedGaussian);
+  EXPECT_EQ(p.layout.sizes, (std::vector<int>{3, 32, 32, 4}));
+  EXPECT_EQ(p.layout.activation, Activation::kRelu);
+  EXPECT_TRUE(p.obs_mean.empty());
+  EXPECT_TRUE(p.obs_std.empty());
+  EXPECT_FLOAT_EQ(p.log_std_min, -5.f);
+  EXPECT_FLOAT_EQ(p.log_std_max, 1.f);
+  const size_t want = (3 * 32 + 32) + (32 * 32 + 32) + (32 * 4 + 4);
+  EXPECT_EQ(p.params.size(), want);
+  EXPECT_EQ(p.layout.num_params(), want);
+  // Flat order: first layer's weight row-major, then its bias.
+  const auto params = sac.actor_parameters();
+  const auto w0 = params[0].contiguous();
+  ASSERT_EQ(w0.sizes(), (std::vector<int64_t>{32, 3}));
+  EXPECT_EQ(p.params[1], w0[0][1].item<float>());
+  EXPECT_EQ(p.params[3], w0[1][0].item<float>());
+  EXPECT_EQ(p.params[3 * 32], params[1][0].item<float>());
+}
+
+}  // namespace
+}  // namespace farm

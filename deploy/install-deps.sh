@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages the farm needs, only those missing. Safe to run twice.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config
+  libfastrtps-dev fastddsgen fastdds-tools          # Fast DDS 2.9 and its IDL generator
+  libmujoco-dev libqhull-dev                        # MuJoCo 2.2.2 (its CMake target needs qhull)
+  libeigen3-dev libprotobuf-dev protobuf-compiler
+  libtorch-dev libopenblas0-pthread                 # without OpenBLAS LibTorch is ~6x slower
+  libgtest-dev libbenchmark-dev
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+echo "install-deps: installing ${missing[*]}"
+$SUDO apt-get update -q
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q "${missing[@]}"

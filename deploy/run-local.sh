@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The main job on one host: installs what is missing, builds, then trains the default experiment
+# with a learner and two workers talking over Fast DDS on this machine. Ends by itself with a
+# summary; logs are in runs/<experiment>/ (learner.csv, learner.log, worker-*.log, summary.txt).
+#   deploy/run-local.sh [CONFIG] [WORKERS]
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+CONFIG="${1:-$ROOT/deploy/configs/pendulum_sac.txtpb}"
+WORKERS="${2:-2}"
+DOMAIN="${FARM_DOMAIN:-0}"
+
+"$ROOT/deploy/install-deps.sh"
+"$ROOT/deploy/build.sh"
+BIN="${FARM_BUILD_DIR:-$ROOT/build}"
+
+cd "$ROOT"
+LOGS="$ROOT/runs/logs"
+mkdir -p "$LOGS"
+pids=()
+cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; }
+trap cleanup EXIT
+
+# Workers first: they wait for the learner and say so.
+for i in $(seq 1 "$WORKERS"); do
+  "$BIN/worker/farm-worker" --domain "$DOMAIN" --id "local-$i" > "$LOGS/worker-$i.log" 2>&1 &
+  pids+=($!)
+done
+echo "run-local: $WORKERS workers started (logs in $LOGS/worker-*.log); starting the learner"
+set +e
+"$BIN/learner/farm-learner" --config "$CONFIG" --domain "$DOMAIN" 2>&1 | tee "$LOGS/learner.log"
+rc=${PIPESTATUS[0]}
+set -e
+for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+pids=()
+tail -n 1 "$LOGS"/worker-*.log
+exit "$rc"

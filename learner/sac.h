@@ -1,0 +1,95 @@
+// Soft Actor-Critic with automatic entropy temperature (the 2018 "applications" version),
+// following the update order and losses of stable-baselines3's SAC so that its published
+// hyperparameters apply.
+#pragma once
+
+#include <torch/torch.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "replay_buffer.h"
+
+namespace farm {
+
+// One update's numbers. critic_loss is sb3's 0.5 * (mse(Q1) + mse(Q2)); alpha is the temperature
+// the losses used (the one before this update's own alpha step); entropy is -mean log_prob of the
+// policy's samples on the batch; q_mean averages both critics on the batch's (obs, action).
+struct SacStats {
+  double critic_loss = 0, actor_loss = 0, alpha = 0, alpha_loss = 0, entropy = 0, q_mean = 0;
+};
+
+// Soft Bellman target: r + gamma * (1 - terminated) * (min(q1, q2) - alpha * next_log_prob).
+// Truncated (time-limit) transitions are not terminated and keep the bootstrap.
+torch::Tensor sac_critic_target(const torch::Tensor& reward, const torch::Tensor& terminated,
+                                const torch::Tensor& next_q1, const torch::Tensor& next_q2,
+                                const torch::Tensor& next_log_prob, double alpha, double gamma);
+
+// -(log_alpha * (log_prob + target_entropy).detach()).mean(): its gradient raises alpha while the
+// policy entropy (-log_prob) is below the target and lowers it above.
+torch::Tensor sac_temperature_loss(const torch::Tensor& log_alpha, const torch::Tensor& log_prob,
+                                   double target_entropy);
+
+// Log-density of a = tanh(pre_tanh) with pre_tanh ~ N(mean, exp(log_std)), summed over the last
+// dimension: [..., act] -> [...]. Uses the log(1 - tanh^2 + 1e-6) change-of-variables term.
+torch::Tensor squashed_gaussian_log_prob(const torch::Tensor& mean, const torch::Tensor& log_std,
+                                         const torch::Tensor& pre_tanh);
+
+// Process-wide settings for a process whose time goes to SAC updates; call once, early.
+// - n compute threads for torch and for the OpenBLAS that torch calls for matmuls: OpenBLAS keeps
+//   its own pool, sized to the machine, which torch::set_num_threads does not reach.
+// - glibc malloc keeps freed memory instead of returning it to the kernel: an update allocates and
+//   frees the same few hundred KiB of activations every time, and by default those come back as
+//   fresh pages to fault in (measured: ~40% of an update on the pendulum shapes).
+// With threads > 1 on a machine shared with other work, also start the process with
+// OMP_WAIT_POLICY=PASSIVE (libgomp reads it only at start-up): spinning OpenMP workers otherwise
+// starve OpenBLAS's threads, measured 3-10x slower than one thread.
+void configure_compute(int threads);
+
+class Sac {
+ public:
+  // Seeds torch's global generator with `seed` (initial weights and exploration noise).
+  Sac(const config::SacConfig& cfg, int obs_dim, int act_dim, uint64_t seed);
+  ~Sac();
+  Sac(Sac&&) noexcept;
+  Sac& operator=(Sac&&) noexcept;
+
+  // One gradient step of temperature, critics and actor, then the polyak target update.
+  SacStats update(const SampledBatch& batch);
+
+  // The actor as the workers run it: layout {obs, hidden..., 2*act} relu, squashed-Gaussian head,
+  // no observation normalizer.
+  PolicyParams export_policy(uint64_t version) const;
+
+  int64_t updates() const;
+  int obs_dim() const;
+  int act_dim() const;
+  const std::vector<int>& hidden() const;
+  double alpha() const;
+  double target_entropy() const;
+
+  // tanh(mean) for obs [B, obs_dim] -> [B, act_dim]; no gradient.
+  torch::Tensor deterministic_action(const torch::Tensor& obs) const;
+  // Live parameter tensors, in a fixed order (for tests and diagnostics; do not resize them).
+  // Actor: per layer weight [out, in], bias [out]. Critics, both stacked in one tensor per layer:
+  // weight [2, in, out], bias [2, 1, out].
+  std::vector<torch::Tensor> actor_parameters() const;
+  std::vector<torch::Tensor> critic_parameters() const;
+  std::vector<torch::Tensor> target_critic_parameters() const;
+
+  // DIR/sac.pt: actor, critics, target critics, the three optimizer states, log_alpha and the
+  // update count; written to a temporary file and renamed. load() throws std::runtime_error naming
+  // the file and the first entry whose shape (or network sizes) does not match this instance.
+  void save(const std::string& dir) const;
+  void load(const std::string& dir);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace farm

@@ -1,0 +1,86 @@
+// Experience collection for one worker: a VecEnv stepped by a persistent thread pool. Thread k
+// owns a contiguous chunk of envs and a copy of the policy, and runs all T steps of a batch for
+// its chunk (batched inference over its rows, then stepping), writing straight into the
+// RolloutBatch; threads meet only at the start and the end of collect().
+// Action noise comes from one generator per env, so a batch depends on the seed only, not on
+// the number of threads.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <thread>
+#include <vector>
+
+#include "mlp.h"
+#include "rollout_batch.h"
+#include "task.h"
+#include "vec_env.h"
+
+namespace farm {
+
+class Rollout {
+ public:
+  // Resets every env. num_threads is capped at num_envs; the calling thread runs chunk 0.
+  // Throws std::invalid_argument if num_envs or num_threads is < 1.
+  Rollout(std::shared_ptr<const robots::Task> task, int num_envs, int num_threads, uint64_t seed);
+  ~Rollout();
+  Rollout(const Rollout&) = delete;
+  Rollout& operator=(const Rollout&) = delete;
+
+  // Throws std::invalid_argument if the policy is inconsistent or does not fit the task's
+  // observation/action sizes. Call between collect()s, not during one.
+  void set_policy(const PolicyParams& p);
+  uint64_t policy_version() const { return version_; }
+
+  // Collects T steps of every env into `out` (resized to T x N). Episodes continue across
+  // calls. Throws std::logic_error before set_policy(); rethrows a task's exception.
+  void collect(int T, RolloutBatch& out);
+
+  uint64_t env_steps() const { return env_steps_; }  // over all collect() calls
+  int num_envs() const { return env_.num_envs(); }
+  int num_threads() const { return int(chunks_.size()); }
+  const robots::TaskSpec& spec() const { return env_.spec(); }
+  const VecEnv& env() const { return env_; }
+
+ private:
+  struct Chunk {
+    int begin = 0, end = 0;
+    Policy policy;
+    EpisodeEnds ends;
+    std::vector<uint32_t> end_index;  // t * N + n of each entry of `ends`
+  };
+  void run_chunk(Chunk& c, int T, RolloutBatch& out);
+  void thread_main(int k);
+  void merge_ends(RolloutBatch& out);
+
+  VecEnv env_;
+  std::vector<std::mt19937_64> noise_rng_;  // per env
+  std::vector<Chunk> chunks_;
+  uint64_t version_ = 0;
+  bool has_policy_ = false;
+  uint64_t env_steps_ = 0;
+
+  // Job hand-off to the pool: one generation per collect().
+  std::vector<std::thread> threads_;  // thread k - 1 runs chunk k
+  std::mutex mu_;
+  std::condition_variable start_cv_, done_cv_;
+  uint64_t generation_ = 0;
+  int pending_ = 0;
+  bool stop_ = false;
+  int job_T_ = 0;
+  RolloutBatch* job_out_ = nullptr;
+  std::exception_ptr error_;
+  std::vector<std::pair<uint32_t, std::pair<int, int>>> merge_order_;  // (index, (chunk, i))
+};
+
+// Runs `episodes` complete episodes, one per env, side by side, with the deterministic policy
+// (tanh(mean)), and returns their records ordered by env. Throws std::invalid_argument if the
+// policy does not fit the task or the task has no time limit.
+std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task,
+                                           const PolicyParams& params, int episodes, uint64_t seed);
+
+}  // namespace farm
