@@ -35,7 +35,7 @@ void on_signal(int) { g_interrupted = true; }
 
 struct Options {
   std::string config_path;
-  dds::BusOptions bus;
+  farm::dds::BusOptions bus;
   bool resume = false;
   std::string run_dir;  // default <run_root>/<experiment_id>
 };
@@ -57,7 +57,7 @@ Options parse(int argc, char** argv) {
       if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
       return argv[++i];
     };
-    if (dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
+    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
     if (a == "--config") o.config_path = value();
     else if (a == "--resume") o.resume = true;
     else if (a == "--run-dir") o.run_dir = value();
@@ -92,11 +92,11 @@ class Learner {
         ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
         rng_(cfg_.seed() * 7919 + 17),
         bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
-        spec_out_(bus_, dds::kSpecTopic, "latest_writer"),
-        weights_out_(bus_, dds::kWeightsTopic, "latest_writer"),
-        stats_out_(bus_, dds::kLearnerStatsTopic, "status_writer"),
-        batches_in_(bus_, dds::kBatchTopic, "batch_reader"),
-        status_in_(bus_, dds::kWorkerStatusTopic, "status_reader") {
+        spec_out_(bus_, farm::dds::kSpecTopic, "latest_writer"),
+        weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
+        stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
+        batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
+        status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader") {
     run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
     ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   }
@@ -212,7 +212,7 @@ class Learner {
 
   void publish_weights() {
     farm::msg::PolicyWeights w;
-    dds::to_wire(sac_.export_policy(version_), cfg_.experiment_id(), w);
+    farm::dds::to_wire(sac_.export_policy(version_), cfg_.experiment_id(), w);
     weights_out_.write(w);
     ++version_;
     updates_since_publish_ = 0;
@@ -425,13 +425,13 @@ class Learner {
   ReplayBuffer replay_;
   Ingest ingest_;
   std::mt19937_64 rng_;
-  dds::Bus bus_;
-  dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out_;
-  dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
-  dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
-  dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
-  dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
-  uint64_t session_ = dds::random_session_id();
+  farm::dds::Bus bus_;
+  farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out_;
+  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
+  farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
+  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  uint64_t session_ = farm::dds::random_session_id();
   std::string run_dir_, ckpt_dir_;
   std::ofstream csv_;
   farm::msg::TransitionBatch batch_;
@@ -465,7 +465,7 @@ int main(int argc, char** argv) {
   }
   signal(SIGINT, on_signal);
   signal(SIGTERM, on_signal);
-  torch::set_num_threads(cfg.torch_threads());
+  configure_compute(cfg.torch_threads());
   try {
     Learner l(opt, cfg);
     return l.run();

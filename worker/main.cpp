@@ -26,7 +26,7 @@ std::atomic<bool> g_stop{false};
 void on_signal(int) { g_stop = true; }
 
 struct Options {
-  dds::BusOptions bus;
+  farm::dds::BusOptions bus;
   int envs = 0;      // 0: the experiment's worker.envs_per_worker
   int threads = 1;
   std::string id;
@@ -62,7 +62,7 @@ Options parse(int argc, char** argv) {
       if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
       return argv[++i];
     };
-    if (dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
+    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
     if (a == "--envs") o.envs = int_flag(a, value(), 1, 1 << 20);
     else if (a == "--threads") o.threads = int_flag(a, value(), 1, 1024);
     else if (a == "--id") o.id = value();
@@ -71,7 +71,7 @@ Options parse(int argc, char** argv) {
     else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
     else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
-  if (o.id.empty()) o.id = dds::hostname() + "-" + std::to_string(getpid());
+  if (o.id.empty()) o.id = farm::dds::hostname() + "-" + std::to_string(getpid());
   return o;
 }
 
@@ -112,11 +112,11 @@ class Worker {
   explicit Worker(const Options& o)
       : opt_(o),
         bus_(o.bus, "farm-worker " + o.id),
-        spec_in_(bus_, dds::kSpecTopic, "latest_reader"),
-        weights_in_(bus_, dds::kWeightsTopic, "latest_reader"),
-        batches_out_(bus_, dds::kBatchTopic, "batch_writer"),
-        status_out_(bus_, dds::kWorkerStatusTopic, "status_writer"),
-        session_(dds::random_session_id()) {}
+        spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader"),
+        weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader"),
+        batches_out_(bus_, farm::dds::kBatchTopic, "batch_writer"),
+        status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
+        session_(farm::dds::random_session_id()) {}
 
   int run() {
     log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
@@ -220,7 +220,7 @@ class Worker {
     if (!got || w.experiment_id() != spec_.experiment_id()) return;
     if (have_policy_ && w.version() == rollout_->policy_version()) return;
     try {
-      PolicyParams p = dds::from_wire(w);
+      PolicyParams p = farm::dds::from_wire(w);
       rollout_->set_policy(p);
       have_policy_ = true;
       batches_on_version_ = 0;
@@ -284,7 +284,7 @@ class Worker {
     farm::msg::WorkerStatus s;
     s.worker_id(opt_.id);
     s.worker_session(session_);
-    s.host(dds::hostname());
+    s.host(farm::dds::hostname());
     s.experiment_id(spec_.experiment_id());
     s.envs(rollout_ ? rollout_->num_envs() : 0);
     s.threads(opt_.threads);
@@ -303,11 +303,11 @@ class Worker {
   }
 
   Options opt_;
-  dds::Bus bus_;
-  dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
-  dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
-  dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
-  dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
+  farm::dds::Bus bus_;
+  farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
+  farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
+  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
+  farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
   uint64_t session_;
   farm::msg::ExperimentSpec spec_;
   std::unique_ptr<Rollout> rollout_;

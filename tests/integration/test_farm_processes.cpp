@@ -1,1 +1,246 @@
+// End-to-end: the real farm-learner and two real farm-worker processes talk over Fast DDS on
+// this machine (shared memory / loopback), train the pendulum with SAC, and account for every
+// batch. One worker corrupts one batch with NaN; it must be rejected, counted, and training must
+// go on. The workers start before the learner and must say they are waiting for it.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <stdlib.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Proc {
+  pid_t pid = -1;
+  std::string log;
+};
+
+// Starts argv[0] with stdout and stderr going to log_path.
+Proc spawn(const std::vector<std::string>& argv, const std::string& log_path) {
+  Proc p;
+  p.log = log_path;
+  p.pid = fork();
+  if (p.pid == 0) {
+    int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(fd, 1);
+    dup2(fd, 2);
+    close(fd);
+    std::vector<char*> args;
+    for (auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  return p;
+}
+
+// Exit status, or -1 if it had to be killed after timeout_s seconds.
+int wait_for(Proc& p, double timeout_s) {
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  int status = 0;
+  while (true) {
+    pid_t r = waitpid(p.pid, &status, WNOHANG);
+    if (r == p.pid) break;
+    if (std::chrono::steady_clock::now() > deadline) {
+      kill(p.pid, SIGKILL);
+      waitpid(p.pid, &status, 0);
+      p.pid = -1;
+      return -1;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  p.pid = -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+}
+
+std::string slurp(const std::string& path) {
+  std::ifstream f(path);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+void write(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+
+// A DDS domain of our own, so parallel test runs and a running farm do not see each other.
+int private_domain() { return 20 + static_cast<int>(getpid() % 200); }
+
+class FarmProcesses : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    char tmpl[] = "/tmp/farm-it-XXXXXX";
+    ASSERT_NE(mkdtemp(tmpl), nullptr);
+    dir_ = tmpl;
+    domain_ = std::to_string(private_domain());
+  }
+  void TearDown() override {
+    for (auto& p : procs_)
+      if (p.pid > 0) {
+        kill(p.pid, SIGKILL);
+        waitpid(p.pid, nullptr, 0);
+      }
+    if (!HasFailure()) fs::remove_all(dir_);
+    else std::cerr << "logs kept in " << dir_ << "\n";
+  }
+  Proc& start(const std::vector<std::string>& argv, const std::string& name) {
+    procs_.push_back(spawn(argv, dir_ + "/" + name + ".log"));
+    return procs_.back();
+  }
+
+  std::string dir_, domain_;
+  std::vector<Proc> procs_;
+};
+
+// Short pendulum experiment: same hyperparameters as the main job, a tighter clock.
+const char* kConfig = R"(experiment_id: "it_pendulum"
+seed: 3
+task { name: "pendulum" }
+sac {
+  hidden: 64
+  hidden: 64
+  actor_lr: 1e-3
+  critic_lr: 1e-3
+  alpha_lr: 1e-3
+  learning_starts: 1000
+  publish_every_updates: 25
+}
+worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 2 }
+eval { episodes: 10 every_seconds: 5 final_episodes: 20 }
+stop { target_eval_return: -250 max_seconds: 300 }
+checkpoint_every_seconds: 30
+log_every_seconds: 2
+)";
+
+double number_after(const std::string& text, const std::string& key) {
+  std::smatch m;
+  std::regex re(key + R"(\s+(-?[0-9.]+))");
+  if (!std::regex_search(text, m, re)) return std::nan("");
+  return std::stod(m[1]);
+}
+
+TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
+  const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
+  write(cfg, kConfig);
+  // Workers first: they must wait for the learner and say so.
+  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-a", "--inject-nan-batch", "5", "--log-every", "2"}, "worker-a");
+  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-b", "--log-every", "2"}, "worker-b");
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+  for (auto w : {"worker-a", "worker-b"})
+    EXPECT_NE(slurp(dir_ + "/" + w + ".log").find("waiting for a learner"), std::string::npos) << w;
+
+  Proc& learner = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner");
+  const int learner_rc = wait_for(learner, 600);
+  const std::string learner_log = slurp(dir_ + "/learner.log");
+  ASSERT_EQ(learner_rc, 0) << learner_log;
+  int worker_rc[2];
+  worker_rc[0] = wait_for(procs_[0], 60);
+  worker_rc[1] = wait_for(procs_[1], 60);
+  EXPECT_EQ(worker_rc[0], 0) << slurp(dir_ + "/worker-a.log");
+  EXPECT_EQ(worker_rc[1], 0) << slurp(dir_ + "/worker-b.log");
+
+  // Throughput lines were printed and the same went to the CSV.
+  EXPECT_NE(learner_log.find("steps/s"), std::string::npos);
+  EXPECT_NE(learner_log.find("upd/s"), std::string::npos);
+  std::ifstream csv(run + "/learner.csv");
+  std::string header, row;
+  ASSERT_TRUE(std::getline(csv, header)) << "no learner.csv in " << run;
+  EXPECT_NE(header.find("env_steps"), std::string::npos) << header;
+  EXPECT_TRUE(std::getline(csv, row)) << "learner.csv has no rows";
+
+  // The NaN batch was rejected with a reason naming it.
+  EXPECT_NE(learner_log.find("rejected batch 5 from it-a"), std::string::npos) << learner_log;
+  EXPECT_NE(learner_log.find("non-finite value"), std::string::npos) << learner_log;
+
+  const std::string summary = slurp(run + "/summary.txt");
+  ASSERT_FALSE(summary.empty()) << learner_log;
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 0);
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(m[4], "1") << summary;
+
+  // Every sequence number each worker says it sent reached the learner exactly once.
+  struct Expect { const char* id; const char* log; int invalid; };
+  for (Expect e : {Expect{"it-a", "worker-a", 1}, Expect{"it-b", "worker-b", 0}}) {
+    const std::string wlog = slurp(dir_ + "/" + e.log + ".log");
+    std::smatch sent;
+    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent \(sequence 0\.\.(\d+)\))"))) << wlog;
+    const long long n = std::stoll(sent[1]);
+    ASSERT_GT(n, 6) << e.id;
+    std::smatch got;
+    std::regex line(std::string(e.id) +
+                    R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+), duplicate (\d+), invalid (\d+), stream closed)");
+    ASSERT_TRUE(std::regex_search(summary, got, line)) << e.id << "\n" << summary;
+    EXPECT_EQ(std::stoll(got[1]) + std::stoll(got[5]), n) << e.id;
+    EXPECT_EQ(std::stoll(got[2]), n - 1) << e.id;
+    EXPECT_EQ(got[3], "0") << e.id;
+    EXPECT_EQ(got[4], "0") << e.id;
+    EXPECT_EQ(std::stoll(got[5]), e.invalid) << e.id;
+  }
+
+  // Learning progressed: a random policy scores about -1200 on Pendulum-v1; the target is -250.
+  const double final_return = number_after(summary, "final eval return");
+  EXPECT_GT(final_return, -400.0) << summary;
+  EXPECT_TRUE(fs::exists(run + "/checkpoint/manifest.txtpb"));
+}
+
+TEST_F(FarmProcesses, MisspelledConfigFieldIsNamedAndNothingIsLost) {
+  const std::string cfg = dir_ + "/typo.txtpb", run = dir_ + "/run";
+  std::string text = kConfig;
+  text.replace(text.find("learning_starts"), std::string("learning_starts").size(), "learning_start");
+  write(cfg, text);
+  fs::create_directories(run);
+  write(run + "/learner.csv", "earlier results\n");
+
+  Proc& learner = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner");
+  const int rc = wait_for(learner, 60);
+  const std::string out = slurp(dir_ + "/learner.log");
+  EXPECT_NE(rc, 0) << out;
+  EXPECT_NE(out.find("typo.txtpb:10:"), std::string::npos) << out;
+  EXPECT_NE(out.find("learning_start"), std::string::npos) << out;
+  // The earlier run is untouched.
+  EXPECT_EQ(slurp(run + "/learner.csv"), "earlier results\n");
+}
+
+TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
+  const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
+  std::string text = kConfig;
+  // A run that stops on its update budget, then a resumed run with a larger budget.
+  text.replace(text.find("stop {"), std::string("stop {").size(), "stop { max_updates: 1500");
+  text.replace(text.find("target_eval_return: -250"), std::string("target_eval_return: -250").size(), "target_eval_return: 1000");
+  write(cfg, text);
+  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r"}, "worker");
+  Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
+  ASSERT_EQ(wait_for(first, 300), 0) << slurp(dir_ + "/learner-1.log");
+  const double updates_1 = number_after(slurp(run + "/summary.txt"), "updates");
+  EXPECT_GE(updates_1, 1500);
+
+  std::string more = text;
+  more.replace(more.find("max_updates: 1500"), std::string("max_updates: 1500").size(), "max_updates: 2500");
+  write(cfg, more);
+  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r2"}, "worker-2");
+  Proc& second = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
+  ASSERT_EQ(wait_for(second, 300), 0) << slurp(dir_ + "/learner-2.log");
+  const std::string log2 = slurp(dir_ + "/learner-2.log");
+  EXPECT_NE(log2.find("resumed"), std::string::npos) << log2;
+  const double updates_2 = number_after(slurp(run + "/summary.txt"), "updates");
+  EXPECT_GE(updates_2, 2500);
+  EXPECT_LT(updates_2 - updates_1, 1500) << "the resumed run started from scratch";
+}
+
+}  // namespace
