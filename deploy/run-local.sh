@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main job on one host: installs what is missing, builds, then trains the default experiment
 # with a learner and two workers talking over Fast DDS on this machine. Ends by itself with a
-# summary; logs are in runs/<experiment>/ (learner.csv, learner.log, worker-*.log, summary.txt).
+# summary; results in runs/<experiment>/ (learner.csv, summary.txt, checkpoint/), process output in runs/logs/.
 #   deploy/run-local.sh [CONFIG] [WORKERS]
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
