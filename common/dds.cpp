@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <random>
 
@@ -30,6 +31,28 @@ std::string default_profiles_file() {
   return FARM_DEFAULT_PROFILES;
 }
 
+// DDS Security with the builtin plugins: PKI-DH authentication, signed permissions, AES-GCM.
+void enable_security(std::string& dir, fdds::DomainParticipantQos& pqos) {
+  namespace fs = std::filesystem;
+  dir = fs::absolute(dir).lexically_normal().string();
+  for (const char* f : {"ca.cert.pem", "cert.pem", "key.pem", "governance.p7s", "permissions.p7s"}) {
+    if (!file_exists(dir + "/" + f))
+      throw std::runtime_error("DDS Security: " + dir + "/" + f + " is missing (make the folder with deploy/make-pki.sh)");
+  }
+  auto& props = pqos.properties().properties();
+  auto set = [&](const std::string& k, const std::string& v) { props.emplace_back(k, v); };
+  const std::string f = "file://" + dir + "/";
+  set("dds.sec.auth.plugin", "builtin.PKI-DH");
+  set("dds.sec.auth.builtin.PKI-DH.identity_ca", f + "ca.cert.pem");
+  set("dds.sec.auth.builtin.PKI-DH.identity_certificate", f + "cert.pem");
+  set("dds.sec.auth.builtin.PKI-DH.private_key", f + "key.pem");
+  set("dds.sec.access.plugin", "builtin.Access-Permissions");
+  set("dds.sec.access.builtin.Access-Permissions.permissions_ca", f + "ca.cert.pem");
+  set("dds.sec.access.builtin.Access-Permissions.governance", f + "governance.p7s");
+  set("dds.sec.access.builtin.Access-Permissions.permissions", f + "permissions.p7s");
+  set("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+}
+
 }  // namespace
 
 bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
@@ -51,6 +74,10 @@ bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
   }
   if (a == "--dds-profiles") {
     opts.profiles_file = value();
+    return true;
+  }
+  if (a == "--security") {
+    opts.security_dir = value();
     return true;
   }
   return false;
@@ -80,10 +107,15 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
   }
   pqos.name(participant_name);
+  const char* sec_env = std::getenv("FARM_SECURITY_DIR");
+  security_dir_ = !opts.security_dir.empty() ? opts.security_dir : (sec_env ? sec_env : "");
+  if (!security_dir_.empty()) enable_security(security_dir_, pqos);
   participant_ = factory->create_participant(opts.domain, pqos);
   if (!participant_) {
-    throw std::runtime_error("cannot create DDS participant on domain " +
-                             std::to_string(opts.domain));
+    throw std::runtime_error("cannot create DDS participant on domain " + std::to_string(opts.domain) +
+                             (security_dir_.empty() ? std::string()
+                                                    : " with DDS Security from " + security_dir_ +
+                                                          " (certificate, key or signed documents rejected; see messages above)"));
   }
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);

@@ -39,9 +39,13 @@ struct BusOptions {
   // Empty: FASTRTPS_DEFAULT_PROFILES_FILE if set (Fast DDS loads it itself), else the
   // profiles file shipped in deploy/.
   std::string profiles_file;
+  // DDS Security: a folder made by deploy/make-pki.sh (ca.cert.pem, cert.pem, key.pem,
+  // governance.p7s, permissions.p7s). Empty: FARM_SECURITY_DIR if set, else no security.
+  std::string security_dir;
 };
 
-// Adds --domain N and --dds-profiles FILE to a main's flag handling; returns true if consumed.
+// Adds --domain N, --dds-profiles FILE and --security DIR to a main's flag handling; returns
+// true if consumed.
 bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts);
 
 class Bus {
@@ -56,6 +60,8 @@ class Bus {
   fdds::Subscriber* subscriber() { return subscriber_; }
   int domain() const { return domain_; }
   const std::string& profiles_file() const { return profiles_file_; }
+  // The DDS Security folder in use, or "" when security is off.
+  const std::string& security_dir() const { return security_dir_; }
   // Registers the type once and returns the topic (one per name per participant).
   fdds::Topic* topic(const std::string& name, fdds::TypeSupport type);
 
@@ -65,6 +71,7 @@ class Bus {
   fdds::Subscriber* subscriber_ = nullptr;
   std::map<std::string, fdds::Topic*> topics_;
   std::string profiles_file_;
+  std::string security_dir_;
   int domain_ = 0;
 };
 

@@ -42,7 +42,7 @@ struct Options {
 
 void usage() {
   std::cout << "usage: farm-learner --config FILE [--resume] [--run-dir DIR] [--domain D]\n"
-               "                    [--dds-profiles FILE]\n"
+               "                    [--dds-profiles FILE] [--security DIR]\n"
                "Trains the experiment in FILE with the workers that join on DDS domain D.\n"
                "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint.\n"
                "--resume carries on from the checkpoint in the run dir. Without it, an existing\n"
@@ -108,7 +108,7 @@ class Learner {
     log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " +
         std::to_string(obs_dim_) + ", act " + std::to_string(act_dim_) + "), SAC " +
         sac_.export_policy(0).layout.describe() + " actor, DDS domain " + std::to_string(bus_.domain()) +
-        ", run dir " + run_dir_);
+        ", run dir " + run_dir_ + (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
     const double t0 = now_seconds() - elapsed_offset_;

@@ -37,7 +37,7 @@ struct Options {
 
 void usage() {
   std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D]\n"
-               "                   [--dds-profiles FILE] [--log-every SECONDS]\n"
+               "                   [--dds-profiles FILE] [--security DIR] [--log-every SECONDS]\n"
                "                   [--inject-nan-batch SEQ]   (fault injection for tests)\n"
                "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
                "the experiment's worker.envs_per_worker) on the given number of threads.\n";
@@ -120,7 +120,8 @@ class Worker {
 
   int run() {
     log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
-        ", DDS profiles " + bus_.profiles_file());
+        ", DDS profiles " + bus_.profiles_file() +
+        (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
     double last_wait_note = -1e9;
     while (!g_stop) {
       poll_spec();

@@ -2,106 +2,31 @@
 // this machine (shared memory / loopback), train the pendulum with SAC, and account for every
 // batch. One worker corrupts one batch with NaN; it must be rejected, counted, and training must
 // go on. The workers start before the learner and must say they are waiting for it.
-#include <fcntl.h>
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <stdlib.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <regex>
-#include <sstream>
 #include <string>
-#include <thread>
-#include <vector>
+
+#include "process_util.h"
 
 namespace fs = std::filesystem;
+using namespace farm::testing;
 
 namespace {
-
-struct Proc {
-  pid_t pid = -1;
-  std::string log;
-};
-
-// Starts argv[0] with stdout and stderr going to log_path.
-Proc spawn(const std::vector<std::string>& argv, const std::string& log_path) {
-  Proc p;
-  p.log = log_path;
-  p.pid = fork();
-  if (p.pid == 0) {
-    int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    dup2(fd, 1);
-    dup2(fd, 2);
-    close(fd);
-    std::vector<char*> args;
-    for (auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-    args.push_back(nullptr);
-    execv(args[0], args.data());
-    _exit(127);
-  }
-  return p;
-}
-
-// Exit status, or -1 if it had to be killed after timeout_s seconds.
-int wait_for(Proc& p, double timeout_s) {
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  int status = 0;
-  while (true) {
-    pid_t r = waitpid(p.pid, &status, WNOHANG);
-    if (r == p.pid) break;
-    if (std::chrono::steady_clock::now() > deadline) {
-      kill(p.pid, SIGKILL);
-      waitpid(p.pid, &status, 0);
-      p.pid = -1;
-      return -1;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  }
-  p.pid = -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-}
-
-std::string slurp(const std::string& path) {
-  std::ifstream f(path);
-  std::stringstream s;
-  s << f.rdbuf();
-  return s.str();
-}
-
-void write(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
-
-// A DDS domain of our own, so parallel test runs and a running farm do not see each other.
-int private_domain() { return 20 + static_cast<int>(getpid() % 200); }
 
 class FarmProcesses : public ::testing::Test {
  protected:
   void SetUp() override {
-    char tmpl[] = "/tmp/farm-it-XXXXXX";
-    ASSERT_NE(mkdtemp(tmpl), nullptr);
-    dir_ = tmpl;
-    domain_ = std::to_string(private_domain());
+    dir_ = set_.dir();
+    domain_ = std::to_string(private_domain(0));
   }
-  void TearDown() override {
-    for (auto& p : procs_)
-      if (p.pid > 0) {
-        kill(p.pid, SIGKILL);
-        waitpid(p.pid, nullptr, 0);
-      }
-    if (!HasFailure()) fs::remove_all(dir_);
-    else std::cerr << "logs kept in " << dir_ << "\n";
-  }
-  Proc& start(const std::vector<std::string>& argv, const std::string& name) {
-    procs_.push_back(spawn(argv, dir_ + "/" + name + ".log"));
-    return procs_.back();
-  }
+  void TearDown() override { set_.cleanup(HasFailure()); }
+  Proc& start(const std::vector<std::string>& argv, const std::string& name) { return set_.start(argv, name); }
 
+  ProcessSet set_;
   std::string dir_, domain_;
-  std::vector<Proc> procs_;
 };
 
 // Short pendulum experiment: same hyperparameters as the main job, a tighter clock.
@@ -133,7 +58,7 @@ double number_after(const std::string& text, const std::string& key) {
 
 TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
-  write(cfg, kConfig);
+  write_file(cfg, kConfig);
   // Workers first: they must wait for the learner and say so.
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-a", "--inject-nan-batch", "5", "--log-every", "2"}, "worker-a");
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-b", "--log-every", "2"}, "worker-b");
@@ -146,8 +71,8 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const std::string learner_log = slurp(dir_ + "/learner.log");
   ASSERT_EQ(learner_rc, 0) << learner_log;
   int worker_rc[2];
-  worker_rc[0] = wait_for(procs_[0], 60);
-  worker_rc[1] = wait_for(procs_[1], 60);
+  worker_rc[0] = wait_for(set_.procs()[0], 60);
+  worker_rc[1] = wait_for(set_.procs()[1], 60);
   EXPECT_EQ(worker_rc[0], 0) << slurp(dir_ + "/worker-a.log");
   EXPECT_EQ(worker_rc[1], 0) << slurp(dir_ + "/worker-b.log");
 
@@ -203,9 +128,9 @@ TEST_F(FarmProcesses, MisspelledConfigFieldIsNamedAndNothingIsLost) {
   const std::string cfg = dir_ + "/typo.txtpb", run = dir_ + "/run";
   std::string text = kConfig;
   text.replace(text.find("learning_starts"), std::string("learning_starts").size(), "learning_start");
-  write(cfg, text);
+  write_file(cfg, text);
   fs::create_directories(run);
-  write(run + "/learner.csv", "earlier results\n");
+  write_file(run + "/learner.csv", "earlier results\n");
 
   Proc& learner = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner");
   const int rc = wait_for(learner, 60);
@@ -223,7 +148,7 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   // A run that stops on its update budget, then a resumed run with a larger budget.
   text.replace(text.find("stop {"), std::string("stop {").size(), "stop { max_updates: 1500");
   text.replace(text.find("target_eval_return: -250"), std::string("target_eval_return: -250").size(), "target_eval_return: 1000");
-  write(cfg, text);
+  write_file(cfg, text);
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r"}, "worker");
   Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
   ASSERT_EQ(wait_for(first, 300), 0) << slurp(dir_ + "/learner-1.log");
@@ -232,7 +157,7 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
 
   std::string more = text;
   more.replace(more.find("max_updates: 1500"), std::string("max_updates: 1500").size(), "max_updates: 2500");
-  write(cfg, more);
+  write_file(cfg, more);
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r2"}, "worker-2");
   Proc& second = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
   ASSERT_EQ(wait_for(second, 300), 0) << slurp(dir_ + "/learner-2.log");

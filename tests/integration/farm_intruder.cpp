@@ -1,0 +1,81 @@
+// farm-intruder: a participant that tries to feed a farm made-up batches and to read its spec and
+// weights. Used by the security test: with DDS Security on, a participant without a valid
+// certificate must get nothing through either way.
+//   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
+#include <cstdio>
+#include <string>
+#include <thread>
+
+#include "dds.h"
+#include "meter.h"
+
+int main(int argc, char** argv) {
+  farm::dds::BusOptions bus_opts;
+  std::string experiment = "pendulum_sac", id = "intruder";
+  unsigned obs = 3, act = 1;
+  double seconds = 10;
+  try {
+    for (int i = 1; i < argc; ++i) {
+      std::string a = argv[i];
+      if (farm::dds::parse_bus_flag(argc, argv, i, bus_opts)) continue;
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      std::string v = argv[++i];
+      if (a == "--experiment") experiment = v;
+      else if (a == "--id") id = v;
+      else if (a == "--obs") obs = std::stoul(v);
+      else if (a == "--act") act = std::stoul(v);
+      else if (a == "--seconds") seconds = std::stod(v);
+      else throw std::invalid_argument("unknown flag " + a);
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "farm_intruder: %s\n", e.what());
+    return 2;
+  }
+  try {
+    farm::dds::Bus bus(bus_opts, id);
+    farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(
+        bus, farm::dds::kBatchTopic, "batch_writer");
+    farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights(
+        bus, farm::dds::kWeightsTopic, "latest_reader");
+    farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(
+        bus, farm::dds::kSpecTopic, "latest_reader");
+    // A well-formed batch: if it got through, the learner would accept it.
+    const unsigned T = 1, N = 1;
+    farm::msg::TransitionBatch b;
+    b.experiment_id(experiment);
+    b.worker_id(id);
+    b.worker_session(1);
+    b.num_steps(T);
+    b.num_envs(N);
+    b.obs_dim(obs);
+    b.act_dim(act);
+    b.observations(std::vector<float>(T * N * obs, 0.5f));
+    b.actions(std::vector<float>(T * N * act, 0.0f));
+    b.rewards(std::vector<float>(T * N, 0.0f));
+    b.terminated(std::vector<uint8_t>(T * N, 0));
+    b.truncated(std::vector<uint8_t>(T * N, 0));
+    b.log_probs(std::vector<float>(T * N, 0.0f));
+    b.next_observations(std::vector<float>(N * obs, 0.5f));
+    uint64_t sent = 0, weights_seen = 0, specs_seen = 0;
+    int max_matched = 0;
+    const double t0 = farm::now_seconds();
+    while (farm::now_seconds() - t0 < seconds) {
+      b.sequence_number(sent);
+      if (out.write(b)) ++sent;
+      max_matched = std::max(max_matched, out.matched());
+      farm::msg::PolicyWeights w;
+      while (weights.take(w)) ++weights_seen;
+      farm::msg::ExperimentSpec s;
+      while (spec.take(s)) ++specs_seen;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    std::printf("%s: sent %llu batches, batch readers matched %d, weights received %llu, specs received %llu\n",
+                id.c_str(), (unsigned long long)sent, max_matched, (unsigned long long)weights_seen,
+                (unsigned long long)specs_seen);
+    return 0;
+  } catch (const std::exception& e) {
+    // A participant whose certificate is rejected cannot even be created: that is a refusal too.
+    std::printf("%s: refused: %s\n", id.c_str(), e.what());
+    return 3;
+  }
+}

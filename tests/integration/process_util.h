@@ -1,0 +1,124 @@
+// Starting and watching the farm's real processes from integration tests.
+#pragma once
+
+#include <fcntl.h>
+#include <signal.h>
+#include <stdlib.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <deque>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace farm::testing {
+
+struct Proc {
+  pid_t pid = -1;
+  std::string log;
+};
+
+// Starts argv[0] with stdout and stderr going to log_path.
+inline Proc spawn(const std::vector<std::string>& argv, const std::string& log_path) {
+  Proc p;
+  p.log = log_path;
+  p.pid = fork();
+  if (p.pid == 0) {
+    int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(fd, 1);
+    dup2(fd, 2);
+    close(fd);
+    std::vector<char*> args;
+    for (auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    execv(args[0], args.data());
+    _exit(127);
+  }
+  return p;
+}
+
+// Exit status (128 + signal if killed by one), or -1 if it had to be killed after timeout_s.
+inline int wait_for(Proc& p, double timeout_s) {
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  int status = 0;
+  while (true) {
+    pid_t r = waitpid(p.pid, &status, WNOHANG);
+    if (r == p.pid) break;
+    if (std::chrono::steady_clock::now() > deadline) {
+      kill(p.pid, SIGKILL);
+      waitpid(p.pid, &status, 0);
+      p.pid = -1;
+      return -1;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  p.pid = -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+}
+
+inline std::string slurp(const std::string& path) {
+  std::ifstream f(path);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+inline void write_file(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+
+// Polls a log file until it contains `needle`; false after timeout_s.
+inline bool wait_for_text(const std::string& path, const std::string& needle, double timeout_s) {
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (slurp(path).find(needle) != std::string::npos) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  return false;
+}
+
+// A DDS domain of our own (offset keeps test suites apart), so parallel runs and a running farm
+// do not see each other.
+inline int private_domain(int offset) { return 20 + static_cast<int>((getpid() + offset) % 200); }
+
+// A temporary directory with the processes started in it; everything is killed at the end and
+// the directory removed unless the test failed (then its logs are kept and named).
+class ProcessSet {
+ public:
+  ProcessSet() {
+    char tmpl[] = "/tmp/farm-it-XXXXXX";
+    if (!mkdtemp(tmpl)) throw std::runtime_error("mkdtemp failed");
+    dir_ = tmpl;
+  }
+  ~ProcessSet() { kill_all(); }
+  void kill_all() {
+    for (auto& p : procs_)
+      if (p.pid > 0) {
+        kill(p.pid, SIGKILL);
+        waitpid(p.pid, nullptr, 0);
+        p.pid = -1;
+      }
+  }
+  void cleanup(bool keep) {
+    kill_all();
+    if (!keep && !std::getenv("FARM_KEEP_LOGS")) std::filesystem::remove_all(dir_);
+    else std::cerr << "logs kept in " << dir_ << "\n";
+  }
+  Proc& start(const std::vector<std::string>& argv, const std::string& name) {
+    procs_.push_back(spawn(argv, dir_ + "/" + name + ".log"));
+    return procs_.back();
+  }
+  std::string log(const std::string& name) const { return slurp(dir_ + "/" + name + ".log"); }
+  const std::string& dir() const { return dir_; }
+  std::deque<Proc>& procs() { return procs_; }
+
+ private:
+  std::string dir_;
+  std::deque<Proc> procs_;  // deque: references stay valid as processes are added
+};
+
+}  // namespace farm::testing
