@@ -8,11 +8,12 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 SECONDS_PER_TARGET="${1:-30}"
 B="${2:-$ROOT/build-fuzz}"
 command -v clang++ >/dev/null || { echo "fuzz: clang++ missing (deploy/install-deps.sh installs it)" >&2; exit 1; }
+mkdir -p "$B"
 SAN="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined -g -O1"
 cmake -S "$ROOT" -B "$B" -G Ninja -DFARM_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
-  -DCMAKE_CXX_FLAGS="$SAN" -DCMAKE_C_FLAGS="$SAN" -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" > "$B.configure.log" 2>&1 \
-  || { cat "$B.configure.log"; exit 1; }
+  -DCMAKE_CXX_FLAGS="$SAN" -DCMAKE_C_FLAGS="$SAN" -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" > "$B/configure.log" 2>&1 \
+  || { cat "$B/configure.log"; exit 1; }
 ninja -C "$B" fuzz_batch fuzz_config
 mkdir -p "$B/corpus/batch" "$B/corpus/config" "$B/findings"
 cp "$ROOT"/deploy/configs/*.txtpb "$B/corpus/config/"
