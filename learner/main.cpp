@@ -77,6 +77,7 @@ std::string fmt(const char* f, double v) {
 struct WorkerView {
   farm::msg::WorkerStatus last;
   double seen = 0;
+  bool dead = false;
 };
 
 class Learner {
@@ -249,10 +250,25 @@ class Learner {
     farm::msg::WorkerStatus s;
     while (status_in_.take(s)) {
       auto& v = workers_[s.worker_id() + "#" + std::to_string(s.worker_session())];
+      if (v.seen == 0)
+        log("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
+            ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
+      else if (v.dead)
+        log("worker " + s.worker_id() + " on " + s.host() + " is back after " + fmt("%.1f", now_seconds() - v.seen) + " s");
       if (!s.last_error().empty() && s.last_error() != v.last.last_error())
         log("worker " + s.worker_id() + " reports: " + s.last_error());
       v.last = s;
       v.seen = now_seconds();
+      v.dead = false;
+    }
+    // A worker that stops sending heartbeats (killed, host down, network cut) is marked dead;
+    // training goes on with the others, and its batches are welcome again if it comes back.
+    const double now = now_seconds();
+    for (auto& [k, v] : workers_) {
+      if (v.dead || v.last.state() == "finished" || now - v.seen < cfg_.worker_timeout_seconds()) continue;
+      v.dead = true;
+      log("worker " + v.last.worker_id() + " on " + v.last.host() + " silent for " + fmt("%.1f", now - v.seen) +
+          " s: marked dead; going on with " + std::to_string(live_workers()) + " workers");
     }
   }
 
@@ -260,7 +276,7 @@ class Learner {
     int n = 0;
     double now = now_seconds();
     for (auto& [k, v] : workers_)
-      if (now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") ++n;
+      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") ++n;
     return n;
   }
 

@@ -1,0 +1,157 @@
+// Faults survived over real processes: a worker killed with SIGKILL mid-training, and the learner
+// killed with SIGKILL and restarted with --resume while the workers stay up.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <regex>
+#include <string>
+
+#include "process_util.h"
+
+namespace fs = std::filesystem;
+using namespace farm::testing;
+
+namespace {
+
+std::string config(const std::string& id, const std::string& stop) {
+  return "experiment_id: \"" + id + R"("
+seed: 11
+task { name: "pendulum" }
+sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3 learning_starts: 1000 publish_every_updates: 25 }
+worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 2 }
+eval { episodes: 5 every_seconds: 10 final_episodes: 10 }
+checkpoint_every_seconds: 3
+log_every_seconds: 1
+stop { )" + stop + " }\n";
+}
+
+// The `updates` column of the last row of learner.csv.
+long long last_updates(const std::string& csv_path) {
+  std::string text = slurp(csv_path);
+  std::istringstream in(text);
+  std::string header, line, last;
+  std::getline(in, header);
+  while (std::getline(in, line))
+    if (!line.empty()) last = line;
+  if (last.empty()) return -1;
+  auto split = [](const std::string& s) {
+    std::vector<std::string> v;
+    std::stringstream ss(s);
+    std::string x;
+    while (std::getline(ss, x, ',')) v.push_back(x);
+    return v;
+  };
+  auto h = split(header), r = split(last);
+  for (size_t i = 0; i < h.size() && i < r.size(); ++i)
+    if (h[i] == "updates") return std::stoll(r[i]);
+  return -1;
+}
+
+std::smatch batches_line(const std::string& summary) {
+  std::smatch m;
+  std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))"));
+  return m;
+}
+
+TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(41)), run = d + "/run";
+  write_file(d + "/cfg.txtpb", config("it_worker_fault", "max_seconds: 35"));
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
+  Proc& b = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker it-b on", 30)) << set.log("learner");
+  ASSERT_TRUE(wait_for_text(d + "/worker-b.log", "running", 30)) << set.log("worker-b");
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+
+  kill(b.pid, SIGKILL);
+  wait_for(b, 5);
+  const long long updates_at_kill = last_updates(run + "/learner.csv");
+  // Marked dead within a few seconds (heartbeat every 1 s, timeout 4 s, log check every loop).
+  EXPECT_TRUE(wait_for_text(d + "/learner.log", "worker it-b on", 1) &&
+              wait_for_text(d + "/learner.log", "marked dead", 8))
+      << set.log("learner");
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+  EXPECT_GT(last_updates(run + "/learner.csv"), updates_at_kill + 300) << "training stopped after a worker died";
+
+  // The same worker id restarted: a new session, accepted from sequence 0.
+  Proc& b2 = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b2");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(b2, 30), 0) << set.log("worker-b2");
+  EXPECT_EQ(wait_for(set.procs()[1], 30), 0) << set.log("worker-a");
+
+  const std::string summary = slurp(run + "/summary.txt");
+  auto m = batches_line(summary);
+  ASSERT_FALSE(m.empty()) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  // Two sessions of it-b: the killed one (stream left open) and the restarted one.
+  std::smatch s;
+  std::regex session(R"(it-b session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream (\w+))");
+  std::vector<std::pair<long long, std::string>> sessions;
+  for (auto it = std::sregex_iterator(summary.begin(), summary.end(), session); it != std::sregex_iterator(); ++it)
+    sessions.push_back({std::stoll((*it)[1]), (*it)[2]});
+  ASSERT_EQ(sessions.size(), 2u) << summary;
+  int open = 0, closed_with_data = 0;
+  for (auto& [n, state] : sessions) {
+    open += state == "open";
+    closed_with_data += state == "closed" && n > 10;
+  }
+  EXPECT_EQ(open, 1) << summary;
+  EXPECT_EQ(closed_with_data, 1) << summary;
+  EXPECT_NE(set.log("learner").find("worker it-b on"), std::string::npos);
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(53)), run = d + "/run";
+  write_file(d + "/cfg.txtpb", config("it_learner_fault", "max_updates: 9000"));
+  const std::vector<std::string> learner_argv = {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run,
+                                                 "--domain", domain};
+  Proc& first = set.start(learner_argv, "learner-1");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
+  ASSERT_TRUE(wait_for_text(d + "/learner-1.log", "checkpoint " + run, 60)) << set.log("learner-1");
+  ASSERT_TRUE(wait_for_text(d + "/learner-1.log", "checkpoint " + run + "/checkpoint", 1));
+  std::this_thread::sleep_for(std::chrono::seconds(4));  // a second checkpoint, then more work that it lacks
+  kill(first.pid, SIGKILL);
+  wait_for(first, 5);
+  ASSERT_TRUE(fs::exists(run + "/checkpoint/manifest.txtpb"));
+  const std::string manifest = slurp(run + "/checkpoint/manifest.txtpb");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(manifest, m, std::regex(R"(batches_ok: (\d+))"))) << manifest;
+  const long long ok_at_checkpoint = std::stoll(m[1]);
+  ASSERT_TRUE(std::regex_search(manifest, m, std::regex(R"(updates: (\d+))"))) << manifest;
+  const long long updates_at_checkpoint = std::stoll(m[1]);
+  ASSERT_LT(updates_at_checkpoint, 9000) << "the first learner finished before it was killed";
+
+  std::this_thread::sleep_for(std::chrono::seconds(2));
+  Proc& second = set.start([&] { auto a = learner_argv; a.push_back("--resume"); return a; }(), "learner-2");
+  ASSERT_EQ(wait_for(second, 180), 0) << set.log("learner-2");
+  EXPECT_EQ(wait_for(set.procs()[1], 30), 0) << set.log("worker-a");
+  EXPECT_EQ(wait_for(set.procs()[2], 30), 0) << set.log("worker-b");
+  const std::string log2 = set.log("learner-2");
+  EXPECT_NE(log2.find("resumed from"), std::string::npos) << log2;
+  for (const char* w : {"worker-a", "worker-b"})
+    EXPECT_NE(set.log(w).find("learner restarted"), std::string::npos) << set.log(w);
+
+  const std::string summary = slurp(run + "/summary.txt");
+  m = batches_line(summary);
+  ASSERT_FALSE(m.empty()) << summary;
+  EXPECT_GT(std::stoll(m[1]), ok_at_checkpoint + 50) << "no new batches accepted after the resume\n" << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  // One session per worker: they never restarted, the resumed learner carried their accounting on.
+  for (const char* id : {"it-a", "it-b"}) {
+    std::regex line(std::string(id) + R"( session \d+: received \d+ of sequence 0\.\.\d+, lost \d+, duplicate 0, invalid 0, stream closed)");
+    auto n = std::distance(std::sregex_iterator(summary.begin(), summary.end(), line), std::sregex_iterator());
+    EXPECT_EQ(n, 1) << id << "\n" << summary;
+  }
+  const std::string updates_line = std::regex_search(summary, m, std::regex(R"(updates\s+(\d+))")) ? m[1].str() : "0";
+  EXPECT_GE(std::stoll(updates_line), 9000) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+}  // namespace
