@@ -30,11 +30,18 @@ void save_checkpoint(const std::string& dir, const config::CheckpointManifest& m
   fs::remove_all(old);
 }
 
-bool checkpoint_exists(const std::string& dir) { return fs::exists(fs::path(dir) / "manifest.txtpb"); }
+// A crash between the two renames of a save leaves only DIR.old, which is complete: use it.
+static fs::path usable_checkpoint(const std::string& dir) {
+  if (!fs::exists(fs::path(dir) / "manifest.txtpb") && fs::exists(fs::path(dir + ".old") / "manifest.txtpb"))
+    return fs::path(dir + ".old");
+  return fs::path(dir);
+}
+
+bool checkpoint_exists(const std::string& dir) { return fs::exists(usable_checkpoint(dir) / "manifest.txtpb"); }
 
 config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
                                            ReplayBuffer& replay) {
-  const fs::path mpath = fs::path(dir) / "manifest.txtpb";
+  const fs::path mpath = usable_checkpoint(dir) / "manifest.txtpb";
   std::ifstream in(mpath);
   if (!in) throw std::runtime_error("no checkpoint manifest at " + mpath.string());
   std::stringstream ss;
@@ -45,8 +52,8 @@ config::CheckpointManifest load_checkpoint(const std::string& dir, const std::st
   if (m.experiment_id() != experiment_id)
     throw std::runtime_error(mpath.string() + ": checkpoint is of experiment '" + m.experiment_id() +
                              "', the config says '" + experiment_id + "'");
-  sac.load((fs::path(dir) / "sac").string());
-  replay.load((fs::path(dir) / "replay.pt").string());
+  sac.load((usable_checkpoint(dir) / "sac").string());
+  replay.load((usable_checkpoint(dir) / "replay.pt").string());
   return m;
 }
 

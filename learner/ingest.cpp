@@ -111,6 +111,11 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
   if (b.end_of_stream()) w.ended = true;
 
   std::string why = check(b);
+  // No learner ever published a version above the current one (a resumed learner skips ahead of
+  // whatever its crashed predecessor published), so such a batch is forged or corrupted.
+  if (why.empty() && !b.end_of_stream() && b.policy_version() > current_version)
+    why = "policy version " + std::to_string(b.policy_version()) + " is newer than the learner's latest (" +
+          std::to_string(current_version) + ")";
   if (!why.empty()) {
     ++w.invalid;
     ++counters_.invalid;

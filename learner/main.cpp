@@ -74,6 +74,9 @@ std::string fmt(const char* f, double v) {
   return buf;
 }
 
+// Versions skipped on --resume: more than a learner publishes between two checkpoints.
+constexpr uint64_t kResumeVersionSkip = 100000;
+
 struct WorkerView {
   farm::msg::WorkerStatus last;
   double seen = 0;
@@ -173,7 +176,9 @@ class Learner {
       if (!checkpoint_exists(ckpt_dir_))
         throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
       auto m = load_checkpoint(ckpt_dir_, cfg_.experiment_id(), sac_, replay_);
-      version_ = m.policy_version() + 1;
+      // The crashed learner may have published versions after its last checkpoint; skip past any
+      // it could have reached, so versions stay unique and batches claiming a newer one are refused.
+      version_ = m.policy_version() + 1 + kResumeVersionSkip;
       elapsed_offset_ = m.elapsed_seconds();
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
       episodes_total_ = m.episodes();
@@ -280,6 +285,22 @@ class Learner {
     return n;
   }
 
+  // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
+  // learner is the bottleneck and the workers are held back instead of piling up data.
+  std::string waiting_note() const {
+    int throttled = 0, backpressure = 0;
+    const double now = now_seconds();
+    for (auto& [k, v] : workers_) {
+      if (v.dead || now - v.seen >= cfg_.worker_timeout_seconds()) continue;
+      throttled += v.last.state() == "throttled";
+      backpressure += v.last.state() == "backpressure";
+    }
+    std::string note;
+    if (throttled) note += ", " + std::to_string(throttled) + " throttled";
+    if (backpressure) note += ", " + std::to_string(backpressure) + " in backpressure";
+    return note.empty() ? "" : " (" + note.substr(2) + ")";
+  }
+
   bool can_update() const {
     const auto& s = cfg_.sac();
     if (replay_.size() < std::max<int64_t>(s.learning_starts(), s.batch_size())) return false;
@@ -330,7 +351,7 @@ class Learner {
       << ") | buffer " << fmt("%.1f", 100 * fill) << "% | v" << current_version() << " lag "
       << fmt("%.1f", lag) << " | return " << fmt("%.1f", mean_ret) << " eval " << fmt("%.1f", last_eval_)
       << " | batches ok " << c.ok << " lost " << c.lost << " dup " << c.duplicate << " invalid " << c.invalid
-      << " | workers " << live_workers();
+      << " | workers " << live_workers() << waiting_note();
     log(o.str());
     csv_ << fmt("%.2f", elapsed) << ',' << c.env_steps << ',' << fmt("%.1f", in_rate) << ',' << sac_.updates()
          << ',' << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ','

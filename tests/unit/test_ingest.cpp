@@ -127,6 +127,16 @@ TEST_F(Fixture, WrongExperimentIsRefused) {
   EXPECT_TRUE(ingest.workers().empty());
 }
 
+TEST_F(Fixture, PolicyVersionFromTheFutureIsRefusedAndItsNumberUsed) {
+  auto b = make_batch(0);
+  b.policy_version(6);  // the learner's latest is 5
+  std::string why = take(b);
+  EXPECT_NE(why.find("policy version 6 is newer than the learner's latest (5)"), std::string::npos) << why;
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_EQ(take(make_batch(1)), "");
+  EXPECT_EQ(ingest.counters().lost, 0u);
+}
+
 TEST_F(Fixture, DoneFlagsMustMatchFinalIndex) {
   auto b = make_batch(0);
   b.truncated({0, 0, 0, 0, 0, 0});

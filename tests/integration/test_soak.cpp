@@ -1,0 +1,79 @@
+// Soak: three workers and a learner for several minutes on a machine with fewer cores than
+// processes, so the learner is the bottleneck and the workers are held back. Every sequence number
+// each worker sent must arrive exactly once, nothing may be lost, and memory must stay bounded.
+#include <gtest/gtest.h>
+
+#include <regex>
+#include <string>
+
+#include "process_util.h"
+
+using namespace farm::testing;
+
+namespace {
+
+const char* kConfig = R"(experiment_id: "it_soak"
+seed: 21
+task { name: "pendulum" }
+sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3 learning_starts: 1000
+      publish_every_updates: 25 buffer_size: 200000 }
+worker { envs_per_worker: 16 steps_per_batch: 25 max_batches_per_version: 4 }
+eval { episodes: 5 every_seconds: 30 final_episodes: 10 }
+stop { max_seconds: 150 }
+checkpoint_every_seconds: 30
+log_every_seconds: 5
+)";
+
+// Peak resident memory of a process in MiB (VmHWM), read while it still runs.
+double peak_rss_mib(pid_t pid) {
+  std::string status = slurp("/proc/" + std::to_string(pid) + "/status");
+  std::smatch m;
+  if (!std::regex_search(status, m, std::regex(R"(VmHWM:\s+(\d+) kB)"))) return -1;
+  return std::stod(m[1]) / 1024.0;
+}
+
+TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(97)), run = d + "/run";
+  write_file(d + "/soak.txtpb", kConfig);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/soak.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  const std::vector<std::string> ids = {"soak-a", "soak-b", "soak-c"};
+  for (auto& id : ids) set.start({FARM_WORKER_BIN, "--domain", domain, "--id", id}, id);
+
+  // Sample peak memory near the end, while everything still runs.
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "  140.", 200)) << set.log("learner");
+  const double learner_mib = peak_rss_mib(learner.pid);
+  std::vector<double> worker_mib;
+  for (size_t i = 1; i <= ids.size(); ++i) worker_mib.push_back(peak_rss_mib(set.procs()[i].pid));
+
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  const std::string summary = slurp(run + "/summary.txt");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))"))) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    EXPECT_EQ(wait_for(set.procs()[i + 1], 60), 0) << set.log(ids[i]);
+    const std::string wlog = set.log(ids[i]);
+    std::smatch sent, got;
+    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
+    ASSERT_TRUE(std::regex_search(summary, got, std::regex(ids[i] + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)")))
+        << summary;
+    EXPECT_EQ(got[1], sent[1]) << ids[i];
+    EXPECT_GT(std::stoll(sent[1]), 500) << ids[i];
+  }
+  // The workers were held back rather than piling data up, and the learner log said so.
+  EXPECT_NE(set.log("learner").find("throttled"), std::string::npos) << set.log("learner");
+  // Bounds (see docs/RELIABILITY.md): replay buffer 200,000 x (3+1+3+2) floats is 7 MiB; the DDS
+  // queues hold at most 256 batches of 16x25 steps at the learner and 64 per worker; LibTorch and
+  // Fast DDS themselves take a few hundred MiB.
+  std::printf("peak RSS: learner %.0f MiB, workers %.0f / %.0f / %.0f MiB\n", learner_mib, worker_mib[0],
+              worker_mib[1], worker_mib[2]);
+  EXPECT_GT(learner_mib, 0);
+  EXPECT_LT(learner_mib, 1024);
+  for (double w : worker_mib) EXPECT_LT(w, 256);
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+}  // namespace
