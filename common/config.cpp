@@ -87,8 +87,8 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
       v.fail(c, "experiment_id", "experiment_id",
              "expected letters, digits, '_', '-' or '.', got \"" + c.experiment_id() + "\"");
   }
-  if (c.algorithm() != "sac")
-    v.fail(c, "algorithm", "algorithm", "expected one of: sac; got \"" + c.algorithm() + "\"");
+  if (c.algorithm() != "sac" && c.algorithm() != "ppo" && c.algorithm() != "dqn")
+    v.fail(c, "algorithm", "algorithm", "expected one of: sac, ppo, dqn; got \"" + c.algorithm() + "\"");
 
   v.nest(c, "task", c.task());
   const auto& p = c.task().pendulum();
@@ -118,6 +118,51 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
     v.fail(s, "log_std_min", "sac.log_std_min", "expected < sac.log_std_max");
   positive(s, "max_updates_per_step", "sac.max_updates_per_step", s.max_updates_per_step());
   positive(s, "publish_every_updates", "sac.publish_every_updates", s.publish_every_updates());
+  if (!valid_device_name(s.device()))
+    v.fail(s, "device", "sac.device", "expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + s.device() + "\"");
+  if (s.activation() != "relu" && s.activation() != "tanh")
+    v.fail(s, "activation", "sac.activation", "expected \"relu\" or \"tanh\", got \"" + s.activation() + "\"");
+
+  if (c.algorithm() == "dqn") {
+    const auto& d = c.dqn();
+    v.nest(c, "dqn", d);
+    positive(d, "learning_rate", "dqn.learning_rate", d.learning_rate());
+    positive(d, "batch_size", "dqn.batch_size", d.batch_size());
+    if (d.buffer_size() < d.batch_size())
+      v.fail(d, "buffer_size", "dqn.buffer_size", "expected >= dqn.batch_size (" + num(d.batch_size()) + "), got " + num(d.buffer_size()));
+    in_unit(d, "gamma", "dqn.gamma", d.gamma());
+    in_unit(d, "exploration_fraction", "dqn.exploration_fraction", d.exploration_fraction());
+    in_unit(d, "exploration_initial_eps", "dqn.exploration_initial_eps", d.exploration_initial_eps());
+    in_unit(d, "exploration_final_eps", "dqn.exploration_final_eps", d.exploration_final_eps());
+    positive(d, "schedule_env_steps", "dqn.schedule_env_steps", d.schedule_env_steps());
+    if (d.learning_starts() < 0) v.fail(d, "learning_starts", "dqn.learning_starts", "expected >= 0, got " + num(d.learning_starts()));
+    positive(d, "target_update_updates", "dqn.target_update_updates", d.target_update_updates());
+    positive(d, "max_grad_norm", "dqn.max_grad_norm", d.max_grad_norm());
+    for (int h : d.hidden()) if (h <= 0) v.fail(d, "hidden", "dqn.hidden", "expected sizes > 0, got " + num(h));
+    positive(d, "max_updates_per_step", "dqn.max_updates_per_step", d.max_updates_per_step());
+    positive(d, "publish_every_updates", "dqn.publish_every_updates", d.publish_every_updates());
+  }
+
+  if (c.algorithm() == "ppo") {
+    const auto& pp = c.ppo();
+    v.nest(c, "ppo", pp);
+    if (pp.variant() != "clip_kl" && pp.variant() != "plain")
+      v.fail(pp, "variant", "ppo.variant", "expected \"clip_kl\" or \"plain\", got \"" + pp.variant() + "\"");
+    if (pp.steps_per_fit() < 0 || pp.episodes_per_fit() < 0 || (pp.steps_per_fit() > 0) == (pp.episodes_per_fit() > 0))
+      v.fail(pp, "episodes_per_fit", "ppo.episodes_per_fit",
+             "set exactly one of ppo.steps_per_fit and ppo.episodes_per_fit > 0 (steps_per_fit: 0 to fit by episodes)");
+    positive(pp, "mini_batch_size", "ppo.mini_batch_size", pp.mini_batch_size());
+    positive(pp, "learning_rate", "ppo.learning_rate", pp.learning_rate());
+    in_unit(pp, "gamma", "ppo.gamma", pp.gamma());
+    if (!(pp.gae_lambda() >= 0 && pp.gae_lambda() <= 1)) v.fail(pp, "gae_lambda", "ppo.gae_lambda", "expected in [0, 1], got " + num(pp.gae_lambda()));
+    positive(pp, "clip_epsilon", "ppo.clip_epsilon", pp.clip_epsilon());
+    positive(pp, "epochs", "ppo.epochs", pp.epochs());
+    positive(pp, "max_grad_norm", "ppo.max_grad_norm", pp.max_grad_norm());
+    positive(pp, "desired_kl", "ppo.desired_kl", pp.desired_kl());
+    if (pp.max_policy_lag() < 0) v.fail(pp, "max_policy_lag", "ppo.max_policy_lag", "expected >= 0, got " + num(pp.max_policy_lag()));
+    if (pp.steps_per_run() < 0) v.fail(pp, "steps_per_run", "ppo.steps_per_run", "expected >= 0 (0 = no limit)");
+    if (pp.episodes_per_run() < 0) v.fail(pp, "episodes_per_run", "ppo.episodes_per_run", "expected >= 0 (0 = no limit)");
+  }
 
   const auto& e = c.eval();
   v.nest(c, "eval", e);
@@ -173,6 +218,15 @@ std::string config_to_text(const config::ExperimentConfig& cfg) {
   std::string out;
   pb::TextFormat::PrintToString(cfg, &out);
   return out;
+}
+
+bool valid_device_name(const std::string& name) {
+  if (name == "cpu" || name == "cuda") return true;
+  const std::string prefix = "cuda:";
+  if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
+  for (size_t i = prefix.size(); i < name.size(); ++i)
+    if (name[i] < '0' || name[i] > '9') return false;
+  return name.size() - prefix.size() <= 3;
 }
 
 std::vector<int> sac_hidden(const config::SacConfig& sac) {

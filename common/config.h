@@ -21,6 +21,9 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
 // The experiment config as text (what the learner sends to the workers in the ExperimentSpec).
 std::string config_to_text(const config::ExperimentConfig& cfg);
 
+// "cpu", "cuda" or "cuda:N" (N a device index): the learner devices a config may name.
+bool valid_device_name(const std::string& name);
+
 // Hidden sizes of the SAC networks (the schema's default when the list is empty).
 std::vector<int> sac_hidden(const config::SacConfig& sac);
 

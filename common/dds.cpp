@@ -150,12 +150,16 @@ void to_wire(const PolicyParams& p, const std::string& experiment_id, farm::msg:
   w.obs_mean(p.obs_mean);
   w.obs_std(p.obs_std);
   w.parameters(p.params);
+  w.epsilon(p.epsilon);
+  w.log_std(p.log_std);
 }
 
 PolicyParams from_wire(const farm::msg::PolicyWeights& w) {
   PolicyParams p;
   p.version = w.version();
-  if (w.head() != static_cast<int32_t>(PolicyHead::kSquashedGaussian))
+  if (w.head() != static_cast<int32_t>(PolicyHead::kSquashedGaussian) &&
+      w.head() != static_cast<int32_t>(PolicyHead::kDiscreteQ) &&
+      w.head() != static_cast<int32_t>(PolicyHead::kGaussian))
     throw std::invalid_argument("PolicyWeights: unknown policy head " + std::to_string(w.head()));
   p.head = static_cast<PolicyHead>(w.head());
   if (w.activation() != 0 && w.activation() != 1)
@@ -167,6 +171,8 @@ PolicyParams from_wire(const farm::msg::PolicyWeights& w) {
   p.obs_mean = w.obs_mean();
   p.obs_std = w.obs_std();
   p.params = w.parameters();
+  p.epsilon = w.epsilon();
+  p.log_std = w.log_std();
   return p;
 }
 

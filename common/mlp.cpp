@@ -132,7 +132,8 @@ void EigenMlp::forward(const float* in, int rows, float* out) {
 }
 
 Policy::Policy(const PolicyParams& p) : p_(p) {
-  if (p.head != PolicyHead::kSquashedGaussian) {
+  if (p.head != PolicyHead::kSquashedGaussian && p.head != PolicyHead::kDiscreteQ &&
+      p.head != PolicyHead::kGaussian) {
     throw std::invalid_argument("policy head: unknown head " + std::to_string(int(p.head)));
   }
   if (p.layout.sizes.size() < 2) {
@@ -147,11 +148,20 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
     }
   }
   const int out = p.layout.sizes.back();
-  if (out % 2 != 0) {
+  if (p.head == PolicyHead::kDiscreteQ && !(p.epsilon >= 0.f && p.epsilon <= 1.f)) {
+    throw std::invalid_argument("policy: epsilon " + std::to_string(p.epsilon) +
+                                " is not a probability in [0, 1]");
+  }
+  if (p.head == PolicyHead::kSquashedGaussian && out % 2 != 0) {
     throw std::invalid_argument("policy layout " + p.layout.describe() +
                                 ": squashed-gaussian output must be [mean | log_std], an even "
                                 "size, got " +
                                 std::to_string(out));
+  }
+  if (p.head == PolicyHead::kGaussian && p.log_std.size() != size_t(out)) {
+    throw std::invalid_argument("policy layout " + p.layout.describe() + ": gaussian head needs " +
+                                std::to_string(out) + " log_std values, got " +
+                                std::to_string(p.log_std.size()));
   }
   if (p.params.size() != p.layout.num_params()) {
     throw std::invalid_argument("policy params: expected " + std::to_string(p.layout.num_params()) +
@@ -181,7 +191,15 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
 }
 
 int Policy::obs_dim() const { return p_.layout.sizes.empty() ? 0 : p_.layout.sizes.front(); }
-int Policy::act_dim() const { return p_.layout.sizes.empty() ? 0 : p_.layout.sizes.back() / 2; }
+int Policy::num_actions() const {
+  return p_.head == PolicyHead::kDiscreteQ && !p_.layout.sizes.empty() ? p_.layout.sizes.back() : 0;
+}
+
+int Policy::act_dim() const {
+  if (p_.head == PolicyHead::kDiscreteQ) return 1;  // the action index
+  if (p_.head == PolicyHead::kGaussian) return p_.layout.sizes.empty() ? 0 : p_.layout.sizes.back();
+  return p_.layout.sizes.empty() ? 0 : p_.layout.sizes.back() / 2;
+}
 
 void Policy::act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic,
                  float* actions, float* log_prob) {
@@ -209,9 +227,17 @@ void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t 
     }
     x = normed_.data();
   }
-  const size_t n_out = size_t(rows) * 2 * ad;
+  const size_t n_out = size_t(rows) * p_.layout.sizes.back();
   if (out_.size() < n_out) out_.resize(n_out);
   net_.forward(x, rows, out_.data());
+  if (p_.head == PolicyHead::kDiscreteQ) {
+    act_discrete(rows, rngs, rng_stride, deterministic, actions, log_prob);
+    return;
+  }
+  if (p_.head == PolicyHead::kGaussian) {
+    act_gaussian(rows, rngs, rng_stride, deterministic, actions, log_prob);
+    return;
+  }
 
   for (int r = 0; r < rows; ++r) {
     const float* mean = out_.data() + size_t(r) * 2 * ad;
@@ -236,6 +262,70 @@ void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t 
       lp += -0.5f * eps * eps - log_std - kHalfLog2Pi - std::log(1.f - t * t + kTanhLogEps);
     }
     if (log_prob) log_prob[r] = lp;
+  }
+}
+
+double gaussian_log_cdf(double z) {
+  // Below -20 erfc underflows in double precision; the asymptotic series' first term is exact
+  // there to better than 0.3 %.
+  if (z > -20.0) return std::log(0.5 * std::erfc(-z / std::sqrt(2.0)));
+  return -0.5 * z * z - std::log(-z) - 0.91893853320467274178;
+}
+
+void Policy::act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                          float* actions, float* log_prob) {
+  const int ad = act_dim();
+  for (int r = 0; r < rows; ++r) {
+    const float* mean = out_.data() + size_t(r) * ad;
+    float* a = actions + size_t(r) * ad;
+    if (deterministic) {
+      for (int i = 0; i < ad; ++i) a[i] = std::clamp(mean[i], -1.f, 1.f);
+      if (log_prob) log_prob[r] = 0.f;
+      continue;
+    }
+    std::mt19937_64& rng = rngs[r * rng_stride];
+    std::normal_distribution<float> normal(0.f, 1.f);
+    float lp = 0.f;
+    for (int i = 0; i < ad; ++i) {
+      const float log_std = std::clamp(p_.log_std[i], p_.log_std_min, p_.log_std_max);
+      const float std = std::exp(log_std);
+      const float eps = normal(rng);
+      const float u = mean[i] + std * eps;
+      // The env takes actions in [-1, 1]: a sample beyond a bound runs as the bound, and its
+      // probability is the Gaussian mass beyond it (clipped action policy gradient, Fujita and
+      // Maeda 2018), so the learner's ratios stay finite when the mean leaves [-1, 1].
+      if (u >= 1.f) {
+        a[i] = 1.f;
+        lp += float(gaussian_log_cdf((double(mean[i]) - 1.0) / std));
+      } else if (u <= -1.f) {
+        a[i] = -1.f;
+        lp += float(gaussian_log_cdf((-1.0 - double(mean[i])) / std));
+      } else {
+        a[i] = u;
+        lp += -0.5f * eps * eps - log_std - kHalfLog2Pi;
+      }
+    }
+    if (log_prob) log_prob[r] = lp;
+  }
+}
+
+void Policy::act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                          float* actions, float* log_prob) {
+  const int n = p_.layout.sizes.back();
+  const float eps = deterministic ? 0.f : p_.epsilon;
+  for (int r = 0; r < rows; ++r) {
+    const float* q = out_.data() + size_t(r) * n;
+    const int greedy = int(std::max_element(q, q + n) - q);
+    int a = greedy;
+    if (eps > 0.f) {
+      std::mt19937_64& rng = rngs[r * rng_stride];
+      if (std::uniform_real_distribution<float>(0.f, 1.f)(rng) < eps) {
+        a = std::uniform_int_distribution<int>(0, n - 1)(rng);
+      }
+    }
+    actions[r] = float(a);
+    // The behaviour probability of the chosen index under epsilon-greedy.
+    if (log_prob) log_prob[r] = std::log(eps / n + (a == greedy ? 1.f - eps : 0.f));
   }
 }
 

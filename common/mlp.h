@@ -17,6 +17,13 @@ enum class Activation : int32_t { kRelu = 0, kTanh = 1 };
 enum class PolicyHead : int32_t {
   // SAC: output [mean | log_std] (2 x act_dim); a = tanh(mean + std * eps), in [-1, 1].
   kSquashedGaussian = 0,
+  // DQN: output Q(s, a) for every discrete action; the action is argmax_a Q as one float (the
+  // index), or with probability epsilon a uniformly random index when not deterministic.
+  kDiscreteQ = 2,
+  // PPO: output the mean (act_dim); a state-independent learned log-std (PolicyParams::log_std);
+  // a = clamp(mean + std * eps, -1, 1); log_prob is that of the clipped Gaussian: the density
+  // inside (-1, 1), the probability mass beyond the bound where a sample was clamped.
+  kGaussian = 1,
 };
 
 struct MlpLayout {
@@ -58,7 +65,12 @@ struct PolicyParams {
   std::vector<float> params;
   float log_std_min = -20.f;
   float log_std_max = 2.f;
+  float epsilon = 0.f;  // kDiscreteQ: exploration probability, in [0, 1]
+  std::vector<float> log_std;  // kGaussian: act_dim values; empty for the other heads
 };
+
+// log Phi(z), the standard normal's log CDF, accurate far into the lower tail.
+double gaussian_log_cdf(double z);
 
 class Policy {
  public:
@@ -67,6 +79,8 @@ class Policy {
   uint64_t version() const { return p_.version; }
   int obs_dim() const;
   int act_dim() const;
+  // kDiscreteQ: the number of discrete actions (Q outputs); 0 for continuous heads.
+  int num_actions() const;
   // obs: [rows x obs_dim]; actions: [rows x act_dim] in [-1, 1]; log_prob: [rows] (may be null).
   // deterministic: the mode (tanh(mean)), no noise, log_prob of the mode is not computed.
   void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions,
@@ -79,6 +93,10 @@ class Policy {
  private:
   void act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride,
                 bool deterministic, float* actions, float* log_prob);
+  void act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                    float* actions, float* log_prob);
+  void act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                    float* actions, float* log_prob);
   PolicyParams p_;
   EigenMlp net_;
   std::vector<float> normed_, out_;

@@ -9,6 +9,7 @@ PACKAGES=(
   libeigen3-dev libprotobuf-dev protobuf-compiler
   libtorch-dev libopenblas0-pthread                 # without OpenBLAS LibTorch is ~6x slower
   libgtest-dev libbenchmark-dev
+  zlib1g-dev python3-matplotlib                   # mCLARI height-field PNG, sweep plots
   clang libclang-rt-14-dev openssl                  # fuzz targets (libFuzzer); DDS Security PKI
 )
 

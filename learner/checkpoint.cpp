@@ -10,12 +10,16 @@ namespace farm {
 
 namespace fs = std::filesystem;
 
-void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest, const Sac& sac,
-                     const ReplayBuffer& replay) {
+namespace {
+
+// Networks are written by save_nets(folder) into the sub-folder `name`.
+template <class SaveNets>
+void save_checkpoint_with(const std::string& dir, const config::CheckpointManifest& manifest,
+                          const std::string& name, SaveNets save_nets, const ReplayBuffer& replay) {
   const fs::path final_dir(dir), tmp = final_dir.string() + ".tmp", old = final_dir.string() + ".old";
   fs::remove_all(tmp);
-  fs::create_directories(tmp / "sac");
-  sac.save((tmp / "sac").string());
+  fs::create_directories(tmp / name);
+  save_nets((tmp / name).string());
   replay.save((tmp / "replay.pt").string());
   std::string text;
   google::protobuf::TextFormat::PrintToString(manifest, &text);
@@ -30,6 +34,19 @@ void save_checkpoint(const std::string& dir, const config::CheckpointManifest& m
   fs::remove_all(old);
 }
 
+}  // namespace
+
+void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest, const Sac& sac,
+                     const ReplayBuffer& replay) {
+  save_checkpoint_with(dir, manifest, "sac", [&](const std::string& d) { sac.save(d); }, replay);
+}
+
+void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
+                     const OffPolicy& algo, const ReplayBuffer& replay) {
+  save_checkpoint_with(dir, manifest, algo.name(), [&](const std::string& d) { algo.save(d); },
+                       replay);
+}
+
 // A crash between the two renames of a save leaves only DIR.old, which is complete: use it.
 static fs::path usable_checkpoint(const std::string& dir) {
   if (!fs::exists(fs::path(dir) / "manifest.txtpb") && fs::exists(fs::path(dir + ".old") / "manifest.txtpb"))
@@ -39,8 +56,12 @@ static fs::path usable_checkpoint(const std::string& dir) {
 
 bool checkpoint_exists(const std::string& dir) { return fs::exists(usable_checkpoint(dir) / "manifest.txtpb"); }
 
-config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
-                                           ReplayBuffer& replay) {
+namespace {
+
+template <class LoadNets>
+config::CheckpointManifest load_checkpoint_with(const std::string& dir, const std::string& experiment_id,
+                                                const std::string& name, LoadNets load_nets,
+                                                ReplayBuffer& replay) {
   const fs::path mpath = usable_checkpoint(dir) / "manifest.txtpb";
   std::ifstream in(mpath);
   if (!in) throw std::runtime_error("no checkpoint manifest at " + mpath.string());
@@ -52,9 +73,23 @@ config::CheckpointManifest load_checkpoint(const std::string& dir, const std::st
   if (m.experiment_id() != experiment_id)
     throw std::runtime_error(mpath.string() + ": checkpoint is of experiment '" + m.experiment_id() +
                              "', the config says '" + experiment_id + "'");
-  sac.load((usable_checkpoint(dir) / "sac").string());
+  load_nets((usable_checkpoint(dir) / name).string());
   replay.load((usable_checkpoint(dir) / "replay.pt").string());
   return m;
+}
+
+}  // namespace
+
+config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
+                                           ReplayBuffer& replay) {
+  return load_checkpoint_with(dir, experiment_id, "sac", [&](const std::string& d) { sac.load(d); },
+                              replay);
+}
+
+config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id,
+                                           OffPolicy& algo, ReplayBuffer& replay) {
+  return load_checkpoint_with(dir, experiment_id, algo.name(),
+                              [&](const std::string& d) { algo.load(d); }, replay);
 }
 
 void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m) {

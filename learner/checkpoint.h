@@ -7,6 +7,7 @@
 
 #include "farm_config.pb.h"
 #include "ingest.h"
+#include "off_policy.h"
 #include "replay_buffer.h"
 #include "sac.h"
 
@@ -18,6 +19,12 @@ bool checkpoint_exists(const std::string& dir);
 // Throws std::runtime_error naming the file and what did not match.
 config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
                                            ReplayBuffer& replay);
+
+// The same for any off-policy algorithm; its networks go to the sub-folder named algo.name().
+void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
+                     const OffPolicy& algo, const ReplayBuffer& replay);
+config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id,
+                                           OffPolicy& algo, ReplayBuffer& replay);
 
 void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m);
 void accounts_from_manifest(const config::CheckpointManifest& m, Ingest& ingest);

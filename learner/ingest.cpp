@@ -53,7 +53,12 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
     if (!r.empty()) return r;
   }
   for (float a : b.actions()) {
-    if (a < -1.0001f || a > 1.0001f) return "action " + std::to_string(a) + " outside [-1, 1]";
+    if (num_actions_ > 0) {
+      if (a < 0.f || a > float(num_actions_ - 1) || a != std::floor(a))
+        return "action " + std::to_string(a) + " is not an index in [0, " + std::to_string(num_actions_) + ")";
+    } else if (a < -1.0001f || a > 1.0001f) {
+      return "action " + std::to_string(a) + " outside [-1, 1]";
+    }
   }
   // Every step that ended an episode carries its true final observation, and only those.
   size_t k = 0;

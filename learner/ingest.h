@@ -66,9 +66,14 @@ class Ingest {
   // The shape/number check alone, exposed for tests and tools; "" when valid.
   std::string check(const farm::msg::TransitionBatch& b) const;
 
+  // Discrete actions (n > 0): each action must be an index in [0, n) instead of a value in
+  // [-1, 1].
+  void set_num_actions(int n) { num_actions_ = n; }
+
  private:
   std::string experiment_id_;
   int obs_dim_, act_dim_;
+  int num_actions_ = 0;
   IngestCounters counters_;
   std::map<Key, WorkerAccount> workers_;
 };

@@ -22,6 +22,8 @@
 #include "meter.h"
 #include "replay_buffer.h"
 #include "rollout.h"
+#include "off_policy.h"
+#include "ppo_learner.h"
 #include "sac.h"
 #include "task.h"
 
@@ -91,8 +93,8 @@ class Learner {
         task_(robots::make_task(cfg_.task())),
         obs_dim_(task_->spec().obs_dim),
         act_dim_(task_->spec().act_dim),
-        sac_(cfg_.sac(), obs_dim_, act_dim_, cfg_.seed()),
-        replay_(cfg_.sac().buffer_size(), obs_dim_, act_dim_),
+        algo_(make_off_policy(cfg_, task_->spec())),
+        replay_(algo_->buffer_size(), obs_dim_, act_dim_),
         ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
         rng_(cfg_.seed() * 7919 + 17),
         bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
@@ -103,6 +105,7 @@ class Learner {
         status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader") {
     run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
     ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
+    ingest_.set_num_actions(task_->spec().num_actions);
   }
 
   int run() {
@@ -110,8 +113,8 @@ class Learner {
     publish_spec(false);
     publish_weights();
     log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " +
-        std::to_string(obs_dim_) + ", act " + std::to_string(act_dim_) + "), SAC " +
-        sac_.export_policy(0).layout.describe() + " actor, DDS domain " + std::to_string(bus_.domain()) +
+        std::to_string(obs_dim_) + ", act " + std::to_string(act_dim_) + "), " +
+        algo_->describe() + ", DDS domain " + std::to_string(bus_.domain()) +
         ", run dir " + run_dir_ + (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
@@ -127,7 +130,7 @@ class Learner {
         train_step();
         updated = true;
       }
-      if (updates_since_publish_ >= cfg_.sac().publish_every_updates()) publish_weights();
+      if (updates_since_publish_ >= algo_->publish_every_updates()) publish_weights();
       if (!updated) {
         // Starved (no data, or the ratio limiter holds): let the workers' throttle go with a new
         // version, so neither side waits for the other.
@@ -135,7 +138,7 @@ class Learner {
         if (got == 0) batches_in_.wait(0.01);
       }
       double now = now_seconds();
-      if (now - last_eval >= cfg_.eval().every_seconds() && sac_.updates() > 0) {
+      if (now - last_eval >= cfg_.eval().every_seconds() && algo_->updates() > 0) {
         evaluate(cfg_.eval().episodes(), now - t0);
         last_eval = now_seconds();
       }
@@ -175,7 +178,7 @@ class Learner {
     if (opt_.resume) {
       if (!checkpoint_exists(ckpt_dir_))
         throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
-      auto m = load_checkpoint(ckpt_dir_, cfg_.experiment_id(), sac_, replay_);
+      auto m = load_checkpoint(ckpt_dir_, cfg_.experiment_id(), *algo_, replay_);
       // The crashed learner may have published versions after its last checkpoint; skip past any
       // it could have reached, so versions stay unique and batches claiming a newer one are refused.
       version_ = m.policy_version() + 1 + kResumeVersionSkip;
@@ -183,7 +186,7 @@ class Learner {
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
       episodes_total_ = m.episodes();
       accounts_from_manifest(m, ingest_);
-      log("resumed from " + ckpt_dir_ + ": " + std::to_string(sac_.updates()) + " updates, " +
+      log("resumed from " + ckpt_dir_ + ": " + std::to_string(algo_->updates()) + " updates, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, buffer " +
           std::to_string(replay_.size()));
     } else if (fs::exists(run_dir_) && !fs::is_empty(run_dir_)) {
@@ -218,7 +221,8 @@ class Learner {
 
   void publish_weights() {
     farm::msg::PolicyWeights w;
-    farm::dds::to_wire(sac_.export_policy(version_), cfg_.experiment_id(), w);
+    algo_->set_env_steps(int64_t(ingest_.counters().env_steps));  // DQN's exploration schedule
+    farm::dds::to_wire(algo_->export_policy(version_), cfg_.experiment_id(), w);
     weights_out_.write(w);
     ++version_;
     updates_since_publish_ = 0;
@@ -302,35 +306,36 @@ class Learner {
   }
 
   bool can_update() const {
-    const auto& s = cfg_.sac();
-    if (replay_.size() < std::max<int64_t>(s.learning_starts(), s.batch_size())) return false;
-    if (cfg_.stop().max_updates() > 0 && sac_.updates() >= cfg_.stop().max_updates()) return false;
-    return double(sac_.updates() - updates_at_start_) < s.max_updates_per_step() * double(ingest_.counters().env_steps - steps_at_start_) + 1;
+    if (replay_.size() < std::max<int64_t>(algo_->learning_starts(), algo_->batch_size())) return false;
+    if (cfg_.stop().max_updates() > 0 && algo_->updates() >= cfg_.stop().max_updates()) return false;
+    return double(algo_->updates() - updates_at_start_) < algo_->max_updates_per_step() * double(ingest_.counters().env_steps - steps_at_start_) + 1;
   }
 
   void train_step() {
-    last_stats_ = sac_.update(replay_.sample(cfg_.sac().batch_size(), rng_));
+    last_stats_ = algo_->update(replay_.sample(algo_->batch_size(), rng_));
     ++updates_since_publish_;
     updates_meter_.add(1);
   }
 
   double evaluate(int episodes, double elapsed, const std::string& label = "eval") {
-    PolicyParams p = sac_.export_policy(current_version());
+    PolicyParams p = algo_->export_policy(current_version());
     auto recs = evaluate_policy(task_, p, episodes, cfg_.seed() + 1000003ull * ++evals_);
-    double sum = 0, metric = 0;
+    const auto& names = task_->spec().metric_names;
+    double sum = 0;
+    std::vector<double> metrics(names.size(), 0.0);
     for (auto& r : recs) {
       sum += r.episode_return;
-      if (!r.metrics.empty()) metric += r.metrics[0];
+      for (size_t i = 0; i < metrics.size() && i < r.metrics.size(); ++i) metrics[i] += r.metrics[i];
     }
     double mean = recs.empty() ? 0 : sum / recs.size();
     last_eval_ = mean;
     best_eval_ = std::isnan(best_eval_) ? mean : std::max(best_eval_, mean);
     std::string metric_txt;
-    if (!recs.empty() && !task_->spec().metric_names.empty())
-      metric_txt = ", " + task_->spec().metric_names[0] + " " + fmt("%.3f", metric / recs.size());
+    for (size_t i = 0; i < metrics.size() && !recs.empty(); ++i)
+      metric_txt += ", " + names[i] + " " + fmt("%.3f", metrics[i] / recs.size());
     log(label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(recs.size()) +
         " deterministic episodes" + metric_txt + " (policy v" + std::to_string(p.version) + ", " +
-        std::to_string(sac_.updates()) + " updates, " + fmt("%.1f", elapsed) + " s)");
+        std::to_string(algo_->updates()) + " updates, " + fmt("%.1f", elapsed) + " s)");
     return mean;
   }
 
@@ -342,18 +347,18 @@ class Learner {
     double lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
     last_ok_ = c.ok;
     last_lag_sum_ = c.lag_sum;
-    double utd = c.env_steps > 0 ? double(sac_.updates()) / double(c.env_steps) : 0.0;
+    double utd = c.env_steps > 0 ? double(algo_->updates()) / double(c.env_steps) : 0.0;
     double fill = double(replay_.size()) / double(replay_.capacity());
     double mean_ret = recent_returns_.empty() ? NAN : mean_of(recent_returns_);
     std::ostringstream o;
     o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", in_rate) << " steps/s (" << c.env_steps
-      << ") | " << fmt("%.0f", upd_rate) << " upd/s (" << sac_.updates() << ", utd " << fmt("%.3f", utd)
+      << ") | " << fmt("%.0f", upd_rate) << " upd/s (" << algo_->updates() << ", utd " << fmt("%.3f", utd)
       << ") | buffer " << fmt("%.1f", 100 * fill) << "% | v" << current_version() << " lag "
       << fmt("%.1f", lag) << " | return " << fmt("%.1f", mean_ret) << " eval " << fmt("%.1f", last_eval_)
       << " | batches ok " << c.ok << " lost " << c.lost << " dup " << c.duplicate << " invalid " << c.invalid
       << " | workers " << live_workers() << waiting_note();
     log(o.str());
-    csv_ << fmt("%.2f", elapsed) << ',' << c.env_steps << ',' << fmt("%.1f", in_rate) << ',' << sac_.updates()
+    csv_ << fmt("%.2f", elapsed) << ',' << c.env_steps << ',' << fmt("%.1f", in_rate) << ',' << algo_->updates()
          << ',' << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ','
          << current_version() << ',' << fmt("%.2f", lag) << ',' << fmt("%.5g", last_stats_.critic_loss) << ','
          << fmt("%.5g", last_stats_.actor_loss) << ',' << fmt("%.5g", last_stats_.alpha) << ','
@@ -365,7 +370,7 @@ class Learner {
     st.elapsed_seconds(elapsed);
     st.env_steps(c.env_steps);
     st.env_steps_per_second(in_rate);
-    st.updates(sac_.updates());
+    st.updates(algo_->updates());
     st.updates_per_second(upd_rate);
     st.buffer_fill(fill);
     st.policy_lag(lag);
@@ -394,7 +399,7 @@ class Learner {
     if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
     if (s.max_env_steps() > 0 && int64_t(ingest_.counters().env_steps) >= s.max_env_steps())
       return "env step limit " + std::to_string(s.max_env_steps());
-    if (s.max_updates() > 0 && sac_.updates() >= s.max_updates()) return "update limit " + std::to_string(s.max_updates());
+    if (s.max_updates() > 0 && algo_->updates() >= s.max_updates()) return "update limit " + std::to_string(s.max_updates());
     return "";
   }
 
@@ -419,14 +424,14 @@ class Learner {
     config::CheckpointManifest m;
     m.set_experiment_id(cfg_.experiment_id());
     m.set_policy_version(current_version());
-    m.set_updates(sac_.updates());
+    m.set_updates(algo_->updates());
     m.set_elapsed_seconds(elapsed);
     if (!std::isnan(best_eval_)) m.set_best_eval_return(best_eval_);
     m.set_config_text(config_to_text(cfg_));
     m.set_episodes(episodes_total_);
     accounts_to_manifest(ingest_, m);
     double t = now_seconds();
-    save_checkpoint(ckpt_dir_, m, sac_, replay_);
+    save_checkpoint(ckpt_dir_, m, *algo_, replay_);
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
   }
 
@@ -437,7 +442,7 @@ class Learner {
       << "stopped because   " << reason << "\n"
       << "wall time         " << fmt("%.1f", elapsed) << " s\n"
       << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9)) << " steps/s)\n"
-      << "updates           " << sac_.updates() << " (" << fmt("%.0f", sac_.updates() / std::max(elapsed, 1e-9)) << " updates/s)\n"
+      << "updates           " << algo_->updates() << " (" << fmt("%.0f", algo_->updates() / std::max(elapsed, 1e-9)) << " updates/s)\n"
       << "policy versions   " << current_version() << "\n"
       << "episodes          " << episodes_total_ << "\n"
       << "final eval return " << fmt("%.1f", final_return) << " (mean of " << cfg_.eval().final_episodes() << " deterministic episodes)\n"
@@ -458,7 +463,7 @@ class Learner {
   config::ExperimentConfig cfg_;
   std::shared_ptr<const robots::Task> task_;
   int obs_dim_, act_dim_;
-  Sac sac_;
+  std::unique_ptr<OffPolicy> algo_;
   ReplayBuffer replay_;
   Ingest ingest_;
   std::mt19937_64 rng_;
@@ -476,7 +481,7 @@ class Learner {
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
   std::map<std::string, WorkerView> workers_;
-  SacStats last_stats_{};
+  OffPolicyStats last_stats_{};
   Meter updates_meter_;
   uint64_t version_ = 0;
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
@@ -504,6 +509,7 @@ int main(int argc, char** argv) {
   signal(SIGTERM, on_signal);
   configure_compute(cfg.torch_threads());
   try {
+    if (cfg.algorithm() == "ppo") return run_ppo_learner({opt.bus, opt.resume, opt.run_dir}, cfg, g_interrupted);
     Learner l(opt, cfg);
     return l.run();
   } catch (const std::exception& e) {

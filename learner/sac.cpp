@@ -26,7 +26,7 @@ void linear_init_(torch::Tensor t, int64_t fan_in) {
 // Plain MLP of torch::nn::Linear layers, so that weight.flatten() then bias is the flat layout the
 // workers' EigenMlp reads.
 struct ActorImpl : torch::nn::Module {
-  explicit ActorImpl(const std::vector<int64_t>& sizes) {
+  ActorImpl(const std::vector<int64_t>& sizes, bool tanh_hidden) : tanh_hidden(tanh_hidden) {
     for (size_t i = 0; i + 1 < sizes.size(); ++i)
       layers.push_back(register_module("l" + std::to_string(i),
                                        torch::nn::Linear(sizes[i], sizes[i + 1])));
@@ -34,11 +34,12 @@ struct ActorImpl : torch::nn::Module {
   torch::Tensor forward(torch::Tensor x) {
     for (size_t i = 0; i < layers.size(); ++i) {
       x = layers[i]->forward(x);
-      if (i + 1 < layers.size()) x.relu_();
+      if (i + 1 < layers.size()) tanh_hidden ? x.tanh_() : x.relu_();
     }
     return x;
   }
   std::vector<torch::nn::Linear> layers;
+  bool tanh_hidden;
 };
 TORCH_MODULE(Actor);
 
@@ -46,7 +47,7 @@ TORCH_MODULE(Actor);
 // dimension of 2: half the ops of two separate MLPs, which is what bounds small-network updates on
 // CPU. Weights are stored [critic, in, out] so no transpose is needed per call.
 struct TwinCriticImpl : torch::nn::Module {
-  explicit TwinCriticImpl(const std::vector<int64_t>& sizes) {
+  TwinCriticImpl(const std::vector<int64_t>& sizes, bool tanh_hidden) : tanh_hidden(tanh_hidden) {
     torch::NoGradGuard no_grad;
     for (size_t i = 0; i + 1 < sizes.size(); ++i) {
       const std::string k = std::to_string(i);
@@ -62,11 +63,12 @@ struct TwinCriticImpl : torch::nn::Module {
     torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
     for (size_t i = 0; i < w.size(); ++i) {
       x = torch::baddbmm(b[i], x, w[i]);
-      if (i + 1 < w.size()) x.relu_();
+      if (i + 1 < w.size()) tanh_hidden ? x.tanh_() : x.relu_();
     }
     return x.squeeze(-1);
   }
   std::vector<torch::Tensor> w, b;
+  bool tanh_hidden;
 };
 TORCH_MODULE(TwinCritic);
 
@@ -77,7 +79,7 @@ struct FlatParams {
   explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
     int64_t n = 0;
     for (const auto& p : params) n += p.numel();
-    flat = torch::empty({n});
+    flat = torch::empty({n}, params.empty() ? torch::TensorOptions() : params[0].options());
     torch::NoGradGuard no_grad;
     int64_t offset = 0;
     for (auto& p : params) {
@@ -108,7 +110,7 @@ std::string sizes_str(const std::vector<int64_t>& v) {
 void write_params(torch::serialize::OutputArchive& root, const std::string& key,
                   const torch::nn::Module& m) {
   torch::serialize::OutputArchive a;
-  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach());
+  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
   root.write(key, a);
 }
 
@@ -191,19 +193,55 @@ void configure_compute(int threads) {
 #endif
 }
 
+// The device a config names, checked against what this LibTorch build and machine offer.
+torch::Device learner_device(const std::string& name) {
+  if (!valid_device_name(name))
+    throw std::invalid_argument("sac.device: expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" +
+                                name + "\"");
+  torch::Device d(name);
+  if (d.is_cuda()) {
+    if (!torch::cuda::is_available())
+      throw std::runtime_error("sac.device is \"" + name +
+                               "\" but this learner's LibTorch has no CUDA or sees no GPU "
+                               "(build with deploy/build-gpu.sh on a GPU host, or use \"cpu\")");
+    if (d.has_index() && d.index() >= int(torch::cuda::device_count()))
+      throw std::runtime_error("sac.device is \"" + name + "\" but only " +
+                               std::to_string(torch::cuda::device_count()) + " GPU(s) are visible");
+  }
+  return d;
+}
+
+// SacConfig.activation: "tanh" or "relu" (anything else is refused by config validation).
+bool tanh_hidden(const config::SacConfig& c) {
+  if (c.activation() != "relu" && c.activation() != "tanh")
+    throw std::invalid_argument("sac.activation must be \"relu\" or \"tanh\", got \"" +
+                                c.activation() + "\"");
+  return c.activation() == "tanh";
+}
+
+// Moves a module's parameters to `d` before FlatParams gathers them there.
+template <class M>
+M& placed(M& m, torch::Device d) {
+  m->to(d);
+  return m;
+}
+
 struct Sac::Impl {
   Impl(const config::SacConfig& c, int obs, int act)
       : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
         target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
-        actor(layer_sizes(obs, 2 * act)), critic(layer_sizes(obs + act, 1)),
-        critic_target(layer_sizes(obs + act, 1)), actor_p(*actor), critic_p(*critic),
-        target_p(*critic_target) {
+        device(learner_device(c.device())),
+        actor(layer_sizes(obs, 2 * act), tanh_hidden(c)),
+        critic(layer_sizes(obs + act, 1), tanh_hidden(c)),
+        critic_target(layer_sizes(obs + act, 1), tanh_hidden(c)), actor_p(*placed(actor, device)),
+        critic_p(*placed(critic, device)), target_p(*placed(critic_target, device)) {
     {
       torch::NoGradGuard no_grad;
       target_p.flat.copy_(critic_p.flat);
       for (auto& t : target_p.params) t.requires_grad_(false);
     }
-    log_alpha = torch::full({1}, std::log(cfg.initial_alpha()), torch::requires_grad());
+    log_alpha = torch::full({1}, std::log(cfg.initial_alpha()),
+                            torch::TensorOptions().device(device).requires_grad(true));
     // Each optimizer owns one flat buffer; its .grad is the concatenated parameter gradients.
     actor_opt = std::make_unique<torch::optim::Adam>(
         std::vector<torch::Tensor>{actor_p.flat}, torch::optim::AdamOptions(cfg.actor_lr()));
@@ -234,6 +272,7 @@ struct Sac::Impl {
   int obs_dim, act_dim;
   std::vector<int> hidden;
   double target_entropy;
+  torch::Device device;
   Actor actor;
   TwinCritic critic, critic_target;
   FlatParams actor_p, critic_p, target_p;
@@ -254,9 +293,18 @@ Sac::~Sac() = default;
 Sac::Sac(Sac&&) noexcept = default;
 Sac& Sac::operator=(Sac&&) noexcept = default;
 
-SacStats Sac::update(const SampledBatch& batch) {
+SacStats Sac::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
   SacStats st;
+  // On the CPU these are the same tensors; on a GPU, one copy of the minibatch per update.
+  SampledBatch batch;
+  if (s.device.is_cpu()) {
+    batch = host_batch;
+  } else {
+    batch = {host_batch.obs.to(s.device), host_batch.actions.to(s.device),
+             host_batch.rewards.to(s.device), host_batch.terminated.to(s.device),
+             host_batch.next_obs.to(s.device)};
+  }
   auto [pi_action, log_prob] = s.sample(batch.obs);
 
   // sb3 order: the temperature used by both losses is the one before this update's alpha step.
@@ -285,11 +333,16 @@ SacStats Sac::update(const SampledBatch& batch) {
     torch::NoGradGuard no_grad;
     // target + tau * (online - target) = (1 - tau) * target + tau * online, in one op.
     s.target_p.flat.lerp_(s.critic_p.flat, s.cfg.tau());
-    st.critic_loss = critic_loss.item<double>();
-    st.actor_loss = actor_loss.item<double>();
-    st.alpha_loss = alpha_loss.item<double>();
-    st.entropy = -log_prob.mean().item<double>();
-    st.q_mean = q.mean().item<double>();
+    // One read-back for all five figures: on a GPU each item() is a synchronization.
+    const auto figures = torch::stack({critic_loss.reshape({}), actor_loss.reshape({}),
+                                       alpha_loss.reshape({}), -log_prob.mean(), q.mean()})
+                             .to(torch::kCPU, torch::kDouble);
+    const double* f = figures.data_ptr<double>();
+    st.critic_loss = f[0];
+    st.actor_loss = f[1];
+    st.alpha_loss = f[2];
+    st.entropy = f[3];
+    st.q_mean = f[4];
   }
   st.alpha = alpha;
   ++s.updates;
@@ -301,7 +354,7 @@ PolicyParams Sac::export_policy(uint64_t version) const {
   PolicyParams p;
   p.version = version;
   p.head = PolicyHead::kSquashedGaussian;
-  p.layout.activation = Activation::kRelu;
+  p.layout.activation = tanh_hidden(s.cfg) ? Activation::kTanh : Activation::kRelu;
   p.layout.sizes.push_back(s.obs_dim);
   p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
   p.layout.sizes.push_back(2 * s.act_dim);
@@ -309,8 +362,9 @@ PolicyParams Sac::export_policy(uint64_t version) const {
   p.log_std_max = float(s.cfg.log_std_max());
   // The actor's flat buffer is already in the workers' order: per layer, weight [out x in]
   // row-major, then bias.
-  const float* d = s.actor_p.flat.data_ptr<float>();
-  p.params.assign(d, d + s.actor_p.flat.numel());
+  const torch::Tensor flat = s.actor_p.flat.detach().to(torch::kCPU);
+  const float* d = flat.data_ptr<float>();
+  p.params.assign(d, d + flat.numel());
   return p;
 }
 
@@ -323,7 +377,8 @@ double Sac::target_entropy() const { return impl_->target_entropy; }
 
 torch::Tensor Sac::deterministic_action(const torch::Tensor& obs) const {
   torch::NoGradGuard no_grad;
-  return torch::tanh(impl_->actor->forward(obs).narrow(1, 0, impl_->act_dim));
+  const auto x = obs.to(impl_->device);
+  return torch::tanh(impl_->actor->forward(x).narrow(1, 0, impl_->act_dim)).to(obs.device());
 }
 
 std::vector<torch::Tensor> Sac::actor_parameters() const { return impl_->actor_p.params; }

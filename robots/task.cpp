@@ -4,6 +4,9 @@
 
 #include <stdexcept>
 
+#include "cartpole/cartpole_task.h"
+#include "mclari/mclari_task.h"
+#include "mobile/mobile_task.h"
 #include "pendulum/pendulum_task.h"
 
 namespace farm::robots {
@@ -26,6 +29,10 @@ struct Registration {
 // One line per task.
 const Registration kTasks[] = {
     {"pendulum", &make_pendulum_task},
+    {"cartpole", &make_cartpole_task},
+    {"jetbot", &mobile::make_jetbot_task},
+    {"kaya", &mobile::make_kaya_task},
+    {"mclari", &make_mclari_task},
 };
 
 }  // namespace

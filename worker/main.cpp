@@ -137,7 +137,9 @@ class Worker {
         continue;
       }
       poll_weights();
-      if (!have_policy_ || batches_on_version_ >= spec_.max_batches_per_version()) {
+      // The learner's quota for this version (PPO: how much the next fit needs), else the spec's cap.
+      const uint32_t cap = batch_quota_ > 0 ? batch_quota_ : spec_.max_batches_per_version();
+      if (!have_policy_ || batches_on_version_ >= cap) {
         // No weights yet, or this version has produced its share: wait for the next one.
         state_ = have_policy_ ? "throttled" : "waiting_for_weights";
         heartbeat();
@@ -153,7 +155,9 @@ class Worker {
       }
       state_ = "running";
       rollout_->collect(static_cast<int>(spec_.steps_per_batch()), batch_);
+      const double t_publish = now_seconds();
       publish_batch(false);
+      publish_s_ += now_seconds() - t_publish;
       steps_.add(static_cast<uint64_t>(batch_.T) * batch_.N);
       ++batches_on_version_;
       heartbeat();
@@ -197,6 +201,7 @@ class Worker {
       int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
       uint64_t seed = s.seed() ^ fnv1a(opt_.id);
       rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
+      split_at_ = {};
       spec_ = s;
       sequence_ = 0;
       have_policy_ = false;
@@ -219,12 +224,16 @@ class Worker {
     bool got = false;
     while (weights_in_.take(w)) got = true;
     if (!got || w.experiment_id() != spec_.experiment_id()) return;
-    if (have_policy_ && w.version() == rollout_->policy_version()) return;
+    if (have_policy_ && w.version() == rollout_->policy_version()) {
+      batch_quota_ = w.batch_quota();  // the same version re-sent: a topped-up quota
+      return;
+    }
     try {
       PolicyParams p = farm::dds::from_wire(w);
       rollout_->set_policy(p);
       have_policy_ = true;
       batches_on_version_ = 0;
+      batch_quota_ = w.batch_quota();
     } catch (const std::exception& e) {
       last_error_ = std::string("bad PolicyWeights: ") + e.what();
       log(last_error_);
@@ -297,10 +306,29 @@ class Worker {
     s.last_error(last_error_);
     status_out_.write(s);
     if (t - last_log_ >= opt_.log_every && rollout_) {
+      log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " +
+          std::to_string(sequence_) + " batches sent, policy v" +
+          std::to_string(rollout_->policy_version()));
       last_log_ = t;
-      log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s, " + std::to_string(sequence_) +
-          " batches sent, policy v" + std::to_string(rollout_->policy_version()));
     }
+  }
+
+  // Where the wall time since the last log line went: simulation and policy inference (thread
+  // time over the rollout's threads) and publishing batches; the rest is waiting (throttled,
+  // back-pressure) and bookkeeping.
+  std::string time_split(double t) {
+    const Rollout::Timing now = rollout_->timing();
+    const double wall = t - last_log_, k = rollout_->num_threads();
+    std::string s;
+    if (last_log_ > 0 && wall > 0) {
+      auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
+      s = " (simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
+          pct((now.infer_s - split_at_.infer_s) / k) + ", publish " +
+          pct(publish_s_ - split_publish_s_) + ")";
+    }
+    split_at_ = now;
+    split_publish_s_ = publish_s_;
+    return s;
   }
 
   Options opt_;
@@ -315,12 +343,15 @@ class Worker {
   RolloutBatch batch_;
   uint64_t sequence_ = 0;
   uint32_t batches_on_version_ = 0;
+  uint32_t batch_quota_ = 0;  // 0: spec_.max_batches_per_version()
   bool have_policy_ = false;
   bool finished_ = false;
   int exit_code_ = 0;
   std::string state_ = "starting", last_error_;
   Meter steps_;
   double last_status_ = 0, last_log_ = 0;
+  double publish_s_ = 0, split_publish_s_ = 0;  // seconds in publish_batch()
+  Rollout::Timing split_at_;
 };
 
 }  // namespace

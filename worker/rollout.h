@@ -41,6 +41,12 @@ class Rollout {
   void collect(int T, RolloutBatch& out);
 
   uint64_t env_steps() const { return env_steps_; }  // over all collect() calls
+  // Where collect() time went, over all calls: thread-seconds in policy inference and in
+  // stepping the simulation, summed over the pool's threads, and wall seconds inside collect().
+  struct Timing {
+    double infer_s = 0, simulate_s = 0, collect_s = 0;
+  };
+  Timing timing() const;
   int num_envs() const { return env_.num_envs(); }
   int num_threads() const { return int(chunks_.size()); }
   const robots::TaskSpec& spec() const { return env_.spec(); }
@@ -52,6 +58,7 @@ class Rollout {
     Policy policy;
     EpisodeEnds ends;
     std::vector<uint32_t> end_index;  // t * N + n of each entry of `ends`
+    double infer_s = 0, simulate_s = 0;
   };
   void run_chunk(Chunk& c, int T, RolloutBatch& out);
   void thread_main(int k);
@@ -63,6 +70,7 @@ class Rollout {
   uint64_t version_ = 0;
   bool has_policy_ = false;
   uint64_t env_steps_ = 0;
+  double collect_s_ = 0;
 
   // Job hand-off to the pool: one generation per collect().
   std::vector<std::thread> threads_;  // thread k - 1 runs chunk k

@@ -21,7 +21,15 @@ void RolloutBatch::resize(int T_, int N_, int obs_dim_, int act_dim_) {
   next_obs.resize(size_t(N_) * obs_dim_);
   final_index.clear();
   final_obs.clear();
+  for (auto& e : episodes) spare_episodes_.push_back(std::move(e));
   episodes.clear();
+}
+
+EpisodeRecord& RolloutBatch::add_episode() {
+  if (spare_episodes_.empty()) return episodes.emplace_back();
+  episodes.push_back(std::move(spare_episodes_.back()));
+  spare_episodes_.pop_back();
+  return episodes.back();
 }
 
 }  // namespace farm

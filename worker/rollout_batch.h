@@ -29,6 +29,12 @@ struct RolloutBatch {
   std::vector<float> final_obs;       // [final_index.size()][obs_dim]: true last observation
   std::vector<EpisodeRecord> episodes;  // episodes that finished in this batch
   void resize(int T, int N, int obs_dim, int act_dim);
+  // Appends a record to `episodes`, reusing one of an earlier batch (and its metrics storage),
+  // so that a refilled batch allocates nothing once it has held as many episodes before.
+  EpisodeRecord& add_episode();
+
+ private:
+  std::vector<EpisodeRecord> spare_episodes_;
 };
 
 }  // namespace farm

@@ -92,3 +92,15 @@ TEST(Config, TextRoundTrip) {
   EXPECT_EQ(d.experiment_id(), "rt");
   EXPECT_EQ(farm::sac_hidden(d.sac()), (std::vector<int>{64, 64}));
 }
+
+TEST(Config, LearnerDeviceDefaultsToCpuAndIsChecked) {
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\n", "exp.txtpb").sac().device(), "cpu");
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\nsac { device: \"cuda:1\" }\n", "exp.txtpb")
+                .sac()
+                .device(),
+            "cuda:1");
+  std::string e = error_of("experiment_id: \"a\"\nsac {\n  device: \"gpu\"\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
+  EXPECT_NE(e.find("sac.device"), std::string::npos) << e;
+  EXPECT_NE(e.find("\"gpu\""), std::string::npos) << e;
+}

@@ -59,7 +59,7 @@ TEST(Pendulum, UnknownTaskListsKnownTasks) {
     make_task(cfg);
     FAIL() << "expected std::invalid_argument";
   } catch (const std::invalid_argument& e) {
-    EXPECT_STREQ(e.what(), "unknown task 'nope'; known tasks: pendulum");
+    EXPECT_STREQ(e.what(), "unknown task 'nope'; known tasks: pendulum, cartpole, jetbot, kaya, mclari");
   }
 }
 

@@ -1,0 +1,85 @@
+// Double DQN (van Hasselt, Guez and Silver 2016) with a target network, for tasks with discrete
+// actions. Losses and update order follow stable-baselines3's DQN (Huber loss, gradient-norm
+// clipping, hard target copies), which seed 002 trains its Jetbot with, so its hyperparameters
+// (seed 002 table 3) apply; the target is the double-Q one unless dqn.double_q is off.
+// Actions in a batch are the action index stored as one float.
+#pragma once
+
+#include <torch/torch.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "replay_buffer.h"
+
+namespace farm {
+
+struct DqnStats {
+  double loss = 0;     // Huber loss of the update
+  double q_mean = 0;   // mean Q(s, a) of the batch's actions
+  double target_mean = 0;
+};
+
+// Bellman targets [B] from next-state Q values [B, A] of the online and the target network:
+// double: r + gamma (1 - terminated) Q_target(s', argmax_a Q_online(s', a));
+// plain:  r + gamma (1 - terminated) max_a Q_target(s', a).
+torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
+                         const torch::Tensor& next_q_online, const torch::Tensor& next_q_target,
+                         double gamma, bool double_q);
+
+// Exploration probability after `env_steps` environment steps: falls linearly from
+// exploration_initial_eps to exploration_final_eps over exploration_fraction *
+// schedule_env_steps steps, then stays (sb3's linear schedule).
+double dqn_epsilon(const config::DqnConfig& cfg, int64_t env_steps);
+
+// Throws std::invalid_argument naming the first dqn.* field that cannot work.
+void check_dqn_config(const config::DqnConfig& cfg);
+
+class Dqn {
+ public:
+  // Seeds torch's global generator with `seed` (initial weights).
+  Dqn(const config::DqnConfig& cfg, int obs_dim, int num_actions, uint64_t seed);
+  ~Dqn();
+  Dqn(Dqn&&) noexcept;
+  Dqn& operator=(Dqn&&) noexcept;
+
+  // One gradient step on the batch; copies the online network into the target network every
+  // target_update_updates updates.
+  DqnStats update(const SampledBatch& batch);
+
+  // The learner's environment step count, which sets the exploration of exported policies.
+  void set_env_steps(int64_t env_steps) { env_steps_ = env_steps; }
+  double epsilon() const;
+
+  // The online Q network as the workers run it: layout {obs, hidden..., num_actions} relu,
+  // discrete-Q head, epsilon for the current env step count.
+  PolicyParams export_policy(uint64_t version) const;
+
+  int64_t updates() const;
+  int obs_dim() const;
+  int num_actions() const;
+  const std::vector<int>& hidden() const;
+
+  // Q values [B, A] of the online network; no gradient.
+  torch::Tensor q_values(const torch::Tensor& obs) const;
+  // Per layer weight [out, in], bias [out].
+  std::vector<torch::Tensor> online_parameters() const;
+  std::vector<torch::Tensor> target_parameters() const;
+
+  // DIR/dqn.pt: online and target networks, optimizer state, update count; written to a
+  // temporary file and renamed. load() throws std::runtime_error naming the file and what does
+  // not match this instance.
+  void save(const std::string& dir) const;
+  void load(const std::string& dir);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int64_t env_steps_ = 0;
+};
+
+}  // namespace farm

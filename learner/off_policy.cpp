@@ -1,0 +1,91 @@
+#include "off_policy.h"
+
+#include <stdexcept>
+
+#include "dqn.h"
+#include "sac.h"
+
+namespace farm {
+
+namespace {
+
+class SacAlgorithm final : public OffPolicy {
+ public:
+  SacAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : cfg_(cfg.sac()), sac_(cfg.sac(), spec.obs_dim, spec.act_dim, cfg.seed()) {}
+  std::string name() const override { return "sac"; }
+  OffPolicyStats update(const SampledBatch& b) override {
+    const SacStats s = sac_.update(b);
+    return {s.critic_loss, s.actor_loss, s.alpha};
+  }
+  PolicyParams export_policy(uint64_t v) const override { return sac_.export_policy(v); }
+  int64_t updates() const override { return sac_.updates(); }
+  void save(const std::string& dir) const override { sac_.save(dir); }
+  void load(const std::string& dir) override { sac_.load(dir); }
+  int batch_size() const override { return cfg_.batch_size(); }
+  int64_t buffer_size() const override { return cfg_.buffer_size(); }
+  int64_t learning_starts() const override { return cfg_.learning_starts(); }
+  double max_updates_per_step() const override { return cfg_.max_updates_per_step(); }
+  int publish_every_updates() const override { return cfg_.publish_every_updates(); }
+  std::string describe() const override {
+    return "SAC " + sac_.export_policy(0).layout.describe() + " actor";
+  }
+
+ private:
+  config::SacConfig cfg_;
+  Sac sac_;
+};
+
+class DqnAlgorithm final : public OffPolicy {
+ public:
+  DqnAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : cfg_(cfg.dqn()), dqn_(cfg.dqn(), spec.obs_dim, spec.num_actions, cfg.seed()) {}
+  std::string name() const override { return "dqn"; }
+  OffPolicyStats update(const SampledBatch& b) override {
+    const DqnStats s = dqn_.update(b);
+    return {s.loss, 0.0, dqn_.epsilon()};
+  }
+  PolicyParams export_policy(uint64_t v) const override { return dqn_.export_policy(v); }
+  int64_t updates() const override { return dqn_.updates(); }
+  void set_env_steps(int64_t n) override { dqn_.set_env_steps(n); }
+  void save(const std::string& dir) const override { dqn_.save(dir); }
+  void load(const std::string& dir) override { dqn_.load(dir); }
+  int batch_size() const override { return cfg_.batch_size(); }
+  int64_t buffer_size() const override { return cfg_.buffer_size(); }
+  int64_t learning_starts() const override { return cfg_.learning_starts(); }
+  double max_updates_per_step() const override { return cfg_.max_updates_per_step(); }
+  int publish_every_updates() const override { return cfg_.publish_every_updates(); }
+  std::string describe() const override {
+    return "double DQN " + dqn_.export_policy(0).layout.describe() + " Q network";
+  }
+
+ private:
+  config::DqnConfig cfg_;
+  Dqn dqn_;
+};
+
+}  // namespace
+
+std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg,
+                                           const robots::TaskSpec& spec) {
+  if (cfg.algorithm() == "sac") {
+    if (spec.num_actions > 0) {
+      throw std::invalid_argument("algorithm \"sac\" needs continuous actions, but task '" +
+                                  spec.name + "' has " + std::to_string(spec.num_actions) +
+                                  " discrete ones (set its scene.discrete_actions: false, or use "
+                                  "algorithm \"dqn\")");
+    }
+    return std::make_unique<SacAlgorithm>(cfg, spec);
+  }
+  if (cfg.algorithm() == "dqn") {
+    if (spec.num_actions == 0) {
+      throw std::invalid_argument("algorithm \"dqn\" needs discrete actions, but task '" +
+                                  spec.name + "' has continuous ones");
+    }
+    return std::make_unique<DqnAlgorithm>(cfg, spec);
+  }
+  throw std::invalid_argument("algorithm \"" + cfg.algorithm() +
+                              "\" is not an off-policy algorithm (known: \"sac\", \"dqn\")");
+}
+
+}  // namespace farm

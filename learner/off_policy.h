@@ -1,0 +1,50 @@
+// The learner loop's view of an off-policy algorithm: SAC for continuous actions, DQN for
+// discrete ones, chosen by the experiment's `algorithm`. The loop feeds replay minibatches,
+// publishes exported policies, and paces updates with the algorithm's own limits.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "replay_buffer.h"
+#include "task.h"
+
+namespace farm {
+
+// One update's figures in the learner log's columns: SAC fills all three; DQN reports its TD
+// loss as critic_loss and the current epsilon in place of alpha.
+struct OffPolicyStats {
+  double critic_loss = 0, actor_loss = 0, alpha = 0;
+};
+
+class OffPolicy {
+ public:
+  virtual ~OffPolicy() = default;
+  // "sac" or "dqn", also the checkpoint sub-folder.
+  virtual std::string name() const = 0;
+  virtual OffPolicyStats update(const SampledBatch& batch) = 0;
+  virtual PolicyParams export_policy(uint64_t version) const = 0;
+  virtual int64_t updates() const = 0;
+  // Environment steps received so far (DQN's exploration schedule follows it).
+  virtual void set_env_steps(int64_t) {}
+  virtual void save(const std::string& dir) const = 0;
+  virtual void load(const std::string& dir) = 0;
+  // Pacing, from the algorithm's config section.
+  virtual int batch_size() const = 0;
+  virtual int64_t buffer_size() const = 0;
+  virtual int64_t learning_starts() const = 0;
+  virtual double max_updates_per_step() const = 0;
+  virtual int publish_every_updates() const = 0;
+  // One line for the start-up log, e.g. "SAC 20-256-256-4 relu actor".
+  virtual std::string describe() const = 0;
+};
+
+// cfg.algorithm() "sac" (continuous tasks) or "dqn" (tasks with discrete actions). Throws
+// std::invalid_argument when the algorithm is unknown or does not fit the task's action space.
+std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg,
+                                           const robots::TaskSpec& spec);
+
+}  // namespace farm

@@ -1,0 +1,349 @@
+#include "ppo.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <stdexcept>
+
+namespace farm {
+
+namespace {
+
+constexpr double kHalfLog2Pi = 0.91893853320467274178;
+
+struct MlpImpl : torch::nn::Module {
+  MlpImpl(const std::vector<int64_t>& sizes, bool tanh_hidden, double last_gain) : tanh_hidden(tanh_hidden) {
+    for (size_t i = 0; i + 1 < sizes.size(); ++i)
+      layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
+    // A small last layer starts the policy near mean 0 (actions centred, exploration from the
+    // log-std alone) and the value near 0.
+    torch::NoGradGuard g;
+    layers.back()->weight.mul_(last_gain);
+    layers.back()->bias.zero_();
+  }
+  torch::Tensor forward(torch::Tensor x) {
+    for (size_t i = 0; i < layers.size(); ++i) {
+      x = layers[i]->forward(x);
+      if (i + 1 < layers.size()) x = tanh_hidden ? torch::tanh(x) : torch::relu(x);
+    }
+    return x;
+  }
+  std::vector<torch::nn::Linear> layers;
+  bool tanh_hidden;
+};
+TORCH_MODULE(Mlp);
+
+torch::Tensor from_floats(const float* p, int64_t rows, int64_t cols) {
+  return torch::from_blob(const_cast<float*>(p), {rows, cols}, torch::kFloat32).clone();
+}
+
+void require(bool ok, const std::string& field, const std::string& what) {
+  if (!ok) throw std::invalid_argument("ppo." + field + ": " + what);
+}
+
+}  // namespace
+
+double adapt_learning_rate(double lr, double kl, const config::PpoConfig& c) {
+  if (!std::isfinite(kl)) return lr;
+  if (kl > c.kl_band() * c.desired_kl()) lr /= c.lr_factor();
+  else if (kl < c.desired_kl() / c.kl_band()) lr *= c.lr_factor();
+  return std::clamp(lr, c.lr_min(), c.lr_max());
+}
+
+void check_ppo_config(const config::PpoConfig& c) {
+  require(c.variant() == "clip_kl" || c.variant() == "plain", "variant",
+          "expected \"clip_kl\" or \"plain\", got \"" + c.variant() + "\"");
+  require(c.steps_per_fit() >= 0 && c.episodes_per_fit() >= 0, "steps_per_fit",
+          "steps_per_fit and episodes_per_fit must be >= 0");
+  require((c.steps_per_fit() > 0) != (c.episodes_per_fit() > 0), "episodes_per_fit",
+          "set exactly one of steps_per_fit and episodes_per_fit > 0 (set steps_per_fit: 0 to fit by episodes)");
+  require(c.mini_batch_size() > 0, "mini_batch_size", "expected > 0, got " + std::to_string(c.mini_batch_size()));
+  require(c.learning_rate() > 0, "learning_rate", "expected > 0");
+  require(c.gamma() > 0 && c.gamma() <= 1, "gamma", "expected in (0, 1]");
+  require(c.gae_lambda() >= 0 && c.gae_lambda() <= 1, "gae_lambda", "expected in [0, 1]");
+  require(c.entropy_coef() >= 0, "entropy_coef", "expected >= 0");
+  require(c.clip_epsilon() > 0, "clip_epsilon", "expected > 0");
+  require(c.epochs() > 0, "epochs", "expected > 0");
+  require(c.max_grad_norm() > 0, "max_grad_norm", "expected > 0");
+  require(c.desired_kl() > 0, "desired_kl", "expected > 0");
+  require(c.kl_band() > 1, "kl_band", "expected > 1");
+  require(c.lr_factor() > 1, "lr_factor", "expected > 1");
+  require(c.lr_min() > 0 && c.lr_min() <= c.lr_max(), "lr_min", "expected 0 < lr_min <= lr_max");
+  require(c.value_loss_coef() >= 0, "value_loss_coef", "expected >= 0");
+  for (int h : c.hidden()) require(h > 0, "hidden", "expected sizes > 0, got " + std::to_string(h));
+  require(c.activation() == "tanh" || c.activation() == "relu", "activation",
+          "expected \"tanh\" or \"relu\", got \"" + c.activation() + "\"");
+  require(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < ppo.log_std_max");
+  require(c.max_policy_lag() >= 0, "max_policy_lag", "expected >= 0");
+  require(c.steps_per_run() >= 0 && c.episodes_per_run() >= 0, "steps_per_run",
+          "steps_per_run and episodes_per_run must be >= 0 (0 = no limit)");
+  require(c.eval_every_fits() >= 0, "eval_every_fits", "expected >= 0 (0 = only at the end)");
+}
+
+std::vector<int> ppo_hidden(const config::PpoConfig& c) {
+  if (c.hidden_size() == 0) return {64, 64};
+  return {c.hidden().begin(), c.hidden().end()};
+}
+
+struct Ppo::Impl {
+  config::PpoConfig cfg;
+  int obs_dim, act_dim;
+  std::vector<int> hidden;
+  mutable Mlp actor{nullptr}, critic{nullptr};
+  torch::Tensor log_std;
+  std::unique_ptr<torch::optim::Adam> opt;
+  ObsNormalizer norm;
+  double lr;
+  int64_t fits = 0, updates = 0;
+
+  torch::Tensor normalize(const float* obs, int64_t n) const {
+    torch::Tensor x = from_floats(obs, n, obs_dim);
+    if (!cfg.normalize_observations()) return x;
+    auto m = norm.mean(), s = norm.std();
+    return (x - torch::from_blob(m.data(), {1, obs_dim}).clone()) / torch::from_blob(s.data(), {1, obs_dim}).clone();
+  }
+  torch::Tensor clamped_log_std() const { return log_std.clamp(cfg.log_std_min(), cfg.log_std_max()); }
+  // Sum over action dims of the clipped Gaussian's log-probability (as the workers compute it,
+  // common/mlp.h kGaussian): the density inside (-1, 1), the mass beyond a bound at the bound.
+  static torch::Tensor log_prob(const torch::Tensor& mean, const torch::Tensor& ls, const torch::Tensor& a) {
+    const auto inv_std = torch::exp(-ls);
+    const auto z = (a - mean) * inv_std;
+    const auto inside = -0.5 * z * z - ls - kHalfLog2Pi;
+    const auto upper = torch::special::log_ndtr((mean - 1.0) * inv_std);
+    const auto lower = torch::special::log_ndtr((-1.0 - mean) * inv_std);
+    return torch::where(a >= 1.0, upper, torch::where(a <= -1.0, lower, inside)).sum(-1);
+  }
+  void set_lr(double v) {
+    lr = v;
+    for (auto& g : opt->param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(v);
+  }
+};
+
+Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) : impl_(std::make_unique<Impl>()) {
+  check_ppo_config(cfg);
+  if (obs_dim <= 0 || act_dim <= 0) throw std::invalid_argument("Ppo: obs_dim and act_dim must be > 0");
+  Impl& s = *impl_;
+  torch::manual_seed(seed);
+  s.cfg = cfg;
+  s.obs_dim = obs_dim;
+  s.act_dim = act_dim;
+  s.hidden = ppo_hidden(cfg);
+  std::vector<int64_t> a{obs_dim}, v{obs_dim};
+  for (int h : s.hidden) { a.push_back(h); v.push_back(h); }
+  a.push_back(act_dim);
+  v.push_back(1);
+  const bool th = cfg.activation() == "tanh";
+  s.actor = Mlp(a, th, 0.01);
+  s.critic = Mlp(v, th, 1.0);
+  s.log_std = torch::full({act_dim}, cfg.initial_log_std(), torch::requires_grad());
+  std::vector<torch::Tensor> params = s.actor->parameters();
+  for (auto& p : s.critic->parameters()) params.push_back(p);
+  params.push_back(s.log_std);
+  s.lr = cfg.learning_rate();
+  s.opt = std::make_unique<torch::optim::Adam>(params, torch::optim::AdamOptions(s.lr));
+  s.norm = ObsNormalizer(obs_dim);
+}
+
+Ppo::~Ppo() = default;
+
+std::vector<float> Ppo::values(const float* obs, int64_t n) const {
+  torch::NoGradGuard g;
+  if (n == 0) return {};
+  auto v = impl_->critic->forward(impl_->normalize(obs, n)).reshape({n}).contiguous();
+  return {v.data_ptr<float>(), v.data_ptr<float>() + n};
+}
+
+std::vector<float> Ppo::log_probs(const float* obs, const float* actions, int64_t n) const {
+  torch::NoGradGuard g;
+  if (n == 0) return {};
+  // Non-const: LibTorch 2.x's const ModuleHolder gives only const access, and forward() is not.
+  Impl& s = *impl_;
+  auto mean = s.actor->forward(s.normalize(obs, n));
+  auto lp = Impl::log_prob(mean, s.clamped_log_std(), from_floats(actions, n, s.act_dim)).contiguous();
+  return {lp.data_ptr<float>(), lp.data_ptr<float>() + n};
+}
+
+PpoStats Ppo::fit(const PpoSamples& d) {
+  Impl& s = *impl_;
+  const int64_t n = d.n;
+  PpoStats st;
+  st.samples = n;
+  if (n == 0) {
+    st.learning_rate = s.lr;
+    return st;
+  }
+  const bool clip_kl = s.cfg.variant() == "clip_kl";
+  const auto X = s.normalize(d.obs.data(), n);
+  const auto A = from_floats(d.actions.data(), n, s.act_dim);
+  torch::Tensor old_mean, old_ls, old_lp;
+  {
+    torch::NoGradGuard g;
+    old_mean = s.actor->forward(X);
+    old_ls = s.clamped_log_std().clone();
+    const auto recomputed = Impl::log_prob(old_mean, old_ls, A);
+    const auto behaviour = from_floats(d.behaviour_log_prob.data(), n, 1).reshape({n});
+    const auto cur = torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(torch::kBool);
+    old_lp = torch::where(cur, recomputed, behaviour);
+  }
+  auto adv = from_floats(d.advantages.data(), n, 1).reshape({n});
+  const auto ret = from_floats(d.returns.data(), n, 1).reshape({n});
+  if (s.cfg.normalize_advantages() && n > 1) adv = (adv - adv.mean()) / (adv.std() + 1e-8);
+
+  const int64_t mb = std::min<int64_t>(s.cfg.mini_batch_size(), n);
+  const double eps = s.cfg.clip_epsilon();
+  std::vector<torch::Tensor> all_params = s.opt->param_groups()[0].params();
+  for (int e = 0; e < s.cfg.epochs(); ++e) {
+    const bool last_epoch = e + 1 == s.cfg.epochs();
+    const auto perm = torch::randperm(n, torch::kLong);
+    double clipped = 0, vloss = 0, ploss = 0, gnorm = 0;
+    int64_t batches = 0;
+    for (int64_t b = 0; b < n; b += mb) {
+      const auto idx = perm.slice(0, b, std::min(n, b + mb));
+      const auto x = X.index_select(0, idx), a = A.index_select(0, idx);
+      const auto mean = s.actor->forward(x);
+      const auto ls = s.clamped_log_std();
+      const auto lp = Impl::log_prob(mean, ls, a);
+      const auto ratio = torch::exp(lp - old_lp.index_select(0, idx));
+      const auto ad = adv.index_select(0, idx);
+      const auto surr = torch::min(ratio * ad, torch::clamp(ratio, 1 - eps, 1 + eps) * ad);
+      const auto policy_loss = -surr.mean();
+      const auto value_loss = (s.critic->forward(x).reshape({-1}) - ret.index_select(0, idx)).pow(2).mean();
+      const auto entropy = (ls + 0.5 + kHalfLog2Pi).sum();
+      const auto loss = policy_loss + s.cfg.value_loss_coef() * value_loss - s.cfg.entropy_coef() * entropy;
+      s.opt->zero_grad();
+      loss.backward();
+      double norm = 0;
+      if (clip_kl) norm = torch::nn::utils::clip_grad_norm_(all_params, s.cfg.max_grad_norm());
+      s.opt->step();
+      ++s.updates;
+      ++st.minibatches;
+      if (clip_kl) {
+        // KL(old || new) of this mini-batch before its step, as the modified PPO measures it.
+        torch::NoGradGuard g;
+        const auto om = old_mean.index_select(0, idx);
+        const auto kl = (ls - old_ls + (torch::exp(2 * old_ls) + (om - mean).pow(2)) / (2 * torch::exp(2 * ls)) - 0.5)
+                            .sum(-1).mean().item<double>();
+        s.set_lr(adapt_learning_rate(s.lr, kl, s.cfg));
+      }
+      if (last_epoch) {
+        torch::NoGradGuard g;
+        clipped += ((ratio - 1).abs() > eps).to(torch::kFloat32).sum().item<double>();
+        vloss += value_loss.item<double>();
+        ploss += policy_loss.item<double>();
+        gnorm += norm;
+        ++batches;
+      }
+    }
+    if (last_epoch) {
+      st.clip_fraction = clipped / double(n);
+      st.value_loss = vloss / double(batches);
+      st.policy_loss = ploss / double(batches);
+      st.grad_norm = gnorm / double(batches);
+    }
+  }
+  {
+    torch::NoGradGuard g;
+    const auto mean = s.actor->forward(X);
+    const auto ls = s.clamped_log_std();
+    st.kl = (ls - old_ls + (torch::exp(2 * old_ls) + (old_mean - mean).pow(2)) / (2 * torch::exp(2 * ls)) - 0.5)
+                .sum(-1).mean().item<double>();
+    st.entropy = (ls + 0.5 + kHalfLog2Pi).sum().item<double>();
+  }
+  st.learning_rate = s.lr;
+  ++s.fits;
+  return st;
+}
+
+PolicyParams Ppo::export_policy(uint64_t version) const {
+  const Impl& s = *impl_;
+  PolicyParams p;
+  p.version = version;
+  p.head = PolicyHead::kGaussian;
+  p.layout.activation = s.cfg.activation() == "tanh" ? Activation::kTanh : Activation::kRelu;
+  p.layout.sizes.push_back(s.obs_dim);
+  p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
+  p.layout.sizes.push_back(s.act_dim);
+  p.log_std_min = float(s.cfg.log_std_min());
+  p.log_std_max = float(s.cfg.log_std_max());
+  for (auto& l : s.actor->layers) {
+    auto w = l->weight.detach().contiguous(), b = l->bias.detach().contiguous();
+    p.params.insert(p.params.end(), w.data_ptr<float>(), w.data_ptr<float>() + w.numel());
+    p.params.insert(p.params.end(), b.data_ptr<float>(), b.data_ptr<float>() + b.numel());
+  }
+  auto ls = s.log_std.detach().contiguous();
+  p.log_std.assign(ls.data_ptr<float>(), ls.data_ptr<float>() + ls.numel());
+  if (s.cfg.normalize_observations()) {
+    p.obs_mean = s.norm.mean();
+    p.obs_std = s.norm.std();
+  }
+  return p;
+}
+
+ObsNormalizer& Ppo::normalizer() { return impl_->norm; }
+const ObsNormalizer& Ppo::normalizer() const { return impl_->norm; }
+double Ppo::learning_rate() const { return impl_->lr; }
+int64_t Ppo::fits() const { return impl_->fits; }
+int64_t Ppo::updates() const { return impl_->updates; }
+
+void Ppo::save(const std::string& dir) const {
+  const Impl& s = *impl_;
+  torch::serialize::OutputArchive ar;
+  torch::serialize::OutputArchive actor, critic, optim;
+  s.actor->save(actor);
+  s.critic->save(critic);
+  s.opt->save(optim);
+  ar.write("actor", actor);
+  ar.write("critic", critic);
+  ar.write("optimizer", optim);
+  ar.write("log_std", s.log_std.detach());
+  const auto& m = s.norm.raw_mean();
+  const auto& m2 = s.norm.raw_m2();
+  ar.write("norm_mean", torch::tensor(std::vector<double>(m.begin(), m.end()), torch::kFloat64));
+  ar.write("norm_m2", torch::tensor(std::vector<double>(m2.begin(), m2.end()), torch::kFloat64));
+  ar.write("norm_count", torch::tensor(s.norm.count(), torch::kFloat64));
+  ar.write("lr", torch::tensor(s.lr, torch::kFloat64));
+  ar.write("counts", torch::tensor(std::vector<int64_t>{s.fits, s.updates}, torch::kLong));
+  const std::string path = (std::filesystem::path(dir) / "ppo.pt").string();
+  ar.save_to(path + ".tmp");
+  std::filesystem::rename(path + ".tmp", path);
+}
+
+void Ppo::load(const std::string& dir) {
+  Impl& s = *impl_;
+  const std::string path = (std::filesystem::path(dir) / "ppo.pt").string();
+  try {
+    torch::serialize::InputArchive ar;
+    ar.load_from(path);
+    torch::serialize::InputArchive actor, critic, optim;
+    ar.read("actor", actor);
+    ar.read("critic", critic);
+    ar.read("optimizer", optim);
+    s.actor->load(actor);
+    s.critic->load(critic);
+    s.opt->load(optim);
+    torch::Tensor ls, nm, nm2, nc, lr, counts;
+    ar.read("log_std", ls);
+    ar.read("norm_mean", nm);
+    ar.read("norm_m2", nm2);
+    ar.read("norm_count", nc);
+    ar.read("lr", lr);
+    ar.read("counts", counts);
+    if (ls.numel() != s.act_dim || nm.numel() != s.obs_dim)
+      throw std::runtime_error("log_std or normalizer size does not match this task");
+    {
+      torch::NoGradGuard g;
+      s.log_std.copy_(ls);
+    }
+    nm = nm.contiguous();
+    nm2 = nm2.contiguous();
+    s.norm.set_state(nc.item<double>(), {nm.data_ptr<double>(), nm.data_ptr<double>() + s.obs_dim},
+                     {nm2.data_ptr<double>(), nm2.data_ptr<double>() + s.obs_dim});
+    s.set_lr(lr.item<double>());
+    s.fits = counts[0].item<int64_t>();
+    s.updates = counts[1].item<int64_t>();
+  } catch (const c10::Error& e) {
+    throw std::runtime_error(path + ": " + e.what_without_backtrace());
+  }
+}
+
+}  // namespace farm

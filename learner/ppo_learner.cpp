@@ -1,0 +1,592 @@
+#include "ppo_learner.h"
+
+#include <google/protobuf/text_format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <deque>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include "checkpoint.h"
+#include "config.h"
+#include "fit_scheduler.h"
+#include "ingest.h"
+#include "meter.h"
+#include "ppo.h"
+#include "rollout.h"
+#include "rollout_storage.h"
+#include "task.h"
+
+namespace farm {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+FitPlan plan_of(const config::PpoConfig& c) {
+  FitPlan p;
+  p.steps_per_fit = c.steps_per_fit();
+  p.episodes_per_fit = c.episodes_per_fit();
+  p.steps_per_run = c.steps_per_run();
+  p.episodes_per_run = c.episodes_per_run();
+  return p;
+}
+
+struct WorkerView {
+  farm::msg::WorkerStatus last;
+  double seen = 0;
+  bool dead = false;
+};
+
+// What an evaluation reports: returns, lengths and the task's own metrics.
+struct EvalReport {
+  int episodes = 0;
+  double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
+  std::vector<double> metrics;  // means, in the order of TaskSpec::metric_names
+};
+
+EvalReport summarize(const std::vector<EpisodeRecord>& recs, size_t num_metrics) {
+  EvalReport r;
+  r.episodes = int(recs.size());
+  r.metrics.assign(num_metrics, 0.0);
+  if (recs.empty()) return r;
+  double sum = 0, len = 0;
+  r.min = r.max = recs[0].episode_return;
+  for (const auto& e : recs) {
+    sum += e.episode_return;
+    len += e.length;
+    r.min = std::min<double>(r.min, e.episode_return);
+    r.max = std::max<double>(r.max, e.episode_return);
+    for (size_t i = 0; i < num_metrics && i < e.metrics.size(); ++i) r.metrics[i] += e.metrics[i];
+  }
+  r.mean = sum / recs.size();
+  r.mean_length = len / recs.size();
+  for (auto& m : r.metrics) m /= recs.size();
+  return r;
+}
+
+class PpoLearner {
+ public:
+  PpoLearner(const LearnerRunOptions& o, const config::ExperimentConfig& cfg, const std::atomic<bool>& interrupted)
+      : opt_(o),
+        cfg_(cfg),
+        pc_(cfg.ppo()),
+        interrupted_(interrupted),
+        task_(robots::make_task(cfg_.task())),
+        obs_dim_(task_->spec().obs_dim),
+        act_dim_(task_->spec().act_dim),
+        ppo_(pc_, obs_dim_, act_dim_, cfg_.seed()),
+        storage_(obs_dim_, act_dim_),
+        sched_(plan_of(pc_)),
+        ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
+        bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
+        spec_out_(bus_, farm::dds::kSpecTopic, "latest_writer"),
+        weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
+        stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
+        batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
+        status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader") {
+    if (task_->spec().num_actions > 0)
+      throw std::invalid_argument("algorithm \"ppo\" needs continuous actions; task '" + cfg_.task().name() +
+                                  "' has discrete ones");
+    run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
+    ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
+  }
+
+  int run() {
+    prepare_run_dir();
+    publish_spec(false);
+    const auto& p = pc_;
+    log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
+        ", act " + std::to_string(act_dim_) + "), PPO (" + p.variant() + ") " +
+        ppo_.export_policy(0).layout.describe() + " actor, " +
+        (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps" : std::to_string(p.episodes_per_fit()) + " episodes") +
+        " per fit, max policy lag " + std::to_string(p.max_policy_lag()) + ", DDS domain " + std::to_string(bus_.domain()) +
+        ", run dir " + run_dir_);
+    log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
+
+    const double t0 = now_seconds() - elapsed_offset_;
+    double last_log = now_seconds(), last_ckpt = now_seconds();
+    last_data_ = now_seconds();
+    std::string stop_reason;
+    while (stop_reason.empty()) {
+      if (interrupted_) { stop_reason = "interrupted"; break; }
+      size_t got = drain_batches(256);
+      drain_status();
+      if (!published_) {
+        // The first weights wait for the first worker and a short grace for the others, so the
+        // first quota is shared out over the workers that are there.
+        if (first_join_ > 0 && now_seconds() - first_join_ >= kJoinGraceSeconds) {
+          quota_ = batches_for_next_fit();
+          publish_weights();
+          published_ = true;
+        } else {
+          batches_in_.wait(0.05);
+        }
+      } else if (sched_.fit_due()) {
+        fit(now_seconds() - t0);
+      } else if (got == 0) {
+        top_up_if_starved();
+        batches_in_.wait(0.01);
+      }
+      double now = now_seconds();
+      if (now - last_log >= cfg_.log_every_seconds()) {
+        publish_stats(now - t0, now - last_log);
+        last_log = now;
+      }
+      if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
+        checkpoint(now - t0);
+        last_ckpt = now_seconds();
+      }
+      stop_reason = should_stop(now - t0);
+    }
+    const double elapsed = now_seconds() - t0;
+    log("stopping: " + stop_reason);
+    if (stop_reason == "interrupted") {
+      checkpoint(elapsed);
+      log("checkpoint written; resume with --resume");
+      return 130;
+    }
+    EvalReport final_eval = evaluate(cfg_.eval().final_episodes(), elapsed, "final");
+    publish_spec(true);
+    drain_until_workers_end();
+    checkpoint(elapsed);
+    write_summary(elapsed, stop_reason, final_eval);
+    return 0;
+  }
+
+ private:
+  void log(const std::string& s) {
+    std::printf("[learner] %s\n", s.c_str());
+    std::fflush(stdout);
+  }
+
+  void prepare_run_dir() {
+    if (opt_.resume) {
+      if (!checkpoint_exists(ckpt_dir_)) throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
+      const fs::path mpath = fs::path(ckpt_dir_) / "manifest.txtpb";
+      std::ifstream in(mpath);
+      std::stringstream ss;
+      ss << in.rdbuf();
+      config::CheckpointManifest m;
+      if (!google::protobuf::TextFormat::ParseFromString(ss.str(), &m))
+        throw std::runtime_error("cannot parse checkpoint manifest " + mpath.string());
+      if (m.experiment_id() != cfg_.experiment_id())
+        throw std::runtime_error(mpath.string() + ": checkpoint is of experiment '" + m.experiment_id() +
+                                 "', the config says '" + cfg_.experiment_id() + "'");
+      ppo_.load((fs::path(ckpt_dir_) / "ppo").string());
+      version_ = m.policy_version() + 1;
+      elapsed_offset_ = m.elapsed_seconds();
+      best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
+      episodes_total_ = m.episodes();
+      accounts_from_manifest(m, ingest_);
+      // The run's counters go on from where they were; data not yet fitted was not kept.
+      sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
+      log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
+          std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
+    } else if (fs::exists(run_dir_) && !fs::is_empty(run_dir_)) {
+      std::string aside = run_dir_ + "." + std::to_string(static_cast<long long>(std::time(nullptr)));
+      fs::rename(run_dir_, aside);
+      log("previous run moved to " + aside + " (use --resume to continue a run instead)");
+    }
+    fs::create_directories(run_dir_);
+    bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
+    csv_.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
+    if (!csv_) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
+    if (new_csv)
+      csv_ << "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
+              "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
+              "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
+              "batches_stale,workers\n";
+  }
+
+  void publish_spec(bool finished) {
+    farm::msg::ExperimentSpec s;
+    s.experiment_id(cfg_.experiment_id());
+    s.config_text(config_to_text(cfg_));
+    s.task_name(cfg_.task().name());
+    s.obs_dim(obs_dim_);
+    s.act_dim(act_dim_);
+    s.steps_per_batch(cfg_.worker().steps_per_batch());
+    s.max_batches_per_version(cfg_.worker().max_batches_per_version());
+    s.seed(cfg_.seed());
+    s.learner_session(session_);
+    s.finished(finished);
+    spec_out_.write(s);
+  }
+
+  // The current version's weights with the current quota; re-sent with a larger quota to top up.
+  void write_weights() {
+    farm::msg::PolicyWeights w;
+    farm::dds::to_wire(policy_, cfg_.experiment_id(), w);
+    w.batch_quota(quota_);
+    weights_out_.write(w);
+  }
+
+  void publish_weights() {
+    policy_ = ppo_.export_policy(version_);
+    delivered_.clear();
+    write_weights();
+  }
+
+  // Steps one round (one batch from every live worker) brings.
+  int64_t round_steps() const {
+    int64_t envs = 0;
+    const double now = now_seconds();
+    for (auto& [k, v] : workers_)
+      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") envs += v.last.envs();
+    if (envs == 0) envs = cfg_.worker().envs_per_worker();  // none seen yet: assume one default worker
+    return envs * cfg_.worker().steps_per_batch();
+  }
+
+  // Batches each worker should send on this version so that the fit (and no more than the run)
+  // gets what it needs: the fit's missing steps, or for a fit by episodes the episodes still
+  // missing spread over the environments, each up to a full horizon.
+  uint32_t batches_for(int64_t steps_needed) const {
+    const int64_t r = round_steps();
+    return uint32_t(std::max<int64_t>(1, (steps_needed + r - 1) / r));
+  }
+  uint32_t batches_for_next_fit() const {
+    int64_t need = sched_.steps_wanted();
+    if (pc_.episodes_per_fit() > 0) {
+      const int64_t eps = std::max<int64_t>(1, sched_.episodes_wanted());
+      const int64_t envs = round_steps() / cfg_.worker().steps_per_batch();
+      const int64_t by_eps = (eps + envs - 1) / envs * std::max(1, task_->spec().max_episode_steps) * envs;
+      need = need < 0 ? by_eps : std::min(need, by_eps);
+    }
+    return batches_for(std::max<int64_t>(need, 1));
+  }
+
+  // Every live worker delivered its quota and the fit still lacks data (a worker left, or
+  // episodes run longer than estimated): raise the quota of the same version.
+  void top_up_if_starved() {
+    if (sched_.run_done() || now_seconds() - last_data_ < 0.5) return;
+    const double now = now_seconds();
+    bool all_done = false;
+    for (auto& [k, v] : workers_) {
+      if (v.dead || now - v.seen > cfg_.worker_timeout_seconds() || v.last.state() == "finished") continue;
+      auto it = delivered_.find(v.last.worker_id());
+      const bool done = it != delivered_.end() && it->second >= quota_;
+      const bool idle = v.last.state() == "throttled" && v.last.policy_version() == version_;
+      if (!done && !idle) return;
+      all_done = true;
+    }
+    if (!all_done) return;
+    int64_t need = sched_.steps_wanted();
+    if (pc_.episodes_per_fit() > 0) need = round_steps();
+    quota_ += batches_for(std::max<int64_t>(need, 1));
+    ++top_ups_;
+    last_data_ = now_seconds();
+    write_weights();
+  }
+
+  size_t drain_batches(size_t max) {
+    size_t n = 0;
+    while (n < max && batches_in_.take(batch_)) {
+      ++n;
+      pending_.clear();
+      episodes_.clear();
+      std::string why = ingest_.accept(batch_, version_, now_seconds(), pending_, episodes_);
+      if (!why.empty()) {
+        if (++rejections_logged_ <= 20)
+          log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + batch_.worker_id() + ": " + why);
+        continue;
+      }
+      if (pending_.n == 0) continue;  // end of stream
+      last_data_ = now_seconds();
+      if (batch_.policy_version() + uint64_t(pc_.max_policy_lag()) < version_ || sched_.run_done()) {
+        // Made by a policy older than the lag allows (or after the run's end): counted, not used.
+        ++stale_total_;
+        ++stale_fit_;
+        continue;
+      }
+      if (batch_.policy_version() == version_) delivered_[batch_.worker_id()] += 1;
+      storage_.add(int(batch_.num_steps()), int(batch_.num_envs()), pending_.obs.data(), pending_.actions.data(),
+                   pending_.rewards.data(), pending_.terminated.data(), batch_.truncated().data(),
+                   batch_.log_probs().data(), pending_.next_obs.data(), batch_.policy_version());
+      sched_.on_data(pending_.n, int64_t(episodes_.size()));
+      for (auto& e : episodes_) {
+        recent_returns_.push_back(e.episode_return);
+        if (recent_returns_.size() > 100) recent_returns_.pop_front();
+        ++episodes_total_;
+      }
+    }
+    return n;
+  }
+
+  void fit(double elapsed) {
+    const double t = now_seconds();
+    const FitScheduler::Fit f = sched_.take_fit();
+    PpoSamples samples;
+    storage_.take(f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(),
+                  pc_.gae_lambda(), version_, samples);
+    const PpoStats st = ppo_.fit(samples);
+    // The normalizer moves between versions only, so a version is one fixed policy.
+    if (pc_.normalize_observations()) ppo_.normalizer().update(samples.obs.data(), samples.n);
+    const double fit_s = now_seconds() - t;
+    last_stats_ = st;
+    const uint64_t fitted = version_;
+    ++version_;
+    quota_ = batches_for_next_fit();
+    if (!sched_.run_done()) publish_weights();
+    else policy_ = ppo_.export_policy(version_);
+    const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0;
+    if (eval_now) evaluate(cfg_.eval().episodes(), elapsed, "eval");
+    const double mean_ret = recent_returns_.empty() ? NAN : mean_of(recent_returns_);
+    const auto& c = ingest_.counters();
+    std::ostringstream o;
+    o << "fit " << ppo_.fits() << " | v" << fitted << " -> v" << version_ << " | steps used " << f.steps_used
+      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | kl " << fmt("%.4f", st.kl)
+      << " lr " << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction) << " | value loss "
+      << fmt("%.4g", st.value_loss) << " entropy " << fmt("%.3f", st.entropy) << " | return " << fmt("%.1f", mean_ret)
+      << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps
+      << " env steps, " << fmt("%.1f", elapsed) << " s";
+    log(o.str());
+    csv_ << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
+         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
+         << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
+         << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ','
+         << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "")
+         << ',' << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ','
+         << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "") << ',' << c.ok << ',' << c.lost << ','
+         << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ',' << live_workers() << '\n';
+    csv_.flush();
+    stale_fit_ = 0;
+  }
+
+  EvalReport evaluate(int episodes, double elapsed, const std::string& label) {
+    auto recs = evaluate_policy(task_, policy_, episodes, cfg_.seed() + 1000003ull * ++evals_);
+    EvalReport r = summarize(recs, task_->spec().metric_names.size());
+    last_eval_ = r;
+    best_eval_ = std::isnan(best_eval_) ? r.mean : std::max(best_eval_, r.mean);
+    std::string metrics;
+    for (size_t i = 0; i < r.metrics.size(); ++i)
+      metrics += ", " + task_->spec().metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    log(label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " + fmt("%.1f", r.max) +
+        ") over " + std::to_string(r.episodes) + " deterministic episodes, length " + fmt("%.1f", r.mean_length) +
+        metrics + " (policy v" + std::to_string(policy_.version) + ", " + std::to_string(ppo_.fits()) + " fits, " +
+        fmt("%.1f", elapsed) + " s)");
+    return r;
+  }
+
+  void drain_status() {
+    farm::msg::WorkerStatus s;
+    while (status_in_.take(s)) {
+      auto& v = workers_[s.worker_id() + "#" + std::to_string(s.worker_session())];
+      if (first_join_ == 0) first_join_ = now_seconds();
+      if (v.seen == 0)
+        log("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
+            ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
+      if (!s.last_error().empty() && s.last_error() != v.last.last_error())
+        log("worker " + s.worker_id() + " reports: " + s.last_error());
+      v.last = s;
+      v.seen = now_seconds();
+      v.dead = false;
+    }
+    const double now = now_seconds();
+    for (auto& [k, v] : workers_) {
+      if (v.dead || v.last.state() == "finished" || now - v.seen < cfg_.worker_timeout_seconds()) continue;
+      v.dead = true;
+      log("worker " + v.last.worker_id() + " silent for " + fmt("%.1f", now - v.seen) + " s: marked dead; going on with " +
+          std::to_string(live_workers()) + " workers");
+    }
+  }
+
+  int live_workers() const {
+    int n = 0;
+    const double now = now_seconds();
+    for (auto& [k, v] : workers_)
+      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") ++n;
+    return n;
+  }
+
+  void publish_stats(double elapsed, double window) {
+    const auto& c = ingest_.counters();
+    const double in_rate = double(c.env_steps - last_steps_) / window;
+    last_steps_ = c.env_steps;
+    const double lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
+    last_ok_ = c.ok;
+    last_lag_sum_ = c.lag_sum;
+    farm::msg::LearnerStats st;
+    st.experiment_id(cfg_.experiment_id());
+    st.elapsed_seconds(elapsed);
+    st.env_steps(c.env_steps);
+    st.env_steps_per_second(in_rate);
+    st.updates(ppo_.updates());
+    st.updates_per_second(0);
+    st.buffer_fill(pc_.steps_per_fit() > 0 ? double(storage_.steps()) / double(pc_.steps_per_fit()) : 0.0);
+    st.policy_lag(lag);
+    st.critic_loss(last_stats_.value_loss);
+    st.actor_loss(last_stats_.policy_loss);
+    st.mean_return(recent_returns_.empty() ? NAN : mean_of(recent_returns_));
+    st.eval_return(last_eval_.mean);
+    st.batches_ok(c.ok);
+    st.batches_lost(c.lost);
+    st.batches_duplicate(c.duplicate);
+    st.batches_invalid(c.invalid);
+    st.workers(live_workers());
+    stats_out_.write(st);
+    log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", in_rate) + " steps/s (" + std::to_string(c.env_steps) +
+        ") | v" + std::to_string(version_) + " collecting " + std::to_string(sched_.fit_steps()) + " steps, quota " +
+        std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) + " lost " +
+        std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " + std::to_string(c.invalid) +
+        " stale " + std::to_string(stale_total_) + " | workers " + std::to_string(live_workers()));
+  }
+
+  static double mean_of(const std::deque<float>& d) {
+    double s = 0;
+    for (float x : d) s += x;
+    return s / d.size();
+  }
+
+  std::string should_stop(double elapsed) const {
+    const auto& s = cfg_.stop();
+    if (sched_.run_done() && !sched_.fit_due()) {
+      if (pc_.steps_per_run() > 0 && sched_.run_steps() >= pc_.steps_per_run())
+        return "run length " + std::to_string(pc_.steps_per_run()) + " steps";
+      return "run length " + std::to_string(pc_.episodes_per_run()) + " episodes";
+    }
+    if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval_.mean) && last_eval_.mean >= s.target_eval_return())
+      return "evaluation return " + fmt("%.1f", last_eval_.mean) + " reached the target " + fmt("%.1f", s.target_eval_return());
+    if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
+    if (s.max_env_steps() > 0 && int64_t(ingest_.counters().env_steps) >= s.max_env_steps())
+      return "env step limit " + std::to_string(s.max_env_steps());
+    if (s.max_updates() > 0 && ppo_.updates() >= s.max_updates()) return "update limit " + std::to_string(s.max_updates());
+    return "";
+  }
+
+  void drain_until_workers_end() {
+    const double t_end = now_seconds() + 15.0;
+    while (now_seconds() < t_end) {
+      drain_batches(1024);
+      drain_status();
+      bool all_ended = !ingest_.workers().empty();
+      for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && w.ended;
+      if (all_ended) break;
+      batches_in_.wait(0.05);
+    }
+    for (auto& [k, w] : ingest_.workers())
+      if (!w.ended)
+        log("worker " + w.worker_id + " did not close its stream; batches after " + std::to_string(w.next_sequence) +
+            " are unaccounted");
+  }
+
+  void checkpoint(double elapsed) {
+    config::CheckpointManifest m;
+    m.set_experiment_id(cfg_.experiment_id());
+    m.set_policy_version(version_);
+    m.set_updates(ppo_.updates());
+    m.set_elapsed_seconds(elapsed);
+    if (!std::isnan(best_eval_)) m.set_best_eval_return(best_eval_);
+    m.set_config_text(config_to_text(cfg_));
+    m.set_episodes(episodes_total_);
+    m.set_run_steps(uint64_t(sched_.run_steps()));
+    accounts_to_manifest(ingest_, m);
+    const double t = now_seconds();
+    const fs::path final_dir(ckpt_dir_), tmp = ckpt_dir_ + ".tmp", old = ckpt_dir_ + ".old";
+    fs::remove_all(tmp);
+    fs::create_directories(tmp / "ppo");
+    ppo_.save((tmp / "ppo").string());
+    std::string text;
+    google::protobuf::TextFormat::PrintToString(m, &text);
+    {
+      std::ofstream out(tmp / "manifest.txtpb");
+      out << text;
+      if (!out) throw std::runtime_error("cannot write " + (tmp / "manifest.txtpb").string());
+    }
+    fs::remove_all(old);
+    if (fs::exists(final_dir)) fs::rename(final_dir, old);
+    fs::rename(tmp, final_dir);
+    fs::remove_all(old);
+    log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+  }
+
+  void write_summary(double elapsed, const std::string& reason, const EvalReport& fe) {
+    const auto& c = ingest_.counters();
+    std::ostringstream o;
+    o << "experiment        " << cfg_.experiment_id() << "\n"
+      << "stopped because   " << reason << "\n"
+      << "wall time         " << fmt("%.1f", elapsed) << " s\n"
+      << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9)) << " steps/s)\n"
+      << "updates           " << ppo_.updates() << " (" << ppo_.fits() << " fits)\n"
+      << "policy versions   " << version_ << "\n"
+      << "episodes          " << episodes_total_ << "\n"
+      << "final eval return " << fmt("%.1f", fe.mean) << " (mean of " << fe.episodes << " deterministic episodes)\n"
+      << "final eval range  min " << fmt("%.1f", fe.min) << ", max " << fmt("%.1f", fe.max) << ", length "
+      << fmt("%.1f", fe.mean_length) << "\n";
+    for (size_t i = 0; i < fe.metrics.size(); ++i)
+      o << "final eval metric " << task_->spec().metric_names[i] << " " << fmt("%.4f", fe.metrics[i]) << "\n";
+    o << "best eval return  " << fmt("%.1f", best_eval_) << "\n"
+      << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
+      << c.invalid << ", stale " << stale_total_ << "\n"
+      << "quota top-ups     " << top_ups_ << "\n";
+    for (auto& [k, w] : ingest_.workers()) {
+      o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
+        << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
+        << w.duplicates << ", invalid " << w.invalid << (w.ended ? ", stream closed" : ", stream open") << "\n";
+    }
+    std::string text = o.str();
+    std::printf("\n===== summary =====\n%s===================\n", text.c_str());
+    std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
+    log("summary written to " + run_dir_ + "/summary.txt");
+  }
+
+  LearnerRunOptions opt_;
+  config::ExperimentConfig cfg_;
+  config::PpoConfig pc_;
+  const std::atomic<bool>& interrupted_;
+  std::shared_ptr<const robots::Task> task_;
+  int obs_dim_, act_dim_;
+  Ppo ppo_;
+  RolloutStorage storage_;
+  FitScheduler sched_;
+  Ingest ingest_;
+  farm::dds::Bus bus_;
+  farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out_;
+  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
+  farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
+  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  uint64_t session_ = farm::dds::random_session_id();
+  std::string run_dir_, ckpt_dir_;
+  std::ofstream csv_;
+  farm::msg::TransitionBatch batch_;
+  Transitions pending_;
+  std::vector<FinishedEpisode> episodes_;
+  std::deque<float> recent_returns_;
+  std::map<std::string, WorkerView> workers_;
+  std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
+  PolicyParams policy_;
+  PpoStats last_stats_{};
+  EvalReport last_eval_;
+  uint64_t version_ = 0;
+  uint32_t quota_ = 1;
+  uint64_t stale_total_ = 0, stale_fit_ = 0, top_ups_ = 0;
+  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
+  double last_lag_sum_ = 0, elapsed_offset_ = 0, last_data_ = 0;
+  double best_eval_ = NAN, first_join_ = 0;
+  bool published_ = false;
+  int rejections_logged_ = 0;
+  static constexpr double kJoinGraceSeconds = 1.0;
+};
+
+}  // namespace
+
+int run_ppo_learner(const LearnerRunOptions& opt, const config::ExperimentConfig& cfg,
+                    const std::atomic<bool>& interrupted) {
+  check_ppo_config(cfg.ppo());
+  PpoLearner l(opt, cfg, interrupted);
+  return l.run();
+}
+
+}  // namespace farm

@@ -1,0 +1,92 @@
+#include "rollout_storage.h"
+
+#include <algorithm>
+#include <stdexcept>
+
+#include "gae.h"
+
+namespace farm {
+
+void RolloutStorage::add(int T, int N, const float* obs, const float* actions, const float* rewards,
+                         const uint8_t* terminated, const uint8_t* truncated, const float* log_probs,
+                         const float* next_obs, uint64_t version) {
+  const int od = obs_dim_, ad = act_dim_;
+  for (int n = 0; n < N; ++n) {
+    Trajectory tr;
+    tr.version = version;
+    tr.len = T;
+    tr.obs.resize(size_t(T) * od);
+    tr.next_obs.resize(size_t(T) * od);
+    tr.actions.resize(size_t(T) * ad);
+    tr.rewards.resize(T);
+    tr.log_probs.resize(T);
+    tr.terminated.resize(T);
+    tr.truncated.resize(T);
+    for (int t = 0; t < T; ++t) {
+      const size_t i = size_t(t) * N + n;
+      std::copy(obs + i * od, obs + (i + 1) * od, tr.obs.begin() + size_t(t) * od);
+      std::copy(next_obs + i * od, next_obs + (i + 1) * od, tr.next_obs.begin() + size_t(t) * od);
+      std::copy(actions + i * ad, actions + (i + 1) * ad, tr.actions.begin() + size_t(t) * ad);
+      tr.rewards[t] = rewards[i];
+      tr.log_probs[t] = log_probs[i];
+      tr.terminated[t] = terminated[i];
+      tr.truncated[t] = truncated[i];
+    }
+    trajs_.push_back(std::move(tr));
+  }
+  steps_ += int64_t(T) * N;
+}
+
+void RolloutStorage::clear() {
+  trajs_.clear();
+  steps_ = 0;
+}
+
+void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, double lambda,
+                          uint64_t current_version, PpoSamples& out) {
+  if (steps < 0 || steps > steps_)
+    throw std::invalid_argument("RolloutStorage::take: " + std::to_string(steps) + " steps asked, " +
+                                std::to_string(steps_) + " stored");
+  const int od = obs_dim_, ad = act_dim_;
+  out = PpoSamples{};
+  out.n = steps;
+  out.obs.reserve(size_t(steps) * od);
+  out.actions.reserve(size_t(steps) * ad);
+  std::vector<float> adv, ret;
+  int64_t left = steps;
+  while (left > 0) {
+    Trajectory& tr = trajs_.front();
+    const auto v = value(tr.obs.data(), tr.len);
+    const auto nv = value(tr.next_obs.data(), tr.len);
+    adv.resize(tr.len);
+    ret.resize(tr.len);
+    // The last step bootstraps on its next observation unless it terminated: compute_gae treats
+    // every step's next value that way, and cuts the chain only at episode ends.
+    compute_gae(tr.rewards.data(), v.data(), nv.data(), tr.terminated.data(), tr.truncated.data(), tr.len,
+                gamma, lambda, adv.data(), ret.data());
+    const int64_t k = std::min(left, tr.len);
+    out.obs.insert(out.obs.end(), tr.obs.begin(), tr.obs.begin() + k * od);
+    out.actions.insert(out.actions.end(), tr.actions.begin(), tr.actions.begin() + k * ad);
+    out.behaviour_log_prob.insert(out.behaviour_log_prob.end(), tr.log_probs.begin(), tr.log_probs.begin() + k);
+    out.current.insert(out.current.end(), size_t(k), tr.version == current_version ? 1 : 0);
+    out.advantages.insert(out.advantages.end(), adv.begin(), adv.begin() + k);
+    out.returns.insert(out.returns.end(), ret.begin(), ret.begin() + k);
+    left -= k;
+    steps_ -= k;
+    if (k == tr.len) {
+      trajs_.pop_front();
+    } else {
+      // Split: the tail is carried over, a trajectory of its own that starts mid-episode.
+      tr.len -= k;
+      tr.obs.erase(tr.obs.begin(), tr.obs.begin() + k * od);
+      tr.next_obs.erase(tr.next_obs.begin(), tr.next_obs.begin() + k * od);
+      tr.actions.erase(tr.actions.begin(), tr.actions.begin() + k * ad);
+      tr.rewards.erase(tr.rewards.begin(), tr.rewards.begin() + k);
+      tr.log_probs.erase(tr.log_probs.begin(), tr.log_probs.begin() + k);
+      tr.terminated.erase(tr.terminated.begin(), tr.terminated.begin() + k);
+      tr.truncated.erase(tr.truncated.begin(), tr.truncated.begin() + k);
+    }
+  }
+}
+
+}  // namespace farm

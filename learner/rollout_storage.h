@@ -1,0 +1,49 @@
+// On-policy storage: the steps collected for the next fit, kept as per-env trajectories so that
+// GAE runs along each env's steps, and so that a fit can take exactly the steps it needs and
+// carry the rest over (a trajectory is split where the fit ends; its tail stays).
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <vector>
+
+#include "ppo.h"
+
+namespace farm {
+
+class RolloutStorage {
+ public:
+  RolloutStorage(int obs_dim, int act_dim) : obs_dim_(obs_dim), act_dim_(act_dim) {}
+
+  // One batch, T steps x N envs, arrays [t][n][...] row-major as on the wire; next_obs is the
+  // observation after each step ([T x N x obs_dim]; the true final observation where an episode
+  // ended). Kept as N trajectories of T steps, made by policy `version`.
+  void add(int T, int N, const float* obs, const float* actions, const float* rewards,
+           const uint8_t* terminated, const uint8_t* truncated, const float* log_probs,
+           const float* next_obs, uint64_t version);
+
+  int64_t steps() const { return steps_; }
+  void clear();
+
+  using ValueFn = std::function<std::vector<float>(const float* obs, int64_t n)>;
+  // GAE over every stored trajectory with `value` (each trajectory bootstraps on the value of
+  // the observation after its last step unless that step terminated), then moves the first
+  // `steps` steps (oldest first) into `out`; the rest stays for the next fit. current[] marks the
+  // steps made by `current_version`.
+  void take(int64_t steps, const ValueFn& value, double gamma, double lambda,
+            uint64_t current_version, PpoSamples& out);
+
+ private:
+  struct Trajectory {
+    uint64_t version = 0;
+    int64_t len = 0;
+    std::vector<float> obs, actions, rewards, log_probs, next_obs;
+    std::vector<uint8_t> terminated, truncated;
+  };
+  int obs_dim_, act_dim_;
+  std::deque<Trajectory> trajs_;
+  int64_t steps_ = 0;
+};
+
+}  // namespace farm

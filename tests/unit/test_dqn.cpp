@@ -1,0 +1,174 @@
+// DQN learner core: the double-Q target against hand-computed values, the exploration schedule,
+// the discrete-Q policy head the workers run, target copies, a small learning problem, and
+// checkpoints.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <vector>
+
+#include "dqn.h"
+#include "mlp.h"
+
+using namespace farm;
+
+TEST(DqnTarget, DoubleQUsesOnlineArgmaxAndTargetValue) {
+  // Two transitions, three actions.
+  const auto reward = torch::tensor({1.0f, -0.5f});
+  const auto terminated = torch::tensor({0.0f, 0.0f});
+  const auto online = torch::tensor({{0.1f, 0.9f, 0.3f}, {2.0f, -1.0f, 1.0f}});
+  const auto target = torch::tensor({{5.0f, 2.0f, 7.0f}, {0.5f, 4.0f, 3.0f}});
+  // Double: online argmax is action 1 for row 0, action 0 for row 1 -> target values 2.0, 0.5.
+  auto y = dqn_target(reward, terminated, online, target, 0.9, true);
+  EXPECT_NEAR(y[0].item<float>(), 1.0 + 0.9 * 2.0, 1e-6);
+  EXPECT_NEAR(y[1].item<float>(), -0.5 + 0.9 * 0.5, 1e-6);
+  // Plain DQN: max of the target network -> 7.0 and 4.0.
+  y = dqn_target(reward, terminated, online, target, 0.9, false);
+  EXPECT_NEAR(y[0].item<float>(), 1.0 + 0.9 * 7.0, 1e-6);
+  EXPECT_NEAR(y[1].item<float>(), -0.5 + 0.9 * 4.0, 1e-6);
+  // A terminated transition does not bootstrap.
+  y = dqn_target(reward, torch::tensor({1.0f, 0.0f}), online, target, 0.9, true);
+  EXPECT_NEAR(y[0].item<float>(), 1.0, 1e-6);
+  EXPECT_NEAR(y[1].item<float>(), -0.5 + 0.9 * 0.5, 1e-6);
+}
+
+TEST(DqnSchedule, EpsilonFallsLinearlyThenStays) {
+  config::DqnConfig c;  // seed 002 table 3: fraction 0.35 of 3,000,000 steps; sb3 1.0 -> 0.05
+  EXPECT_DOUBLE_EQ(dqn_epsilon(c, 0), 1.0);
+  EXPECT_NEAR(dqn_epsilon(c, 525000), 1.0 - 0.5 * 0.95, 1e-12);
+  EXPECT_NEAR(dqn_epsilon(c, 1050000), 0.05, 1e-12);
+  EXPECT_NEAR(dqn_epsilon(c, 2000000), 0.05, 1e-12);
+  c.set_schedule_env_steps(1000);
+  c.set_exploration_fraction(0.5);
+  EXPECT_NEAR(dqn_epsilon(c, 250), 0.525, 1e-12);
+  // The learner's step count reaches the exported policy.
+  Dqn dqn(c, 3, 4, 1);
+  dqn.set_env_steps(250);
+  EXPECT_NEAR(dqn.export_policy(1).epsilon, 0.525, 1e-6);
+}
+
+TEST(DqnConfig, DefaultsAreSeedTableThree) {
+  config::DqnConfig c;
+  EXPECT_EQ(c.buffer_size(), 800000);
+  EXPECT_DOUBLE_EQ(c.learning_rate(), 0.00015);
+  EXPECT_DOUBLE_EQ(c.exploration_fraction(), 0.35);
+  EXPECT_EQ(c.schedule_env_steps(), 3000000);
+  c.set_gamma(1.5);
+  try {
+    check_dqn_config(c);
+    FAIL() << "expected an error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("gamma"), std::string::npos) << e.what();
+  }
+}
+
+TEST(DqnPolicy, WorkersActGreedilyOnTheExportedNetwork) {
+  config::DqnConfig c;
+  Dqn dqn(c, 5, 4, 3);
+  PolicyParams p = dqn.export_policy(7);
+  p.epsilon = 0.f;
+  Policy policy(p);
+  EXPECT_EQ(policy.act_dim(), 1);
+  EXPECT_EQ(policy.num_actions(), 4);
+  const auto obs = torch::randn({64, 5});
+  const auto greedy = dqn.q_values(obs).argmax(1);
+  std::vector<float> actions(64);
+  std::mt19937_64 rng(1);
+  policy.act(obs.data_ptr<float>(), 64, rng, false, actions.data(), nullptr);
+  for (int i = 0; i < 64; ++i) EXPECT_EQ(int(actions[i]), greedy[i].item<int64_t>()) << i;
+}
+
+TEST(DqnPolicy, EpsilonGreedyExploresUniformly) {
+  config::DqnConfig c;
+  Dqn dqn(c, 2, 5, 3);
+  PolicyParams p = dqn.export_policy(1);
+  p.epsilon = 1.f;
+  Policy policy(p);
+  const int rows = 5000;
+  std::vector<float> obs(rows * 2, 0.1f), actions(rows), logp(rows);
+  std::mt19937_64 rng(2);
+  policy.act(obs.data(), rows, rng, false, actions.data(), logp.data());
+  std::vector<int> counts(5, 0);
+  for (float a : actions) counts[int(a)]++;
+  for (int k = 0; k < 5; ++k) EXPECT_NEAR(counts[k], rows / 5, 150) << "action " << k;
+  EXPECT_NEAR(logp[0], std::log(0.2f), 1e-5);
+  // Deterministic ignores epsilon: every row takes the same greedy action.
+  policy.act(obs.data(), rows, rng, true, actions.data(), nullptr);
+  for (float a : actions) EXPECT_EQ(a, actions[0]);
+  p.epsilon = 1.5f;
+  EXPECT_THROW(Policy{p}, std::invalid_argument);
+}
+
+TEST(DqnUpdate, TargetNetworkIsCopiedEveryKUpdates) {
+  config::DqnConfig c;
+  c.set_target_update_updates(3);
+  c.set_learning_rate(1e-2);
+  Dqn dqn(c, 3, 2, 1);
+  SampledBatch b{torch::randn({8, 3}), torch::randint(0, 2, {8, 1}).to(torch::kFloat),
+                 torch::randn({8}), torch::zeros({8}), torch::randn({8, 3})};
+  auto same = [&] {
+    auto o = dqn.online_parameters(), t = dqn.target_parameters();
+    for (size_t i = 0; i < o.size(); ++i)
+      if (!torch::equal(o[i], t[i])) return false;
+    return true;
+  };
+  EXPECT_TRUE(same());
+  dqn.update(b);
+  EXPECT_FALSE(same());
+  dqn.update(b);
+  EXPECT_FALSE(same());
+  dqn.update(b);
+  EXPECT_TRUE(same());
+}
+
+// Two states (one-hot), three actions, one step: Q must learn r(s, a) and pick the best action.
+TEST(DqnUpdate, LearnsAContextualBandit) {
+  config::DqnConfig c;
+  c.set_learning_rate(3e-3);
+  c.set_target_update_updates(50);
+  Dqn dqn(c, 2, 3, 5);
+  const float r[2][3] = {{0.f, 1.f, -1.f}, {0.5f, -0.5f, 2.f}};
+  std::mt19937_64 rng(3);
+  for (int it = 0; it < 1500; ++it) {
+    const int B = 32;
+    auto obs = torch::zeros({B, 2}), act = torch::zeros({B, 1}), rew = torch::zeros({B});
+    for (int i = 0; i < B; ++i) {
+      const int s = int(rng() % 2), a = int(rng() % 3);
+      obs[i][s] = 1.f;
+      act[i][0] = float(a);
+      rew[i] = r[s][a];
+    }
+    dqn.update({obs, act, rew, torch::ones({B}), torch::zeros({B, 2})});
+  }
+  const auto q = dqn.q_values(torch::eye(2));
+  EXPECT_EQ(q[0].argmax().item<int64_t>(), 1);
+  EXPECT_EQ(q[1].argmax().item<int64_t>(), 2);
+  for (int s = 0; s < 2; ++s)
+    for (int a = 0; a < 3; ++a) EXPECT_NEAR(q[s][a].item<float>(), r[s][a], 0.1) << s << "," << a;
+}
+
+TEST(DqnCheckpoint, SaveLoadRoundTripAndSizeMismatch) {
+  const auto dir = std::filesystem::temp_directory_path() / ("dqn_ckpt_" + std::to_string(::getpid()));
+  config::DqnConfig c;
+  Dqn a(c, 4, 3, 1);
+  a.set_env_steps(1234);
+  SampledBatch b{torch::randn({8, 4}), torch::randint(0, 3, {8, 1}).to(torch::kFloat),
+                 torch::randn({8}), torch::zeros({8}), torch::randn({8, 4})};
+  for (int i = 0; i < 5; ++i) a.update(b);
+  a.save(dir.string());
+  Dqn c2(c, 4, 3, 99);
+  c2.load(dir.string());
+  EXPECT_EQ(c2.updates(), 5);
+  EXPECT_EQ(c2.export_policy(1).params, a.export_policy(1).params);
+  EXPECT_FLOAT_EQ(c2.export_policy(1).epsilon, a.export_policy(1).epsilon);
+  Dqn wrong(c, 4, 5, 1);
+  try {
+    wrong.load(dir.string());
+    FAIL() << "expected an error";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("dqn.pt"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove_all(dir);
+}

@@ -1,0 +1,379 @@
+// PPO's small parts: GAE, the KL-adaptive rate, the fit scheduler and the dataset shape of seed
+// 000 §3.1, the running observation normalizer, the rollout storage's split and carry-over, and
+// the PPO learner itself (its log-probabilities against the workers', and a short fit that must
+// move the policy toward the better action).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numeric>
+#include <random>
+#include <vector>
+
+#include "fit_scheduler.h"
+#include "gae.h"
+#include "mlp.h"
+#include "obs_normalizer.h"
+#include "ppo.h"
+#include "rollout_storage.h"
+
+using namespace farm;
+
+TEST(Gae, HandComputedSequenceBootstrapsOnTruncationNotOnTermination) {
+  // gamma 0.9, lambda 0.5. Step 1 is truncated (time limit): it bootstraps on the value of its
+  // true final observation (10) and cuts the advantage chain. Step 3 terminates: no future at
+  // all, its next value (7) must be ignored. Step 4 ends the segment: bootstrap on 4.
+  const float r[] = {1, 2, 3, 4, 5};
+  const float v[] = {0.5f, 1, 1.5f, 2, 2.5f};
+  const float nv[] = {1, 10, 2, 7, 4};
+  const uint8_t term[] = {0, 0, 0, 1, 0};
+  const uint8_t trunc[] = {0, 1, 0, 0, 0};
+  float adv[5], ret[5];
+  compute_gae(r, v, nv, term, trunc, 5, 0.9, 0.5, adv, ret);
+  // delta: 1.4, 10, 3.3, 2, 6.1; A_t = delta_t + 0.45 * A_{t+1} within an episode.
+  const float want_adv[] = {1.4f + 0.45f * 10.f, 10.f, 3.3f + 0.45f * 2.f, 2.f, 6.1f};
+  for (int t = 0; t < 5; ++t) {
+    EXPECT_NEAR(adv[t], want_adv[t], 1e-5) << "t=" << t;
+    EXPECT_NEAR(ret[t], want_adv[t] + v[t], 1e-5) << "t=" << t;
+  }
+}
+
+TEST(Gae, LambdaOneGivesDiscountedReturnsLambdaZeroGivesTdErrors) {
+  const float r[] = {1, 1, 1};
+  const float v[] = {0, 0, 0};
+  const float nv[] = {0, 0, 2};
+  const uint8_t no[] = {0, 0, 0};
+  float adv[3], ret[3];
+  compute_gae(r, v, nv, no, no, 3, 0.5, 1.0, adv, ret);
+  EXPECT_NEAR(ret[0], 1 + 0.5 + 0.25 + 0.125 * 2, 1e-6);
+  compute_gae(r, v, nv, no, no, 3, 0.5, 0.0, adv, ret);
+  EXPECT_NEAR(adv[0], 1.0, 1e-6);
+  EXPECT_NEAR(adv[2], 2.0, 1e-6);
+}
+
+TEST(KlAdaptiveRate, LowersAboveTheBandRaisesBelowKeepsInside) {
+  config::PpoConfig c;  // desired_kl 0.01, band 2, factor 1.5, rate in [1e-5, 1e-2]
+  EXPECT_NEAR(adapt_learning_rate(1e-3, 0.05, c), 1e-3 / 1.5, 1e-12);
+  EXPECT_NEAR(adapt_learning_rate(1e-3, 0.001, c), 1e-3 * 1.5, 1e-12);
+  EXPECT_EQ(adapt_learning_rate(1e-3, 0.01, c), 1e-3);
+  EXPECT_EQ(adapt_learning_rate(1e-3, 0.0199, c), 1e-3);
+  EXPECT_EQ(adapt_learning_rate(1e-3, 0.0051, c), 1e-3);
+  EXPECT_EQ(adapt_learning_rate(1.2e-5, 1.0, c), 1e-5);   // floor
+  EXPECT_EQ(adapt_learning_rate(9e-3, 0.0, c), 1e-2);     // ceiling
+  EXPECT_EQ(adapt_learning_rate(1e-3, NAN, c), 1e-3);     // no measurement, no change
+}
+
+namespace {
+
+struct SimResult {
+  std::vector<FitScheduler::Fit> fits;
+  int64_t max_held = 0;  // most steps held at once for one fit (carry included)
+  int64_t steps = 0, episodes = 0;
+};
+
+// A vectorized core in miniature: num_envs envs whose episodes last `horizon` steps; each step
+// the mask says how many run (envs 0..active-1); fits are taken when due.
+SimResult simulate(const FitPlan& plan, int num_envs, int horizon, int max_steps = 100000) {
+  FitScheduler s(plan);
+  std::vector<int> t(num_envs, 0);
+  SimResult out;
+  for (int k = 0; k < max_steps && !s.run_done(); ++k) {
+    const int64_t active = s.active_envs(num_envs);
+    if (active == 0) break;
+    int64_t ended = 0;
+    for (int i = 0; i < active; ++i)
+      if (++t[i] == horizon) { t[i] = 0; ++ended; }
+    s.on_data(active, ended);
+    out.max_held = std::max(out.max_held, s.fit_steps());
+    while (s.fit_due()) out.fits.push_back(s.take_fit());
+  }
+  out.steps = s.run_steps();
+  out.episodes = s.run_episodes();
+  return out;
+}
+
+}  // namespace
+
+TEST(FitScheduler, StepsPerFitCarriesTheSurplusOver) {
+  FitPlan p;
+  p.steps_per_fit = 100;
+  FitScheduler s(p);
+  for (int k = 0; k < 7; ++k) s.on_data(16, 0);  // 112 steps
+  ASSERT_TRUE(s.fit_due());
+  auto f = s.take_fit();
+  EXPECT_EQ(f.steps_used, 100);
+  EXPECT_EQ(f.steps_carried, 12);
+  EXPECT_FALSE(s.fit_due());
+  EXPECT_EQ(s.steps_wanted(), 88);
+  for (int k = 0; k < 6; ++k) s.on_data(16, 0);  // 12 + 96 = 108
+  f = s.take_fit();
+  EXPECT_EQ(f.steps_used, 100);
+  EXPECT_EQ(f.steps_carried, 8);
+  EXPECT_EQ(s.active_envs(16), 16);  // by steps, every env runs
+}
+
+TEST(FitScheduler, StepsPerFitNeverHoldsMoreThanTheCorrectedDatasetShape) {
+  for (int envs : {1, 3, 16, 64}) {
+    for (int64_t spf : {10, 100, 1000}) {
+      FitPlan p;
+      p.steps_per_fit = spf;
+      p.steps_per_run = 20 * spf;
+      SimResult r = simulate(p, envs, 7);
+      const DatasetShape d = dataset_shape(p, envs, 7);
+      EXPECT_EQ(d.cols, envs);
+      EXPECT_EQ(d.rows, (spf + envs - 1) / envs + 1);
+      EXPECT_LE(r.max_held, d.rows * d.cols) << envs << " envs, " << spf << " steps per fit";
+      EXPECT_EQ(r.steps, p.steps_per_run) << "the run made steps it does not use";
+      int64_t used = 0;
+      for (auto& f : r.fits) used += f.steps_used;
+      EXPECT_EQ(used, p.steps_per_run);
+    }
+  }
+}
+
+TEST(FitScheduler, EpisodesPerFitBelowTheEnvCountRunsOnlyThatManyEnvs) {
+  FitPlan p;
+  p.episodes_per_fit = 3;
+  p.episodes_per_run = 6;
+  FitScheduler s(p);
+  EXPECT_EQ(s.active_envs(8), 3);  // the mask: 3 of 8 envs
+  SimResult r = simulate(p, 8, 10);
+  ASSERT_EQ(r.fits.size(), 2u);
+  for (auto& f : r.fits) {
+    EXPECT_EQ(f.steps_used, 30);  // 3 episodes of 10 steps, nothing more
+    EXPECT_EQ(f.steps_carried, 0);
+    EXPECT_EQ(f.episodes, 3);
+  }
+  const DatasetShape d = dataset_shape(p, 8, 10);
+  EXPECT_EQ(d.rows, 10);
+  EXPECT_EQ(d.cols, 3);
+  EXPECT_EQ(r.max_held, d.rows * d.cols);
+}
+
+TEST(FitScheduler, StepsPerFitWithEpisodesPerRun) {
+  FitPlan p;
+  p.steps_per_fit = 50;
+  p.episodes_per_run = 5;
+  SimResult r = simulate(p, 4, 20);
+  // 4 envs run 20 steps (4 episodes), then the mask keeps 1 env for the fifth episode.
+  EXPECT_EQ(r.episodes, 5);
+  EXPECT_EQ(r.steps, 100);
+  int64_t used = 0;
+  for (auto& f : r.fits) used += f.steps_used;
+  EXPECT_EQ(used, 100);
+  ASSERT_GE(r.fits.size(), 2u);
+  EXPECT_EQ(r.fits[0].steps_used, 50);
+  EXPECT_EQ(r.fits[0].steps_carried, 2);  // 13 steps x 4 envs = 52
+}
+
+TEST(FitScheduler, EpisodesPerFitWithStepsPerRun) {
+  FitPlan p;
+  p.episodes_per_fit = 4;
+  p.steps_per_run = 50;
+  SimResult r = simulate(p, 4, 10);
+  EXPECT_EQ(r.steps, 50);  // 40 in the first fit, then 4 + 4 + 2: never past the run's length
+  ASSERT_EQ(r.fits.size(), 2u);
+  EXPECT_EQ(r.fits[0].steps_used, 40);
+  EXPECT_EQ(r.fits[0].episodes, 4);
+  EXPECT_EQ(r.fits[1].steps_used, 10);  // the run's last, partial fit
+}
+
+TEST(FitScheduler, DatasetShapeIsTheCorrectedFormulaNotTheFaultyOne) {
+  FitPlan p;
+  p.steps_per_fit = 98304;  // seed 000 appendix
+  auto d = dataset_shape(p, 4096, 1000);
+  EXPECT_EQ(d.rows, 98304 / 4096 + 1);  // (ceil(N_steps / N_envs) + 1, N_envs)
+  EXPECT_EQ(d.cols, 4096);
+  EXPECT_LT(d.rows * d.cols, int64_t(98304) * 4096);  // the faulty (N_steps, N_envs)
+  p.steps_per_fit = 100;
+  EXPECT_EQ(dataset_shape(p, 16, 1).rows, 8);  // ceil(100 / 16) + 1
+  FitPlan e;
+  e.episodes_per_fit = 20;
+  d = dataset_shape(e, 8, 50);  // (ceil(N_ep / N_envs) * horizon, min(N_envs, N_ep))
+  EXPECT_EQ(d.rows, 150);
+  EXPECT_EQ(d.cols, 8);
+}
+
+TEST(FitScheduler, BadPlansAreRefusedWithTheFieldNamed) {
+  FitPlan both;
+  both.steps_per_fit = 10;
+  both.episodes_per_fit = 2;
+  try {
+    FitScheduler s(both);
+    FAIL() << "accepted both triggers";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("episodes_per_fit"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(FitScheduler(FitPlan{}), std::invalid_argument);
+}
+
+TEST(ObsNormalizer, RunningMomentsMatchTheWholeDataAndShipSafeStd) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<float> a(3.f, 2.f), b(-1.f, 0.5f);
+  std::vector<float> obs;
+  for (int i = 0; i < 3000; ++i) {
+    obs.push_back(a(rng));
+    obs.push_back(b(rng));
+    obs.push_back(7.f);  // constant entry
+  }
+  ObsNormalizer whole(3), parts(3);
+  whole.update(obs.data(), 3000);
+  parts.update(obs.data(), 1);
+  parts.update(obs.data() + 3, 999);
+  parts.update(obs.data() + 3000, 2000);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_NEAR(parts.mean()[i], whole.mean()[i], 1e-4);
+    EXPECT_NEAR(parts.std()[i], whole.std()[i], 1e-4);
+  }
+  EXPECT_NEAR(whole.mean()[0], 3.0, 0.15);
+  EXPECT_NEAR(whole.std()[0], 2.0, 0.1);
+  EXPECT_NEAR(whole.std()[1], 0.5, 0.03);
+  EXPECT_GT(whole.std()[2], 0.f);  // floored, not 0
+  EXPECT_EQ(ObsNormalizer(2).std()[0], 1.f);  // nothing seen: identity
+}
+
+TEST(RolloutStorage, TakesExactlyTheStepsAndCarriesTheTail) {
+  // 2 envs x 3 steps, obs_dim 1 holding t*10+n; value(obs) = 0, so advantages are GAE of the
+  // rewards alone; gamma 1, lambda 1: advantage = sum of the remaining rewards + bootstrap.
+  const int T = 3, N = 2;
+  std::vector<float> obs, next, act, rew, lp;
+  std::vector<uint8_t> term(T * N, 0), trunc(T * N, 0);
+  for (int t = 0; t < T; ++t)
+    for (int n = 0; n < N; ++n) {
+      obs.push_back(t * 10 + n);
+      next.push_back((t + 1) * 10 + n);
+      act.push_back(0.1f * n);
+      rew.push_back(1.f);
+      lp.push_back(-1.f - n);
+    }
+  RolloutStorage st(1, 1);
+  st.add(T, N, obs.data(), act.data(), rew.data(), term.data(), trunc.data(), lp.data(), next.data(), 4);
+  EXPECT_EQ(st.steps(), 6);
+  auto zero = [](const float*, int64_t n) { return std::vector<float>(n, 0.f); };
+  PpoSamples s;
+  st.take(4, zero, 1.0, 1.0, 4, s);
+  ASSERT_EQ(s.n, 4);
+  EXPECT_EQ(st.steps(), 2);
+  // Env 0's trajectory first (obs 0, 10, 20), then the first step of env 1.
+  EXPECT_EQ(s.obs, (std::vector<float>{0, 10, 20, 1}));
+  EXPECT_EQ(s.advantages, (std::vector<float>{3, 2, 1, 3}));
+  EXPECT_EQ(s.current, (std::vector<uint8_t>{1, 1, 1, 1}));
+  EXPECT_EQ(s.behaviour_log_prob[3], -2.f);
+  // The carried tail is env 1's steps 1 and 2; fitted under a newer version it is not current.
+  st.take(2, zero, 1.0, 1.0, 5, s);
+  EXPECT_EQ(s.obs, (std::vector<float>{11, 21}));
+  EXPECT_EQ(s.advantages, (std::vector<float>{2, 1}));
+  EXPECT_EQ(s.current, (std::vector<uint8_t>{0, 0}));
+  EXPECT_EQ(st.steps(), 0);
+  EXPECT_THROW(st.take(1, zero, 1.0, 1.0, 5, s), std::invalid_argument);
+}
+
+TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
+  config::PpoConfig c;
+  c.set_initial_log_std(0.3);  // wide: many samples land beyond [-1, 1] and are clamped
+  Ppo ppo(c, 3, 2, 11);
+  PolicyParams p = ppo.export_policy(0);
+  ASSERT_EQ(p.head, PolicyHead::kGaussian);
+  Policy pol(p);
+  std::mt19937_64 rng(3);
+  std::normal_distribution<float> g(0.f, 2.f);
+  const int rows = 400;
+  std::vector<float> obs(rows * 3), act(rows * 2), lp(rows);
+  for (auto& x : obs) x = g(rng);
+  pol.act(obs.data(), rows, rng, false, act.data(), lp.data());
+  int clamped = 0;
+  for (float a : act) clamped += (a == 1.f || a == -1.f);
+  EXPECT_GT(clamped, 50);
+  const auto learner_lp = ppo.log_probs(obs.data(), act.data(), rows);
+  for (int r = 0; r < rows; ++r) ASSERT_NEAR(learner_lp[r], lp[r], 2e-4) << "row " << r;
+}
+
+TEST(Ppo, FitsTowardTheBetterActionAndReportsItsNumbers) {
+  // A one-step bandit: reward -(a - 0.5)^2 whatever the observation. A few fits must move the
+  // deterministic action from about 0 toward 0.5.
+  for (const char* variant : {"plain", "clip_kl"}) {
+    config::PpoConfig c;
+    c.set_variant(variant);
+    c.set_learning_rate(3e-3);
+    c.set_mini_batch_size(256);
+    // Narrow enough that clamping at +-1 barely moves the optimum: with a wide Gaussian the
+    // clamped mass at -1 costs more than at +1, and the best mean sits well above 0.5.
+    c.set_initial_log_std(std::log(0.3));
+    Ppo ppo(c, 2, 1, 21);
+    std::mt19937_64 rng(9);
+    std::normal_distribution<float> g(0.f, 1.f);
+    const int n = 1024;
+    PpoStats st;
+    for (int fit = 0; fit < 15; ++fit) {
+      Policy pol(ppo.export_policy(fit));
+      PpoSamples s;
+      s.n = n;
+      s.obs.resize(n * 2);
+      for (auto& x : s.obs) x = g(rng);
+      s.actions.resize(n);
+      s.behaviour_log_prob.resize(n);
+      pol.act(s.obs.data(), n, rng, false, s.actions.data(), s.behaviour_log_prob.data());
+      s.current.assign(n, 1);
+      const auto v = ppo.values(s.obs.data(), n);
+      s.advantages.resize(n);
+      s.returns.resize(n);
+      for (int i = 0; i < n; ++i) {
+        const float r = -(s.actions[i] - 0.5f) * (s.actions[i] - 0.5f);
+        s.returns[i] = r;
+        s.advantages[i] = r - v[i];
+      }
+      st = ppo.fit(s);
+      ppo.normalizer().update(s.obs.data(), n);
+    }
+    Policy pol(ppo.export_policy(99));
+    std::vector<float> o(200 * 2), a(200);
+    for (auto& x : o) x = g(rng);
+    pol.act(o.data(), 200, rng, true, a.data(), nullptr);
+    const double mean_a = std::accumulate(a.begin(), a.end(), 0.0) / 200;
+    EXPECT_NEAR(mean_a, 0.5, 0.15) << variant;
+    EXPECT_EQ(st.samples, n);
+    EXPECT_EQ(st.minibatches, 4 * c.epochs());
+    EXPECT_GT(st.kl, 0.0) << variant;
+    EXPECT_GE(st.clip_fraction, 0.0);
+    EXPECT_LE(st.clip_fraction, 1.0);
+    EXPECT_TRUE(std::isfinite(st.value_loss));
+    EXPECT_EQ(ppo.fits(), 15);
+    if (std::string(variant) == "plain") EXPECT_EQ(st.learning_rate, 3e-3);  // no adaptation
+  }
+}
+
+TEST(Ppo, KlAdaptiveVariantLowersAnOversizedRate) {
+  config::PpoConfig c;
+  c.set_learning_rate(5e-2);  // far too large: the KL leaves the band at once
+  c.set_lr_max(5e-2);
+  c.set_mini_batch_size(64);
+  Ppo ppo(c, 1, 1, 4);
+  std::mt19937_64 rng(2);
+  Policy pol(ppo.export_policy(0));
+  PpoSamples s;
+  s.n = 512;
+  s.obs.assign(512, 0.f);
+  s.actions.resize(512);
+  s.behaviour_log_prob.resize(512);
+  pol.act(s.obs.data(), 512, rng, false, s.actions.data(), s.behaviour_log_prob.data());
+  s.current.assign(512, 1);
+  s.returns.assign(512, 0.f);
+  s.advantages.resize(512);
+  for (int i = 0; i < 512; ++i) s.advantages[i] = s.actions[i];
+  const PpoStats st = ppo.fit(s);
+  EXPECT_LT(st.learning_rate, 5e-2);
+  EXPECT_EQ(st.learning_rate, ppo.learning_rate());
+}
+
+TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
+  config::PpoConfig c;
+  c.set_variant("fancy");
+  try {
+    check_ppo_config(c);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("ppo.variant"), std::string::npos) << e.what();
+  }
+  config::PpoConfig d;
+  d.set_episodes_per_fit(4);  // with the default steps_per_fit: two triggers
+  EXPECT_THROW(check_ppo_config(d), std::invalid_argument);
+}
