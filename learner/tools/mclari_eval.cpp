@@ -1,0 +1,166 @@
+// Evaluates a trained mCLARI policy on each of the six terrains (seed 001 §5.3): deterministic
+// episodes from a learner checkpoint, reporting mean efficiency, falls and targets reached per
+// terrain against the best fixed (group, f) of a characterization sweep (farm-mclari-sweep's
+// best.csv). Prints a Markdown table; --out also writes it to a file.
+#include <atomic>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "config.h"
+#include "mclari/mclari_task.h"
+#include "mclari/terrain.h"
+#include "rollout.h"
+#include "sac.h"
+
+namespace mclari = farm::robots::mclari;
+
+namespace {
+
+const char* kUsage =
+    "usage: farm-mclari-eval --config EXPERIMENT.txtpb --checkpoint DIR [--episodes 10]\n"
+    "         [--best SWEEP/best.csv] [--out TABLE.md] [--threads N] [--seed 7]\n"
+    "  --checkpoint  the learner's checkpoint directory (runs/<experiment>/checkpoint)\n"
+    "  --best        the sweep's best fixed point per terrain, for the comparison column\n";
+
+struct Best {
+  std::string group_name;
+  int frequency = 0;
+  double efficiency = 0;
+};
+
+// terrain -> best fixed point, from best.csv (terrain,terrain_name,group,"group_name",f,eff,...).
+std::map<int, Best> read_best(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("cannot read " + path);
+  std::map<int, Best> best;
+  std::string line;
+  std::getline(in, line);  // header
+  int row = 1;
+  while (std::getline(in, line)) {
+    ++row;
+    const auto q1 = line.find('"'), q2 = line.find('"', q1 + 1);
+    if (q1 == std::string::npos || q2 == std::string::npos)
+      throw std::runtime_error(path + ":" + std::to_string(row) + ": expected a quoted group name");
+    Best b;
+    b.group_name = line.substr(q1 + 1, q2 - q1 - 1);
+    int terrain = 0;
+    if (std::sscanf(line.c_str(), "%d", &terrain) != 1 ||
+        std::sscanf(line.c_str() + q2 + 1, ",%d,%lf", &b.frequency, &b.efficiency) != 2)
+      throw std::runtime_error(path + ":" + std::to_string(row) + ": cannot parse '" + line + "'");
+    best[terrain] = b;
+  }
+  return best;
+}
+
+struct TerrainResult {
+  double efficiency = 0, frequency = 0, distance = 0;
+  int falls = 0, reached = 0, episodes = 0;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    std::string config_path, checkpoint, best_path, out_path;
+    int episodes = 10, threads = int(std::max(1u, std::thread::hardware_concurrency()));
+    uint64_t seed = 7;
+    for (int i = 1; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto value = [&]() -> std::string {
+        if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+        return argv[++i];
+      };
+      if (a == "--config") config_path = value();
+      else if (a == "--checkpoint") checkpoint = value();
+      else if (a == "--episodes") episodes = std::stoi(value());
+      else if (a == "--best") best_path = value();
+      else if (a == "--out") out_path = value();
+      else if (a == "--threads") threads = std::stoi(value());
+      else if (a == "--seed") seed = std::stoull(value());
+      else if (a == "--help" || a == "-h") { std::cout << kUsage; return 0; }
+      else throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
+    }
+    if (config_path.empty() || checkpoint.empty())
+      throw std::invalid_argument(std::string("--config and --checkpoint are required\n") + kUsage);
+    if (episodes < 1 || threads < 1) throw std::invalid_argument("--episodes and --threads must be >= 1");
+    const auto cfg = farm::load_config_file(config_path);
+    if (cfg.task().name() != "mclari")
+      throw std::invalid_argument(config_path + ": task.name is '" + cfg.task().name() + "', expected 'mclari'");
+    std::map<int, Best> best;
+    if (!best_path.empty()) best = read_best(best_path);
+
+    farm::robots::McLariTask probe(cfg.task().mclari());
+    farm::Sac sac(cfg.sac(), probe.spec().obs_dim, probe.spec().act_dim, cfg.seed());
+    sac.load(checkpoint + "/sac");
+    const farm::PolicyParams policy = sac.export_policy(sac.updates());
+
+    std::vector<TerrainResult> results(mclari::kNumTerrains);
+    std::atomic<int> next{0};
+    auto worker = [&]() {
+      for (int t = next++; t < mclari::kNumTerrains; t = next++) {
+        auto mc = cfg.task().mclari();
+        mc.clear_terrains();
+        mc.add_terrains(t);
+        mc.clear_hfield_png();
+        auto task = std::make_shared<farm::robots::McLariTask>(mc);
+        const auto recs = farm::evaluate_policy(task, policy, episodes, seed + 1000 * t);
+        TerrainResult& r = results[t];
+        for (const auto& e : recs) {
+          r.efficiency += e.metrics[0];
+          r.falls += e.metrics[1] > 0.5f;
+          r.reached += e.metrics[2] > 0.5f;
+          r.frequency += e.metrics[4];
+          r.distance += e.metrics[5];
+          ++r.episodes;
+        }
+        r.efficiency /= r.episodes;
+        r.frequency /= r.episodes;
+        r.distance /= r.episodes;
+      }
+    };
+    std::vector<std::thread> pool;
+    for (int k = 1; k < threads; ++k) pool.emplace_back(worker);
+    worker();
+    for (auto& th : pool) th.join();
+
+    std::ostringstream table;
+    table << "| terrain | episodes | SAC efficiency | falls | targets reached | mean f [Hz] | best fixed (group, f) | best fixed efficiency | SAC / best |\n"
+          << "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    char line[512];
+    for (int t = 0; t < mclari::kNumTerrains; ++t) {
+      const auto& r = results[t];
+      std::string fixed = "-", fixed_eff = "-", ratio = "-";
+      if (best.count(t)) {
+        const Best& b = best[t];
+        fixed = b.group_name + ", " + std::to_string(b.frequency) + " Hz";
+        std::snprintf(line, sizeof line, "%.4f", b.efficiency);
+        fixed_eff = line;
+        std::snprintf(line, sizeof line, "%.0f %%", 100.0 * r.efficiency / b.efficiency);
+        ratio = line;
+      }
+      std::snprintf(line, sizeof line, "| %s | %d | %.4f | %d / %d | %d / %d | %.1f | %s | %s | %s |\n",
+                    mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, r.episodes, r.reached,
+                    r.episodes, r.frequency, fixed.c_str(), fixed_eff.c_str(), ratio.c_str());
+      table << line;
+    }
+    std::cout << "policy: " << checkpoint << " (" << sac.updates() << " updates, " << policy.layout.describe() << ")\n"
+              << table.str();
+    if (!out_path.empty()) {
+      std::ofstream out(out_path);
+      if (!out) throw std::runtime_error("cannot write " + out_path);
+      out << table.str();
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "farm-mclari-eval: %s\n", e.what());
+    return 2;
+  }
+}

@@ -1,0 +1,189 @@
+// farm-mobile-eval: evaluates a trained Jetbot or Kaya policy from a run's checkpoint on fresh
+// random obstacle maps (success rate, episode time, path length) and draws sample trajectories
+// over their maps as a PNG.
+#include <google/protobuf/text_format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "config.h"
+#include "mlp.h"
+#include "mobile/mobile_task.h"
+#include "off_policy.h"
+#include "png_canvas.h"
+#include "task.h"
+
+using namespace farm;
+using farm::robots::mobile::MobileState;
+using farm::robots::mobile::MobileTask;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Options {
+  std::string run_dir, plot;
+  int episodes = 100, plot_episodes = 6;
+  uint64_t seed = 20261123;
+};
+
+void usage() {
+  std::cout << "usage: farm-mobile-eval --run-dir DIR [--episodes N] [--seed S]\n"
+               "                        [--plot FILE.png] [--plot-episodes K]\n"
+               "Runs N episodes (default 100) of the deterministic policy in DIR/checkpoint on\n"
+               "fresh random maps drawn from seed S, prints success rate, mean episode time and\n"
+               "path length, and with --plot draws the first K episodes (default 6) over their maps.\n";
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      return argv[++i];
+    };
+    if (a == "--run-dir") o.run_dir = value();
+    else if (a == "--episodes") o.episodes = std::stoi(value());
+    else if (a == "--seed") o.seed = std::stoull(value());
+    else if (a == "--plot") o.plot = value();
+    else if (a == "--plot-episodes") o.plot_episodes = std::stoi(value());
+    else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
+    else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+  }
+  if (o.run_dir.empty()) throw std::invalid_argument("--run-dir DIR is required (see --help)");
+  if (o.episodes < 1) throw std::invalid_argument("--episodes must be >= 1");
+  return o;
+}
+
+struct Episode {
+  MobileState* state = nullptr;
+  bool success = false, collision = false;
+  double time = 0, path = 0, ret = 0;
+};
+
+void draw_panel(tools::Canvas& c, int ox, int oy, int size, const MobileTask& task,
+                const MobileState& s, bool success) {
+  const double h = task.scene().arena_half_size();
+  const double scale = (size - 20) / (2 * h);
+  auto px = [&](double x) { return ox + 10 + (x + h) * scale; };
+  auto py = [&](double y) { return oy + 10 + (h - y) * scale; };
+  c.fill_rect(ox + 10, oy + 10, ox + size - 10, oy + size - 10, {250, 250, 245});
+  // Walls.
+  const tools::Rgb wall{90, 70, 50};
+  c.fill_rect(px(-h) - 3, py(h) - 3, px(h) + 3, py(h), wall);
+  c.fill_rect(px(-h) - 3, py(-h), px(h) + 3, py(-h) + 3, wall);
+  c.fill_rect(px(-h) - 3, py(h) - 3, px(-h), py(-h) + 3, wall);
+  c.fill_rect(px(h), py(h) - 3, px(h) + 3, py(-h) + 3, wall);
+  const tools::Rgb obstacle{180, 80, 60};
+  for (const auto& o : s.map.obstacles) {
+    const auto& slot = task.maps().slots()[o.slot];
+    if (!slot.box) {
+      c.fill_circle(px(o.x), py(o.y), slot.half_size * scale, obstacle);
+      continue;
+    }
+    std::vector<double> xs, ys;
+    const double cs = std::cos(o.yaw), sn = std::sin(o.yaw), a = slot.half_size;
+    const double corners[4][2] = {{a, a}, {-a, a}, {-a, -a}, {a, -a}};
+    for (const auto& k : corners) {
+      xs.push_back(px(o.x + cs * k[0] - sn * k[1]));
+      ys.push_back(py(o.y + sn * k[0] + cs * k[1]));
+    }
+    c.fill_polygon(xs, ys, obstacle);
+  }
+  // Goal region, path, start.
+  c.fill_circle(px(s.map.goal_x), py(s.map.goal_y), std::max(4.0, task.scene().goal_radius() * scale),
+                {220, 40, 40});
+  const tools::Rgb path = success ? tools::Rgb{30, 90, 200} : tools::Rgb{120, 120, 120};
+  for (size_t i = 2; i + 1 < s.trajectory.size(); i += 2) {
+    c.line(px(s.trajectory[i - 2]), py(s.trajectory[i - 1]), px(s.trajectory[i]),
+           py(s.trajectory[i + 1]), 2.5, path);
+  }
+  c.fill_circle(px(s.map.start_x), py(s.map.start_y), task.robot_radius() * scale, {40, 160, 60});
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    const Options o = parse(argc, argv);
+    const fs::path ckpt = fs::path(o.run_dir) / "checkpoint";
+    std::ifstream in(ckpt / "manifest.txtpb");
+    if (!in) throw std::runtime_error("no checkpoint manifest in " + ckpt.string());
+    std::stringstream ss;
+    ss << in.rdbuf();
+    config::CheckpointManifest m;
+    if (!google::protobuf::TextFormat::ParseFromString(ss.str(), &m))
+      throw std::runtime_error("cannot parse " + (ckpt / "manifest.txtpb").string());
+    const config::ExperimentConfig cfg = parse_config_text(m.config_text(), "checkpoint manifest");
+    std::shared_ptr<robots::Task> base = robots::make_task(cfg.task());
+    auto* task = dynamic_cast<MobileTask*>(base.get());
+    if (!task) throw std::runtime_error("task '" + cfg.task().name() + "' is not a mobile robot");
+    auto algo = make_off_policy(cfg, task->spec());
+    algo->load((ckpt / algo->name()).string());
+    Policy policy(algo->export_policy(m.policy_version()));
+
+    std::vector<std::unique_ptr<robots::TaskState>> states;
+    std::vector<Episode> eps(o.episodes);
+    std::vector<float> obs(task->spec().obs_dim), act(task->spec().act_dim);
+    std::mt19937_64 rng(o.seed);
+    for (int i = 0; i < o.episodes; ++i) {
+      states.push_back(task->make_state());
+      auto& s = static_cast<MobileState&>(*states.back());
+      s.record_trajectory = i < o.plot_episodes;
+      task->reset(s, rng(), obs.data());
+      for (;;) {
+        policy.act(obs.data(), 1, rng, true, act.data(), nullptr);
+        const auto r = task->step(s, act.data(), obs.data());
+        if (r.terminated || r.truncated) break;
+      }
+      std::vector<float> metrics(task->spec().metric_names.size());
+      task->episode_metrics(s, metrics.data());
+      eps[i] = {&s, metrics[0] > 0.5f, metrics[3] > 0.5f, metrics[1], metrics[2], s.episode_return};
+      if (!s.record_trajectory) states.back().reset();
+    }
+    int ok = 0, crashed = 0;
+    double time = 0, path = 0;
+    for (const auto& e : eps) {
+      if (e.success) {
+        ++ok;
+        time += e.time;
+        path += e.path;
+      }
+      crashed += e.collision;
+    }
+    std::printf("%s: policy v%llu (%lld updates, %llu env steps) on %d fresh maps (seed %llu)\n",
+                cfg.experiment_id().c_str(), (unsigned long long)m.policy_version(),
+                (long long)m.updates(), (unsigned long long)m.env_steps(), o.episodes,
+                (unsigned long long)o.seed);
+    std::printf("success rate      %.1f %% (%d of %d)\n", 100.0 * ok / o.episodes, ok, o.episodes);
+    std::printf("collisions        %d, time-outs %d\n", crashed, o.episodes - ok - crashed);
+    if (ok > 0) {
+      std::printf("episode time      %.1f s (mean over successes; control step %.3f s)\n", time / ok,
+                  task->control_dt());
+      std::printf("path length       %.1f cm (mean over successes)\n", 100.0 * path / ok);
+    }
+    if (!o.plot.empty()) {
+      const int k = std::min(o.plot_episodes, o.episodes), cols = std::min(k, 3);
+      const int rows = (k + cols - 1) / cols, size = 320;
+      tools::Canvas c(cols * size, rows * size, {255, 255, 255});
+      for (int i = 0; i < k; ++i)
+        draw_panel(c, (i % cols) * size, (i / cols) * size, size, *task, *eps[i].state, eps[i].success);
+      c.write_png(o.plot);
+      std::printf("trajectories      %s (%d episodes: start green, goal red, path blue when "
+                  "it reached the goal, grey when not; obstacles brown)\n",
+                  o.plot.c_str(), k);
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "farm-mobile-eval: %s\n", e.what());
+    return 1;
+  }
+}
