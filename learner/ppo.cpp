@@ -5,6 +5,9 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "config.h"
+#include "sac.h"  // learner_device
+
 namespace farm {
 
 namespace {
@@ -69,6 +72,7 @@ void check_ppo_config(const config::PpoConfig& c) {
   require(c.kl_band() > 1, "kl_band", "expected > 1");
   require(c.lr_factor() > 1, "lr_factor", "expected > 1");
   require(c.lr_min() > 0 && c.lr_min() <= c.lr_max(), "lr_min", "expected 0 < lr_min <= lr_max");
+  require(valid_device_name(c.device()), "device", "expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + c.device() + "\"");
   require(c.value_loss_coef() >= 0, "value_loss_coef", "expected >= 0");
   for (int h : c.hidden()) require(h > 0, "hidden", "expected sizes > 0, got " + std::to_string(h));
   require(c.activation() == "tanh" || c.activation() == "relu", "activation",
@@ -93,14 +97,17 @@ struct Ppo::Impl {
   torch::Tensor log_std;
   std::unique_ptr<torch::optim::Adam> opt;
   ObsNormalizer norm;
+  torch::Device device{torch::kCPU};  // where the networks and a fit's data live
   double lr;
   int64_t fits = 0, updates = 0;
 
   torch::Tensor normalize(const float* obs, int64_t n) const {
     torch::Tensor x = from_floats(obs, n, obs_dim);
-    if (!cfg.normalize_observations()) return x;
-    auto m = norm.mean(), s = norm.std();
-    return (x - torch::from_blob(m.data(), {1, obs_dim}).clone()) / torch::from_blob(s.data(), {1, obs_dim}).clone();
+    if (cfg.normalize_observations()) {
+      auto m = norm.mean(), s = norm.std();
+      x = (x - torch::from_blob(m.data(), {1, obs_dim}).clone()) / torch::from_blob(s.data(), {1, obs_dim}).clone();
+    }
+    return x.to(device);
   }
   torch::Tensor clamped_log_std() const { return log_std.clamp(cfg.log_std_min(), cfg.log_std_max()); }
   // Sum over action dims of the clipped Gaussian's log-probability (as the workers compute it,
@@ -133,9 +140,12 @@ Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) 
   a.push_back(act_dim);
   v.push_back(1);
   const bool th = cfg.activation() == "tanh";
-  s.actor = Mlp(a, th, 0.01);
+  s.actor = Mlp(a, th, 0.01);  // initialized on the host, so a seed gives the same nets everywhere
   s.critic = Mlp(v, th, 1.0);
-  s.log_std = torch::full({act_dim}, cfg.initial_log_std(), torch::requires_grad());
+  s.device = learner_device(cfg.device(), "ppo.device");
+  s.actor->to(s.device);
+  s.critic->to(s.device);
+  s.log_std = torch::full({act_dim}, cfg.initial_log_std(), torch::TensorOptions().device(s.device).requires_grad(true));
   std::vector<torch::Tensor> params = s.actor->parameters();
   for (auto& p : s.critic->parameters()) params.push_back(p);
   params.push_back(s.log_std);
@@ -149,7 +159,7 @@ Ppo::~Ppo() = default;
 std::vector<float> Ppo::values(const float* obs, int64_t n) const {
   torch::NoGradGuard g;
   if (n == 0) return {};
-  auto v = impl_->critic->forward(impl_->normalize(obs, n)).reshape({n}).contiguous();
+  auto v = impl_->critic->forward(impl_->normalize(obs, n)).reshape({n}).cpu().contiguous();
   return {v.data_ptr<float>(), v.data_ptr<float>() + n};
 }
 
@@ -159,7 +169,7 @@ std::vector<float> Ppo::log_probs(const float* obs, const float* actions, int64_
   // Non-const: LibTorch 2.x's const ModuleHolder gives only const access, and forward() is not.
   Impl& s = *impl_;
   auto mean = s.actor->forward(s.normalize(obs, n));
-  auto lp = Impl::log_prob(mean, s.clamped_log_std(), from_floats(actions, n, s.act_dim)).contiguous();
+  auto lp = Impl::log_prob(mean, s.clamped_log_std(), from_floats(actions, n, s.act_dim).to(s.device)).cpu().contiguous();
   return {lp.data_ptr<float>(), lp.data_ptr<float>() + n};
 }
 
@@ -174,19 +184,19 @@ PpoStats Ppo::fit(const PpoSamples& d) {
   }
   const bool clip_kl = s.cfg.variant() == "clip_kl";
   const auto X = s.normalize(d.obs.data(), n);
-  const auto A = from_floats(d.actions.data(), n, s.act_dim);
+  const auto A = from_floats(d.actions.data(), n, s.act_dim).to(s.device);
   torch::Tensor old_mean, old_ls, old_lp;
   {
     torch::NoGradGuard g;
     old_mean = s.actor->forward(X);
     old_ls = s.clamped_log_std().clone();
     const auto recomputed = Impl::log_prob(old_mean, old_ls, A);
-    const auto behaviour = from_floats(d.behaviour_log_prob.data(), n, 1).reshape({n});
-    const auto cur = torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(torch::kBool);
+    const auto behaviour = from_floats(d.behaviour_log_prob.data(), n, 1).reshape({n}).to(s.device);
+    const auto cur = torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(s.device).to(torch::kBool);
     old_lp = torch::where(cur, recomputed, behaviour);
   }
-  auto adv = from_floats(d.advantages.data(), n, 1).reshape({n});
-  const auto ret = from_floats(d.returns.data(), n, 1).reshape({n});
+  auto adv = from_floats(d.advantages.data(), n, 1).reshape({n}).to(s.device);
+  const auto ret = from_floats(d.returns.data(), n, 1).reshape({n}).to(s.device);
   if (s.cfg.normalize_advantages() && n > 1) adv = (adv - adv.mean()) / (adv.std() + 1e-8);
 
   const int64_t mb = std::min<int64_t>(s.cfg.mini_batch_size(), n);
@@ -194,7 +204,7 @@ PpoStats Ppo::fit(const PpoSamples& d) {
   std::vector<torch::Tensor> all_params = s.opt->param_groups()[0].params();
   for (int e = 0; e < s.cfg.epochs(); ++e) {
     const bool last_epoch = e + 1 == s.cfg.epochs();
-    const auto perm = torch::randperm(n, torch::kLong);
+    const auto perm = torch::randperm(n, torch::kLong).to(s.device);  // host generator: same order on any device
     double clipped = 0, vloss = 0, ploss = 0, gnorm = 0;
     int64_t batches = 0;
     for (int64_t b = 0; b < n; b += mb) {
@@ -266,11 +276,11 @@ PolicyParams Ppo::export_policy(uint64_t version) const {
   p.log_std_min = float(s.cfg.log_std_min());
   p.log_std_max = float(s.cfg.log_std_max());
   for (auto& l : s.actor->layers) {
-    auto w = l->weight.detach().contiguous(), b = l->bias.detach().contiguous();
+    auto w = l->weight.detach().cpu().contiguous(), b = l->bias.detach().cpu().contiguous();
     p.params.insert(p.params.end(), w.data_ptr<float>(), w.data_ptr<float>() + w.numel());
     p.params.insert(p.params.end(), b.data_ptr<float>(), b.data_ptr<float>() + b.numel());
   }
-  auto ls = s.log_std.detach().contiguous();
+  auto ls = s.log_std.detach().cpu().contiguous();
   p.log_std.assign(ls.data_ptr<float>(), ls.data_ptr<float>() + ls.numel());
   if (s.cfg.normalize_observations()) {
     p.obs_mean = s.norm.mean();
@@ -320,6 +330,8 @@ void Ppo::load(const std::string& dir) {
     ar.read("optimizer", optim);
     s.actor->load(actor);
     s.critic->load(critic);
+    s.actor->to(s.device);  // a checkpoint from another device
+    s.critic->to(s.device);
     s.opt->load(optim);
     torch::Tensor ls, nm, nm2, nc, lr, counts;
     ar.read("log_std", ls);

@@ -194,18 +194,18 @@ void configure_compute(int threads) {
 }
 
 // The device a config names, checked against what this LibTorch build and machine offer.
-torch::Device learner_device(const std::string& name) {
+torch::Device learner_device(const std::string& name, const std::string& field) {
   if (!valid_device_name(name))
-    throw std::invalid_argument("sac.device: expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" +
+    throw std::invalid_argument(field + ": expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" +
                                 name + "\"");
   torch::Device d(name);
   if (d.is_cuda()) {
     if (!torch::cuda::is_available())
-      throw std::runtime_error("sac.device is \"" + name +
+      throw std::runtime_error(field + " is \"" + name +
                                "\" but this learner's LibTorch has no CUDA or sees no GPU "
                                "(build with deploy/build-gpu.sh on a GPU host, or use \"cpu\")");
     if (d.has_index() && d.index() >= int(torch::cuda::device_count()))
-      throw std::runtime_error("sac.device is \"" + name + "\" but only " +
+      throw std::runtime_error(field + " is \"" + name + "\" but only " +
                                std::to_string(torch::cuda::device_count()) + " GPU(s) are visible");
   }
   return d;
@@ -230,7 +230,7 @@ struct Sac::Impl {
   Impl(const config::SacConfig& c, int obs, int act)
       : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
         target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
-        device(learner_device(c.device())),
+        device(learner_device(c.device(), "sac.device")),
         actor(layer_sizes(obs, 2 * act), tanh_hidden(c)),
         critic(layer_sizes(obs + act, 1), tanh_hidden(c)),
         critic_target(layer_sizes(obs + act, 1), tanh_hidden(c)), actor_p(*placed(actor, device)),

@@ -50,6 +50,10 @@ torch::Tensor squashed_gaussian_log_prob(const torch::Tensor& mean, const torch:
 // starve OpenBLAS's threads, measured 3-10x slower than one thread.
 void configure_compute(int threads);
 
+// The device a config's `field` names ("cpu", "cuda", "cuda:N"), checked against what this
+// LibTorch build and machine offer; the errors name the field.
+torch::Device learner_device(const std::string& name, const std::string& field);
+
 class Sac {
  public:
   // Seeds torch's global generator with `seed` (initial weights and exploration noise).

@@ -1,0 +1,115 @@
+// PPO over the farm, with the real farm-learner and two real farm-worker processes on Fast DDS:
+// the cart-pole swing-up is trained to a stated return, every fit is logged with its numbers, and
+// every batch is accounted for. A second run kills one worker with SIGKILL mid-training: the fits
+// go on with the worker that is left.
+#include <gtest/gtest.h>
+
+#include <signal.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <string>
+
+#include "process_util.h"
+
+namespace fs = std::filesystem;
+using namespace farm::testing;
+
+namespace {
+
+// The shipped cart-pole PPO experiment, with the run's clock and evaluation cadence of a test.
+std::string config(const std::string& id, const std::string& stop) {
+  std::string text = slurp(std::string(FARM_SOURCE_DIR) + "/deploy/configs/cartpole_ppo.txtpb");
+  text = std::regex_replace(text, std::regex(R"(experiment_id: "cartpole_ppo")"), "experiment_id: \"" + id + "\"");
+  text = std::regex_replace(text, std::regex(R"(stop \{[^}]*\})"), "stop { " + stop + " }");
+  return text + "checkpoint_every_seconds: 30\n";
+}
+
+int count(const std::string& text, const std::regex& re) {
+  return int(std::distance(std::sregex_iterator(text.begin(), text.end(), re), std::sregex_iterator()));
+}
+
+// A swing-up that stays up scores about 1 per step (250 steps); a policy that never swings up
+// scores well below 100. The threshold sits between, with margin on both sides.
+constexpr double kTargetReturn = 150.0;
+
+TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(61)), run = d + "/run";
+  write_file(d + "/cfg.txtpb", config("it_cartpole_ppo", "target_eval_return: 150 max_seconds: 480"));
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a", "--log-every", "5"}, "worker-a");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b", "--log-every", "5"}, "worker-b");
+  const int rc = wait_for(learner, 560);
+  const std::string log = slurp(d + "/learner.log");
+  ASSERT_EQ(rc, 0) << log;
+  EXPECT_EQ(wait_for(set.procs()[1], 60), 0) << slurp(d + "/worker-a.log");
+  EXPECT_EQ(wait_for(set.procs()[2], 60), 0) << slurp(d + "/worker-b.log");
+
+  const std::string summary = slurp(run + "/summary.txt");
+  ASSERT_FALSE(summary.empty()) << log;
+  EXPECT_NE(summary.find("reached the target"), std::string::npos) << summary;
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(final eval return\s+(-?[0-9.]+))"))) << summary;
+  EXPECT_GE(std::stod(m[1]), kTargetReturn - 30.0) << summary;  // the final, larger evaluation
+  ASSERT_TRUE(std::regex_search(
+      summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+), stale (\d+))")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 0);
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  // Each worker's stream: every number it sent arrived once.
+  for (const char* id : {"ppo-a", "ppo-b"}) {
+    std::regex line(std::string(id) + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)");
+    ASSERT_TRUE(std::regex_search(summary, m, line)) << id << "\n" << summary;
+    EXPECT_EQ(std::stoll(m[1]), std::stoll(m[2]) + 1) << id;
+  }
+
+  // Every fit's line carries version, steps used and carried, stale drops, KL, rate, clip
+  // fraction, value loss, entropy and mean return; steps used is the configured steps per fit.
+  const std::regex fit_line(
+      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \| kl [-0-9.e]+ lr [-0-9.e]+ clip [0-9.]+ \| value loss [-0-9.e+]+ entropy [-0-9.]+ \| return [-0-9.na]+)");
+  const int fits = count(log, fit_line);
+  EXPECT_GE(fits, 2) << log;
+  for (auto it = std::sregex_iterator(log.begin(), log.end(), fit_line); it != std::sregex_iterator(); ++it)
+    EXPECT_EQ((*it)[4], "8192") << it->str();
+  std::ifstream csv(run + "/learner.csv");
+  std::string header;
+  ASSERT_TRUE(std::getline(csv, header));
+  for (const char* col : {"steps_used", "steps_carried", "stale_dropped", "kl", "learning_rate", "clip_fraction",
+                          "value_loss", "entropy", "mean_return"})
+    EXPECT_NE(header.find(col), std::string::npos) << col << " not in " << header;
+}
+
+TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(67)), run = d + "/run";
+  write_file(d + "/cfg.txtpb", config("it_ppo_fault", "max_seconds: 70"));
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a"}, "worker-a");
+  Proc& victim = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b"}, "worker-b");
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "fit 2 |", 120)) << slurp(d + "/learner.log");
+  kill(victim.pid, SIGKILL);
+  wait_for(victim, 10);
+  const std::regex fit_line(R"(\] fit (\d+) \|)");
+  const int fits_at_kill = count(slurp(d + "/learner.log"), fit_line);
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "marked dead", 30)) << slurp(d + "/learner.log");
+  const int rc = wait_for(learner, 120);
+  const std::string log = slurp(d + "/learner.log");
+  ASSERT_EQ(rc, 0) << log;
+  // At least two more fits after the kill, made with one worker's data.
+  EXPECT_GE(count(log, fit_line), fits_at_kill + 2) << log;
+  const std::string summary = slurp(run + "/summary.txt");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  EXPECT_NE(summary.find("ppo-b session"), std::string::npos) << summary;
+  EXPECT_NE(summary.find("stream open"), std::string::npos) << summary;  // the killed worker's
+}
+
+}  // namespace
