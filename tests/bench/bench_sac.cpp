@@ -1,6 +1,8 @@
 // SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
 // the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
-//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B]
+//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]]
+// The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
+// host-to-device copy inside the update is counted as update time).
 // Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread on a shared machine (see
 // configure_compute in sac.h).
 #include <algorithm>
@@ -48,10 +50,13 @@ int main(int argc, char** argv) {
   double seconds = 3.0;
   int batch = 256;
   std::vector<int> threads{1, 2};
+  std::string device = "cpu";
   for (int i = 1; i < argc; ++i) {
     const bool has_value = i + 1 < argc;
     if (!std::strcmp(argv[i], "--seconds") && has_value) {
       seconds = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--device") && has_value) {
+      device = argv[++i];
     } else if (!std::strcmp(argv[i], "--batch") && has_value) {
       batch = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
@@ -59,7 +64,10 @@ int main(int argc, char** argv) {
       std::stringstream list(argv[++i]);
       for (std::string t; std::getline(list, t, ',');) threads.push_back(std::atoi(t.c_str()));
     } else {
-      std::fprintf(stderr, "usage: %s [--seconds S] [--threads N[,N...]] [--batch B]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
+                   "[--device cpu|cuda[:N]]\n",
+                   argv[0]);
       return 2;
     }
   }
@@ -74,6 +82,7 @@ int main(int argc, char** argv) {
       farm::configure_compute(n_threads);
       farm::config::SacConfig cfg;
       for (int h : hidden) cfg.add_hidden(h);
+      cfg.set_device(device);
       farm::Sac sac(cfg, kObs, kAct, 1);
       // Warm-up: first-touch allocations and Adam's state creation are not the steady state.
       const auto warm = Clock::now();
@@ -91,10 +100,11 @@ int main(int argc, char** argv) {
         ++n;
         elapsed = seconds_since(t0);
       }
-      std::printf("sac update (%s, batch %d, %d thread%s): %.0f updates/s "
-                  "(%.1f us/update, of which sampling %.1f us)\n",
-                  describe(kObs, hidden, kAct).c_str(), batch, n_threads, n_threads == 1 ? "" : "s",
-                  n / elapsed, 1e6 * elapsed / n, 1e6 * sample_s / n);
+      std::printf("sac update (%s, batch %d, %s, %d thread%s): %.0f updates/s "
+                  "(%.1f us/update, of which sampling %.1f us = %.1f%% waiting for data)\n",
+                  describe(kObs, hidden, kAct).c_str(), batch, device.c_str(), n_threads,
+                  n_threads == 1 ? "" : "s", n / elapsed, 1e6 * elapsed / n, 1e6 * sample_s / n,
+                  100.0 * sample_s / elapsed);
       std::fflush(stdout);
     }
   }

@@ -1,5 +1,9 @@
 // Worker throughput against the physics alone: how much of raw mj_step speed survives policy
-// inference, batching and threading. Usage: bench_worker [--envs N] [--threads K] [--seconds S]
+// inference, batching and threading.
+//   bench_worker [--task NAME] [--envs N] [--threads K] [--seconds S]
+// The limit is a raw mj_step loop on the task's own model from a state one of its episodes
+// reached, with the controls the task had set there, divided by the physics steps the task runs
+// per env step (measured from the simulated time one env step advances).
 #include <mujoco/mujoco.h>
 
 #include <chrono>
@@ -24,13 +28,32 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-double raw_steps_per_second(const mjModel* m, double seconds) {
-  mjData* d = mj_makeData(m);
-  // Hanging, with a torque below m g l / 2: it swings about a tilted rest point forever. A
-  // start near upright would go over the top and spin up without bound (the torque keeps
-  // adding energy), until MuJoCo resets the diverged state.
-  d->qpos[0] = 3.14159265358979;
-  d->ctrl[0] = 0.5;
+// A state of the task after a few env steps with zero actions, and the physics steps the task
+// runs per env step there.
+struct RawStart {
+  mjData* data = nullptr;
+  double physics_per_env_step = 1;
+};
+
+RawStart raw_start(const farm::robots::Task& task) {
+  const mjModel* m = task.model();
+  auto s = task.make_state();
+  std::vector<float> obs(task.spec().obs_dim), act(task.spec().act_dim, 0.f);
+  task.reset(*s, 1, obs.data());
+  const double t0 = s->data->time;
+  int k = 0;
+  for (; k < 10; ++k) {
+    const auto r = task.step(*s, act.data(), obs.data());
+    if (r.terminated || r.truncated) break;
+  }
+  RawStart out;
+  if (k > 0) out.physics_per_env_step = std::max(1.0, (s->data->time - t0) / m->opt.timestep / k);
+  out.data = mj_copyData(nullptr, m, s->data);
+  return out;
+}
+
+double raw_steps_per_second(const mjModel* m, const mjData* start, double seconds) {
+  mjData* d = mj_copyData(nullptr, m, start);
   uint64_t steps = 0;
   const auto t0 = Clock::now();
   double elapsed = 0;
@@ -45,11 +68,12 @@ double raw_steps_per_second(const mjModel* m, double seconds) {
 
 // The same loop on `threads` threads at once: what the hardware gives in parallel (shared
 // cores, turbo limits), so the worker's scaling can be told apart from the machine's.
-double raw_parallel_steps_per_second(const mjModel* m, int threads, double seconds) {
+double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads,
+                                     double seconds) {
   std::vector<double> rates(threads);
   std::vector<std::thread> pool;
   for (int k = 0; k < threads; ++k) {
-    pool.emplace_back([&, k] { rates[k] = raw_steps_per_second(m, seconds); });
+    pool.emplace_back([&, k] { rates[k] = raw_steps_per_second(m, start, seconds); });
   }
   for (auto& t : pool) t.join();
   double total = 0;
@@ -96,6 +120,7 @@ double policy_rows_per_second(const farm::PolicyParams& params, int rows, double
 int main(int argc, char** argv) {
   int envs = 16, threads = int(std::thread::hardware_concurrency());
   double seconds = 2.0;
+  std::string task_name = "pendulum";
   const int T = 32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -103,10 +128,13 @@ int main(int argc, char** argv) {
       envs = std::atoi(argv[++i]);
     } else if (i + 1 < argc && a == "--threads") {
       threads = std::atoi(argv[++i]);
+    } else if (i + 1 < argc && a == "--task") {
+      task_name = argv[++i];
     } else if (i + 1 < argc && a == "--seconds") {
       seconds = std::atof(argv[++i]);
     } else {
-      std::fprintf(stderr, "usage: %s [--envs N] [--threads K] [--seconds S]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--task NAME] [--envs N] [--threads K] [--seconds S]\n",
+                   argv[0]);
       return 2;
     }
   }
@@ -115,10 +143,24 @@ int main(int argc, char** argv) {
     return 2;
   }
 
-  std::shared_ptr<const farm::robots::Task> task = farm::robots::make_task({});
+  farm::config::TaskConfig task_cfg;
+  task_cfg.set_name(task_name);
+  std::shared_ptr<const farm::robots::Task> task;
+  try {
+    task = farm::robots::make_task(task_cfg);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_worker: %s\n", e.what());
+    return 2;
+  }
+  // The learner's actor shape for the task: SAC's [mean | log_std], or DQN's Q values.
   farm::PolicyParams policy;
-  policy.layout = {{task->spec().obs_dim, 64, 64, 2 * task->spec().act_dim},
+  const int discrete = task->spec().num_actions;
+  policy.layout = {{task->spec().obs_dim, 64, 64, discrete > 0 ? discrete : 2 * task->spec().act_dim},
                    farm::Activation::kRelu};
+  if (discrete > 0) {
+    policy.head = farm::PolicyHead::kDiscreteQ;
+    policy.epsilon = 0.05f;
+  }
   policy.params.resize(policy.layout.num_params());
   std::mt19937_64 rng(1);
   std::normal_distribution<float> normal(0.f, 0.2f);
@@ -126,8 +168,11 @@ int main(int argc, char** argv) {
 
   std::printf("task %s, policy %s, %d envs, T=%d, %.1f s per measurement\n",
               task->spec().name.c_str(), policy.layout.describe().c_str(), envs, T, seconds);
-  const double raw = raw_steps_per_second(task->model(), seconds);
-  std::printf("raw mj_step: %.0f steps/s\n", raw);
+  const RawStart start = raw_start(*task);
+  const double per = start.physics_per_env_step;
+  const double raw = raw_steps_per_second(task->model(), start.data, seconds) / per;
+  std::printf("raw mj_step: %.0f steps/s, %.2f per env step: limit %.0f env steps/s\n", raw * per,
+              per, raw);
   const double infer = policy_rows_per_second(policy, envs, seconds);
   std::printf("policy inference (%d rows per call): %.0f rows/s\n", envs, infer);
 
@@ -141,8 +186,8 @@ int main(int argc, char** argv) {
   std::printf("raw x %d threads: %.0f steps/s\n", k, raw * k);
   std::printf("ratio worker/(raw x threads) (%d threads): %.3f\n", k, wk / (raw * k));
   std::printf("speedup %d threads over 1: %.2f\n", k, wk / w1);
-  const double raw_k = raw_parallel_steps_per_second(task->model(), k, seconds);
-  std::printf("raw mj_step on %d threads at once (measured): %.0f steps/s\n", k, raw_k);
+  const double raw_k = raw_parallel_steps_per_second(task->model(), start.data, k, seconds) / per;
+  std::printf("raw mj_step on %d threads at once (measured): %.0f env steps/s\n", k, raw_k);
   std::printf("ratio worker/(measured parallel raw) (%d threads): %.3f\n", k, wk / raw_k);
   return 0;
 }
