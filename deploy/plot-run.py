@@ -1,0 +1,145 @@
+#!/usr/bin/python3
+"""Charts of a farm run, as PNG files next to the data (Debian python3-matplotlib):
+  learning_curve.png  mean training return and evaluation return against wall time and env steps
+  throughput.png      env steps/s at the learner and updates/s against time; with a monitor log,
+                      also each worker's steps/s and the workers' total
+usage: deploy/plot-run.py RUN_DIR [--monitor-log FILE] [--out DIR]
+  RUN_DIR holds learner.csv (runs/<experiment>/); FILE is a `farm-monitor --log FILE` JSON-lines log.
+Runs with /usr/bin/python3, where Debian installs matplotlib."""
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+
+try:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+except ImportError:
+    sys.exit("plot-run: matplotlib is missing: apt-get install python3-matplotlib "
+             "(deploy/install-deps.sh), and run with /usr/bin/python3")
+
+
+def number(s):
+    try:
+        x = float(s)
+    except (TypeError, ValueError):
+        return math.nan
+    return x
+
+
+def read_learner_csv(path):
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    need = {"elapsed_s", "env_steps", "env_steps_per_s", "updates_per_s", "mean_return", "eval_return"}
+    if rows and not need <= set(rows[0]):
+        sys.exit(f"plot-run: {path} lacks the columns {sorted(need - set(rows[0]))}")
+    if not rows:
+        sys.exit(f"plot-run: {path} has no rows yet")
+    cols = {k: [number(r.get(k)) for r in rows] for k in rows[0]}
+    return cols
+
+
+def read_monitor_log(path):
+    """(times in s from the first line, {worker id: [(t, steps/s)]}, [(t, total steps/s)])."""
+    workers, totals, t0 = {}, [], None
+    with open(path) as f:
+        for lineno, line in enumerate(f, 1):
+            line = line.strip()
+            if not line:
+                continue
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError as e:
+                sys.exit(f"plot-run: {path}:{lineno}: not a JSON line ({e})")
+            t = rec.get("unix_time")
+            t = number(t) if t is not None else math.nan
+            if math.isnan(t):
+                t = number(rec.get("elapsed_s"))
+            if t0 is None:
+                t0 = t
+            t -= t0
+            for w in rec.get("workers", []):
+                rate = w.get("steps_per_s") if w.get("alive") else None
+                workers.setdefault(w["id"], []).append((t, rate if rate is not None else math.nan))
+            totals.append((t, number(rec.get("totals", {}).get("steps_per_s"))))
+    if not totals:
+        sys.exit(f"plot-run: {path} has no lines")
+    return workers, totals
+
+
+def finite(xs, ys):
+    pts = [(x, y) for x, y in zip(xs, ys) if not (math.isnan(x) or math.isnan(y))]
+    return [p[0] for p in pts], [p[1] for p in pts]
+
+
+def main():
+    ap = argparse.ArgumentParser(description="PNG charts of a farm run (learner.csv, farm-monitor log).")
+    ap.add_argument("run_dir", help="the run directory with learner.csv")
+    ap.add_argument("--monitor-log", help="a farm-monitor --log JSON-lines file")
+    ap.add_argument("--out", help="where the PNGs go (default: RUN_DIR)")
+    a = ap.parse_args()
+    csv_path = os.path.join(a.run_dir, "learner.csv")
+    if not os.path.isfile(csv_path):
+        sys.exit(f"plot-run: no learner.csv in {a.run_dir}")
+    out = a.out or a.run_dir
+    os.makedirs(out, exist_ok=True)
+    c = read_learner_csv(csv_path)
+    name = os.path.basename(os.path.normpath(a.run_dir))
+
+    fig, (ax_t, ax_s) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, xkey, xlabel in ((ax_t, "elapsed_s", "wall time (s)"), (ax_s, "env_steps", "env steps")):
+        for ykey, label, style in (("mean_return", "training return (mean of last 100 episodes)", "-"),
+                                   ("eval_return", "evaluation return (deterministic)", "o-")):
+            x, y = finite(c[xkey], c[ykey])
+            if x:
+                ax.plot(x, y, style, label=label, markersize=3)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("return")
+        ax.grid(alpha=0.3)
+    ax_t.legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"{name}: learning curve")
+    fig.tight_layout()
+    curve = os.path.join(out, "learning_curve.png")
+    fig.savefig(curve, dpi=110)
+    plt.close(fig)
+
+    monitor = read_monitor_log(a.monitor_log) if a.monitor_log else None
+    fig, axes = plt.subplots(1, 2 if monitor else 1, figsize=(12 if monitor else 7, 4.5), squeeze=False)
+    ax = axes[0][0]
+    x, y = finite(c["elapsed_s"], c["env_steps_per_s"])
+    ax.plot(x, y, label="env steps/s in (learner)")
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("env steps/s")
+    ax2 = ax.twinx()
+    x, y = finite(c["elapsed_s"], c["updates_per_s"])
+    ax2.plot(x, y, color="tab:red", alpha=0.7, label="updates/s")
+    ax2.set_ylabel("updates/s")
+    ax.legend(handles=ax.get_lines() + ax2.get_lines(), loc="lower right", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.set_title("learner (learner.csv)")
+    if monitor:
+        workers, totals = monitor
+        ax = axes[0][1]
+        for wid in sorted(workers):
+            x, y = zip(*workers[wid])
+            ax.plot(x, y, label=wid, linewidth=1)
+        x, y = finite(*zip(*totals))
+        ax.plot(x, y, color="black", linewidth=2, label="total (live workers)")
+        ax.set_xlabel("time since the monitor's first line (s)")
+        ax.set_ylabel("env steps/s")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+        ax.set_title("workers (farm-monitor log)")
+    fig.suptitle(f"{name}: throughput")
+    fig.tight_layout()
+    thr = os.path.join(out, "throughput.png")
+    fig.savefig(thr, dpi=110)
+    plt.close(fig)
+    print(f"plot-run: wrote {curve} and {thr}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,172 @@
+#!/usr/bin/env bash
+# Three "hosts" on this machine: network namespaces joined by veth pairs to a bridge in the first.
+#   A 10.77.0.1: Discovery Servers (primary id 0 on port 11811, backup id 1 on 11812), farm-learner
+#   B 10.77.0.2: farm-worker host-b        C 10.77.0.3: farm-worker host-c
+# No multicast route anywhere (simple discovery cannot work) and no shared memory (namespaces
+# share /dev/shm, so the profile is UDPv4 only): the farm must meet through the Discovery Server.
+# A short SAC pendulum run must take batches from both workers with nothing lost, bring new
+# weights to both, and `farm-monitor --once` in A must list both with non-zero steps/s, also
+# after the primary discovery server is killed (the backup carries on).
+#   tests/integration/test_multihost_netns.sh LEARNER_BIN WORKER_BIN MONITOR_BIN SOURCE_DIR
+# Needs root (ip netns); exits 77 (skipped) without it. Commands: README.md, "Several hosts".
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3") src=$(readlink -f "$4")
+SKIP=77
+A=farm_a_$$ B=farm_b_$$ C=farm_c_$$
+BR=fbr$$ HB=fhb$$ HC=fhc$$ EB=feb$$ EC=fec$$
+dir=$(mktemp -d /tmp/farm-netns-test-XXXXXX)
+domain=$((20 + $$ % 200))
+export ROS_DISCOVERY_SERVER="10.77.0.1:11811;10.77.0.1:11812"
+unset FASTRTPS_DEFAULT_PROFILES_FILE FASTDDS_ENVIRONMENT_FILE FARM_SECURITY_DIR
+client_profiles=$src/deploy/discovery/client_udp.xml
+monitor_profiles=$src/deploy/discovery/super_client_udp.xml
+pids=()
+groups=()
+failed=0
+made_ns=0
+fail() { echo "FAIL: $*"; failed=1; }
+cleanup() {
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
+  for g in "${groups[@]}"; do
+    kill -9 $(pgrep -P "$g") 2>/dev/null  # the server first, so its wrapper reaps it
+    kill -9 -- "-$g" 2>/dev/null
+  done
+  wait 2>/dev/null
+  if [ $made_ns = 1 ]; then
+    for ns in $A $B $C; do ip netns del $ns 2>/dev/null; done
+  fi
+  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+if [ "$(id -u)" != 0 ]; then
+  echo "SKIP: network namespaces need root (running as uid $(id -u))"; exit $SKIP
+fi
+if ! command -v ip >/dev/null; then
+  echo "SKIP: the 'ip' tool (Debian package iproute2) is not installed"; exit $SKIP
+fi
+if ! ip netns add $A 2>"$dir/netns.err"; then
+  echo "SKIP: cannot create a network namespace: $(cat "$dir/netns.err")"; exit $SKIP
+fi
+made_ns=1
+command -v fastdds >/dev/null || { echo "SKIP: the 'fastdds' tool (Debian package fastdds-tools) is not installed"; exit $SKIP; }
+set -e
+ip netns add $B
+ip netns add $C
+ip -n $A link add $BR type bridge
+ip link add $HB type veth peer name $EB
+ip link add $HC type veth peer name $EC
+ip link set $HB netns $A
+ip link set $HC netns $A
+ip link set $EB netns $B
+ip link set $EC netns $C
+ip -n $A link set $HB master $BR
+ip -n $A link set $HC master $BR
+ip -n $A addr add 10.77.0.1/24 dev $BR
+ip -n $B addr add 10.77.0.2/24 dev $EB
+ip -n $C addr add 10.77.0.3/24 dev $EC
+for ns in $A $B $C; do ip -n $ns link set lo up; done
+ip -n $A link set $BR up
+ip -n $A link set $HB up
+ip -n $A link set $HC up
+ip -n $B link set $EB up
+ip -n $C link set $EC up
+set +e
+for ns in $A $B $C; do
+  ip -n $ns route show | grep -q '^224\.\|^default' && fail "namespace $ns has a multicast or default route"
+done
+
+# Discovery servers on "host" A.
+# `fastdds discovery` (a Python wrapper) runs the server as its child: each gets a process group
+# of its own (setsid) so that killing the group stops the server itself. The servers run without
+# ROS_DISCOVERY_SERVER: with it set, Fast DDS 2.9.1's server aborts (assertion in
+# OutputTrafficManager.hpp) as soon as a client joins after it started.
+setsid env -u ROS_DISCOVERY_SERVER ip netns exec $A fastdds discovery -i 0 -l 10.77.0.1 -p 11811 \
+  >"$dir/discovery-0.log" 2>&1 & ds0=$!; groups+=($ds0)
+setsid env -u ROS_DISCOVERY_SERVER ip netns exec $A fastdds discovery -i 1 -l 10.77.0.1 -p 11812 \
+  >"$dir/discovery-1.log" 2>&1 & groups+=($!)
+sleep 1
+for i in 0 1; do
+  grep -q "Server is running" "$dir/discovery-$i.log" || fail "discovery server $i did not start: $(cat "$dir/discovery-$i.log")"
+done
+
+cat >"$dir/cfg.txtpb" <<'EOF'
+experiment_id: "it_multihost"
+seed: 7
+task { name: "pendulum" }
+sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3 learning_starts: 1000 publish_every_updates: 25 }
+worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 20 }
+eval { episodes: 5 every_seconds: 10 final_episodes: 10 }
+checkpoint_every_seconds: 30
+log_every_seconds: 2
+stop { max_seconds: 40 }
+EOF
+ip netns exec $A "$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run" --domain $domain \
+  --dds-profiles "$client_profiles" >"$dir/learner.log" 2>&1 & learner_pid=$!; pids+=($learner_pid)
+ip netns exec $B "$worker" --domain $domain --dds-profiles "$client_profiles" --id host-b --envs 8 --threads 1 \
+  --log-every 2 >"$dir/worker-b.log" 2>&1 & wb=$!; pids+=($wb)
+ip netns exec $C "$worker" --domain $domain --dds-profiles "$client_profiles" --id host-c --envs 8 --threads 1 \
+  --log-every 2 >"$dir/worker-c.log" 2>&1 & wc=$!; pids+=($wc)
+
+wait_text() {  # FILE REGEX SECONDS
+  for _ in $(seq $(($3 * 5))); do grep -qE "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
+}
+for w in b c; do
+  wait_text "$dir/worker-$w.log" "^\[worker host-$w\] running" 40 ||
+    fail "worker host-$w is not running over the discovery server: $(tail -3 "$dir/worker-$w.log")"
+done
+sleep 2
+
+# The monitor as a SUPER_CLIENT of both servers (addresses from its XML): both workers, non-zero steps/s.
+check_snapshot() {  # NAME
+  ip netns exec $A "$monitor" --dds-profiles "$monitor_profiles" --domain $domain --once --wait 8 \
+    >"$dir/$1.txt" 2>&1
+  local rc=$?
+  echo "--- farm-monitor --once ($1), exit $rc:"; cat "$dir/$1.txt"
+  [ $rc = 0 ] || fail "$1: farm-monitor --once exited $rc"
+  for w in host-b host-c; do
+    local rate
+    rate=$(awk -v w=$w '$2 == w { print $4 }' "$dir/$1.txt")
+    [ -n "$rate" ] && awk -v r="$rate" 'BEGIN { exit !(r > 0) }' || fail "$1: $w not listed with non-zero steps/s (got '$rate')"
+  done
+}
+check_snapshot monitor-1
+
+# Without the discovery server (simple discovery, multicast) nothing is found: the test network
+# really has no multicast, so what worked above went through the servers.
+env -u ROS_DISCOVERY_SERVER ip netns exec $A "$monitor" --dds-profiles "$client_profiles" --domain $domain \
+  --once --wait 3 >"$dir/monitor-simple.txt" 2>&1
+rc=$?
+[ $rc = 1 ] || fail "a monitor with simple discovery found the farm (exit $rc): $(cat "$dir/monitor-simple.txt")"
+
+# The primary server goes away: a monitor started now meets the farm through the backup.
+{ kill -9 $(pgrep -P $ds0); wait $ds0; } 2>/dev/null
+sleep 1
+ps -o stat= -g $ds0 | grep -q "^[^Z]" && fail "the primary discovery server is still running"
+check_snapshot monitor-2
+
+wait $learner_pid; rc=$?
+grep -q "Assertion" "$dir/discovery-1.log" && fail "the backup discovery server crashed: $(grep Assertion "$dir/discovery-1.log")"
+ps -o stat= -g ${groups[1]} | grep -q "^[^Z]" || fail "the backup discovery server is not running any more"
+[ $rc = 0 ] || fail "farm-learner exited $rc: $(tail -5 "$dir/learner.log")"
+for p in $wb $wc; do
+  for _ in $(seq 150); do kill -0 $p 2>/dev/null || break; sleep 0.2; done
+done
+
+summary=$(cat "$dir/run/summary.txt" 2>/dev/null)
+echo "--- summary.txt:"; echo "$summary"
+grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" || fail "batch totals: $(grep ^batches <<<"$summary")"
+for w in b c; do
+  line=$(grep -E "^worker +host-$w session" <<<"$summary")
+  [[ "$line" =~ received\ ([0-9]+)\ of\ sequence.*lost\ 0,\ duplicate\ 0,\ invalid\ 0 ]] && [ "${BASH_REMATCH[1]}" -gt 0 ] ||
+    fail "worker host-$w in summary: '$line'"
+  # New weights reached the worker: its throughput lines name the policy version it runs.
+  v=$(grep -oE "policy v[0-9]+" "$dir/worker-$w.log" | tail -1 | tr -dc 0-9)
+  echo "worker host-$w: last policy version v${v:-none}; $(grep -E 'finished: [0-9]+ batches sent' "$dir/worker-$w.log" | sed 's/^\[worker [^]]*\] //')"
+  [ "${v:-0}" -gt 0 ] || fail "worker host-$w never ran a policy version > 0"
+done
+
+if [ "$failed" = 0 ]; then echo "PASS"; exit 0; fi
+echo "--- learner log tail:"; tail -5 "$dir/learner.log"
+exit 1
