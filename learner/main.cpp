@@ -21,6 +21,7 @@
 #include "ingest.h"
 #include "meter.h"
 #include "replay_buffer.h"
+#include "rng_state.h"
 #include "rollout.h"
 #include "off_policy.h"
 #include "ppo_learner.h"
@@ -186,6 +187,7 @@ class Learner {
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
       episodes_total_ = m.episodes();
       accounts_from_manifest(m, ingest_);
+      rng_from_manifest(m, &rng_);  // after the algorithm's constructor seeded LibTorch
       log("resumed from " + ckpt_dir_ + ": " + std::to_string(algo_->updates()) + " updates, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, buffer " +
           std::to_string(replay_.size()));
@@ -430,6 +432,7 @@ class Learner {
     m.set_config_text(config_to_text(cfg_));
     m.set_episodes(episodes_total_);
     accounts_to_manifest(ingest_, m);
+    rng_to_manifest(&rng_, m);
     double t = now_seconds();
     save_checkpoint(ckpt_dir_, m, *algo_, replay_);
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");

@@ -20,6 +20,7 @@
 #include "ppo.h"
 #include "rollout.h"
 #include "rollout_storage.h"
+#include "rng_state.h"
 #include "task.h"
 
 namespace farm {
@@ -191,6 +192,7 @@ class PpoLearner {
       episodes_total_ = m.episodes();
       accounts_from_manifest(m, ingest_);
       // The run's counters go on from where they were; data not yet fitted was not kept.
+      rng_from_manifest(m, nullptr);
       sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
       log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
@@ -491,6 +493,7 @@ class PpoLearner {
     m.set_config_text(config_to_text(cfg_));
     m.set_episodes(episodes_total_);
     m.set_run_steps(uint64_t(sched_.run_steps()));
+    rng_to_manifest(nullptr, m);
     accounts_to_manifest(ingest_, m);
     const double t = now_seconds();
     const fs::path final_dir(ckpt_dir_), tmp = ckpt_dir_ + ".tmp", old = ckpt_dir_ + ".old";
