@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Builds the learner (farm-learner, bench_sac) against a CUDA LibTorch on a GPU host; the
-# config's sac.device ("cpu" by default, "cuda" or "cuda:N") then picks where it trains.
+# Builds the learner (farm-learner, bench_sac, bench_ppo) against a CUDA LibTorch on a GPU host; the
+# config's sac.device or ppo.device ("cpu" by default, "cuda" or "cuda:N") picks where it trains.
 #
 #   deploy/build-gpu.sh [BUILD_DIR]          (default: build-gpu)
 #
@@ -25,11 +25,11 @@ if [ -n "${FARM_GPU_KIT:-}" ]; then
          -DProtobuf_LIBRARY="$kit/lib/libprotobuf.so" -DFASTDDSGEN="$kit/bin/fastddsgen"
          -DCMAKE_BUILD_RPATH="$kit/lib")
 fi
-targets=(bench_sac)
+targets=(bench_sac bench_ppo)
 [ "$with_dds" = ON ] && targets+=(farm-learner)
 gen=()
 command -v ninja >/dev/null && gen=(-G Ninja)
 cmake -S "$root" -B "$build" "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \
   -DFARM_WITH_DDS="$with_dds" "${args[@]}"
 cmake --build "$build" -j "$(nproc)" --target "${targets[@]}"
-echo "built: ${targets[*]} in $build (set sac { device: \"cuda\" } in the experiment config)"
+echo "built: ${targets[*]} in $build (set sac { device: \"cuda\" } or ppo { device: \"cuda\" } in the experiment config)"

@@ -52,17 +52,31 @@ void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, dou
   out.n = steps;
   out.obs.reserve(size_t(steps) * od);
   out.actions.reserve(size_t(steps) * ad);
+  // The values of every trajectory this fit touches, in one call of `value` (on a GPU, thousands
+  // of 16-row calls cost more than the fit itself): obs of all of them, then all next_obs.
+  int64_t rows = 0;
+  size_t touched = 0;
+  for (int64_t need = steps; need > 0 && touched < trajs_.size(); ++touched) {
+    rows += trajs_[touched].len;
+    need -= trajs_[touched].len;
+  }
+  std::vector<float> both(size_t(2 * rows) * od);
+  auto at = both.begin();
+  for (size_t i = 0; i < touched; ++i) at = std::copy(trajs_[i].obs.begin(), trajs_[i].obs.end(), at);
+  for (size_t i = 0; i < touched; ++i) at = std::copy(trajs_[i].next_obs.begin(), trajs_[i].next_obs.end(), at);
+  const std::vector<float> values = rows > 0 ? value(both.data(), 2 * rows) : std::vector<float>{};
   std::vector<float> adv, ret;
-  int64_t left = steps;
+  int64_t left = steps, offset = 0;
   while (left > 0) {
     Trajectory& tr = trajs_.front();
-    const auto v = value(tr.obs.data(), tr.len);
-    const auto nv = value(tr.next_obs.data(), tr.len);
+    const float* v = values.data() + offset;
+    const float* nv = values.data() + rows + offset;
+    offset += tr.len;
     adv.resize(tr.len);
     ret.resize(tr.len);
     // The last step bootstraps on its next observation unless it terminated: compute_gae treats
     // every step's next value that way, and cuts the chain only at episode ends.
-    compute_gae(tr.rewards.data(), v.data(), nv.data(), tr.terminated.data(), tr.truncated.data(), tr.len,
+    compute_gae(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), tr.len,
                 gamma, lambda, adv.data(), ret.data());
     const int64_t k = std::min(left, tr.len);
     out.obs.insert(out.obs.end(), tr.obs.begin(), tr.obs.begin() + k * od);
