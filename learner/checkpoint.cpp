@@ -1,7 +1,13 @@
 #include "checkpoint.h"
 
+#include <ftw.h>
 #include <google/protobuf/text_format.h>
 
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -12,15 +18,23 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// Networks are written by save_nets(folder) into the sub-folder `name`.
-template <class SaveNets>
-void save_checkpoint_with(const std::string& dir, const config::CheckpointManifest& manifest,
-                          const std::string& name, SaveNets save_nets, const ReplayBuffer& replay) {
+// Removes a folder tree (a missing one is fine). Plain POSIX nftw, not std::filesystem::remove_all:
+// a learner built with a newer g++ than the host's libstdc++ (the GPU build path) crashed inside
+// remove_all at the second checkpoint, the first that removes a previous one.
+void remove_tree(const fs::path& p) {
+  auto rm = [](const char* path, const struct stat*, int, struct FTW*) { return std::remove(path); };
+  if (nftw(p.c_str(), rm, 16, FTW_DEPTH | FTW_PHYS) != 0 && errno != ENOENT)
+    throw std::runtime_error("cannot remove " + p.string() + ": " + std::strerror(errno));
+}
+
+}  // namespace
+
+void write_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
+                      const std::function<void(const std::string& tmp_dir)>& write_parts) {
   const fs::path final_dir(dir), tmp = final_dir.string() + ".tmp", old = final_dir.string() + ".old";
-  fs::remove_all(tmp);
-  fs::create_directories(tmp / name);
-  save_nets((tmp / name).string());
-  replay.save((tmp / "replay.pt").string());
+  remove_tree(tmp);
+  fs::create_directories(tmp);
+  write_parts(tmp.string());
   std::string text;
   google::protobuf::TextFormat::PrintToString(manifest, &text);
   {
@@ -28,10 +42,23 @@ void save_checkpoint_with(const std::string& dir, const config::CheckpointManife
     out << text;
     if (!out) throw std::runtime_error("cannot write " + (tmp / "manifest.txtpb").string());
   }
-  fs::remove_all(old);
+  remove_tree(old);
   if (fs::exists(final_dir)) fs::rename(final_dir, old);
   fs::rename(tmp, final_dir);
-  fs::remove_all(old);
+  remove_tree(old);
+}
+
+namespace {
+
+// Networks are written by save_nets(folder) into the sub-folder `name`.
+template <class SaveNets>
+void save_checkpoint_with(const std::string& dir, const config::CheckpointManifest& manifest,
+                          const std::string& name, SaveNets save_nets, const ReplayBuffer& replay) {
+  write_checkpoint(dir, manifest, [&](const std::string& tmp) {
+    fs::create_directories(fs::path(tmp) / name);
+    save_nets((fs::path(tmp) / name).string());
+    replay.save((fs::path(tmp) / "replay.pt").string());
+  });
 }
 
 }  // namespace
@@ -48,21 +75,14 @@ void save_checkpoint(const std::string& dir, const config::CheckpointManifest& m
 }
 
 // A crash between the two renames of a save leaves only DIR.old, which is complete: use it.
-static fs::path usable_checkpoint(const std::string& dir) {
+std::string usable_checkpoint(const std::string& dir) {
   if (!fs::exists(fs::path(dir) / "manifest.txtpb") && fs::exists(fs::path(dir + ".old") / "manifest.txtpb"))
-    return fs::path(dir + ".old");
-  return fs::path(dir);
+    return dir + ".old";
+  return dir;
 }
 
-bool checkpoint_exists(const std::string& dir) { return fs::exists(usable_checkpoint(dir) / "manifest.txtpb"); }
-
-namespace {
-
-template <class LoadNets>
-config::CheckpointManifest load_checkpoint_with(const std::string& dir, const std::string& experiment_id,
-                                                const std::string& name, LoadNets load_nets,
-                                                ReplayBuffer& replay) {
-  const fs::path mpath = usable_checkpoint(dir) / "manifest.txtpb";
+config::CheckpointManifest read_manifest(const std::string& dir, const std::string& experiment_id) {
+  const fs::path mpath = fs::path(usable_checkpoint(dir)) / "manifest.txtpb";
   std::ifstream in(mpath);
   if (!in) throw std::runtime_error("no checkpoint manifest at " + mpath.string());
   std::stringstream ss;
@@ -73,8 +93,28 @@ config::CheckpointManifest load_checkpoint_with(const std::string& dir, const st
   if (m.experiment_id() != experiment_id)
     throw std::runtime_error(mpath.string() + ": checkpoint is of experiment '" + m.experiment_id() +
                              "', the config says '" + experiment_id + "'");
-  load_nets((usable_checkpoint(dir) / name).string());
-  replay.load((usable_checkpoint(dir) / "replay.pt").string());
+  return m;
+}
+
+std::string move_run_dir_aside(const std::string& run_dir) {
+  if (!fs::exists(run_dir) || fs::is_empty(run_dir)) return "";
+  const std::string aside = run_dir + "." + std::to_string(static_cast<long long>(std::time(nullptr)));
+  fs::rename(run_dir, aside);
+  return aside;
+}
+
+bool checkpoint_exists(const std::string& dir) { return fs::exists(fs::path(usable_checkpoint(dir)) / "manifest.txtpb"); }
+
+namespace {
+
+template <class LoadNets>
+config::CheckpointManifest load_checkpoint_with(const std::string& dir, const std::string& experiment_id,
+                                                const std::string& name, LoadNets load_nets,
+                                                ReplayBuffer& replay) {
+  config::CheckpointManifest m = read_manifest(dir, experiment_id);
+  const fs::path from(usable_checkpoint(dir));
+  load_nets((from / name).string());
+  replay.load((from / "replay.pt").string());
   return m;
 }
 

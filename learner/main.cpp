@@ -191,9 +191,7 @@ class Learner {
       log("resumed from " + ckpt_dir_ + ": " + std::to_string(algo_->updates()) + " updates, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, buffer " +
           std::to_string(replay_.size()));
-    } else if (fs::exists(run_dir_) && !fs::is_empty(run_dir_)) {
-      std::string aside = run_dir_ + "." + std::to_string(static_cast<long long>(std::time(nullptr)));
-      fs::rename(run_dir_, aside);
+    } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
       log("previous run moved to " + aside + " (use --resume to continue a run instead)");
     }
     fs::create_directories(run_dir_);

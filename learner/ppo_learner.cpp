@@ -1,11 +1,8 @@
 #include "ppo_learner.h"
 
-#include <google/protobuf/text_format.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <ctime>
 #include <deque>
 #include <filesystem>
 #include <fstream>
@@ -175,17 +172,8 @@ class PpoLearner {
   void prepare_run_dir() {
     if (opt_.resume) {
       if (!checkpoint_exists(ckpt_dir_)) throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
-      const fs::path mpath = fs::path(ckpt_dir_) / "manifest.txtpb";
-      std::ifstream in(mpath);
-      std::stringstream ss;
-      ss << in.rdbuf();
-      config::CheckpointManifest m;
-      if (!google::protobuf::TextFormat::ParseFromString(ss.str(), &m))
-        throw std::runtime_error("cannot parse checkpoint manifest " + mpath.string());
-      if (m.experiment_id() != cfg_.experiment_id())
-        throw std::runtime_error(mpath.string() + ": checkpoint is of experiment '" + m.experiment_id() +
-                                 "', the config says '" + cfg_.experiment_id() + "'");
-      ppo_.load((fs::path(ckpt_dir_) / "ppo").string());
+      const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
+      ppo_.load((fs::path(usable_checkpoint(ckpt_dir_)) / "ppo").string());
       version_ = m.policy_version() + 1;
       elapsed_offset_ = m.elapsed_seconds();
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
@@ -196,9 +184,7 @@ class PpoLearner {
       sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
       log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
-    } else if (fs::exists(run_dir_) && !fs::is_empty(run_dir_)) {
-      std::string aside = run_dir_ + "." + std::to_string(static_cast<long long>(std::time(nullptr)));
-      fs::rename(run_dir_, aside);
+    } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
       log("previous run moved to " + aside + " (use --resume to continue a run instead)");
     }
     fs::create_directories(run_dir_);
@@ -496,21 +482,10 @@ class PpoLearner {
     rng_to_manifest(nullptr, m);
     accounts_to_manifest(ingest_, m);
     const double t = now_seconds();
-    const fs::path final_dir(ckpt_dir_), tmp = ckpt_dir_ + ".tmp", old = ckpt_dir_ + ".old";
-    fs::remove_all(tmp);
-    fs::create_directories(tmp / "ppo");
-    ppo_.save((tmp / "ppo").string());
-    std::string text;
-    google::protobuf::TextFormat::PrintToString(m, &text);
-    {
-      std::ofstream out(tmp / "manifest.txtpb");
-      out << text;
-      if (!out) throw std::runtime_error("cannot write " + (tmp / "manifest.txtpb").string());
-    }
-    fs::remove_all(old);
-    if (fs::exists(final_dir)) fs::rename(final_dir, old);
-    fs::rename(tmp, final_dir);
-    fs::remove_all(old);
+    write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) {
+      fs::create_directories(fs::path(tmp) / "ppo");
+      ppo_.save((fs::path(tmp) / "ppo").string());
+    });
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
   }
 
