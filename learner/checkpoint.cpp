@@ -19,8 +19,9 @@ namespace fs = std::filesystem;
 namespace {
 
 // Removes a folder tree (a missing one is fine). Plain POSIX nftw, not std::filesystem::remove_all:
-// a learner built with a newer g++ than the host's libstdc++ (the GPU build path) crashed inside
-// remove_all at the second checkpoint, the first that removes a previous one.
+// the learner of the GPU build path (g++ 13 against a host's CUDA LibTorch) died with SIGSEGV at
+// its second checkpoint, the first that removes a previous one, where remove_all was called; with
+// nftw the same build checkpoints and resumes.
 void remove_tree(const fs::path& p) {
   auto rm = [](const char* path, const struct stat*, int, struct FTW*) { return std::remove(path); };
   if (nftw(p.c_str(), rm, 16, FTW_DEPTH | FTW_PHYS) != 0 && errno != ENOENT)
