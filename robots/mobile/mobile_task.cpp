@@ -177,7 +177,11 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
 
   const double v = robot.max_linear_speed, w = robot.max_angular_speed;
   if (diff) {
-    commands_ = {{v, 0, 0}, {v / 2, 0, w}, {v / 2, 0, -w}, {0, 0, w}, {0, 0, -w}};
+    // Straight ahead, gentle arcs (radius 0.6 m at the defaults), tight arcs, and turns in place.
+    // With only full-rate turns (0.2 rad and 7.5 cm radius per 0.1 s step) DQN did not learn to
+    // line up with a goal 0.1 m wide; SAC with continuous commands did (docs/MOBILE.md).
+    commands_ = {{v, 0, 0},          {v, 0, w / 4},     {v, 0, -w / 4}, {v / 2, 0, w / 2},
+                 {v / 2, 0, -w / 2}, {0, 0, w / 2},     {0, 0, -w / 2}};
   } else {
     for (int k = 0; k < 8; ++k) commands_.push_back({v * std::cos(k * kPi / 4), v * std::sin(k * kPi / 4), 0});
     commands_.push_back({0, 0, w});

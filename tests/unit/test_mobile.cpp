@@ -304,7 +304,7 @@ TEST(MobileReward, FollowsEquationNine) {
 TEST(MobileActions, OneFieldSwitchesDiscreteAndContinuous) {
   auto jd = make(task_config("jetbot", true));
   EXPECT_EQ(jd->spec().act_dim, 1);
-  EXPECT_EQ(jd->spec().num_actions, 5);
+  EXPECT_EQ(jd->spec().num_actions, 7);
   auto jc = make(task_config("jetbot", false));
   EXPECT_EQ(jc->spec().act_dim, 2);
   EXPECT_EQ(jc->spec().num_actions, 0);
@@ -316,10 +316,10 @@ TEST(MobileActions, OneFieldSwitchesDiscreteAndContinuous) {
   EXPECT_EQ(kc->spec().obs_dim, 12 + 3 + 3 + 3);
   EXPECT_EQ(jc->spec().obs_dim, 12 + 3 + 2 + 3);
   // Discrete index k is the k-th base command; the box scales to the top speeds.
-  const float a2[1] = {2.f};
-  auto cmd = jd->base_command(a2);
+  const float a4[1] = {4.f};  // the tight arc to the right: half speed, half the top turn rate
+  auto cmd = jd->base_command(a4);
   EXPECT_DOUBLE_EQ(cmd[0], 0.15);
-  EXPECT_DOUBLE_EQ(cmd[2], -2.0);
+  EXPECT_DOUBLE_EQ(cmd[2], -1.0);
   const float box[2] = {1.f, -0.25f};
   cmd = jc->base_command(box);
   EXPECT_DOUBLE_EQ(cmd[0], 0.3);
@@ -329,12 +329,12 @@ TEST(MobileActions, OneFieldSwitchesDiscreteAndContinuous) {
   EXPECT_DOUBLE_EQ(cmd[1], -0.3);
   EXPECT_DOUBLE_EQ(cmd[2], 2.0);
   // A bad index is an error that names it.
-  const float bad[1] = {5.f};
+  const float bad[1] = {7.f};
   try {
     jd->base_command(bad);
     FAIL() << "expected an error";
   } catch (const std::invalid_argument& e) {
-    EXPECT_NE(std::string(e.what()).find("[0, 5)"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("[0, 7)"), std::string::npos) << e.what();
   }
   const float half[1] = {1.5f};
   EXPECT_THROW(jd->base_command(half), std::invalid_argument);
