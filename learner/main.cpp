@@ -22,6 +22,7 @@
 #include "meter.h"
 #include "replay_buffer.h"
 #include "rng_state.h"
+#include "worker_roster.h"
 #include "rollout.h"
 #include "off_policy.h"
 #include "ppo_learner.h"
@@ -79,12 +80,6 @@ std::string fmt(const char* f, double v) {
 
 // Versions skipped on --resume: more than a learner publishes between two checkpoints.
 constexpr uint64_t kResumeVersionSkip = 100000;
-
-struct WorkerView {
-  farm::msg::WorkerStatus last;
-  double seen = 0;
-  bool dead = false;
-};
 
 class Learner {
  public:
@@ -257,45 +252,19 @@ class Learner {
 
   void drain_status() {
     farm::msg::WorkerStatus s;
-    while (status_in_.take(s)) {
-      auto& v = workers_[s.worker_id() + "#" + std::to_string(s.worker_session())];
-      if (v.seen == 0)
-        log("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
-            ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
-      else if (v.dead)
-        log("worker " + s.worker_id() + " on " + s.host() + " is back after " + fmt("%.1f", now_seconds() - v.seen) + " s");
-      if (!s.last_error().empty() && s.last_error() != v.last.last_error())
-        log("worker " + s.worker_id() + " reports: " + s.last_error());
-      v.last = s;
-      v.seen = now_seconds();
-      v.dead = false;
-    }
-    // A worker that stops sending heartbeats (killed, host down, network cut) is marked dead;
-    // training goes on with the others, and its batches are welcome again if it comes back.
-    const double now = now_seconds();
-    for (auto& [k, v] : workers_) {
-      if (v.dead || v.last.state() == "finished" || now - v.seen < cfg_.worker_timeout_seconds()) continue;
-      v.dead = true;
-      log("worker " + v.last.worker_id() + " on " + v.last.host() + " silent for " + fmt("%.1f", now - v.seen) +
-          " s: marked dead; going on with " + std::to_string(live_workers()) + " workers");
-    }
+    while (status_in_.take(s)) roster_.heard(s, now_seconds());
+    roster_.check(now_seconds());
   }
 
-  int live_workers() const {
-    int n = 0;
-    double now = now_seconds();
-    for (auto& [k, v] : workers_)
-      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") ++n;
-    return n;
-  }
+  int live_workers() const { return roster_.live_count(now_seconds()); }
 
   // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
   // learner is the bottleneck and the workers are held back instead of piling up data.
   std::string waiting_note() const {
     int throttled = 0, backpressure = 0;
     const double now = now_seconds();
-    for (auto& [k, v] : workers_) {
-      if (v.dead || now - v.seen >= cfg_.worker_timeout_seconds()) continue;
+    for (auto& [k, v] : roster_.views()) {
+      if (!roster_.live(v, now)) continue;
       throttled += v.last.state() == "throttled";
       backpressure += v.last.state() == "backpressure";
     }
@@ -481,7 +450,7 @@ class Learner {
   Transitions pending_;
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
-  std::map<std::string, WorkerView> workers_;
+  WorkerRoster roster_{cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }};
   OffPolicyStats last_stats_{};
   Meter updates_meter_;
   uint64_t version_ = 0;

@@ -18,6 +18,7 @@
 #include "rollout.h"
 #include "rollout_storage.h"
 #include "rng_state.h"
+#include "worker_roster.h"
 #include "task.h"
 
 namespace farm {
@@ -40,12 +41,6 @@ FitPlan plan_of(const config::PpoConfig& c) {
   p.episodes_per_run = c.episodes_per_run();
   return p;
 }
-
-struct WorkerView {
-  farm::msg::WorkerStatus last;
-  double seen = 0;
-  bool dead = false;
-};
 
 // What an evaluation reports: returns, lengths and the task's own metrics.
 struct EvalReport {
@@ -231,8 +226,8 @@ class PpoLearner {
   int64_t round_steps() const {
     int64_t envs = 0;
     const double now = now_seconds();
-    for (auto& [k, v] : workers_)
-      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") envs += v.last.envs();
+    for (auto& [k, v] : roster_.views())
+      if (roster_.live(v, now)) envs += v.last.envs();
     if (envs == 0) envs = cfg_.worker().envs_per_worker();  // none seen yet: assume one default worker
     return envs * cfg_.worker().steps_per_batch();
   }
@@ -261,8 +256,8 @@ class PpoLearner {
     if (sched_.run_done() || now_seconds() - last_data_ < 0.5) return;
     const double now = now_seconds();
     bool all_done = false;
-    for (auto& [k, v] : workers_) {
-      if (v.dead || now - v.seen > cfg_.worker_timeout_seconds() || v.last.state() == "finished") continue;
+    for (auto& [k, v] : roster_.views()) {
+      if (!roster_.live(v, now)) continue;
       auto it = delivered_.find(v.last.worker_id());
       const bool done = it != delivered_.end() && it->second >= quota_;
       const bool idle = v.last.state() == "throttled" && v.last.policy_version() == version_;
@@ -370,33 +365,13 @@ class PpoLearner {
   void drain_status() {
     farm::msg::WorkerStatus s;
     while (status_in_.take(s)) {
-      auto& v = workers_[s.worker_id() + "#" + std::to_string(s.worker_session())];
       if (first_join_ == 0) first_join_ = now_seconds();
-      if (v.seen == 0)
-        log("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
-            ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
-      if (!s.last_error().empty() && s.last_error() != v.last.last_error())
-        log("worker " + s.worker_id() + " reports: " + s.last_error());
-      v.last = s;
-      v.seen = now_seconds();
-      v.dead = false;
+      roster_.heard(s, now_seconds());
     }
-    const double now = now_seconds();
-    for (auto& [k, v] : workers_) {
-      if (v.dead || v.last.state() == "finished" || now - v.seen < cfg_.worker_timeout_seconds()) continue;
-      v.dead = true;
-      log("worker " + v.last.worker_id() + " silent for " + fmt("%.1f", now - v.seen) + " s: marked dead; going on with " +
-          std::to_string(live_workers()) + " workers");
-    }
+    roster_.check(now_seconds());
   }
 
-  int live_workers() const {
-    int n = 0;
-    const double now = now_seconds();
-    for (auto& [k, v] : workers_)
-      if (!v.dead && now - v.seen < cfg_.worker_timeout_seconds() && v.last.state() != "finished") ++n;
-    return n;
-  }
+  int live_workers() const { return roster_.live_count(now_seconds()); }
 
   void publish_stats(double elapsed, double window) {
     const auto& c = ingest_.counters();
@@ -542,7 +517,7 @@ class PpoLearner {
   Transitions pending_;
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
-  std::map<std::string, WorkerView> workers_;
+  WorkerRoster roster_{cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }};
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
   PolicyParams policy_;
   PpoStats last_stats_{};

@@ -1,0 +1,48 @@
+#include "worker_roster.h"
+
+#include <cstdio>
+
+namespace farm {
+
+namespace {
+std::string seconds(double s) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.1f", s);
+  return buf;
+}
+}  // namespace
+
+void WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
+  View& v = views_[s.worker_id() + "#" + std::to_string(s.worker_session())];
+  if (v.seen == 0)
+    log_("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
+         ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
+  else if (v.dead)
+    log_("worker " + s.worker_id() + " on " + s.host() + " is back after " + seconds(now - v.seen) + " s");
+  if (!s.last_error().empty() && s.last_error() != v.last.last_error())
+    log_("worker " + s.worker_id() + " reports: " + s.last_error());
+  v.last = s;
+  v.seen = now;
+  v.dead = false;
+}
+
+void WorkerRoster::check(double now) {
+  for (auto& [k, v] : views_) {
+    if (v.dead || v.last.state() == "finished" || now - v.seen < timeout_) continue;
+    v.dead = true;
+    log_("worker " + v.last.worker_id() + " on " + v.last.host() + " silent for " + seconds(now - v.seen) +
+         " s: marked dead; going on with " + std::to_string(live_count(now)) + " workers");
+  }
+}
+
+bool WorkerRoster::live(const View& v, double now) const {
+  return !v.dead && now - v.seen < timeout_ && v.last.state() != "finished";
+}
+
+int WorkerRoster::live_count(double now) const {
+  int n = 0;
+  for (const auto& [k, v] : views_) n += live(v, now);
+  return n;
+}
+
+}  // namespace farm
