@@ -190,7 +190,14 @@ class PpoLearner {
       csv_ << "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
               "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
               "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
-              "batches_stale,workers\n";
+              "batches_stale,workers,episodes";
+    // The task's own per-episode metrics: means over the episodes finished since the last fit
+    // (train_*) and over the evaluation episodes (eval_*).
+    if (new_csv) {
+      for (const auto& m : task_->spec().metric_names) csv_ << ",train_" << m;
+      for (const auto& m : task_->spec().metric_names) csv_ << ",eval_" << m;
+      csv_ << '\n';
+    }
   }
 
   void publish_spec(bool finished) {
@@ -302,6 +309,9 @@ class PpoLearner {
         recent_returns_.push_back(e.episode_return);
         if (recent_returns_.size() > 100) recent_returns_.pop_front();
         ++episodes_total_;
+        ++fit_episodes_;
+        fit_metric_sums_.resize(task_->spec().metric_names.size(), 0.0);
+        for (size_t i = 0; i < fit_metric_sums_.size() && i < e.metrics.size(); ++i) fit_metric_sums_[i] += e.metrics[i];
       }
     }
     return n;
@@ -342,8 +352,16 @@ class PpoLearner {
          << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "")
          << ',' << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ','
          << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "") << ',' << c.ok << ',' << c.lost << ','
-         << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ',' << live_workers() << '\n';
+         << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ',' << live_workers() << ',' << fit_episodes_;
+    const size_t nm = task_->spec().metric_names.size();
+    for (size_t i = 0; i < nm; ++i)
+      csv_ << ',' << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_) : "");
+    for (size_t i = 0; i < nm; ++i)
+      csv_ << ',' << (eval_now && i < last_eval_.metrics.size() ? fmt("%.5g", last_eval_.metrics[i]) : "");
+    csv_ << '\n';
     csv_.flush();
+    fit_episodes_ = 0;
+    fit_metric_sums_.assign(nm, 0.0);
     stale_fit_ = 0;
   }
 
@@ -517,6 +535,8 @@ class PpoLearner {
   Transitions pending_;
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
+  uint64_t fit_episodes_ = 0;              // episodes finished since the last fit
+  std::vector<double> fit_metric_sums_;    // their task metrics, summed
   WorkerRoster roster_{cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }};
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
   PolicyParams policy_;

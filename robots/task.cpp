@@ -8,6 +8,7 @@
 #include "mclari/mclari_task.h"
 #include "mobile/mobile_task.h"
 #include "pendulum/pendulum_task.h"
+#include "quadruped/quadruped_task.h"
 
 namespace farm::robots {
 
@@ -33,6 +34,9 @@ const Registration kTasks[] = {
     {"jetbot", &mobile::make_jetbot_task},
     {"kaya", &mobile::make_kaya_task},
     {"mclari", &make_mclari_task},
+    {"a1", &quadruped::make_a1_task},
+    {"honey_badger", &quadruped::make_honey_badger_task},
+    {"silver_badger", &quadruped::make_silver_badger_task},
 };
 
 }  // namespace
