@@ -1,6 +1,8 @@
 #!/usr/bin/python3
 """Charts of a farm run, as PNG files next to the data (Debian python3-matplotlib):
-  learning_curve.png  mean training return and evaluation return against wall time and env steps
+  learning_curve.png  mean training return and evaluation return against wall time and env steps;
+                      for runs whose task reports per-episode metrics (PPO: train_* / eval_*
+                      columns), those metrics too
   throughput.png      env steps/s at the learner and updates/s against time; with a monitor log,
                       also each worker's steps/s and the workers' total
 usage: deploy/plot-run.py RUN_DIR [--monitor-log FILE] [--out DIR]
@@ -33,12 +35,16 @@ def number(s):
 def read_learner_csv(path):
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
-    need = {"elapsed_s", "env_steps", "env_steps_per_s", "updates_per_s", "mean_return", "eval_return"}
+    need = {"elapsed_s", "env_steps", "mean_return", "eval_return"}
     if rows and not need <= set(rows[0]):
         sys.exit(f"plot-run: {path} lacks the columns {sorted(need - set(rows[0]))}")
     if not rows:
         sys.exit(f"plot-run: {path} has no rows yet")
     cols = {k: [number(r.get(k)) for r in rows] for k in rows[0]}
+    if "env_steps_per_s" not in cols:  # PPO rows are fits: the rate between consecutive rows
+        t, n = cols["elapsed_s"], cols["env_steps"]
+        cols["env_steps_per_s"] = [math.nan] + [(n[i] - n[i - 1]) / (t[i] - t[i - 1]) if t[i] > t[i - 1] else math.nan
+                                                for i in range(1, len(t))]
     return cols
 
 
@@ -89,7 +95,24 @@ def main():
     c = read_learner_csv(csv_path)
     name = os.path.basename(os.path.normpath(a.run_dir))
 
-    fig, (ax_t, ax_s) = plt.subplots(1, 2, figsize=(12, 4.5))
+    # The task's per-episode metrics (PPO runs: train_<metric>, eval_<metric>) get a second row.
+    metrics = [k[len("train_"):] for k in c if k.startswith("train_") and k != "train_time_s"]
+    rows = 2 if metrics else 1
+    fig, axes = plt.subplots(rows, 2, figsize=(12, 4.5 * rows), squeeze=False)
+    ax_t, ax_s = axes[0]
+    if metrics:
+        for ax, xkey, xlabel in ((axes[1][0], "elapsed_s", "wall time (s)"), (axes[1][1], "env_steps", "env steps")):
+            for m in metrics:
+                x, y = finite(c[xkey], c["train_" + m])
+                if x:
+                    line, = ax.plot(x, y, "-", label=f"{m} (training episodes)")
+                    x, y = finite(c[xkey], c.get("eval_" + m, []))
+                    if x:
+                        ax.plot(x, y, "o--", color=line.get_color(), markersize=3, label=f"{m} (evaluation)")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel("per-episode metric")
+            ax.grid(alpha=0.3)
+        axes[1][0].legend(loc="best", fontsize=7)
     for ax, xkey, xlabel in ((ax_t, "elapsed_s", "wall time (s)"), (ax_s, "env_steps", "env steps")):
         for ykey, label, style in (("mean_return", "training return (mean of last 100 episodes)", "-"),
                                    ("eval_return", "evaluation return (deterministic)", "o-")):
@@ -113,11 +136,14 @@ def main():
     ax.plot(x, y, label="env steps/s in (learner)")
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("env steps/s")
-    ax2 = ax.twinx()
-    x, y = finite(c["elapsed_s"], c["updates_per_s"])
-    ax2.plot(x, y, color="tab:red", alpha=0.7, label="updates/s")
-    ax2.set_ylabel("updates/s")
-    ax.legend(handles=ax.get_lines() + ax2.get_lines(), loc="lower right", fontsize=8)
+    if "updates_per_s" in c:
+        ax2 = ax.twinx()
+        x, y = finite(c["elapsed_s"], c["updates_per_s"])
+        ax2.plot(x, y, color="tab:red", alpha=0.7, label="updates/s")
+        ax2.set_ylabel("updates/s")
+        ax.legend(handles=ax.get_lines() + ax2.get_lines(), loc="lower right", fontsize=8)
+    else:
+        ax.legend(loc="lower right", fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title("learner (learner.csv)")
     if monitor:

@@ -1,6 +1,8 @@
 // Config errors must name the file, the line and the field, and defaults must be the schema's.
 #include <gtest/gtest.h>
 
+#include <filesystem>
+
 #include <cmath>
 #include <fstream>
 
@@ -80,10 +82,13 @@ TEST(Config, MissingFileIsNamed) {
 }
 
 TEST(Config, ShippedConfigsLoad) {
-  for (const char* f : {"deploy/configs/pendulum_sac.txtpb"}) {
-    std::string path = std::string(FARM_SOURCE_DIR) + "/" + f;
-    EXPECT_NO_THROW(farm::load_config_file(path)) << path;
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
+    if (e.path().extension() != ".txtpb") continue;
+    EXPECT_NO_THROW(farm::load_config_file(e.path().string())) << e.path();
+    ++n;
   }
+  EXPECT_GE(n, 8);
 }
 
 TEST(Config, TextRoundTrip) {

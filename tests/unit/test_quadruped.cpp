@@ -11,6 +11,7 @@
 
 #include "quadruped/legged.h"
 #include "quadruped/quadruped_task.h"
+#include "config.h"
 #include "task.h"
 
 using namespace farm;
@@ -417,4 +418,14 @@ TEST(Quadruped, BadConfigNamesTheField) {
   c.mutable_a1()->set_decimation(4);
   c.mutable_a1()->set_friction_min(2.0);
   EXPECT_THROW(make_task(c), std::invalid_argument);
+}
+
+TEST(Quadruped, ShippedConfigsBuildTheirTasks) {
+  for (const char* f : {"a1_ppo", "honey_badger_ppo", "silver_badger_ppo"}) {
+    SCOPED_TRACE(f);
+    const auto c = farm::load_config_file(std::string(FARM_SOURCE_DIR) + "/deploy/configs/" + f + ".txtpb");
+    EXPECT_EQ(c.algorithm(), "ppo");
+    auto t = make_task(c.task());
+    EXPECT_EQ(t->spec().act_dim, c.task().name() == "silver_badger" ? 13 : 12);
+  }
 }
