@@ -29,6 +29,10 @@ namespace farm::dds {
 namespace fdds = eprosima::fastdds::dds;
 
 inline constexpr const char* kSpecTopic = "farm/ExperimentSpec";
+// The learner writes its ExperimentSpec again this often while it runs. The topic is durable
+// (TRANSIENT_LOCAL), but a worker that joined a busy farm was seen to wait 30 s without the stored
+// sample while its own heartbeats reached the learner; a fresh write reaches every matched reader.
+inline constexpr double kSpecRepublishSeconds = 2.0;
 inline constexpr const char* kBatchTopic = "farm/TransitionBatch";
 inline constexpr const char* kWeightsTopic = "farm/PolicyWeights";
 inline constexpr const char* kWorkerStatusTopic = "farm/WorkerStatus";

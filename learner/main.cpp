@@ -115,7 +115,7 @@ class Learner {
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
     const double t0 = now_seconds() - elapsed_offset_;
-    double last_log = now_seconds(), last_eval = now_seconds(), last_ckpt = now_seconds();
+    double last_log = now_seconds(), last_eval = now_seconds(), last_ckpt = now_seconds(), last_spec = now_seconds();
     std::string stop_reason;
     while (stop_reason.empty()) {
       if (g_interrupted) { stop_reason = "interrupted"; break; }
@@ -141,6 +141,10 @@ class Learner {
       if (now - last_log >= cfg_.log_every_seconds()) {
         log_progress(now - t0, now - last_log);
         last_log = now;
+      }
+      if (now - last_spec >= farm::dds::kSpecRepublishSeconds) {
+        publish_spec(false);  // for late joiners that missed the durable sample
+        last_spec = now;
       }
       if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
         checkpoint(now - t0);

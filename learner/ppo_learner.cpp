@@ -109,7 +109,7 @@ class PpoLearner {
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
     const double t0 = now_seconds() - elapsed_offset_;
-    double last_log = now_seconds(), last_ckpt = now_seconds();
+    double last_log = now_seconds(), last_ckpt = now_seconds(), last_spec = now_seconds();
     last_data_ = now_seconds();
     std::string stop_reason;
     while (stop_reason.empty()) {
@@ -136,6 +136,10 @@ class PpoLearner {
       if (now - last_log >= cfg_.log_every_seconds()) {
         publish_stats(now - t0, now - last_log);
         last_log = now;
+      }
+      if (now - last_spec >= farm::dds::kSpecRepublishSeconds) {
+        publish_spec(false);  // for late joiners that missed the durable sample
+        last_spec = now;
       }
       if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
         checkpoint(now - t0);
