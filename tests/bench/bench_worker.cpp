@@ -100,7 +100,7 @@ double worker_steps_per_second(std::shared_ptr<const farm::robots::Task> task,
 
 double policy_rows_per_second(const farm::PolicyParams& params, int rows, double seconds) {
   farm::Policy policy(params);
-  std::vector<float> obs(size_t(rows) * policy.obs_dim(), 0.5f), act(rows), lp(rows);
+  std::vector<float> obs(size_t(rows) * policy.obs_dim(), 0.5f), act(size_t(rows) * policy.act_dim()), lp(rows);
   std::vector<std::mt19937_64> rngs(rows);
   uint64_t done = 0;
   const auto t0 = Clock::now();
