@@ -22,6 +22,7 @@
 #include "meter.h"
 #include "replay_buffer.h"
 #include "rng_state.h"
+#include "spec_publisher.h"
 #include "worker_roster.h"
 #include "rollout.h"
 #include "off_policy.h"
@@ -94,7 +95,7 @@ class Learner {
         ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
         rng_(cfg_.seed() * 7919 + 17),
         bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
-        spec_out_(bus_, farm::dds::kSpecTopic, "latest_writer"),
+        spec_(bus_, cfg_, obs_dim_, act_dim_),
         weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
         stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
         batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
@@ -106,7 +107,7 @@ class Learner {
 
   int run() {
     prepare_run_dir();
-    publish_spec(false);
+    spec_.publish(false);
     publish_weights();
     log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " +
         std::to_string(obs_dim_) + ", act " + std::to_string(act_dim_) + "), " +
@@ -115,7 +116,7 @@ class Learner {
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
     const double t0 = now_seconds() - elapsed_offset_;
-    double last_log = now_seconds(), last_eval = now_seconds(), last_ckpt = now_seconds(), last_spec = now_seconds();
+    double last_log = now_seconds(), last_eval = now_seconds(), last_ckpt = now_seconds();
     std::string stop_reason;
     while (stop_reason.empty()) {
       if (g_interrupted) { stop_reason = "interrupted"; break; }
@@ -142,10 +143,7 @@ class Learner {
         log_progress(now - t0, now - last_log);
         last_log = now;
       }
-      if (now - last_spec >= farm::dds::kSpecRepublishSeconds) {
-        publish_spec(false);  // for late joiners that missed the durable sample
-        last_spec = now;
-      }
+      spec_.republish_if_due(now);
       if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
         checkpoint(now - t0);
         last_ckpt = now_seconds();
@@ -161,7 +159,7 @@ class Learner {
       return 130;
     }
     double final_return = evaluate(cfg_.eval().final_episodes(), elapsed, "final");
-    publish_spec(true);
+    spec_.publish(true);
     drain_until_workers_end();
     checkpoint(elapsed);
     write_summary(elapsed, stop_reason, final_return);
@@ -203,20 +201,6 @@ class Learner {
               "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers\n";
   }
 
-  void publish_spec(bool finished) {
-    farm::msg::ExperimentSpec s;
-    s.experiment_id(cfg_.experiment_id());
-    s.config_text(config_to_text(cfg_));
-    s.task_name(cfg_.task().name());
-    s.obs_dim(obs_dim_);
-    s.act_dim(act_dim_);
-    s.steps_per_batch(cfg_.worker().steps_per_batch());
-    s.max_batches_per_version(cfg_.worker().max_batches_per_version());
-    s.seed(cfg_.seed());
-    s.learner_session(session_);
-    s.finished(finished);
-    spec_out_.write(s);
-  }
 
   void publish_weights() {
     farm::msg::PolicyWeights w;
@@ -442,12 +426,11 @@ class Learner {
   Ingest ingest_;
   std::mt19937_64 rng_;
   farm::dds::Bus bus_;
-  farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out_;
+  SpecPublisher spec_;
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
   farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
-  uint64_t session_ = farm::dds::random_session_id();
   std::string run_dir_, ckpt_dir_;
   std::ofstream csv_;
   farm::msg::TransitionBatch batch_;

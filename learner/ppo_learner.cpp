@@ -18,6 +18,7 @@
 #include "rollout.h"
 #include "rollout_storage.h"
 #include "rng_state.h"
+#include "spec_publisher.h"
 #include "worker_roster.h"
 #include "task.h"
 
@@ -84,7 +85,7 @@ class PpoLearner {
         sched_(plan_of(pc_)),
         ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
         bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
-        spec_out_(bus_, farm::dds::kSpecTopic, "latest_writer"),
+        spec_(bus_, cfg_, obs_dim_, act_dim_),
         weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
         stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
         batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
@@ -98,7 +99,7 @@ class PpoLearner {
 
   int run() {
     prepare_run_dir();
-    publish_spec(false);
+    spec_.publish(false);
     const auto& p = pc_;
     log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
         ", act " + std::to_string(act_dim_) + "), PPO (" + p.variant() + ") " +
@@ -109,7 +110,7 @@ class PpoLearner {
     log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
     const double t0 = now_seconds() - elapsed_offset_;
-    double last_log = now_seconds(), last_ckpt = now_seconds(), last_spec = now_seconds();
+    double last_log = now_seconds(), last_ckpt = now_seconds();
     last_data_ = now_seconds();
     std::string stop_reason;
     while (stop_reason.empty()) {
@@ -137,10 +138,7 @@ class PpoLearner {
         publish_stats(now - t0, now - last_log);
         last_log = now;
       }
-      if (now - last_spec >= farm::dds::kSpecRepublishSeconds) {
-        publish_spec(false);  // for late joiners that missed the durable sample
-        last_spec = now;
-      }
+      spec_.republish_if_due(now);
       if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
         checkpoint(now - t0);
         last_ckpt = now_seconds();
@@ -155,7 +153,7 @@ class PpoLearner {
       return 130;
     }
     EvalReport final_eval = evaluate(cfg_.eval().final_episodes(), elapsed, "final");
-    publish_spec(true);
+    spec_.publish(true);
     drain_until_workers_end();
     checkpoint(elapsed);
     write_summary(elapsed, stop_reason, final_eval);
@@ -204,20 +202,6 @@ class PpoLearner {
     }
   }
 
-  void publish_spec(bool finished) {
-    farm::msg::ExperimentSpec s;
-    s.experiment_id(cfg_.experiment_id());
-    s.config_text(config_to_text(cfg_));
-    s.task_name(cfg_.task().name());
-    s.obs_dim(obs_dim_);
-    s.act_dim(act_dim_);
-    s.steps_per_batch(cfg_.worker().steps_per_batch());
-    s.max_batches_per_version(cfg_.worker().max_batches_per_version());
-    s.seed(cfg_.seed());
-    s.learner_session(session_);
-    s.finished(finished);
-    spec_out_.write(s);
-  }
 
   // The current version's weights with the current quota; re-sent with a larger quota to top up.
   void write_weights() {
@@ -527,12 +511,11 @@ class PpoLearner {
   FitScheduler sched_;
   Ingest ingest_;
   farm::dds::Bus bus_;
-  farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out_;
+  SpecPublisher spec_;
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
   farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
-  uint64_t session_ = farm::dds::random_session_id();
   std::string run_dir_, ckpt_dir_;
   std::ofstream csv_;
   farm::msg::TransitionBatch batch_;

@@ -166,6 +166,10 @@ std::unique_ptr<TaskState> QuadrupedTask::make_state() const {
   s->targets.assign(n, 0.0);
   s->torques.assign(n, 0.0);
   s->torque_limit = nominal_torque_limit_;
+  s->action.assign(n, 0.0);
+  // command_lin, command_yaw, last_action (and for the Badgers the dynamics parameters).
+  s->custom_obs = {std::vector<double>(2), std::vector<double>(1), std::vector<double>(n)};
+  if (info(robot_).badger) s->custom_obs.emplace_back(kNumDynamicsParams);
   return s;
 }
 
@@ -345,7 +349,7 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
   auto& s = static_cast<QuadrupedState&>(base);
   mjData* d = s.data;
   const size_t n = joints_.size();
-  std::vector<double> a(n);
+  std::vector<double>& a = s.action;
   for (size_t j = 0; j < n; ++j) {
     a[j] = std::clamp(double(action[j]), -1.0, 1.0) * cfg_.action_range();  // legged_gym's units
     s.targets[j] = default_pose_[j] + s.action_scale * a[j];
@@ -373,7 +377,7 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
   if (std::uniform_real_distribution<double>(0, 1)(s.rng) < cfg_.command_resample_prob()) sample_command(s);
   if (cfg_.heading_command()) s.command[2] = heading_yaw_rate(s.heading_target, heading(s));
 
-  std::vector<double> forces;
+  std::vector<double>& forces = s.foot_forces;
   legged::net_contact_forces(s.model, d, feet_, forces);
   std::array<bool, 4> first_contact{}, filt{};
   const double dt = policy_dt();
@@ -412,14 +416,12 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
 }
 
 void QuadrupedTask::write_obs(QuadrupedState& s, float* obs) const {
-  const size_t n = joints_.size();
-  std::vector<std::vector<double>> custom;
-  custom.push_back({s.command[0], s.command[1]});
-  custom.push_back({s.command[2]});
-  std::vector<double> la(n);
-  for (size_t j = 0; j < n; ++j) la[j] = s.last_action[j] / cfg_.action_range();
-  custom.push_back(std::move(la));
-  if (info(robot_).badger) custom.emplace_back(s.dynamics.begin(), s.dynamics.end());
+  auto& custom = s.custom_obs;  // slots in the order obs_spec_ lists them, sized by make_state
+  custom[0][0] = s.command[0];
+  custom[0][1] = s.command[1];
+  custom[1][0] = s.command[2];
+  for (size_t j = 0; j < joints_.size(); ++j) custom[2][j] = s.last_action[j] / cfg_.action_range();
+  if (custom.size() > 3) std::copy(s.dynamics.begin(), s.dynamics.end(), custom[3].begin());
   legged::build_observation(s.model, s.data, obs_spec_, custom, cfg_.noise_level(), s.rng, obs);
 }
 

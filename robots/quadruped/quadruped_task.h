@@ -39,6 +39,10 @@ struct QuadrupedState : TaskState {
   std::vector<double> torque_limit;
   std::array<double, kNumDynamicsParams> dynamics{};  // each in [-1, 1] over its range
   int push_every_steps = 0;
+  // Scratch reused on every step (no allocation in the worker's step loop): the action in
+  // legged_gym's units, the feet's contact forces, the custom observation slots.
+  std::vector<double> action, foot_forces;
+  std::vector<std::vector<double>> custom_obs;
   // Episode sums for the metrics.
   double sum_tracking_lin = 0, sum_tracking_ang = 0, sum_lin_error = 0;
   bool fell = false;

@@ -1,0 +1,31 @@
+#include "spec_publisher.h"
+
+#include "config.h"
+
+namespace farm {
+
+SpecPublisher::SpecPublisher(farm::dds::Bus& bus, const config::ExperimentConfig& cfg, int obs_dim, int act_dim)
+    : out_(bus, farm::dds::kSpecTopic, "latest_writer") {
+  spec_.experiment_id(cfg.experiment_id());
+  spec_.config_text(config_to_text(cfg));
+  spec_.task_name(cfg.task().name());
+  spec_.obs_dim(obs_dim);
+  spec_.act_dim(act_dim);
+  spec_.steps_per_batch(cfg.worker().steps_per_batch());
+  spec_.max_batches_per_version(cfg.worker().max_batches_per_version());
+  spec_.seed(cfg.seed());
+  spec_.learner_session(farm::dds::random_session_id());
+}
+
+void SpecPublisher::publish(bool finished) {
+  spec_.finished(finished);
+  out_.write(spec_);
+}
+
+void SpecPublisher::republish_if_due(double now) {
+  if (spec_.finished() || now - last_ < farm::dds::kSpecRepublishSeconds) return;
+  publish(false);
+  last_ = now;
+}
+
+}  // namespace farm
