@@ -42,7 +42,7 @@ void require(bool ok, const std::string& what) {
 
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
                          const torch::Tensor& next_q_online, const torch::Tensor& next_q_target,
-                         double gamma, bool double_q) {
+                         double gamma, bool double_q, const torch::Tensor& horizon) {
   torch::Tensor next_v;
   if (double_q) {
     const auto best = next_q_online.argmax(1, /*keepdim=*/true);
@@ -50,7 +50,10 @@ torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& termi
   } else {
     next_v = std::get<0>(next_q_target.max(1));
   }
-  return reward + gamma * (1.0 - terminated) * next_v;
+  const torch::Tensor discount =
+      horizon.defined() ? torch::pow(torch::full_like(horizon, gamma), horizon)
+                        : torch::full_like(reward, gamma);
+  return reward + discount * (1.0 - terminated) * next_v;
 }
 
 double dqn_epsilon(const config::DqnConfig& c, int64_t env_steps) {
@@ -77,6 +80,7 @@ void check_dqn_config(const config::DqnConfig& c) {
   require(c.max_grad_norm() > 0, "max_grad_norm must be > 0");
   require(c.max_updates_per_step() > 0, "max_updates_per_step must be > 0");
   require(c.publish_every_updates() >= 1, "publish_every_updates must be >= 1");
+  require(c.n_step() >= 1, "n_step must be >= 1");
   for (int h : c.hidden()) require(h > 0, "hidden sizes must be > 0");
 }
 
@@ -134,7 +138,7 @@ DqnStats Dqn::update(const SampledBatch& batch) {
     const auto next_target = s.target->forward(batch.next_obs);
     const auto next_online = s.cfg.double_q() ? s.online->forward(batch.next_obs) : next_target;
     target = dqn_target(batch.rewards, batch.terminated, next_online, next_target,
-                        s.cfg.gamma(), s.cfg.double_q());
+                        s.cfg.gamma(), s.cfg.double_q(), batch.horizon);
   }
   const auto q = s.online->forward(batch.obs).gather(1, actions).squeeze(1);
   const auto loss = torch::smooth_l1_loss(q, target);

@@ -25,11 +25,12 @@ struct DqnStats {
 };
 
 // Bellman targets [B] from next-state Q values [B, A] of the online and the target network:
-// double: r + gamma (1 - terminated) Q_target(s', argmax_a Q_online(s', a));
-// plain:  r + gamma (1 - terminated) max_a Q_target(s', a).
+// double: r + gamma^h (1 - terminated) Q_target(s', argmax_a Q_online(s', a));
+// plain:  r + gamma^h (1 - terminated) max_a Q_target(s', a),
+// h the rows' horizon [B] (multi-step returns); an undefined `horizon` means h = 1.
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
                          const torch::Tensor& next_q_online, const torch::Tensor& next_q_target,
-                         double gamma, bool double_q);
+                         double gamma, bool double_q, const torch::Tensor& horizon = {});
 
 // Exploration probability after `env_steps` environment steps: falls linearly from
 // exploration_initial_eps to exploration_final_eps over exploration_fraction *

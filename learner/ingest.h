@@ -13,12 +13,17 @@
 
 namespace farm {
 
-// Transitions flattened for a replay buffer: row i is (obs, action, reward, terminated, next_obs).
+// Transitions flattened for a replay buffer: row i is (obs, action, reward, terminated, next_obs),
+// plus its horizon (steps from obs to next_obs) once fold_n_step has run; empty horizon: all 1.
 struct Transitions {
   int64_t n = 0;
-  std::vector<float> obs, actions, rewards, next_obs;
+  std::vector<float> obs, actions, rewards, next_obs, horizon;
   std::vector<uint8_t> terminated;
-  void clear() { n = 0; obs.clear(); actions.clear(); rewards.clear(); next_obs.clear(); terminated.clear(); }
+  void clear() {
+    n = 0;
+    obs.clear(); actions.clear(); rewards.clear(); next_obs.clear(); horizon.clear();
+    terminated.clear();
+  }
 };
 
 struct FinishedEpisode {
@@ -47,6 +52,14 @@ struct IngestCounters {
   uint64_t env_steps = 0;
   double lag_sum = 0.0;  // sum over accepted batches of (current version - batch version)
 };
+
+// Folds the one-step rows that Ingest::accept appended for batch `b` (the last T*N rows of
+// `rows`, in the batch's [t][n] order) into n-step rows, in place: row (t, e) gets
+// r_t + gamma r_{t+1} + ... + gamma^(m-1) r_{t+m-1}, the next observation and `terminated` of step
+// t+m-1, and horizon m, where m <= n_step stops early at the step that ends env e's episode
+// (terminated or truncated) or at the batch's last step. Nothing is dropped: every row stays, the
+// last ones of a batch with shorter horizons.
+void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double gamma, int n_step);
 
 class Ingest {
  public:

@@ -225,9 +225,11 @@ class Learner {
         continue;
       }
       ++batches_since_publish_;
-      if (pending_.n > 0)
+      if (pending_.n > 0) {
+        fold_n_step(batch_, pending_, algo_->gamma(), algo_->n_step());
         replay_.add_n(pending_.n, pending_.obs.data(), pending_.actions.data(), pending_.rewards.data(),
-                      pending_.terminated.data(), pending_.next_obs.data());
+                      pending_.terminated.data(), pending_.next_obs.data(), pending_.horizon.data());
+      }
       for (auto& e : episodes_) {
         recent_returns_.push_back(e.episode_return);
         if (recent_returns_.size() > 100) recent_returns_.pop_front();

@@ -38,6 +38,10 @@ class OffPolicy {
   virtual int64_t learning_starts() const = 0;
   virtual double max_updates_per_step() const = 0;
   virtual int publish_every_updates() const = 0;
+  // Multi-step returns: replay rows are folded to this many steps (fold_n_step) before they are
+  // stored; 1 keeps one-step rows.
+  virtual int n_step() const { return 1; }
+  virtual double gamma() const = 0;
   // One line for the start-up log, e.g. "SAC 20-256-256-4 relu actor".
   virtual std::string describe() const = 0;
 };

@@ -11,7 +11,8 @@ namespace farm {
 
 namespace {
 
-constexpr char kMagic[8] = {'F', 'A', 'R', 'M', 'R', 'B', '0', '1'};
+// 02: rows carry their horizon (multi-step returns); 01 files had no such column.
+constexpr char kMagic[8] = {'F', 'A', 'R', 'M', 'R', 'B', '0', '2'};
 
 struct FileHeader {
   char magic[8];
@@ -37,16 +38,19 @@ ReplayBuffer::ReplayBuffer(int64_t capacity, int obs_dim, int act_dim)
   rewards_ = torch::empty({capacity}, f32);
   terminated_ = torch::empty({capacity}, f32);
   next_obs_ = torch::empty({capacity, obs_dim}, f32);
+  horizon_ = torch::empty({capacity}, f32);
   obs_p_ = obs_.data_ptr<float>();
   actions_p_ = actions_.data_ptr<float>();
   rewards_p_ = rewards_.data_ptr<float>();
   terminated_p_ = terminated_.data_ptr<float>();
   next_obs_p_ = next_obs_.data_ptr<float>();
+  horizon_p_ = horizon_.data_ptr<float>();
 }
 
 void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs,
                              const float* actions, const float* rewards,
-                             const uint8_t* terminated, const float* next_obs) {
+                             const uint8_t* terminated, const float* next_obs,
+                             const float* horizon) {
   assert(dst + n <= capacity_);
   std::memcpy(obs_p_ + dst * obs_dim_, obs + src * obs_dim_, sizeof(float) * n * obs_dim_);
   std::memcpy(actions_p_ + dst * act_dim_, actions + src * act_dim_, sizeof(float) * n * act_dim_);
@@ -54,19 +58,25 @@ void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* o
   for (int64_t i = 0; i < n; ++i) terminated_p_[dst + i] = terminated[src + i] ? 1.f : 0.f;
   std::memcpy(next_obs_p_ + dst * obs_dim_, next_obs + src * obs_dim_,
               sizeof(float) * n * obs_dim_);
+  if (horizon) {
+    std::memcpy(horizon_p_ + dst, horizon + src, sizeof(float) * n);
+  } else {
+    std::fill(horizon_p_ + dst, horizon_p_ + dst + n, 1.f);
+  }
 }
 
 void ReplayBuffer::add(const float* obs, const float* action, float reward, bool terminated,
                        const float* next_obs) {
   const uint8_t t = terminated ? 1 : 0;
-  copy_rows(next_, 0, 1, obs, action, &reward, &t, next_obs);
+  copy_rows(next_, 0, 1, obs, action, &reward, &t, next_obs, nullptr);
   next_ = (next_ + 1) % capacity_;
   if (size_ < capacity_) ++size_;
   ++total_added_;
 }
 
 void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
-                         const uint8_t* terminated, const float* next_obs) {
+                         const uint8_t* terminated, const float* next_obs,
+                         const float* horizon) {
   if (n <= 0) return;
   total_added_ += n;
   // Rows that would be overwritten within this same call are never copied.
@@ -77,8 +87,9 @@ void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, cons
     n = capacity_;
   }
   const int64_t first = std::min(n, capacity_ - next_);
-  copy_rows(next_, src, first, obs, actions, rewards, terminated, next_obs);
-  if (n > first) copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs);
+  copy_rows(next_, src, first, obs, actions, rewards, terminated, next_obs, horizon);
+  if (n > first)
+    copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs, horizon);
   next_ = (next_ + n) % capacity_;
   size_ = std::min(capacity_, size_ + n);
 }
@@ -92,11 +103,13 @@ SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {
   b.rewards = torch::empty({batch_size}, f32);
   b.terminated = torch::empty({batch_size}, f32);
   b.next_obs = torch::empty({batch_size, obs_dim_}, f32);
+  b.horizon = torch::empty({batch_size}, f32);
   float* obs = b.obs.data_ptr<float>();
   float* act = b.actions.data_ptr<float>();
   float* rew = b.rewards.data_ptr<float>();
   float* term = b.terminated.data_ptr<float>();
   float* next_obs = b.next_obs.data_ptr<float>();
+  float* horizon = b.horizon.data_ptr<float>();
   std::uniform_int_distribution<int64_t> pick(0, size_ - 1);
   const size_t obs_bytes = sizeof(float) * obs_dim_, act_bytes = sizeof(float) * act_dim_;
   for (int i = 0; i < batch_size; ++i) {
@@ -105,6 +118,7 @@ SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {
     std::memcpy(act + int64_t(i) * act_dim_, actions_p_ + j * act_dim_, act_bytes);
     rew[i] = rewards_p_[j];
     term[i] = terminated_p_[j];
+    horizon[i] = horizon_p_[j];
     std::memcpy(next_obs + int64_t(i) * obs_dim_, next_obs_p_ + j * obs_dim_, obs_bytes);
   }
   return b;
@@ -134,6 +148,7 @@ void ReplayBuffer::save(const std::string& file) const {
     put(rewards_p_, 1);
     put(terminated_p_, 1);
     put(next_obs_p_, obs_dim_);
+    put(horizon_p_, 1);
     out.flush();
     if (!out) throw std::runtime_error("replay buffer " + tmp + ": write failed");
   }
@@ -149,6 +164,10 @@ void ReplayBuffer::load(const std::string& file) {
   FileHeader h{};
   if (file_bytes < int64_t(sizeof h) || !in.read(reinterpret_cast<char*>(&h), sizeof h))
     throw std::runtime_error("replay buffer " + file + ": truncated header");
+  if (std::memcmp(h.magic, kMagic, 6) == 0 && std::memcmp(h.magic, kMagic, sizeof kMagic) != 0)
+    throw std::runtime_error("replay buffer " + file + ": format " + std::string(h.magic + 6, 2) +
+                             " is not this learner's " + std::string(kMagic + 6, 2) +
+                             " (start a new run, or resume it with the learner that wrote it)");
   if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0)
     throw std::runtime_error("replay buffer " + file + ": not a replay buffer file (bad magic)");
   if (h.obs_dim != obs_dim_ || h.act_dim != act_dim_ || h.capacity != capacity_)
@@ -161,7 +180,7 @@ void ReplayBuffer::load(const std::string& file) {
                              std::to_string(h.size) + ", next " + std::to_string(h.next) +
                              ", total_added " + std::to_string(h.total_added) + ")");
   const int64_t expected = int64_t(sizeof h) + int64_t(sizeof(float)) * h.size *
-                                                   (2 * int64_t(obs_dim_) + act_dim_ + 2);
+                                                   (2 * int64_t(obs_dim_) + act_dim_ + 3);
   if (file_bytes != expected)
     throw std::runtime_error("replay buffer " + file + ": " + std::to_string(file_bytes) +
                              " bytes, expected " + std::to_string(expected) + " for " +
@@ -174,6 +193,7 @@ void ReplayBuffer::load(const std::string& file) {
   get(rewards_p_, 1);
   get(terminated_p_, 1);
   get(next_obs_p_, obs_dim_);
+  get(horizon_p_, 1);
   if (!in) {
     size_ = next_ = total_added_ = 0;
     throw std::runtime_error("replay buffer " + file + ": read failed; buffer cleared");

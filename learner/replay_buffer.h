@@ -11,9 +11,11 @@
 namespace farm {
 
 // A sampled minibatch, each tensor freshly allocated and contiguous:
-// obs [B, obs_dim], actions [B, act_dim], rewards [B], terminated [B] (0/1), next_obs [B, obs_dim].
+// obs [B, obs_dim], actions [B, act_dim], rewards [B], terminated [B] (0/1), next_obs [B, obs_dim],
+// horizon [B]: the number of environment steps between obs and next_obs (1 unless the rows were
+// folded into multi-step returns, see fold_n_step in ingest.h). An undefined horizon means 1.
 struct SampledBatch {
-  torch::Tensor obs, actions, rewards, terminated, next_obs;
+  torch::Tensor obs, actions, rewards, terminated, next_obs, horizon;
 };
 
 class ReplayBuffer {
@@ -24,10 +26,11 @@ class ReplayBuffer {
 
   void add(const float* obs, const float* action, float reward, bool terminated,
            const float* next_obs);
-  // n rows, each array row-major: obs/next_obs [n x obs_dim], actions [n x act_dim], rewards and
-  // terminated [n]. When n exceeds the capacity only the last `capacity` rows are kept.
+  // n rows, each array row-major: obs/next_obs [n x obs_dim], actions [n x act_dim], rewards,
+  // terminated and horizon [n] (horizon nullptr: every row spans 1 step). When n exceeds the
+  // capacity only the last `capacity` rows are kept.
   void add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
-             const uint8_t* terminated, const float* next_obs);
+             const uint8_t* terminated, const float* next_obs, const float* horizon = nullptr);
 
   int64_t size() const { return size_; }
   int64_t capacity() const { return capacity_; }
@@ -47,13 +50,14 @@ class ReplayBuffer {
 
  private:
   void copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs, const float* actions,
-                 const float* rewards, const uint8_t* terminated, const float* next_obs);
+                 const float* rewards, const uint8_t* terminated, const float* next_obs,
+                 const float* horizon);
 
   int64_t capacity_;
   int obs_dim_, act_dim_;
   int64_t size_ = 0, next_ = 0, total_added_ = 0;
-  torch::Tensor obs_, actions_, rewards_, terminated_, next_obs_;
-  float *obs_p_, *actions_p_, *rewards_p_, *terminated_p_, *next_obs_p_;
+  torch::Tensor obs_, actions_, rewards_, terminated_, next_obs_, horizon_;
+  float *obs_p_, *actions_p_, *rewards_p_, *terminated_p_, *next_obs_p_, *horizon_p_;
 };
 
 }  // namespace farm

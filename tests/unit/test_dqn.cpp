@@ -32,6 +32,10 @@ TEST(DqnTarget, DoubleQUsesOnlineArgmaxAndTargetValue) {
   y = dqn_target(reward, torch::tensor({1.0f, 0.0f}), online, target, 0.9, true);
   EXPECT_NEAR(y[0].item<float>(), 1.0, 1e-6);
   EXPECT_NEAR(y[1].item<float>(), -0.5 + 0.9 * 0.5, 1e-6);
+  // Multi-step rows bootstrap with gamma^horizon: row 0 spans 3 steps, row 1 one.
+  y = dqn_target(reward, terminated, online, target, 0.9, true, torch::tensor({3.0f, 1.0f}));
+  EXPECT_NEAR(y[0].item<float>(), 1.0 + 0.729 * 2.0, 1e-6);
+  EXPECT_NEAR(y[1].item<float>(), -0.5 + 0.9 * 0.5, 1e-6);
 }
 
 TEST(DqnSchedule, EpsilonFallsLinearlyThenStays) {

@@ -189,3 +189,63 @@ TEST_F(Fixture, EndOfStreamMayBeEmpty) {
   b.sequence_number(1);
   EXPECT_NE(take(b).find("empty batch"), std::string::npos);
 }
+
+TEST_F(Fixture, NStepFoldSumsRewardsUntilEpisodeOrBatchEnds) {
+  const auto b = make_batch(0);
+  ASSERT_EQ(take(b), "");
+  farm::fold_n_step(b, out, 0.5, 3);
+  ASSERT_EQ(out.n, 6);
+  ASSERT_EQ(out.horizon.size(), 6u);
+  // Row (t0, e0): 1 + 0.5 * 3 + 0.25 * 5, bootstrapping from the batch's next observation.
+  EXPECT_FLOAT_EQ(out.rewards[0], 3.75f);
+  EXPECT_FLOAT_EQ(out.horizon[0], 3.f);
+  EXPECT_FLOAT_EQ(out.next_obs[0 * kObs], 30.f);
+  // Row (t0, e1): env 1's episode is truncated at t1: 2 + 0.5 * 4, from the true final observation.
+  EXPECT_FLOAT_EQ(out.rewards[1], 4.f);
+  EXPECT_FLOAT_EQ(out.horizon[1], 2.f);
+  EXPECT_FLOAT_EQ(out.next_obs[1 * kObs + 1], -99.f);
+  EXPECT_EQ(out.terminated[1], 0);
+  // Row (t1, e0): the batch ends after t2: 3 + 0.5 * 5.
+  EXPECT_FLOAT_EQ(out.rewards[2], 5.5f);
+  EXPECT_FLOAT_EQ(out.horizon[2], 2.f);
+  EXPECT_FLOAT_EQ(out.next_obs[2 * kObs], 30.f);
+  // The rows that end an episode or the batch keep their one-step values.
+  const float one_step[] = {4, 5, 6}, next_first[] = {99, 30, 31};
+  for (int i = 3; i < 6; ++i) {
+    EXPECT_FLOAT_EQ(out.rewards[i], one_step[i - 3]) << "row " << i;
+    EXPECT_FLOAT_EQ(out.horizon[i], 1.f) << "row " << i;
+    EXPECT_FLOAT_EQ(out.next_obs[i * kObs], next_first[i - 3]) << "row " << i;
+  }
+}
+
+TEST_F(Fixture, NStepFoldStopsAtTerminationAndKeepsItsFlag) {
+  auto b = make_batch(0);
+  b.terminated({0, 0, 1, 0, 0, 0});  // env 0 terminates at t1
+  b.final_index({2, 3});
+  b.final_observations({77.f, -77.f, 99.f, -99.f});
+  ASSERT_EQ(take(b), "");
+  farm::fold_n_step(b, out, 0.5, 3);
+  EXPECT_FLOAT_EQ(out.rewards[0], 2.5f);  // 1 + 0.5 * 3; the reward after the reset (5) is not added
+  EXPECT_FLOAT_EQ(out.horizon[0], 2.f);
+  EXPECT_EQ(out.terminated[0], 1);
+  EXPECT_FLOAT_EQ(out.next_obs[0], 77.f);
+  // n_step 2 on a fresh copy: row (t0, e0) reads the observation of t2 itself.
+  Transitions two;
+  std::vector<FinishedEpisode> e2;
+  Ingest other{"exp", kObs, kAct};
+  const auto plain = make_batch(0);
+  ASSERT_EQ(other.accept(plain, 5, 0.0, two, e2), "");
+  farm::fold_n_step(plain, two, 0.5, 2);
+  EXPECT_FLOAT_EQ(two.rewards[0], 2.5f);
+  EXPECT_FLOAT_EQ(two.horizon[0], 2.f);
+  EXPECT_FLOAT_EQ(two.next_obs[0], 20.f);
+  EXPECT_FLOAT_EQ(two.next_obs[1], -20.f);
+  // n_step 1 changes nothing and reports horizon 1 everywhere.
+  Transitions one;
+  Ingest third{"exp", kObs, kAct};
+  ASSERT_EQ(third.accept(plain, 5, 0.0, one, e2), "");
+  const auto before = one.rewards;
+  farm::fold_n_step(plain, one, 0.5, 1);
+  EXPECT_EQ(one.rewards, before);
+  EXPECT_EQ(one.horizon, std::vector<float>(6, 1.f));
+}
