@@ -32,14 +32,17 @@ struct Options {
   std::string run_dir, plot;
   int episodes = 100, plot_episodes = 6;
   uint64_t seed = 20261123;
+  bool failures = false;
 };
 
 void usage() {
   std::cout << "usage: farm-mobile-eval --run-dir DIR [--episodes N] [--seed S]\n"
-               "                        [--plot FILE.png] [--plot-episodes K]\n"
+               "                        [--plot FILE.png] [--plot-episodes K] [--failures]\n"
                "Runs N episodes (default 100) of the deterministic policy in DIR/checkpoint on\n"
                "fresh random maps drawn from seed S, prints success rate, mean episode time and\n"
-               "path length, and with --plot draws the first K episodes (default 6) over their maps.\n";
+               "path length, and with --plot draws the first K episodes (default 6) over their maps.\n"
+               "--failures lists every episode that did not reach the goal: where it ended, the\n"
+               "shortest lidar range then, and for a collision what the robot touched.\n";
 }
 
 Options parse(int argc, char** argv) {
@@ -55,6 +58,7 @@ Options parse(int argc, char** argv) {
     else if (a == "--seed") o.seed = std::stoull(value());
     else if (a == "--plot") o.plot = value();
     else if (a == "--plot-episodes") o.plot_episodes = std::stoi(value());
+    else if (a == "--failures") o.failures = true;
     else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
     else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
@@ -109,6 +113,36 @@ void draw_panel(tools::Canvas& c, int ox, int oy, int size, const MobileTask& ta
   c.fill_circle(px(s.map.start_x), py(s.map.start_y), task.robot_radius() * scale, {40, 160, 60});
 }
 
+// One line per failed episode: outcome, time, end pose and distance to the goal, the shortest lidar
+// range after the last step, and for a collision the bodies in contact with the robot.
+void describe_failure(const MobileTask& task, const MobileState& s, int episode, bool collision) {
+  double x, y, yaw;
+  task.pose(s, &x, &y, &yaw);
+  double nearest = task.scene().lidar_range();
+  for (double r : s.scan) nearest = std::min(nearest, r);
+  const mjModel* model = task.model();
+  const int base = mj_name2id(model, mjOBJ_BODY, "base");
+  const double z = base >= 0 ? s.data->xpos[3 * base + 2] : NAN;
+  std::string touched;
+  if (collision) {
+    const mjModel* m = model;
+    for (int i = 0; i < s.data->ncon; ++i) {
+      for (int g : {s.data->contact[i].geom1, s.data->contact[i].geom2}) {
+        if (m->geom_group[g] != 1) continue;  // walls and obstacles
+        const char* geom = mj_id2name(m, mjOBJ_GEOM, g);
+        const char* body = mj_id2name(m, mjOBJ_BODY, m->geom_bodyid[g]);
+        const std::string name = geom ? geom : body ? body : "?";
+        if (touched.find(name) == std::string::npos) touched += (touched.empty() ? "" : ", ") + name;
+      }
+    }
+  }
+  std::printf("episode %3d: %-9s at %5.1f s, (%+.2f, %+.2f) heading %+.0f deg, base at %.3f m, %.2f m "
+              "from the goal, shortest lidar range %.2f m%s%s\n",
+              episode, collision ? "collision" : "time-out", s.step * task.control_dt(), x, y,
+              yaw * 180 / M_PI, z, s.last_distance, nearest, touched.empty() ? "" : ", touching ",
+              touched.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -147,6 +181,7 @@ int main(int argc, char** argv) {
       std::vector<float> metrics(task->spec().metric_names.size());
       task->episode_metrics(s, metrics.data());
       eps[i] = {&s, metrics[0] > 0.5f, metrics[3] > 0.5f, metrics[1], metrics[2], s.episode_return};
+      if (o.failures && !eps[i].success) describe_failure(*task, s, i, eps[i].collision);
       if (!s.record_trajectory) states.back().reset();
     }
     int ok = 0, crashed = 0;

@@ -104,6 +104,7 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   positive(robot.max_linear_speed, "max_linear_speed");
   positive(robot.max_angular_speed, "max_angular_speed");
   positive(robot.wheel_kv, "wheel_kv");
+  positive(robot.wheel_max_torque, "wheel_max_torque");
 
   const std::vector<ObstacleSlot> slots = obstacle_slots(c);
   std::string xml = embedded_text(robot.mjcf);
@@ -130,6 +131,9 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
     }
     m->actuator_gainprm[a * mjNGAIN + 0] = robot.wheel_kv;
     m->actuator_biasprm[a * mjNBIAS + 2] = -robot.wheel_kv;
+    m->actuator_forcelimited[a] = 1;
+    m->actuator_forcerange[2 * a] = -robot.wheel_max_torque;
+    m->actuator_forcerange[2 * a + 1] = robot.wheel_max_torque;
     if (!diff) roller_qpos_.push_back(m->jnt_qposadr[joint_id(m, "roller_" + wheels[i].substr(6), robot.mjcf)]);
   }
   const int root = joint_id(m, "root", robot.mjcf);
@@ -404,6 +408,7 @@ std::unique_ptr<Task> make_jetbot_task(const config::TaskConfig& cfg) {
   r.max_linear_speed = j.max_linear_speed();
   r.max_angular_speed = j.max_angular_speed();
   r.wheel_kv = j.wheel_kv();
+  r.wheel_max_torque = j.wheel_max_torque();
   r.scene = j.scene();
   return std::make_unique<MobileTask>(r);
 }
@@ -417,6 +422,7 @@ std::unique_ptr<Task> make_kaya_task(const config::TaskConfig& cfg) {
   r.max_linear_speed = k.max_linear_speed();
   r.max_angular_speed = k.max_angular_speed();
   r.wheel_kv = k.wheel_kv();
+  r.wheel_max_torque = k.wheel_max_torque();
   r.scene = k.scene();
   return std::make_unique<MobileTask>(r);
 }

@@ -35,6 +35,7 @@ struct MobileRobotSpec {
   std::string mjcf;        // embedded file, e.g. "mobile/jetbot.xml"
   BaseKind base = BaseKind::kDifferential;
   double max_linear_speed = 0.3, max_angular_speed = 2.0, wheel_kv = 0.05;
+  double wheel_max_torque = 0.1;  // N m, the wheel motors' torque limit
   config::MobileSceneConfig scene;
 };
 
