@@ -50,10 +50,8 @@ torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& termi
   } else {
     next_v = std::get<0>(next_q_target.max(1));
   }
-  const torch::Tensor discount =
-      horizon.defined() ? torch::pow(torch::full_like(horizon, gamma), horizon)
-                        : torch::full_like(reward, gamma);
-  return reward + discount * (1.0 - terminated) * next_v;
+  if (!horizon.defined()) return reward + gamma * (1.0 - terminated) * next_v;
+  return reward + torch::pow(gamma, horizon) * (1.0 - terminated) * next_v;
 }
 
 double dqn_epsilon(const config::DqnConfig& c, int64_t env_steps) {

@@ -201,7 +201,6 @@ class Learner {
               "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers\n";
   }
 
-
   void publish_weights() {
     farm::msg::PolicyWeights w;
     algo_->set_env_steps(int64_t(ingest_.counters().env_steps));  // DQN's exploration schedule

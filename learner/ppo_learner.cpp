@@ -202,7 +202,6 @@ class PpoLearner {
     }
   }
 
-
   // The current version's weights with the current quota; re-sent with a larger quota to top up.
   void write_weights() {
     farm::msg::PolicyWeights w;

@@ -120,12 +120,11 @@ void describe_failure(const MobileTask& task, const MobileState& s, int episode,
   task.pose(s, &x, &y, &yaw);
   double nearest = task.scene().lidar_range();
   for (double r : s.scan) nearest = std::min(nearest, r);
-  const mjModel* model = task.model();
-  const int base = mj_name2id(model, mjOBJ_BODY, "base");
+  const mjModel* m = task.model();
+  const int base = mj_name2id(m, mjOBJ_BODY, "base");
   const double z = base >= 0 ? s.data->xpos[3 * base + 2] : NAN;
   std::string touched;
   if (collision) {
-    const mjModel* m = model;
     for (int i = 0; i < s.data->ncon; ++i) {
       for (int g : {s.data->contact[i].geom1, s.data->contact[i].geom2}) {
         if (m->geom_group[g] != 1) continue;  // walls and obstacles
