@@ -6,6 +6,7 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config
   libfastrtps-dev fastddsgen fastdds-tools          # Fast DDS 2.9 and its IDL generator
   libmujoco-dev libqhull-dev                        # MuJoCo 2.2.2 (its CMake target needs qhull)
+  libgl-dev libopengl-dev libglx-dev                # ... and OpenGL (find_dependency in mujocoConfig.cmake)
   libeigen3-dev libprotobuf-dev protobuf-compiler
   libtorch-dev libopenblas0-pthread                 # without OpenBLAS LibTorch is ~6x slower
   libgtest-dev libbenchmark-dev
