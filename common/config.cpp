@@ -113,6 +113,8 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
     v.fail(s, "buffer_size", "sac.buffer_size", "expected >= sac.batch_size (" + num(s.batch_size()) + "), got " + num(s.buffer_size()));
   if (s.learning_starts() < 0) v.fail(s, "learning_starts", "sac.learning_starts", "expected >= 0, got " + num(s.learning_starts()));
   for (int h : s.hidden()) if (h <= 0) v.fail(s, "hidden", "sac.hidden", "expected sizes > 0, got " + num(h));
+  for (int h : s.critic_hidden())
+    if (h <= 0) v.fail(s, "critic_hidden", "sac.critic_hidden", "expected sizes > 0, got " + num(h));
   positive(s, "initial_alpha", "sac.initial_alpha", s.initial_alpha());
   if (!(s.log_std_min() < s.log_std_max()))
     v.fail(s, "log_std_min", "sac.log_std_min", "expected < sac.log_std_max");
@@ -232,6 +234,11 @@ bool valid_device_name(const std::string& name) {
 std::vector<int> sac_hidden(const config::SacConfig& sac) {
   if (sac.hidden_size() == 0) return {256, 256};  // sb3 SAC net_arch (seed 001 §4.3.2)
   return {sac.hidden().begin(), sac.hidden().end()};
+}
+
+std::vector<int> sac_critic_hidden(const config::SacConfig& sac) {
+  if (sac.critic_hidden_size() == 0) return sac_hidden(sac);
+  return {sac.critic_hidden().begin(), sac.critic_hidden().end()};
 }
 
 }  // namespace farm

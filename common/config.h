@@ -26,5 +26,7 @@ bool valid_device_name(const std::string& name);
 
 // Hidden sizes of the SAC networks (the schema's default when the list is empty).
 std::vector<int> sac_hidden(const config::SacConfig& sac);
+// The critics' hidden sizes: sac.critic_hidden, or sac_hidden() when it is empty.
+std::vector<int> sac_critic_hidden(const config::SacConfig& sac);
 
 }  // namespace farm

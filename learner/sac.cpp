@@ -229,11 +229,12 @@ M& placed(M& m, torch::Device d) {
 struct Sac::Impl {
   Impl(const config::SacConfig& c, int obs, int act)
       : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
+        critic_hidden(sac_critic_hidden(c)),
         target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
         device(learner_device(c.device(), "sac.device")),
-        actor(layer_sizes(obs, 2 * act), tanh_hidden(c)),
-        critic(layer_sizes(obs + act, 1), tanh_hidden(c)),
-        critic_target(layer_sizes(obs + act, 1), tanh_hidden(c)), actor_p(*placed(actor, device)),
+        actor(layer_sizes(obs, hidden, 2 * act), tanh_hidden(c)),
+        critic(layer_sizes(obs + act, critic_hidden, 1), tanh_hidden(c)),
+        critic_target(layer_sizes(obs + act, critic_hidden, 1), tanh_hidden(c)), actor_p(*placed(actor, device)),
         critic_p(*placed(critic, device)), target_p(*placed(critic_target, device)) {
     {
       torch::NoGradGuard no_grad;
@@ -251,7 +252,7 @@ struct Sac::Impl {
         std::vector<torch::Tensor>{log_alpha}, torch::optim::AdamOptions(cfg.alpha_lr()));
   }
 
-  std::vector<int64_t> layer_sizes(int in, int out) const {
+  static std::vector<int64_t> layer_sizes(int in, const std::vector<int>& hidden, int out) {
     std::vector<int64_t> s{in};
     s.insert(s.end(), hidden.begin(), hidden.end());
     s.push_back(out);
@@ -270,7 +271,7 @@ struct Sac::Impl {
 
   config::SacConfig cfg;
   int obs_dim, act_dim;
-  std::vector<int> hidden;
+  std::vector<int> hidden, critic_hidden;
   double target_entropy;
   torch::Device device;
   Actor actor;

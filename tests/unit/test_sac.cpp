@@ -219,6 +219,23 @@ TEST(Sac, SaveLoadRoundTrip) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(Sac, CriticHiddenSizesItsOwnLayers) {
+  auto cfg = small_config();  // actor 32-32
+  cfg.add_critic_hidden(24);
+  cfg.add_critic_hidden(8);
+  Sac sac(cfg, 3, 2, 1);
+  const auto actor = sac.actor_parameters(), critic = sac.critic_parameters();
+  EXPECT_EQ(actor.front().size(0), 32);
+  // Twin critics, weights stored [2, in, out]: (obs + act) 5 -> 24 -> 8 -> 1.
+  std::vector<std::vector<int64_t>> weights;
+  for (const auto& p : critic)
+    if (p.size(1) > 1) weights.push_back(p.sizes().vec());
+  EXPECT_EQ(weights, (std::vector<std::vector<int64_t>>{{2, 5, 24}, {2, 24, 8}, {2, 8, 1}}));
+  EXPECT_EQ(sac.export_policy(0).layout.sizes, (std::vector<int>{3, 32, 32, 4}));
+  const auto stats = sac.update(random_batch(64, 3, 2, 3));
+  EXPECT_TRUE(std::isfinite(stats.critic_loss));
+}
+
 TEST(Sac, LoadRejectsOtherShapesNamingFile) {
   const std::string dir = temp_dir("sac_mismatch");
   Sac(small_config(), 3, 1, 1).save(dir);
@@ -233,9 +250,12 @@ TEST(Sac, LoadRejectsOtherShapesNamingFile) {
   config::SacConfig wider;
   wider.add_hidden(64);
   wider.add_hidden(32);
-  Sac other_hidden(wider, 3, 1, 1), other_obs(small_config(), 4, 1, 1);
+  auto other_critic = small_config();
+  other_critic.add_critic_hidden(16);
+  Sac other_hidden(wider, 3, 1, 1), other_obs(small_config(), 4, 1, 1), other_q(other_critic, 3, 1, 1);
   expect_error(other_hidden);
   expect_error(other_obs);
+  expect_error(other_q);
   Sac missing(small_config(), 3, 1, 1);
   std::filesystem::remove_all(dir);
   expect_error(missing);
