@@ -179,7 +179,7 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   mj_deleteModel(base);
 
   spec_.name = "mclari";
-  spec_.obs_dim = 4;
+  spec_.obs_dim = cfg.observe_gait() ? 6 : 4;
   spec_.act_dim = 2;
   spec_.max_episode_steps = cfg.max_episode_steps();
   spec_.metric_names = {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance"};
@@ -257,6 +257,10 @@ void McLariTask::write_obs(const McLariState& s, float* obs) const {
   obs[1] = float(s.last.speed_mm_s / cfg_.obs_speed_scale());
   obs[2] = float((s.target[0] - c[0]) / cfg_.obs_distance_scale());
   obs[3] = float((s.target[1] - c[1]) / cfg_.obs_distance_scale());
+  if (cfg_.observe_gait()) {
+    obs[4] = float(double(s.frequency) / cfg_.max_frequency());
+    obs[5] = groups_.size() > 1 ? float(double(s.group_index) / double(groups_.size() - 1)) : 0.f;
+  }
 }
 
 int McLariTask::next_frequency(int f, float a0, double df, int fmin, int fmax) {

@@ -264,6 +264,32 @@ TEST(McLari, ActionScaling) {
   EXPECT_EQ(st(*s).last.group, mclari::reduced_groups().back());
 }
 
+TEST(McLari, ObservedGait) {
+  farm::config::MclariConfig c;
+  c.set_steps_per_period(20);
+  c.set_max_timestep(0.002);
+  c.set_frequency_step(149);
+  c.set_initial_frequency(1);
+  c.set_initial_group(3);
+  EXPECT_EQ(McLariTask(c).spec().obs_dim, 4);
+  c.set_observe_gait(true);
+  McLariTask task(c);
+  ASSERT_EQ(task.spec().obs_dim, 6);
+  auto s = task.make_state();
+  float obs[6], act[2] = {1.f, 1.f};
+  task.reset_on(*s, 1, 0, obs);
+  EXPECT_FLOAT_EQ(obs[4], 1.f / 150.f);  // the initial gait: 1 Hz, group index 3 of 27
+  EXPECT_FLOAT_EQ(obs[5], 3.f / 26.f);
+  task.step(*s, act, obs);                // f = 1 + 149 = 150, the last group
+  EXPECT_FLOAT_EQ(obs[4], 1.f);
+  EXPECT_FLOAT_EQ(obs[5], 1.f);
+  act[0] = -0.5f;                         // 150 - 74.5 rounds to 76 (75.5 away from zero)
+  act[1] = -1.f;
+  task.step(*s, act, obs);
+  EXPECT_FLOAT_EQ(obs[4], 76.f / 150.f);
+  EXPECT_FLOAT_EQ(obs[5], 0.f);
+}
+
 TEST(McLari, RewardAndTermination) {
   farm::config::MclariConfig c = fixed(1, 19);
   c.set_max_episode_steps(2);
