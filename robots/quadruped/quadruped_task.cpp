@@ -3,6 +3,7 @@
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <stdexcept>
 
@@ -264,6 +265,13 @@ void QuadrupedTask::reset(TaskState& base, uint64_t seed, float* obs) const {
     const double q = default_pose_[j] * scale(s.rng);
     d->qpos[qpos_adr_[j]] = std::clamp(q, s.model->jnt_range[2 * jid], s.model->jnt_range[2 * jid + 1]);
   }
+  // The scaled pose can put a foot below the floor (a flexed thigh with a clamped calf reaches
+  // further down than the default pose): lift the base so the lowest foot starts just above it,
+  // as legged_gym's drop from 0.42 m does, instead of the contact solver throwing the robot.
+  mj_kinematics(s.model, d);
+  double lowest = std::numeric_limits<double>::infinity();
+  for (int g : foot_geoms_) lowest = std::min(lowest, d->geom_xpos[3 * g + 2] - s.model->geom_size[3 * g]);
+  if (lowest < cfg_.init_foot_clearance()) d->qpos[2] += cfg_.init_foot_clearance() - lowest;
   std::uniform_real_distribution<double> vel(-cfg_.init_base_vel(), cfg_.init_base_vel());
   for (int k = 0; k < 6; ++k) d->qvel[k] = vel(s.rng);
   mj_forward(s.model, d);

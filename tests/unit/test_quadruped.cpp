@@ -350,6 +350,7 @@ TEST(Quadruped, RandomizationStaysWithinItsRanges) {
   auto& qs = static_cast<QuadrupedState&>(*s);
   std::vector<float> obs(task.spec().obs_dim);
   const auto& ids = task.obs_spec().item("dof_pos").ids;
+  int lifted = 0;
   for (int k = 0; k < 100; ++k) {
     task.reset(*s, 5000 + k, obs.data());
     for (int j = 0; j < task.num_joints(); ++j) {
@@ -360,7 +361,14 @@ TEST(Quadruped, RandomizationStaysWithinItsRanges) {
       ASSERT_GE(q, std::max(lo, qs.model->jnt_range[2 * ids[j]]) - 1e-9);
       ASSERT_LE(q, std::min(hi, qs.model->jnt_range[2 * ids[j] + 1]) + 1e-9);
     }
+    // No foot starts inside the floor: the lowest one is init_foot_clearance above it, or higher.
+    double lowest = 1e9;
+    for (int g : task.feet().geoms)
+      lowest = std::min(lowest, qs.data->geom_xpos[3 * g + 2] - qs.model->geom_size[3 * g]);
+    ASSERT_GE(lowest, task.config().init_foot_clearance() - 1e-9);
+    lifted += lowest < task.config().init_foot_clearance() + 1e-9;
   }
+  EXPECT_GT(lifted, 10);  // many scaled poses reach below the default stance
 }
 
 TEST(Quadruped, ContactQueriesReportTheRightPairs) {
