@@ -3,11 +3,13 @@
 // terrain against the best fixed (group, f) of a characterization sweep (farm-mclari-sweep's
 // best.csv). Prints a Markdown table; --out also writes it to a file.
 #include <atomic>
+#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -104,6 +106,11 @@ int main(int argc, char** argv) {
 
     std::vector<TerrainResult> results(mclari::kNumTerrains);
     std::atomic<int> next{0};
+    std::mutex progress_mutex;
+    int terrains_done = 0;
+    const auto t0 = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "farm-mclari-eval: %d deterministic episodes on each of %d terrains, %d threads\n",
+                 episodes, mclari::kNumTerrains, threads);
     auto worker = [&]() {
       for (int t = next++; t < mclari::kNumTerrains; t = next++) {
         auto mc = cfg.task().mclari();
@@ -124,6 +131,12 @@ int main(int argc, char** argv) {
         r.efficiency /= r.episodes;
         r.frequency /= r.episodes;
         r.distance /= r.episodes;
+        // Long work (a 150 Hz episode is 540,000 physics steps): say when each terrain is done.
+        const std::lock_guard<std::mutex> lock(progress_mutex);
+        std::fprintf(stderr, "farm-mclari-eval: %s done, %d episodes, efficiency %.4f, %d falls (%d of %d terrains, %.0f s)\n",
+                     mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, ++terrains_done,
+                     mclari::kNumTerrains,
+                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
       }
     };
     std::vector<std::thread> pool;
