@@ -133,6 +133,14 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
     throw bad("initial_group", "must index the active group set of " +
                                    std::to_string(groups_.size()) + ", got " +
                                    std::to_string(cfg.initial_group()));
+  if (cfg.reference_efficiency_size() != 0 && cfg.reference_efficiency_size() != mclari::kNumTerrains)
+    throw bad("reference_efficiency", "needs one value per terrain (6) or none, got " +
+                                          std::to_string(cfg.reference_efficiency_size()));
+  for (int t = 0; t < cfg.reference_efficiency_size(); ++t)
+    if (!(cfg.reference_efficiency(t) > 0) || !std::isfinite(cfg.reference_efficiency(t)))
+      throw bad("reference_efficiency", "entry " + std::to_string(t) + " (" + mclari::terrain_name(t) +
+                                            ") must be finite and > 0, got " +
+                                            std::to_string(cfg.reference_efficiency(t)));
   for (int t : cfg.terrains()) {
     if (t < 0 || t >= mclari::kNumTerrains)
       throw bad("terrains", "entries must be in [0, 6), got " + std::to_string(t));
@@ -386,6 +394,7 @@ StepResult McLariTask::step(TaskState& base, const float* action, float* obs) co
     if (unstable) mj_resetData(m, d);  // keep NaN out of the observation
   } else {
     double reward = fig.efficiency;
+    if (cfg_.reference_efficiency_size() > 0) reward /= cfg_.reference_efficiency(s.terrain);
     s.efficiency_sum += fig.efficiency;
     s.frequency_sum += f;
     s.measured_steps += 1;

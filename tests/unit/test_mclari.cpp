@@ -355,6 +355,35 @@ TEST(McLari, RewardAndTermination) {
   EXPECT_FLOAT_EQ(r.reward, -100.f);
 }
 
+TEST(McLari, ReferenceEfficiencyScalesTheRewardPerTerrain) {
+  // The same fixed gait on plain-normal (0) and rough-wet (4): with references the efficiency term
+  // is divided by the terrain's own value, the +10 stays, and the metrics keep raw efficiency.
+  farm::config::MclariConfig c = fixed(150, 15);
+  c.set_steps_per_period(20);
+  c.set_max_timestep(0.002);
+  const double ref[6] = {0.25, 1.5, 0.3, 0.125, 1.25, 0.1};
+  for (double v : ref) c.add_reference_efficiency(v);
+  McLariTask task(c);
+  auto s = task.make_state();
+  float obs[4], act[2] = {0, 0}, metrics[6];
+  for (int terrain : {0, 4}) {
+    task.reset_on(*s, 7, terrain, obs);
+    auto r = task.step(*s, act, obs);
+    const double eta = st(*s).last.efficiency;
+    ASSERT_GT(eta, 0.0) << "terrain " << terrain;
+    EXPECT_NEAR(r.reward, eta / ref[terrain], 1e-5 * eta / ref[terrain]) << "terrain " << terrain;
+    task.episode_metrics(*s, metrics);
+    EXPECT_NEAR(metrics[0], eta, 1e-6) << "terrain " << terrain;
+  }
+  task.reset_on(*s, 7, 3, obs);
+  const auto c0 = McLariTask::com(*s);
+  st(*s).target[0] = c0[0];
+  st(*s).target[1] = c0[1];
+  auto r = task.step(*s, act, obs);
+  EXPECT_TRUE(r.terminated);
+  EXPECT_NEAR(r.reward, st(*s).last.efficiency / ref[3] + 10.0, 1e-4);
+}
+
 TEST(McLari, TendonsPushOnlyBelowTheirRestLength) {
   McLariTask task(farm::config::MclariConfig{});
   auto s = task.make_state();
@@ -404,4 +433,9 @@ TEST(McLari, BadConfigIsNamed) {
   c.set_reduced_groups(true);
   c.set_initial_group(8);
   expect_error(c, "initial_group");
+  c = {};
+  for (int t = 0; t < 5; ++t) c.add_reference_efficiency(1.0);
+  expect_error(c, "reference_efficiency");  // one per terrain
+  c.add_reference_efficiency(0.0);
+  expect_error(c, "reference_efficiency");  // six, but one is not > 0
 }
