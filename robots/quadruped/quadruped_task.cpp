@@ -121,6 +121,10 @@ QuadrupedTask::QuadrupedTask(Robot robot, const config::LeggedConfig& cfg)
     trunk_geoms.push_back("trunk_rear_geom");
   }
   for (const char* leg : kLegNames) {
+    // The hip housings stick out past the trunk box: pitched nose-down, the trunk rests on them
+    // with its centre well above min_base_height. That is a fall, not a stance: A1 policies
+    // trained without this knelt on the front hips, turned in place and never walked.
+    trunk_geoms.push_back(std::string(leg) + "_hip_geom");
     leg_geoms.push_back(std::string(leg) + "_thigh_geom");
     leg_geoms.push_back(std::string(leg) + "_calf_geom");
     foot_names.push_back(std::string(leg) + "_foot");
@@ -407,10 +411,7 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
     legged::read_property(s.model, d, legged::Property::kBodyLinVelLocal, trunk_body_, v);
     s.sum_lin_error += std::hypot(s.command[0] - v[0], s.command[1] - v[1]);
   }
-  double z;
-  legged::read_property(s.model, d, legged::Property::kBodyHeight, trunk_body_, &z);
-  // Seed 000 §3.3: the episode ends when the trunk touches the ground.
-  if (legged::touching(s.model, d, trunk_, floor_) || z < cfg_.min_base_height()) {
+  if (fallen(s)) {
     s.fell = true;
     r.terminated = true;
   } else if (s.step >= cfg_.max_episode_steps()) {
@@ -421,6 +422,13 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
   for (size_t j = 0; j < n; ++j) s.last_dof_vel[j] = d->qvel[dofs_[j]];
   write_obs(s, obs);
   return r;
+}
+
+bool QuadrupedTask::fallen(const QuadrupedState& s) const {
+  double z;
+  legged::read_property(s.model, s.data, legged::Property::kBodyHeight, trunk_body_, &z);
+  // Seed 000 §3.3: the episode ends when the trunk (with its hip housings) touches the ground.
+  return legged::touching(s.model, s.data, trunk_, floor_) || z < cfg_.min_base_height();
 }
 
 void QuadrupedTask::write_obs(QuadrupedState& s, float* obs) const {

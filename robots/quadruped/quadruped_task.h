@@ -99,6 +99,9 @@ class QuadrupedTask final : public Task {
   // The step reward from terms: sum of scale * term * policy dt, clipped at 0 if only_positive.
   double total_reward(const RewardTerms& t) const;
   double policy_dt() const { return cfg_.decimation() * cfg_.physics_dt(); }
+  // A fall: the trunk or a hip housing touches the floor, or the trunk is below min_base_height
+  // (contacts as of the last mj_forward / mj_step).
+  bool fallen(const QuadrupedState& s) const;
   // Base heading (yaw) in the world, from the trunk's orientation.
   double heading(const QuadrupedState& s) const;
 
