@@ -25,6 +25,7 @@
 #include "spec_publisher.h"
 #include "worker_roster.h"
 #include "rollout.h"
+#include "divergence.h"
 #include "off_policy.h"
 #include "ppo_learner.h"
 #include "sac.h"
@@ -271,6 +272,9 @@ class Learner {
 
   void train_step() {
     last_stats_ = algo_->update(replay_.sample(algo_->batch_size(), rng_));
+    require_finite_update(algo_->name(), algo_->updates(),
+                          {{"critic loss", last_stats_.critic_loss}, {"actor loss", last_stats_.actor_loss},
+                           {algo_->name() == "dqn" ? "epsilon" : "alpha", last_stats_.alpha}});
     ++updates_since_publish_;
     updates_meter_.add(1);
   }

@@ -9,6 +9,7 @@
 #include <map>
 #include <sstream>
 
+#include "divergence.h"
 #include "checkpoint.h"
 #include "config.h"
 #include "fit_scheduler.h"
@@ -311,6 +312,8 @@ class PpoLearner {
     storage_.take(f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(),
                   pc_.gae_lambda(), version_, samples);
     const PpoStats st = ppo_.fit(samples);
+    require_finite_update("ppo", ppo_.fits(),
+                          {{"value loss", st.value_loss}, {"policy loss", st.policy_loss}, {"kl", st.kl}});
     // The normalizer moves between versions only, so a version is one fixed policy.
     if (pc_.normalize_observations()) ppo_.normalizer().update(samples.obs.data(), samples.n);
     const double fit_s = now_seconds() - t;

@@ -1,4 +1,5 @@
 #include "sac.h"
+#include "divergence.h"
 #include "rng_state.h"
 
 #include <gtest/gtest.h>
@@ -186,6 +187,26 @@ TEST(Sac, StatsAreFinite) {
   // One Adam step moves log_alpha by about the learning rate.
   EXPECT_NEAR(std::log(sac.alpha()), 0.0, 1.5 * small_config().alpha_lr());
   EXPECT_NE(sac.alpha(), 1.0);
+}
+
+TEST(Sac, DivergedUpdateIsCaughtNamingTheFigures) {
+  // Rewards near the float limit overflow the critic loss: the guard the learner runs after every
+  // update must refuse it, naming the algorithm, the update and the loss; a sane update passes.
+  Sac sac(small_config(), 3, 1, 5);
+  auto st = sac.update(random_batch(32, 3, 1, 6));
+  EXPECT_NO_THROW(require_finite_update("sac", sac.updates(), {{"critic loss", st.critic_loss}, {"alpha", st.alpha}}));
+  auto b = random_batch(32, 3, 1, 7);
+  b.rewards.fill_(3e38f);
+  st = sac.update(b);
+  ASSERT_FALSE(std::isfinite(st.critic_loss));
+  try {
+    require_finite_update("sac", sac.updates(), {{"critic loss", st.critic_loss}, {"alpha", st.alpha}});
+    ADD_FAILURE() << "a non-finite critic loss passed";
+  } catch (const std::runtime_error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("sac training diverged at update 2"), std::string::npos) << m;
+    EXPECT_NE(m.find("critic loss inf"), std::string::npos) << m;
+  }
 }
 
 TEST(Sac, SaveLoadRoundTrip) {
