@@ -34,6 +34,7 @@ struct QuadrupedState : TaskState {
   std::vector<double> last_action, last_dof_vel, targets, torques;
   std::array<double, 4> feet_air_time{};
   std::array<bool, 4> last_contact{};
+  std::array<bool, 4> prev_contact{};  // last_contact one policy step earlier
   // Randomized controller and limits (Badgers; the A1 keeps the nominal values).
   double kp = 0, kd = 0, action_scale = 0, torque_multiplier = 1, velocity_limit = 0;
   std::vector<double> torque_limit;

@@ -194,6 +194,18 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
   EXPECT_NEAR(t.dof_pos_limits, 0.05 * (-0.916298 + 2.69653), 1e-6);
   EXPECT_NEAR(t.feet_air_time, (0.7 - 0.5) + (0.3 - 0.5), 1e-9);
   EXPECT_NEAR(t.feet_pair_off_ground, 1.0, 1e-12);  // rear pair in the air, front pair down
+  // The contact filter: a foot down on the step before still counts as down (a trot's diagonal
+  // hand-over is no pair in the air); both pairs up on two steps running count twice.
+  qs.prev_contact = {false, true, true, false};
+  qs.last_contact = {true, false, false, true};
+  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 0.0);
+  qs.prev_contact = {false, false, false, false};
+  qs.last_contact = {false, false, false, false};
+  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 2.0);
+  qs.prev_contact = {false, false, false, true};
+  qs.last_contact = {true, true, false, false};
+  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 0.0);
+  qs.prev_contact = {false, false, false, false};
   EXPECT_NEAR(t.orientation, 0.0, 1e-12);
   const auto& w8 = task->config().reward();
   const double expected = (w8.tracking_lin_vel() * t.tracking_lin_vel + w8.tracking_ang_vel() * t.tracking_ang_vel +
