@@ -272,9 +272,9 @@ class Learner {
 
   void train_step() {
     last_stats_ = algo_->update(replay_.sample(algo_->batch_size(), rng_));
-    require_finite_update(algo_->name(), algo_->updates(),
+    require_finite_update(algo_name_, algo_->updates(),
                           {{"critic loss", last_stats_.critic_loss}, {"actor loss", last_stats_.actor_loss},
-                           {algo_->name() == "dqn" ? "epsilon" : "alpha", last_stats_.alpha}});
+                           {algo_name_ == "dqn" ? "epsilon" : "alpha", last_stats_.alpha}});
     ++updates_since_publish_;
     updates_meter_.add(1);
   }
@@ -427,6 +427,7 @@ class Learner {
   std::shared_ptr<const robots::Task> task_;
   int obs_dim_, act_dim_;
   std::unique_ptr<OffPolicy> algo_;
+  const std::string algo_name_ = algo_->name();  // for the per-update divergence check
   ReplayBuffer replay_;
   Ingest ingest_;
   std::mt19937_64 rng_;
