@@ -5,7 +5,13 @@
                       columns), those metrics too
   throughput.png      env steps/s at the learner and updates/s against time; with a monitor log,
                       also each worker's steps/s and the workers' total
+  --compare OUT.png   seeds side by side instead: for each RUN_DIR, the evaluation's linear
+                      tracking and the training episodes' falls (terminations per fit) against env
+                      steps and wall time; prints where each run first reaches the walking
+                      threshold (--walking LIN,FELL: eval_tracking_lin >= LIN, eval_fell < FELL;
+                      docs/QUADRUPEDS.md)
 usage: deploy/plot-run.py RUN_DIR [--monitor-log FILE] [--out DIR]
+       deploy/plot-run.py RUN_DIR [RUN_DIR ...] --compare OUT.png [--walking 0.6,0.1]
   RUN_DIR holds learner.csv (runs/<experiment>/); FILE is a `farm-monitor --log FILE` JSON-lines log.
 Runs with /usr/bin/python3, where Debian installs matplotlib."""
 import argparse
@@ -81,12 +87,70 @@ def finite(xs, ys):
     return [p[0] for p in pts], [p[1] for p in pts]
 
 
+def first_walking(c, lin, fell):
+    """(elapsed_s, env_steps, fit) of the first evaluation with eval_tracking_lin >= lin and
+    eval_fell < fell, or None."""
+    for i, (l, f) in enumerate(zip(c["eval_tracking_lin"], c["eval_fell"])):
+        if not math.isnan(l) and not math.isnan(f) and l >= lin and f < fell:
+            return c["elapsed_s"][i], c["env_steps"][i], c["fit"][i]
+    return None
+
+
+def compare(run_dirs, out, walking):
+    try:
+        lin, fell = (float(v) for v in walking.split(","))
+    except ValueError:
+        sys.exit(f"plot-run: --walking wants LIN,FELL (e.g. 0.6,0.1), got '{walking}'")
+    fig, axes = plt.subplots(2, 2, figsize=(12, 9), squeeze=False)
+    for d in run_dirs:
+        path = os.path.join(d, "learner.csv")
+        if not os.path.isfile(path):
+            sys.exit(f"plot-run: no learner.csv in {d}")
+        c = read_learner_csv(path)
+        missing = [k for k in ("eval_tracking_lin", "eval_fell", "train_fell", "fit") if k not in c]
+        if missing:
+            sys.exit(f"plot-run: {path} lacks {missing} (--compare is for the legged tasks' PPO runs)")
+        name = os.path.basename(os.path.normpath(d))
+        hit = first_walking(c, lin, fell)
+        print(f"plot-run: {name}: " + (f"walking (eval_tracking_lin >= {lin}, eval_fell < {fell}) first at "
+                                        f"{hit[0]:.0f} s, {hit[1]:,.0f} env steps, fit {hit[2]:.0f}" if hit else
+                                        f"never reaches eval_tracking_lin >= {lin} with eval_fell < {fell}") +
+              f"; end {c['elapsed_s'][-1]:.0f} s, {c['env_steps'][-1]:,.0f} env steps")
+        for col, (xkey, xlabel) in enumerate((("env_steps", "env steps"), ("elapsed_s", "wall time (s)"))):
+            x, y = finite(c[xkey], c["eval_tracking_lin"])
+            line, = axes[0][col].plot(x, y, "o-", markersize=2, label=name)
+            if hit:
+                axes[0][col].axvline(hit[0 if xkey == "elapsed_s" else 1], color=line.get_color(), alpha=0.4, ls=":")
+            x, y = finite(c[xkey], c["train_fell"])
+            axes[1][col].plot(x, y, "-", color=line.get_color(), label=name)
+            axes[1][col].set_xlabel(xlabel)
+    for col in range(2):
+        axes[0][col].axhline(lin, color="black", ls="--", linewidth=1, label=f"walking: {lin}")
+        axes[0][col].set_ylabel("eval_tracking_lin (deterministic evaluation)")
+        axes[1][col].set_ylabel("train_fell (share of training episodes ending in a fall)")
+        for r in range(2):
+            axes[r][col].grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8, loc="upper left")
+    fig.suptitle("seeds side by side: linear tracking and falls")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    print(f"plot-run: wrote {out}")
+
+
 def main():
     ap = argparse.ArgumentParser(description="PNG charts of a farm run (learner.csv, farm-monitor log).")
-    ap.add_argument("run_dir", help="the run directory with learner.csv")
+    ap.add_argument("run_dir", nargs="+", help="the run directory with learner.csv (several with --compare)")
     ap.add_argument("--monitor-log", help="a farm-monitor --log JSON-lines file")
     ap.add_argument("--out", help="where the PNGs go (default: RUN_DIR)")
+    ap.add_argument("--compare", metavar="OUT.png", help="seeds side by side (legged PPO runs) into one PNG")
+    ap.add_argument("--walking", default="0.6,0.1", help="walking threshold LIN,FELL for --compare")
     a = ap.parse_args()
+    if a.compare:
+        return compare(a.run_dir, a.compare, a.walking)
+    if len(a.run_dir) > 1:
+        sys.exit("plot-run: one RUN_DIR, or several with --compare OUT.png")
+    a.run_dir = a.run_dir[0]
     csv_path = os.path.join(a.run_dir, "learner.csv")
     if not os.path.isfile(csv_path):
         sys.exit(f"plot-run: no learner.csv in {a.run_dir}")
