@@ -124,7 +124,17 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
     throw bad("fixed_group", "must be in [0, 27), got " + std::to_string(cfg.fixed_group()));
 
   groups_.clear();
-  if (cfg.reduced_groups()) {
+  if (cfg.groups_size() > 0) {
+    if (cfg.reduced_groups())
+      throw bad("groups", "and reduced_groups: set one or the other, not both");
+    for (int g : cfg.groups()) {
+      if (g < 0 || g >= mclari::kNumGroups)
+        throw bad("groups", "entries must be in [0, 27), got " + std::to_string(g));
+      if (std::find(groups_.begin(), groups_.end(), g) != groups_.end())
+        throw bad("groups", "lists group " + std::to_string(g) + " twice");
+      groups_.push_back(g);
+    }
+  } else if (cfg.reduced_groups()) {
     groups_ = mclari::reduced_groups();
   } else {
     for (int g = 0; g < mclari::kNumGroups; ++g) groups_.push_back(g);

@@ -262,6 +262,19 @@ TEST(McLari, ActionScaling) {
   task.step(*s, act, obs);
   EXPECT_EQ(st(*s).frequency, 6);
   EXPECT_EQ(st(*s).last.group, mclari::reduced_groups().back());
+
+  // An explicit set: a1 is cut into as many parts as it lists, in its order.
+  farm::config::MclariConfig e;
+  for (int g : {15, 5, 20}) e.add_groups(g);
+  McLariTask chosen(e);
+  ASSERT_EQ(chosen.active_groups(), (std::vector<int>{15, 5, 20}));
+  auto t = chosen.make_state();
+  chosen.reset_on(*t, 1, 0, obs);
+  for (const auto& [a1, group] : {std::pair{-1.f, 15}, {0.f, 5}, {-0.3f, 5}, {0.34f, 20}, {1.f, 20}}) {
+    act[1] = a1;
+    chosen.step(*t, act, obs);
+    EXPECT_EQ(st(*t).last.group, group) << "a1 = " << a1;
+  }
 }
 
 TEST(McLari, ObservedGait) {
@@ -433,6 +446,17 @@ TEST(McLari, BadConfigIsNamed) {
   c.set_reduced_groups(true);
   c.set_initial_group(8);
   expect_error(c, "initial_group");
+  c = {};
+  c.add_groups(27);
+  expect_error(c, "groups");  // not a group
+  c = {};
+  c.add_groups(11);
+  c.add_groups(11);
+  expect_error(c, "twice");
+  c = {};
+  c.add_groups(11);
+  c.set_reduced_groups(true);
+  expect_error(c, "not both");
   c = {};
   for (int t = 0; t < 5; ++t) c.add_reference_efficiency(1.0);
   expect_error(c, "reference_efficiency");  // one per terrain
