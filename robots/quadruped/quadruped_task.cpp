@@ -285,7 +285,6 @@ void QuadrupedTask::reset(TaskState& base, uint64_t seed, float* obs) const {
   std::fill(s.torques.begin(), s.torques.end(), 0.0);
   s.feet_air_time.fill(0.0);
   s.last_contact.fill(false);
-  s.prev_contact.fill(false);
   s.push_every_steps = cfg_.push_interval_s() > 0 ? std::max(1, int(std::lround(cfg_.push_interval_s() / policy_dt()))) : 0;
   s.sum_tracking_lin = s.sum_tracking_ang = s.sum_lin_error = 0;
   s.fell = false;
@@ -307,7 +306,8 @@ void QuadrupedTask::pd_control(QuadrupedState& s, mjData* d) const {
 }
 
 RewardTerms QuadrupedTask::reward_terms(const QuadrupedState& s, const std::vector<double>& a,
-                                        const std::array<bool, 4>& first_contact) const {
+                                        const std::array<bool, 4>& first_contact,
+                                        const std::array<bool, 4>& contact_filt) const {
   using legged::Property;
   const mjModel* m = s.model;
   const mjData* d = s.data;
@@ -342,10 +342,11 @@ RewardTerms QuadrupedTask::reward_terms(const QuadrupedState& s, const std::vect
   if (!moving) t.feet_air_time = 0;
   t.base_height = (z - cfg_.base_height_target()) * (z - cfg_.base_height_target());
   // Seed 000 §3.4: both front feet (FL, FR) or both rear feet (RL, RR) in the air.
-  // With legged_gym's one-step contact filter, as for the air time: a foot counts as down if it
-  // touched on this step or the one before. Raw contacts flicker at a trot's diagonal hand-over,
-  // and the raw term fired on 5-19 % of the steps of a walking A1 gait (0-3 % filtered).
-  auto down = [&](int f) { return s.last_contact[f] || s.prev_contact[f]; };
+  // With legged_gym's one-step contact filter, as for the air time (contact_filt, from step()): a
+  // foot counts as down if it touched on this step or the one before. Raw contacts flicker at a
+  // trot's diagonal hand-over, and the raw term fired on 5-19 % of the steps of a walking A1 gait
+  // (0-3 % filtered).
+  auto down = [&](int f) { return contact_filt[f]; };
   t.feet_pair_off_ground = double(!down(0) && !down(1)) + double(!down(2) && !down(3));
   return t;
 }
@@ -403,10 +404,9 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
     filt[f] = contact || s.last_contact[f];  // legged_gym: contacts are unreliable on one step
     first_contact[f] = s.feet_air_time[f] > 0 && filt[f];
     s.feet_air_time[f] += dt;
-    s.prev_contact[f] = s.last_contact[f];
     s.last_contact[f] = contact;
   }
-  const RewardTerms t = reward_terms(s, a, first_contact);
+  const RewardTerms t = reward_terms(s, a, first_contact, filt);
   for (int f = 0; f < kLegs; ++f)
     if (filt[f]) s.feet_air_time[f] = 0;
   r.reward = float(total_reward(t));

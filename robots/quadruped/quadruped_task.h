@@ -34,7 +34,6 @@ struct QuadrupedState : TaskState {
   std::vector<double> last_action, last_dof_vel, targets, torques;
   std::array<double, 4> feet_air_time{};
   std::array<bool, 4> last_contact{};
-  std::array<bool, 4> prev_contact{};  // last_contact one policy step earlier
   // Randomized controller and limits (Badgers; the A1 keeps the nominal values).
   double kp = 0, kd = 0, action_scale = 0, torque_multiplier = 1, velocity_limit = 0;
   std::vector<double> torque_limit;
@@ -95,8 +94,11 @@ class QuadrupedTask final : public Task {
   // The yaw-rate command from the heading error (A1), clipped to +-ang_vel_max.
   double heading_yaw_rate(double heading_target, double heading) const;
   // The unscaled reward terms of the state after a step (used by step(); public for tests).
+  // first_contact: the feet touching down on this step; contact_filt: the feet counted as down
+  // (legged_gym's one-step filter: touching on this step or the one before), both as step() has them.
   RewardTerms reward_terms(const QuadrupedState& s, const std::vector<double>& action_legged_gym,
-                           const std::array<bool, 4>& first_contact) const;
+                           const std::array<bool, 4>& first_contact,
+                           const std::array<bool, 4>& contact_filt) const;
   // The step reward from terms: sum of scale * term * policy dt, clipped at 0 if only_positive.
   double total_reward(const RewardTerms& t) const;
   double policy_dt() const { return cfg_.decimation() * cfg_.physics_dt(); }

@@ -181,9 +181,9 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
   legged::write_property(qs.model, qs.data, legged::Property::kJointPos, spec.item("dof_pos").ids[2], &calf);
   std::vector<double> a(n, 1.5);
   qs.feet_air_time = {0.7, 0.0, 0.3, 0.0};
-  qs.last_contact = {true, true, false, false};
   const std::array<bool, 4> first = {true, false, true, false};
-  const RewardTerms t = task->reward_terms(qs, a, first);
+  const std::array<bool, 4> down = {true, true, false, false};  // filtered contacts, as step() passes them
+  const RewardTerms t = task->reward_terms(qs, a, first, down);
   EXPECT_NEAR(t.tracking_lin_vel, std::exp(-(0.04 + 0.01) / 0.25), 1e-9);
   EXPECT_NEAR(t.tracking_ang_vel, std::exp(-0.0625 / 0.25), 1e-9);
   EXPECT_NEAR(t.lin_vel_z, 0.04, 1e-9);
@@ -194,18 +194,15 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
   EXPECT_NEAR(t.dof_pos_limits, 0.05 * (-0.916298 + 2.69653), 1e-6);
   EXPECT_NEAR(t.feet_air_time, (0.7 - 0.5) + (0.3 - 0.5), 1e-9);
   EXPECT_NEAR(t.feet_pair_off_ground, 1.0, 1e-12);  // rear pair in the air, front pair down
-  // The contact filter: a foot down on the step before still counts as down (a trot's diagonal
-  // hand-over is no pair in the air); both pairs up on two steps running count twice.
-  qs.prev_contact = {false, true, true, false};
-  qs.last_contact = {true, false, false, true};
-  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 0.0);
-  qs.prev_contact = {false, false, false, false};
-  qs.last_contact = {false, false, false, false};
-  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 2.0);
-  qs.prev_contact = {false, false, false, true};
-  qs.last_contact = {true, true, false, false};
-  EXPECT_EQ(task->reward_terms(qs, a, first).feet_pair_off_ground, 0.0);
-  qs.prev_contact = {false, false, false, false};
+  // The contact filter (step() passes a foot as down if it touched on this step or the one
+  // before): a foot down on the step before still counts as down (a trot's diagonal hand-over is
+  // no pair in the air); both pairs up on two steps running count twice.
+  // Raw {1, 0, 0, 1} after {0, 1, 1, 0}: all four down.
+  EXPECT_EQ(task->reward_terms(qs, a, first, {true, true, true, true}).feet_pair_off_ground, 0.0);
+  // Raw {0, 0, 0, 0} after {0, 0, 0, 0}: none down.
+  EXPECT_EQ(task->reward_terms(qs, a, first, {false, false, false, false}).feet_pair_off_ground, 2.0);
+  // Raw {1, 1, 0, 0} after {0, 0, 0, 1}: the rear pair is not both in the air.
+  EXPECT_EQ(task->reward_terms(qs, a, first, {true, true, false, true}).feet_pair_off_ground, 0.0);
   EXPECT_NEAR(t.orientation, 0.0, 1e-12);
   const auto& w8 = task->config().reward();
   const double expected = (w8.tracking_lin_vel() * t.tracking_lin_vel + w8.tracking_ang_vel() * t.tracking_ang_vel +
@@ -219,7 +216,7 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
   EXPECT_LT(quiet_task("silver_badger")->config().reward().feet_pair_off_ground(), 0.0);
   // Feet air time counts only while the robot is asked to move.
   qs.command = {0.0, 0.0, 0.5};
-  EXPECT_EQ(task->reward_terms(qs, a, first).feet_air_time, 0.0);
+  EXPECT_EQ(task->reward_terms(qs, a, first, down).feet_air_time, 0.0);
 }
 
 TEST(Quadruped, OnlyPositiveRewardsClipsAtZero) {
