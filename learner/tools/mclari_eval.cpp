@@ -18,7 +18,9 @@
 
 #include "config.h"
 #include "mclari/mclari_task.h"
+#include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
+#include "mlp.h"
 #include "rollout.h"
 #include "sac.h"
 
@@ -28,9 +30,10 @@ namespace {
 
 const char* kUsage =
     "usage: farm-mclari-eval --config EXPERIMENT.txtpb --checkpoint DIR [--episodes 10]\n"
-    "         [--best SWEEP/best.csv] [--out TABLE.md] [--threads N] [--seed 7]\n"
+    "         [--best SWEEP/best.csv] [--out TABLE.md] [--threads N] [--seed 7] [--trace STEPS.csv]\n"
     "  --checkpoint  the learner's checkpoint directory (runs/<experiment>/checkpoint)\n"
-    "  --best        the sweep's best fixed point per terrain, for the comparison column\n";
+    "  --best        the sweep's best fixed point per terrain, for the comparison column\n"
+    "  --trace       also run one episode per terrain and write the gait and figures of each step\n";
 
 struct Best {
   std::string group_name;
@@ -62,6 +65,38 @@ std::map<int, Best> read_best(const std::string& path) {
   return best;
 }
 
+// One deterministic episode per terrain, each step's gait and figures as CSV rows: what the
+// policy does, where the table shows only its means.
+void write_trace(const std::string& path, const farm::config::MclariConfig& mc_cfg,
+                 const farm::PolicyParams& params, uint64_t seed) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error("cannot write " + path);
+  out << "terrain,terrain_name,step,frequency_hz,group,group_name,power_w,speed_mm_s,efficiency,reward,end\n";
+  farm::Policy policy(params);
+  std::mt19937_64 unused_rng;  // deterministic: no noise is drawn
+  for (int t = 0; t < mclari::kNumTerrains; ++t) {
+    auto mc = mc_cfg;
+    mc.clear_hfield_png();
+    const farm::robots::McLariTask task(mc);
+    auto state = task.make_state();
+    std::vector<float> obs(size_t(task.spec().obs_dim)), act(size_t(task.spec().act_dim));
+    task.reset_on(*state, seed + 1000 * t, t, obs.data());
+    for (int k = 1; k <= task.spec().max_episode_steps; ++k) {
+      policy.act(obs.data(), 1, unused_rng, true, act.data(), nullptr);
+      const auto r = task.step(*state, act.data(), obs.data());
+      const auto& f = static_cast<const farm::robots::McLariState&>(*state).last;
+      const char* end = r.terminated ? "terminated" : r.truncated ? "truncated" : "";
+      char line[400];
+      std::snprintf(line, sizeof line, "%d,%s,%d,%d,%d,\"%s\",%.6e,%.5f,%.6f,%.6f,%s\n", t,
+                    mclari::terrain_name(t), k, f.frequency, f.group, mclari::group_name(f.group).c_str(),
+                    f.power, f.speed_mm_s, f.efficiency, r.reward, end);
+      out << line;
+      if (r.terminated || r.truncated) break;
+    }
+  }
+  if (!out) throw std::runtime_error("write failed: " + path);
+}
+
 struct TerrainResult {
   double efficiency = 0, frequency = 0, distance = 0;
   int falls = 0, reached = 0, episodes = 0;
@@ -71,7 +106,7 @@ struct TerrainResult {
 
 int main(int argc, char** argv) {
   try {
-    std::string config_path, checkpoint, best_path, out_path;
+    std::string config_path, checkpoint, best_path, out_path, trace_path;
     int episodes = 10, threads = int(std::max(1u, std::thread::hardware_concurrency()));
     uint64_t seed = 7;
     for (int i = 1; i < argc; ++i) {
@@ -87,6 +122,7 @@ int main(int argc, char** argv) {
       else if (a == "--out") out_path = value();
       else if (a == "--threads") threads = std::stoi(value());
       else if (a == "--seed") seed = std::stoull(value());
+      else if (a == "--trace") trace_path = value();
       else if (a == "--help" || a == "-h") { std::cout << kUsage; return 0; }
       else throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
     }
@@ -170,6 +206,10 @@ int main(int argc, char** argv) {
       std::ofstream out(out_path);
       if (!out) throw std::runtime_error("cannot write " + out_path);
       out << table.str();
+    }
+    if (!trace_path.empty()) {
+      write_trace(trace_path, cfg.task().mclari(), policy, seed);
+      std::cout << "trace: one episode per terrain, every step, in " << trace_path << "\n";
     }
     return 0;
   } catch (const std::exception& e) {
