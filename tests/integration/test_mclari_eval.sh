@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# farm-mclari-eval on a real checkpoint: a learner and a worker (real DDS) train the swept mCLARI
+# config for a few seconds with 6-step episodes; the evaluation prints the six-terrain table and
+# --trace writes each step's gait, which must lie in the config's group set and frequency range.
+# usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR
+set -euo pipefail
+LEARNER=$1 WORKER=$2 EVAL=$3 SRC=$4
+T=$(mktemp -d); trap 'pkill -f "domain 94" || true; rm -rf "$T"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seconds: 100000/' \
+    -e 's/final_episodes: 6/final_episodes: 1/' \
+    -e 's/    groups: \[5, 11, 15, 19, 20, 23\]/    groups: [5, 11, 15, 19, 20, 23]\n    max_episode_steps: 6/' \
+    "$SRC/deploy/configs/mclari_sac_swept.txtpb" > "$T/c.txtpb"
+grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episodes of the swept config"
+"$LEARNER" --config "$T/c.txtpb" --run-dir "$T/run" --domain 94 > "$T/learner.log" 2>&1 &
+L=$!
+"$WORKER" --domain 94 --id eval1 > "$T/worker.log" 2>&1 &
+wait $L || { tail -20 "$T/learner.log"; fail "learner failed"; }
+[ -d "$T/run/checkpoint/sac" ] || fail "no checkpoint in $T/run"
+
+"$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 2 --threads 2 \
+    --trace "$T/trace.csv" > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }
+for t in plain-normal plain-wet plain-dry rough-normal rough-wet rough-dry; do
+  grep -q "^| $t | 2 | " "$T/eval.out" || { cat "$T/eval.out"; fail "no table row for $t"; }
+done
+grep -q "^trace: " "$T/eval.out" || fail "no trace line"
+python3 - "$T/trace.csv" <<'PY'
+import csv, math, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+assert rows, "empty trace"
+assert list(rows[0].keys()) == ["terrain", "terrain_name", "step", "frequency_hz", "group", "group_name",
+                                "power_w", "speed_mm_s", "efficiency", "reward", "end"], rows[0].keys()
+by = {}
+for r in rows:
+    by.setdefault(int(r["terrain"]), []).append(r)
+    assert int(r["group"]) in (5, 11, 15, 19, 20, 23), "group outside the config's set: %s" % r
+    assert 1 <= int(r["frequency_hz"]) <= 150, r
+    e = float(r["efficiency"])
+    assert math.isfinite(e) and e >= 0, r
+assert sorted(by) == list(range(6)), sorted(by)
+for t, rs in by.items():
+    assert [int(r["step"]) for r in rs] == list(range(1, len(rs) + 1)), (t, [r["step"] for r in rs])
+    assert 1 <= len(rs) <= 6, (t, len(rs))
+    assert rs[-1]["end"] in ("terminated", "truncated") and all(r["end"] == "" for r in rs[:-1]), (t, rs[-1])
+print("trace ok: %d steps over 6 terrains" % len(rows))
+PY
+
+# A trace that cannot be written is named.
+if "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 1 --threads 2 \
+    --trace "$T/no/such/dir/trace.csv" > /dev/null 2> "$T/err.txt"; then fail "unwritable trace accepted"; fi
+grep -q "no/such/dir/trace.csv" "$T/err.txt" || { cat "$T/err.txt"; fail "error does not name the trace path"; }
+echo "PASS"
