@@ -74,12 +74,12 @@ void write_trace(const std::string& path, const farm::config::MclariConfig& mc_c
   out << "terrain,terrain_name,step,frequency_hz,group,group_name,power_w,speed_mm_s,efficiency,reward,end\n";
   farm::Policy policy(params);
   std::mt19937_64 unused_rng;  // deterministic: no noise is drawn
+  auto mc = mc_cfg;
+  mc.clear_hfield_png();
+  const farm::robots::McLariTask task(mc);  // holds all six terrain models; reset_on picks one
+  auto state = task.make_state();
+  std::vector<float> obs(size_t(task.spec().obs_dim)), act(size_t(task.spec().act_dim));
   for (int t = 0; t < mclari::kNumTerrains; ++t) {
-    auto mc = mc_cfg;
-    mc.clear_hfield_png();
-    const farm::robots::McLariTask task(mc);
-    auto state = task.make_state();
-    std::vector<float> obs(size_t(task.spec().obs_dim)), act(size_t(task.spec().act_dim));
     task.reset_on(*state, seed + 1000 * t, t, obs.data());
     for (int k = 1; k <= task.spec().max_episode_steps; ++k) {
       policy.act(obs.data(), 1, unused_rng, true, act.data(), nullptr);

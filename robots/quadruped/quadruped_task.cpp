@@ -346,8 +346,8 @@ RewardTerms QuadrupedTask::reward_terms(const QuadrupedState& s, const std::vect
   // foot counts as down if it touched on this step or the one before. Raw contacts flicker at a
   // trot's diagonal hand-over, and the raw term fired on 5-19 % of the steps of a walking A1 gait
   // (0-3 % filtered).
-  auto down = [&](int f) { return contact_filt[f]; };
-  t.feet_pair_off_ground = double(!down(0) && !down(1)) + double(!down(2) && !down(3));
+  const auto& down = contact_filt;
+  t.feet_pair_off_ground = double(!down[0] && !down[1]) + double(!down[2] && !down[3]);
   return t;
 }
 
