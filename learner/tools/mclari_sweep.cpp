@@ -152,14 +152,15 @@ int main(int argc, char** argv) {
         McLariTask task(cfg);
         auto s = task.make_state();
         auto& ms = static_cast<McLariState&>(*s);
-        float obs[4], act[2] = {0.f, 0.f};
-        task.reset_on(*s, seed, j.terrain, obs);
+        std::vector<float> obs(size_t(task.spec().obs_dim));  // 4 to 9 by the config's observe_*
+        float act[2] = {0.f, 0.f};
+        task.reset_on(*s, seed, j.terrain, obs.data());
         Result& r = results[i];
         r.job = j;
         auto c = McLariTask::com(*s);
         r.path.push_back({c[0], c[1]});
         for (int k = 0; k < seconds; ++k) {
-          const auto step = task.step(*s, act, obs);
+          const auto step = task.step(*s, act, obs.data());
           if (ms.fell) {
             r.fell = true;
             break;

@@ -139,6 +139,13 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   } else {
     for (int g = 0; g < mclari::kNumGroups; ++g) groups_.push_back(g);
   }
+  for (int f : cfg.frequencies()) {
+    if (f < cfg.min_frequency() || f > cfg.max_frequency())
+      throw bad("frequencies", "entries must be in [min_frequency, max_frequency], got " + std::to_string(f));
+    if (std::find(frequencies_.begin(), frequencies_.end(), f) != frequencies_.end())
+      throw bad("frequencies", "lists " + std::to_string(f) + " Hz twice");
+    frequencies_.push_back(f);
+  }
   if (cfg.initial_group() < 0 || cfg.initial_group() >= int(groups_.size()))
     throw bad("initial_group", "must index the active group set of " +
                                    std::to_string(groups_.size()) + ", got " +
@@ -197,7 +204,7 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   mj_deleteModel(base);
 
   spec_.name = "mclari";
-  spec_.obs_dim = cfg.observe_gait() ? 6 : 4;
+  spec_.obs_dim = 4 + (cfg.observe_gait() ? 2 : 0) + (cfg.observe_terrain() ? 3 : 0);
   spec_.act_dim = 2;
   spec_.max_episode_steps = cfg.max_episode_steps();
   spec_.metric_names = {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance"};
@@ -275,9 +282,16 @@ void McLariTask::write_obs(const McLariState& s, float* obs) const {
   obs[1] = float(s.last.speed_mm_s / cfg_.obs_speed_scale());
   obs[2] = float((s.target[0] - c[0]) / cfg_.obs_distance_scale());
   obs[3] = float((s.target[1] - c[1]) / cfg_.obs_distance_scale());
+  int k = 4;
   if (cfg_.observe_gait()) {
-    obs[4] = float(double(s.frequency) / cfg_.max_frequency());
-    obs[5] = groups_.size() > 1 ? float(double(s.group_index) / double(groups_.size() - 1)) : 0.f;
+    obs[k++] = float(double(s.frequency) / cfg_.max_frequency());
+    obs[k++] = groups_.size() > 1 ? float(double(s.group_index) / double(groups_.size() - 1)) : 0.f;
+  }
+  if (cfg_.observe_terrain()) {
+    const int slip = mclari::terrain_slipperiness(s.terrain);
+    obs[k++] = mclari::terrain_is_rough(s.terrain) ? 1.f : 0.f;
+    obs[k++] = slip == 1 ? 1.f : 0.f;
+    obs[k++] = slip == 2 ? 1.f : 0.f;
   }
 }
 
@@ -330,8 +344,10 @@ StepResult McLariTask::step(TaskState& base, const float* action, float* obs) co
     s.frequency = cfg_.fixed_frequency();
     group = cfg_.fixed_group();
   } else {
-    s.frequency = next_frequency(s.frequency, action[0], cfg_.frequency_step(), cfg_.min_frequency(),
-                                 cfg_.max_frequency());
+    s.frequency = frequencies_.empty()
+                      ? next_frequency(s.frequency, action[0], cfg_.frequency_step(),
+                                       cfg_.min_frequency(), cfg_.max_frequency())
+                      : frequencies_[group_index_from_action(action[0], int(frequencies_.size()))];
     s.group_index = group_index_from_action(action[1], int(groups_.size()));
     group = groups_[s.group_index];
   }

@@ -89,6 +89,7 @@ class McLariTask final : public Task {
   std::vector<mjModel_*> terrain_models_;  // owned, one per terrain
   std::vector<float> hfield_;
   std::vector<int> groups_;                // active set, of all 27
+  std::vector<int> frequencies_;           // a0 picks one of these when set (Hz)
   std::vector<int> terrains_;              // drawn at reset
   int body_ = 1;                           // the robot's root body
   int act_dof_[8] = {};                    // dof driven by actuator k

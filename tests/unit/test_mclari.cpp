@@ -275,6 +275,22 @@ TEST(McLari, ActionScaling) {
     chosen.step(*t, act, obs);
     EXPECT_EQ(st(*t).last.group, group) << "a1 = " << a1;
   }
+
+  // An explicit frequency set: a0 picks one outright, wherever f was.
+  farm::config::MclariConfig fs;
+  fs.set_max_timestep(0.002);
+  fs.set_steps_per_period(20);
+  for (int f : {1, 150, 60}) fs.add_frequencies(f);
+  McLariTask picked(fs);
+  auto u = picked.make_state();
+  picked.reset_on(*u, 1, 0, obs);
+  for (const auto& [a0, f] : {std::pair{1.f, 60}, {-1.f, 1}, {0.f, 150}, {-0.3f, 150}, {-0.34f, 1},
+                              {0.34f, 60}}) {
+    act[0] = a0;
+    picked.step(*u, act, obs);
+    EXPECT_EQ(st(*u).frequency, f) << "a0 = " << a0;
+    EXPECT_EQ(st(*u).last.frequency, f) << "a0 = " << a0;
+  }
 }
 
 TEST(McLari, ObservedGait) {
@@ -301,6 +317,28 @@ TEST(McLari, ObservedGait) {
   task.step(*s, act, obs);
   EXPECT_FLOAT_EQ(obs[4], 76.f / 150.f);
   EXPECT_FLOAT_EQ(obs[5], 0.f);
+}
+
+TEST(McLari, ObservedTerrain) {
+  farm::config::MclariConfig c;
+  c.set_steps_per_period(20);
+  c.set_max_timestep(0.002);
+  c.set_observe_terrain(true);
+  EXPECT_EQ(McLariTask(c).spec().obs_dim, 7);
+  c.set_observe_gait(true);
+  McLariTask task(c);
+  ASSERT_EQ(task.spec().obs_dim, 9);
+  auto s = task.make_state();
+  // [rough, wet, extra-dry] after the gait, per terrain 0..5, at reset and after a step.
+  const float want[6][3] = {{0, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 0, 0}, {1, 1, 0}, {1, 0, 1}};
+  for (int t = 0; t < 6; ++t) {
+    float obs[9], act[2] = {0.f, 0.f};
+    task.reset_on(*s, 7, t, obs);
+    EXPECT_FLOAT_EQ(obs[4], 1.f / 150.f) << "terrain " << t;  // the gait stays at 4, 5
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(obs[6 + i], want[t][i]) << "terrain " << t << " entry " << i;
+    task.step(*s, act, obs);
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(obs[6 + i], want[t][i]) << "terrain " << t << " after a step";
+  }
 }
 
 TEST(McLari, RewardAndTermination) {
@@ -462,4 +500,11 @@ TEST(McLari, BadConfigIsNamed) {
   expect_error(c, "reference_efficiency");  // one per terrain
   c.add_reference_efficiency(0.0);
   expect_error(c, "reference_efficiency");  // six, but one is not > 0
+  c = {};
+  c.add_frequencies(151);
+  expect_error(c, "frequencies");  // above max_frequency
+  c = {};
+  c.add_frequencies(1);
+  c.add_frequencies(1);
+  expect_error(c, "1 Hz twice");
 }
