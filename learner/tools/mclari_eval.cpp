@@ -4,6 +4,7 @@
 // best.csv). Prints a Markdown table; --out also writes it to a file.
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
@@ -39,6 +40,7 @@ struct Best {
   std::string group_name;
   int frequency = 0;
   double efficiency = 0;
+  double seconds = 0;  // how long the fixed point ran; 0: best.csv does not say (older sweeps)
 };
 
 // terrain -> best fixed point, from best.csv (terrain,terrain_name,group,"group_name",f,eff,...).
@@ -48,6 +50,7 @@ std::map<int, Best> read_best(const std::string& path) {
   std::map<int, Best> best;
   std::string line;
   std::getline(in, line);  // header
+  const bool has_seconds = line.size() >= 8 && line.compare(line.size() - 8, 8, ",seconds") == 0;
   int row = 1;
   while (std::getline(in, line)) {
     ++row;
@@ -60,6 +63,14 @@ std::map<int, Best> read_best(const std::string& path) {
     if (std::sscanf(line.c_str(), "%d", &terrain) != 1 ||
         std::sscanf(line.c_str() + q2 + 1, ",%d,%lf", &b.frequency, &b.efficiency) != 2)
       throw std::runtime_error(path + ":" + std::to_string(row) + ": cannot parse '" + line + "'");
+    if (has_seconds) {
+      const auto comma = line.rfind(',');
+      try {
+        b.seconds = std::stod(line.substr(comma + 1));
+      } catch (const std::exception&) {
+        throw std::runtime_error(path + ":" + std::to_string(row) + ": cannot parse seconds in '" + line + "'");
+      }
+    }
     best[terrain] = b;
   }
   return best;
@@ -199,6 +210,27 @@ int main(int argc, char** argv) {
                     mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, r.episodes, r.reached,
                     r.episodes, r.frequency, fixed.c_str(), fixed_eff.c_str(), ratio.c_str());
       table << line;
+    }
+    // Rough ground's fixed gaits slow down over a long run (the robot settles into the height
+    // field), so the fixed points only compare with episodes of the same length.
+    const double episode_s = cfg.task().mclari().max_episode_steps() * cfg.task().mclari().step_seconds();
+    std::string note;
+    for (const auto& [t, b] : best) {
+      char text[400];
+      if (b.seconds == 0)
+        std::snprintf(text, sizeof text, "note: %s does not say how long its fixed points ran; these episodes run up to %g s\n",
+                      best_path.c_str(), episode_s);
+      else if (std::abs(b.seconds - episode_s) > 1e-9)
+        std::snprintf(text, sizeof text, "note: not like for like: the fixed points of %s ran %g s, these episodes up to %g s "
+                      "(farm-mclari-sweep --seconds %g)\n", best_path.c_str(), b.seconds, episode_s, episode_s);
+      else
+        continue;
+      note = text;
+      break;
+    }
+    if (!note.empty()) {
+      table << "\n" << note;
+      std::fprintf(stderr, "farm-mclari-eval: %s", note.c_str());
     }
     std::cout << "policy: " << checkpoint << " (" << sac.updates() << " updates, " << policy.layout.describe() << ")\n"
               << table.str();

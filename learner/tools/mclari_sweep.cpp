@@ -199,7 +199,8 @@ int main(int argc, char** argv) {
     if (!traj || !sum || !best) throw std::runtime_error("cannot write CSV files under " + out);
     traj << "terrain,terrain_name,group,frequency_hz,t_s,x_mm,y_mm\n";
     sum << "terrain,terrain_name,group,group_name,frequency_hz,power_w,speed_mm_s,efficiency,steps,fell,wall_s\n";
-    best << "terrain,terrain_name,group,group_name,frequency_hz,efficiency,speed_mm_s,power_w\n";
+    // seconds: how long each fixed point ran, so an evaluation can tell whether its episodes match.
+    best << "terrain,terrain_name,group,group_name,frequency_hz,efficiency,speed_mm_s,power_w,seconds\n";
     char line[512];
     for (const auto& r : results) {
       for (size_t k = 0; k < r.path.size(); ++k) {
@@ -218,8 +219,9 @@ int main(int argc, char** argv) {
       for (const auto& r : results)
         if (r.job.terrain == t && !r.fell && (!b || r.efficiency > b->efficiency)) b = &r;
       if (!b) continue;
-      std::snprintf(line, sizeof line, "%d,%s,%d,\"%s\",%d,%.6f,%.5f,%.6e\n", t, mclari::terrain_name(t), b->job.group,
-                    mclari::group_name(b->job.group).c_str(), b->job.frequency, b->efficiency, b->speed, b->power);
+      std::snprintf(line, sizeof line, "%d,%s,%d,\"%s\",%d,%.6f,%.5f,%.6e,%g\n", t, mclari::terrain_name(t), b->job.group,
+                    mclari::group_name(b->job.group).c_str(), b->job.frequency, b->efficiency, b->speed, b->power,
+                    seconds * base.step_seconds());
       best << line;
       std::printf("%-13s %-18s %6d %10.4f %10.3f %12.3e\n", mclari::terrain_name(t), mclari::group_name(b->job.group).c_str(),
                   b->job.frequency, b->efficiency, b->speed, b->power);

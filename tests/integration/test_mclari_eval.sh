@@ -2,9 +2,11 @@
 # farm-mclari-eval on a real checkpoint: a learner and a worker (real DDS) train the swept mCLARI
 # config for a few seconds with 6-step episodes; the evaluation prints the six-terrain table and
 # --trace writes each step's gait, which must lie in the config's group set and frequency range.
-# usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR
+# A small sweep's best.csv gives the comparison column, and the table says when the sweep's runs
+# were not as long as the episodes.
+# usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
 set -euo pipefail
-LEARNER=$1 WORKER=$2 EVAL=$3 SRC=$4
+LEARNER=$1 WORKER=$2 EVAL=$3 SRC=$4 SWEEP=$5
 T=$(mktemp -d); trap 'pkill -f "domain 94" || true; rm -rf "$T"' EXIT
 fail() { echo "FAIL: $*"; exit 1; }
 sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seconds: 100000/' \
@@ -44,6 +46,18 @@ for t, rs in by.items():
     assert rs[-1]["end"] in ("terminated", "truncated") and all(r["end"] == "" for r in rs[:-1]), (t, rs[-1])
 print("trace ok: %d steps over 6 terrains" % len(rows))
 PY
+
+# The comparison with a sweep: runs as long as the episodes (6 s) compare without a note, 2 s ones
+# get the note that names both lengths.
+for secs in 6 2; do
+  "$SWEEP" --out "$T/sweep$secs" --config "$T/c.txtpb" --seconds $secs --frequencies 1 --groups 11,20 \
+      --threads 2 > "$T/sweep$secs.out" 2>&1 || { cat "$T/sweep$secs.out"; fail "sweep failed"; }
+  "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 1 --threads 2 \
+      --best "$T/sweep$secs/best.csv" > "$T/cmp$secs.out" 2> /dev/null || fail "evaluation with --best failed"
+  [ "$(grep -c ', 1 Hz | ' "$T/cmp$secs.out")" = 6 ] || { cat "$T/cmp$secs.out"; fail "no best fixed point per terrain"; }
+done
+grep -q "not like for like" "$T/cmp6.out" && { cat "$T/cmp6.out"; fail "note on equal lengths"; }
+grep -q "ran 2 s, these episodes up to 6 s" "$T/cmp2.out" || { cat "$T/cmp2.out"; fail "no note on unequal lengths"; }
 
 # A trace that cannot be written is named.
 if "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 1 --threads 2 \
