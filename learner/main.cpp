@@ -185,6 +185,10 @@ class Learner {
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
       episodes_total_ = m.episodes();
       accounts_from_manifest(m, ingest_);
+      // The first progress line's rates count from the restored counters, not from zero.
+      last_steps_ = ingest_.counters().env_steps;
+      last_ok_ = ingest_.counters().ok;
+      last_lag_sum_ = ingest_.counters().lag_sum;
       rng_from_manifest(m, &rng_);  // after the algorithm's constructor seeded LibTorch
       log("resumed from " + ckpt_dir_ + ": " + std::to_string(algo_->updates()) + " updates, " +
           std::to_string(ingest_.counters().env_steps) + " env steps, buffer " +

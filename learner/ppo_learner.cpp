@@ -177,6 +177,10 @@ class PpoLearner {
       best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
       episodes_total_ = m.episodes();
       accounts_from_manifest(m, ingest_);
+      // The first progress line's rates count from the restored counters, not from zero.
+      last_steps_ = ingest_.counters().env_steps;
+      last_ok_ = ingest_.counters().ok;
+      last_lag_sum_ = ingest_.counters().lag_sum;
       // The run's counters go on from where they were; data not yet fitted was not kept.
       rng_from_manifest(m, nullptr);
       sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
