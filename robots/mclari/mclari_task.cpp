@@ -25,6 +25,20 @@ std::invalid_argument bad(const std::string& field, const std::string& what) {
   return std::invalid_argument("mclari config: " + field + " " + what);
 }
 
+// A config list whose entries must lie in [lo, hi] and appear once; errors name the field.
+template <typename List>
+std::vector<int> distinct_in_range(const List& list, int lo, int hi, const std::string& field,
+                                   const std::string& range, const std::string& prefix, const std::string& unit) {
+  std::vector<int> out;
+  for (int v : list) {
+    if (v < lo || v > hi) throw bad(field, "entries must be in " + range + ", got " + std::to_string(v));
+    if (std::find(out.begin(), out.end(), v) != out.end())
+      throw bad(field, "lists " + prefix + std::to_string(v) + unit + " twice");
+    out.push_back(v);
+  }
+  return out;
+}
+
 void replace_all(std::string& s, const std::string& from, const std::string& to) {
   for (size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size()))
     s.replace(p, from.size(), to);
@@ -127,25 +141,14 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   if (cfg.groups_size() > 0) {
     if (cfg.reduced_groups())
       throw bad("groups", "and reduced_groups: set one or the other, not both");
-    for (int g : cfg.groups()) {
-      if (g < 0 || g >= mclari::kNumGroups)
-        throw bad("groups", "entries must be in [0, 27), got " + std::to_string(g));
-      if (std::find(groups_.begin(), groups_.end(), g) != groups_.end())
-        throw bad("groups", "lists group " + std::to_string(g) + " twice");
-      groups_.push_back(g);
-    }
+    groups_ = distinct_in_range(cfg.groups(), 0, mclari::kNumGroups - 1, "groups", "[0, 27)", "group ", "");
   } else if (cfg.reduced_groups()) {
     groups_ = mclari::reduced_groups();
   } else {
     for (int g = 0; g < mclari::kNumGroups; ++g) groups_.push_back(g);
   }
-  for (int f : cfg.frequencies()) {
-    if (f < cfg.min_frequency() || f > cfg.max_frequency())
-      throw bad("frequencies", "entries must be in [min_frequency, max_frequency], got " + std::to_string(f));
-    if (std::find(frequencies_.begin(), frequencies_.end(), f) != frequencies_.end())
-      throw bad("frequencies", "lists " + std::to_string(f) + " Hz twice");
-    frequencies_.push_back(f);
-  }
+  frequencies_ = distinct_in_range(cfg.frequencies(), cfg.min_frequency(), cfg.max_frequency(), "frequencies",
+                                  "[min_frequency, max_frequency]", "", " Hz");
   if (cfg.initial_group() < 0 || cfg.initial_group() >= int(groups_.size()))
     throw bad("initial_group", "must index the active group set of " +
                                    std::to_string(groups_.size()) + ", got " +
