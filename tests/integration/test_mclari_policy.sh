@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The shipped mCLARI policy (docs/data/mclari_terrain_policy, seed 1 of
+# deploy/configs/mclari_sac_terrain.txtpb at 70,864 env steps, docs/MCLARI.md step 11) still meets
+# the goal on every terrain: >= 90 % of the 180 s sweep's best fixed point and no fall, over 2
+# episodes per terrain (10 in the docs). Fails when the model, the task or the policy loading
+# changes what the policy does.
+# usage: test_mclari_policy.sh EVAL SOURCE_DIR
+set -euo pipefail
+EVAL=$1 SRC=$2
+T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+"$EVAL" --config "$SRC/deploy/configs/mclari_sac_terrain.txtpb" --checkpoint "$SRC/docs/data/mclari_terrain_policy" \
+    --best "$SRC/docs/data/mclari_best_180s.csv" --episodes 2 --threads 2 --out "$T/table.md" \
+    > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }
+cat "$T/table.md"
+grep -q "not like for like\|does not say how long" "$T/table.md" && fail "the comparison is not like for like"
+python3 - "$T/table.md" <<'PY'
+import sys
+rows = [[c.strip() for c in l.split("|")[1:-1]] for l in open(sys.argv[1]) if l.startswith("| ")]
+rows = [r for r in rows if r[0].startswith(("plain-", "rough-"))]
+names = [r[0] for r in rows]
+assert names == ["plain-normal", "plain-wet", "plain-dry", "rough-normal", "rough-wet", "rough-dry"], names
+for r in rows:
+    terrain, episodes, falls, ratio = r[0], r[1], r[3], r[-1]
+    assert episodes == "2", r
+    assert falls == "0 / 2", "%s: falls %s" % (terrain, falls)
+    pct = int(ratio.rstrip(" %"))
+    assert pct >= 90, "%s: %d %% of the best fixed point" % (terrain, pct)
+    print("%s: %d %%, falls %s" % (terrain, pct, falls))
+PY
+echo "PASS"
