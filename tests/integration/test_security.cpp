@@ -19,7 +19,7 @@ task { name: "pendulum" }
 sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3 learning_starts: 1000 publish_every_updates: 25 }
 worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 2 }
 eval { episodes: 5 every_seconds: 5 final_episodes: 10 }
-stop { max_seconds: 25 }
+stop { max_seconds: 40 }
 log_every_seconds: 2
 )";
 
@@ -38,17 +38,19 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
                              domain, "--security", d + "/pki/learner"}, "learner");
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "worker-a", "--security", d + "/pki/worker-a"},
                            "worker");
-  // Outsiders send for most of the learner's 25 s: once on 2 busy cores the certified insider
-  // matched nothing within 15 s (a secure handshake can need resends).
-  auto outsider = [&](const std::string& id, const std::vector<std::string>& extra) -> Proc& {
+  // The outsiders try for 22 s. The certified insider, the control, sends for most of the
+  // learner's 40 s: on 2 busy cores it once matched nothing within 15 s (a secure handshake can
+  // need resends), and a control that has too little time fails the test for the wrong reason.
+  auto outsider = [&](const std::string& id, const std::vector<std::string>& extra,
+                      const char* seconds = "22") -> Proc& {
     std::vector<std::string> argv = {FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", id,
-                                     "--seconds", "22"};
+                                     "--seconds", seconds};
     argv.insert(argv.end(), extra.begin(), extra.end());
     return set.start(argv, id);
   };
   Proc& plain = outsider("intruder-plain", {});
   Proc& rogue = outsider("intruder-rogue", {"--security", d + "/rogue/worker-a"});
-  Proc& insider = outsider("insider", {"--security", d + "/pki/insider"});
+  Proc& insider = outsider("insider", {"--security", d + "/pki/insider"}, "36");
 
   for (Proc* p : {&plain, &rogue, &insider}) {
     int rc = wait_for(*p, 60);
