@@ -29,12 +29,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-
 FitPlan plan_of(const config::PpoConfig& c) {
   FitPlan p;
   p.steps_per_fit = c.steps_per_fit();
@@ -71,140 +65,80 @@ EvalReport summarize(const std::vector<EpisodeRecord>& recs, size_t num_metrics)
   return r;
 }
 
-class PpoLearner {
+class PpoLearner final : public LearnerService {
  public:
   PpoLearner(const LearnerRunOptions& o, const config::ExperimentConfig& cfg, const std::atomic<bool>& interrupted)
-      : opt_(o),
-        cfg_(cfg),
+      : LearnerService(o, cfg, interrupted),
         pc_(cfg.ppo()),
-        interrupted_(interrupted),
-        task_(robots::make_task(cfg_.task())),
-        obs_dim_(task_->spec().obs_dim),
-        act_dim_(task_->spec().act_dim),
         ppo_(pc_, obs_dim_, act_dim_, cfg_.seed()),
         storage_(obs_dim_, act_dim_),
-        sched_(plan_of(pc_)),
-        ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
-        bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
-        spec_(bus_, cfg_, obs_dim_, act_dim_),
-        weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
-        stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
-        batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
-        status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader") {
+        sched_(plan_of(pc_)) {
     if (task_->spec().num_actions > 0)
       throw std::invalid_argument("algorithm \"ppo\" needs continuous actions; task '" + cfg_.task().name() +
                                   "' has discrete ones");
-    run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
-    ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
-  }
-
-  int run() {
-    prepare_run_dir();
-    spec_.publish(false);
-    const auto& p = pc_;
-    log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
-        ", act " + std::to_string(act_dim_) + "), PPO (" + p.variant() + ") " +
-        ppo_.export_policy(0).layout.describe() + " actor, " +
-        (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps" : std::to_string(p.episodes_per_fit()) + " episodes") +
-        " per fit, max policy lag " + std::to_string(p.max_policy_lag()) + ", DDS domain " + std::to_string(bus_.domain()) +
-        ", run dir " + run_dir_);
-    log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
-
-    const double t0 = now_seconds() - elapsed_offset_;
-    double last_log = now_seconds(), last_ckpt = now_seconds();
-    last_data_ = now_seconds();
-    std::string stop_reason;
-    while (stop_reason.empty()) {
-      if (interrupted_) { stop_reason = "interrupted"; break; }
-      size_t got = drain_batches(256);
-      drain_status();
-      if (!published_) {
-        // The first weights wait for the first worker and a short grace for the others, so the
-        // first quota is shared out over the workers that are there.
-        if (first_join_ > 0 && now_seconds() - first_join_ >= kJoinGraceSeconds) {
-          quota_ = batches_for_next_fit();
-          publish_weights();
-          published_ = true;
-        } else {
-          batches_in_.wait(0.05);
-        }
-      } else if (sched_.fit_due()) {
-        fit(now_seconds() - t0);
-      } else if (got == 0) {
-        top_up_if_starved();
-        batches_in_.wait(0.01);
-      }
-      double now = now_seconds();
-      if (now - last_log >= cfg_.log_every_seconds()) {
-        publish_stats(now - t0, now - last_log);
-        last_log = now;
-      }
-      spec_.republish_if_due(now);
-      if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
-        checkpoint(now - t0);
-        last_ckpt = now_seconds();
-      }
-      stop_reason = should_stop(now - t0);
-    }
-    const double elapsed = now_seconds() - t0;
-    log("stopping: " + stop_reason);
-    if (stop_reason == "interrupted") {
-      checkpoint(elapsed);
-      log("checkpoint written; resume with --resume");
-      return 130;
-    }
-    EvalReport final_eval = evaluate(cfg_.eval().final_episodes(), elapsed, "final");
-    spec_.publish(true);
-    drain_until_workers_end();
-    checkpoint(elapsed);
-    write_summary(elapsed, stop_reason, final_eval);
-    return 0;
   }
 
  private:
-  void log(const std::string& s) {
-    std::printf("[learner] %s\n", s.c_str());
-    std::fflush(stdout);
+  std::string describe() const override {
+    const auto& p = pc_;
+    return "PPO (" + p.variant() + ") " + ppo_.export_policy(0).layout.describe() + " actor, " +
+           (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps"
+                                  : std::to_string(p.episodes_per_fit()) + " episodes") +
+           " per fit, max policy lag " + std::to_string(p.max_policy_lag());
   }
 
-  void prepare_run_dir() {
-    if (opt_.resume) {
-      if (!checkpoint_exists(ckpt_dir_)) throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
-      const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
-      ppo_.load((fs::path(usable_checkpoint(ckpt_dir_)) / "ppo").string());
-      version_ = m.policy_version() + 1;
-      elapsed_offset_ = m.elapsed_seconds();
-      best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
-      episodes_total_ = m.episodes();
-      accounts_from_manifest(m, ingest_);
-      // The first progress line's rates count from the restored counters, not from zero.
-      last_steps_ = ingest_.counters().env_steps;
-      last_ok_ = ingest_.counters().ok;
-      last_lag_sum_ = ingest_.counters().lag_sum;
-      // The run's counters go on from where they were; data not yet fitted was not kept.
-      rng_from_manifest(m, nullptr);
-      sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
-      log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
-          std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
-    } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
-      log("previous run moved to " + aside + " (use --resume to continue a run instead)");
+  void on_start() override { last_data_ = now_seconds(); }
+  void on_worker_heard() override {
+    if (first_join_ == 0) first_join_ = now_seconds();
+  }
+
+  void work(double t0) override {
+    const size_t got = drain_batches(256);
+    drain_status();
+    if (!published_) {
+      // The first weights wait for the first worker and a short grace for the others, so the
+      // first quota is shared out over the workers that are there.
+      if (first_join_ > 0 && now_seconds() - first_join_ >= kJoinGraceSeconds) {
+        quota_ = batches_for_next_fit();
+        publish_weights();
+        published_ = true;
+      } else {
+        batches_in_.wait(0.05);
+      }
+    } else if (sched_.fit_due()) {
+      fit(now_seconds() - t0);
+    } else if (got == 0) {
+      top_up_if_starved();
+      batches_in_.wait(0.01);
     }
-    fs::create_directories(run_dir_);
-    bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
-    csv_.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
-    if (!csv_) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
-    if (new_csv)
-      csv_ << "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
-              "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
-              "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
-              "batches_stale,workers,episodes";
+  }
+
+  std::string csv_header() const override {
+    std::string h =
+        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
+        "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
+        "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
+        "batches_stale,workers,episodes";
     // The task's own per-episode metrics: means over the episodes finished since the last fit
     // (train_*) and over the evaluation episodes (eval_*).
-    if (new_csv) {
-      for (const auto& m : task_->spec().metric_names) csv_ << ",train_" << m;
-      for (const auto& m : task_->spec().metric_names) csv_ << ",eval_" << m;
-      csv_ << '\n';
-    }
+    for (const auto& m : task_->spec().metric_names) h += ",train_" + m;
+    for (const auto& m : task_->spec().metric_names) h += ",eval_" + m;
+    return h;
+  }
+
+  config::CheckpointManifest restore_algorithm() override {
+    const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
+    ppo_.load((fs::path(usable_checkpoint(ckpt_dir_)) / "ppo").string());
+    return m;
+  }
+
+  void resumed(const config::CheckpointManifest& m) override {
+    version_ = m.policy_version() + 1;
+    // The run's counters go on from where they were; data not yet fitted was not kept.
+    rng_from_manifest(m, nullptr);
+    sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
+    log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
+        std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
   }
 
   // The current version's weights with the current quota; re-sent with a larger quota to top up.
@@ -272,18 +206,11 @@ class PpoLearner {
     write_weights();
   }
 
-  size_t drain_batches(size_t max) {
+  size_t drain_batches(size_t max) override {
     size_t n = 0;
     while (n < max && batches_in_.take(batch_)) {
       ++n;
-      pending_.clear();
-      episodes_.clear();
-      std::string why = ingest_.accept(batch_, version_, now_seconds(), pending_, episodes_);
-      if (!why.empty()) {
-        if (++rejections_logged_ <= 20)
-          log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + batch_.worker_id() + ": " + why);
-        continue;
-      }
+      if (!accept_batch(version_)) continue;
       if (pending_.n == 0) continue;  // end of stream
       last_data_ = now_seconds();
       if (batch_.policy_version() + uint64_t(pc_.max_policy_lag()) < version_ || sched_.run_done()) {
@@ -298,9 +225,7 @@ class PpoLearner {
                    batch_.log_probs().data(), pending_.next_obs.data(), batch_.policy_version());
       sched_.on_data(pending_.n, int64_t(episodes_.size()));
       for (auto& e : episodes_) {
-        recent_returns_.push_back(e.episode_return);
-        if (recent_returns_.size() > 100) recent_returns_.pop_front();
-        ++episodes_total_;
+        record_episode(e.episode_return);
         ++fit_episodes_;
         fit_metric_sums_.resize(task_->spec().metric_names.size(), 0.0);
         for (size_t i = 0; i < fit_metric_sums_.size() && i < e.metrics.size(); ++i) fit_metric_sums_[i] += e.metrics[i];
@@ -329,7 +254,7 @@ class PpoLearner {
     else policy_ = ppo_.export_policy(version_);
     const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0;
     if (eval_now) evaluate(cfg_.eval().episodes(), elapsed, "eval");
-    const double mean_ret = recent_returns_.empty() ? NAN : mean_of(recent_returns_);
+    const double mean_ret = mean_recent_return();
     const auto& c = ingest_.counters();
     std::ostringstream o;
     o << "fit " << ppo_.fits() << " | v" << fitted << " -> v" << version_ << " | steps used " << f.steps_used
@@ -374,100 +299,37 @@ class PpoLearner {
     return r;
   }
 
-  void drain_status() {
-    farm::msg::WorkerStatus s;
-    while (status_in_.take(s)) {
-      if (first_join_ == 0) first_join_ = now_seconds();
-      roster_.heard(s, now_seconds());
-    }
-    roster_.check(now_seconds());
-  }
-
-  int live_workers() const { return roster_.live_count(now_seconds()); }
-
-  void publish_stats(double elapsed, double window) {
+  void progress(double elapsed, double window) override {
     const auto& c = ingest_.counters();
-    const double in_rate = double(c.env_steps - last_steps_) / window;
-    last_steps_ = c.env_steps;
-    const double lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
-    last_ok_ = c.ok;
-    last_lag_sum_ = c.lag_sum;
-    farm::msg::LearnerStats st;
-    st.experiment_id(cfg_.experiment_id());
-    st.elapsed_seconds(elapsed);
-    st.env_steps(c.env_steps);
-    st.env_steps_per_second(in_rate);
+    const Window w = take_window(window);
+    farm::msg::LearnerStats st = base_stats(elapsed, w);
     st.updates(ppo_.updates());
     st.updates_per_second(0);
     st.buffer_fill(pc_.steps_per_fit() > 0 ? double(storage_.steps()) / double(pc_.steps_per_fit()) : 0.0);
-    st.policy_lag(lag);
     st.critic_loss(last_stats_.value_loss);
     st.actor_loss(last_stats_.policy_loss);
-    st.mean_return(recent_returns_.empty() ? NAN : mean_of(recent_returns_));
     st.eval_return(last_eval_.mean);
-    st.batches_ok(c.ok);
-    st.batches_lost(c.lost);
-    st.batches_duplicate(c.duplicate);
-    st.batches_invalid(c.invalid);
-    st.workers(live_workers());
     stats_out_.write(st);
-    log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", in_rate) + " steps/s (" + std::to_string(c.env_steps) +
+    log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", w.in_rate) + " steps/s (" + std::to_string(c.env_steps) +
         ") | v" + std::to_string(version_) + " collecting " + std::to_string(sched_.fit_steps()) + " steps, quota " +
         std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) + " lost " +
         std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " + std::to_string(c.invalid) +
         " stale " + std::to_string(stale_total_) + " | workers " + std::to_string(live_workers()));
   }
 
-  static double mean_of(const std::deque<float>& d) {
-    double s = 0;
-    for (float x : d) s += x;
-    return s / d.size();
-  }
-
-  std::string should_stop(double elapsed) const {
-    const auto& s = cfg_.stop();
+  std::string should_stop(double elapsed) const override {
     if (sched_.run_done() && !sched_.fit_due()) {
       if (pc_.steps_per_run() > 0 && sched_.run_steps() >= pc_.steps_per_run())
         return "run length " + std::to_string(pc_.steps_per_run()) + " steps";
       return "run length " + std::to_string(pc_.episodes_per_run()) + " episodes";
     }
-    if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval_.mean) && last_eval_.mean >= s.target_eval_return())
-      return "evaluation return " + fmt("%.1f", last_eval_.mean) + " reached the target " + fmt("%.1f", s.target_eval_return());
-    if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
-    if (s.max_env_steps() > 0 && int64_t(ingest_.counters().env_steps) >= s.max_env_steps())
-      return "env step limit " + std::to_string(s.max_env_steps());
-    if (s.max_updates() > 0 && ppo_.updates() >= s.max_updates()) return "update limit " + std::to_string(s.max_updates());
-    return "";
+    return limit_reached(elapsed, last_eval_.mean, ppo_.updates());
   }
 
-  void drain_until_workers_end() {
-    const double t_end = now_seconds() + 15.0;
-    while (now_seconds() < t_end) {
-      drain_batches(1024);
-      drain_status();
-      bool all_ended = !ingest_.workers().empty();
-      for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && w.ended;
-      if (all_ended) break;
-      batches_in_.wait(0.05);
-    }
-    for (auto& [k, w] : ingest_.workers())
-      if (!w.ended)
-        log("worker " + w.worker_id + " did not close its stream; batches after " + std::to_string(w.next_sequence) +
-            " are unaccounted");
-  }
-
-  void checkpoint(double elapsed) {
-    config::CheckpointManifest m;
-    m.set_experiment_id(cfg_.experiment_id());
-    m.set_policy_version(version_);
-    m.set_updates(ppo_.updates());
-    m.set_elapsed_seconds(elapsed);
-    if (!std::isnan(best_eval_)) m.set_best_eval_return(best_eval_);
-    m.set_config_text(config_to_text(cfg_));
-    m.set_episodes(episodes_total_);
+  void checkpoint(double elapsed) override {
+    config::CheckpointManifest m = base_manifest(version_, ppo_.updates(), elapsed);
     m.set_run_steps(uint64_t(sched_.run_steps()));
     rng_to_manifest(nullptr, m);
-    accounts_to_manifest(ingest_, m);
     const double t = now_seconds();
     write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) {
       fs::create_directories(fs::path(tmp) / "ppo");
@@ -476,14 +338,13 @@ class PpoLearner {
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
   }
 
-  void write_summary(double elapsed, const std::string& reason, const EvalReport& fe) {
+  void final_evaluation(double elapsed) override { final_eval_ = evaluate(cfg_.eval().final_episodes(), elapsed, "final"); }
+
+  void write_summary(double elapsed, const std::string& reason) override {
     const auto& c = ingest_.counters();
+    const EvalReport& fe = final_eval_;
     std::ostringstream o;
-    o << "experiment        " << cfg_.experiment_id() << "\n"
-      << "stopped because   " << reason << "\n"
-      << "wall time         " << fmt("%.1f", elapsed) << " s\n"
-      << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9)) << " steps/s)\n"
-      << "updates           " << ppo_.updates() << " (" << ppo_.fits() << " fits)\n"
+    o << summary_head(elapsed, reason) << "updates           " << ppo_.updates() << " (" << ppo_.fits() << " fits)\n"
       << "policy versions   " << version_ << "\n"
       << "episodes          " << episodes_total_ << "\n"
       << "final eval return " << fmt("%.1f", fe.mean) << " (mean of " << fe.episodes << " deterministic episodes)\n"
@@ -494,55 +355,26 @@ class PpoLearner {
     o << "best eval return  " << fmt("%.1f", best_eval_) << "\n"
       << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
       << c.invalid << ", stale " << stale_total_ << "\n"
-      << "quota top-ups     " << top_ups_ << "\n";
-    for (auto& [k, w] : ingest_.workers()) {
-      o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
-        << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
-        << w.duplicates << ", invalid " << w.invalid << (w.ended ? ", stream closed" : ", stream open") << "\n";
-    }
-    std::string text = o.str();
-    std::printf("\n===== summary =====\n%s===================\n", text.c_str());
-    std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
-    log("summary written to " + run_dir_ + "/summary.txt");
+      << "quota top-ups     " << top_ups_ << "\n"
+      << summary_workers();
+    emit_summary(o.str());
   }
 
-  LearnerRunOptions opt_;
-  config::ExperimentConfig cfg_;
   config::PpoConfig pc_;
-  const std::atomic<bool>& interrupted_;
-  std::shared_ptr<const robots::Task> task_;
-  int obs_dim_, act_dim_;
   Ppo ppo_;
   RolloutStorage storage_;
   FitScheduler sched_;
-  Ingest ingest_;
-  farm::dds::Bus bus_;
-  SpecPublisher spec_;
-  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
-  farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
-  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
-  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
-  std::string run_dir_, ckpt_dir_;
-  std::ofstream csv_;
-  farm::msg::TransitionBatch batch_;
-  Transitions pending_;
-  std::vector<FinishedEpisode> episodes_;
-  std::deque<float> recent_returns_;
   uint64_t fit_episodes_ = 0;              // episodes finished since the last fit
   std::vector<double> fit_metric_sums_;    // their task metrics, summed
-  WorkerRoster roster_{cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }};
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
   PolicyParams policy_;
   PpoStats last_stats_{};
-  EvalReport last_eval_;
+  EvalReport last_eval_, final_eval_;
   uint64_t version_ = 0;
   uint32_t quota_ = 1;
   uint64_t stale_total_ = 0, stale_fit_ = 0, top_ups_ = 0;
-  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
-  double last_lag_sum_ = 0, elapsed_offset_ = 0, last_data_ = 0;
-  double best_eval_ = NAN, first_join_ = 0;
+  double last_data_ = 0, first_join_ = 0;
   bool published_ = false;
-  int rejections_logged_ = 0;
   static constexpr double kJoinGraceSeconds = 1.0;
 };
 

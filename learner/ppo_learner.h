@@ -4,18 +4,11 @@
 #pragma once
 
 #include <atomic>
-#include <string>
 
-#include "dds.h"
 #include "farm_config.pb.h"
+#include "learner_service.h"
 
 namespace farm {
-
-struct LearnerRunOptions {
-  farm::dds::BusOptions bus;
-  bool resume = false;
-  std::string run_dir;  // default <run_root>/<experiment_id>
-};
 
 // Runs the experiment to its end; returns the process exit code (130 when interrupted).
 int run_ppo_learner(const LearnerRunOptions& opt, const config::ExperimentConfig& cfg,
