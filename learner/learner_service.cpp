@@ -38,6 +38,7 @@ LearnerService::LearnerService(const LearnerRunOptions& o, const config::Experim
       roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
+  best_dir_ = (fs::path(run_dir_) / "best").string();
   ingest_.set_num_actions(task_->spec().num_actions);
 }
 
@@ -95,6 +96,12 @@ void LearnerService::prepare_run_dir() {
     const config::CheckpointManifest m = restore_algorithm();
     elapsed_offset_ = m.elapsed_seconds();
     best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
+    // A best policy kept after the checkpoint (the learner stopped before the next one) stays the
+    // one to beat: it is not overwritten by a weaker one after the resume.
+    if (checkpoint_exists(best_dir_)) {
+      const config::CheckpointManifest b = read_manifest(best_dir_, cfg_.experiment_id());
+      if (b.has_best_eval_return() && !(b.best_eval_return() <= best_eval_)) best_eval_ = b.best_eval_return();
+    }
     episodes_total_ = m.episodes();
     accounts_from_manifest(m, ingest_);
     // The first progress line's rates count from the restored counters, not from zero.
@@ -137,6 +144,16 @@ void LearnerService::record_episode(float episode_return) {
   recent_returns_.push_back(episode_return);
   if (recent_returns_.size() > 100) recent_returns_.pop_front();
   ++episodes_total_;
+}
+
+void LearnerService::record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) {
+  if (std::isnan(mean_return) || mean_return <= best_eval_) return;
+  best_eval_ = mean_return;
+  const double t = now_seconds();
+  write_checkpoint(best_dir_, base_manifest(version, updates, elapsed),
+                   [this](const std::string& tmp) { save_networks(tmp); });
+  log("best evaluation so far (" + fmt("%.1f", mean_return) + ", policy v" + std::to_string(version) + "): kept in " +
+      best_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
 }
 
 double LearnerService::mean_recent_return() const {

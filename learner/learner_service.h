@@ -62,6 +62,9 @@ class LearnerService {
   virtual void final_evaluation(double elapsed) = 0;
   virtual void write_summary(double elapsed, const std::string& reason) = 0;
   virtual void on_worker_heard() {}
+  // The algorithm's networks, as its save writes them, into their sub-folder of dir: the layout a
+  // checkpoint has, so evaluation programs read <run dir>/best and <run dir>/checkpoint alike.
+  virtual void save_networks(const std::string& dir) const = 0;
 
   // --- shared ---
   void log(const std::string& s) const;
@@ -72,6 +75,10 @@ class LearnerService {
   // the first 20) when the batch is refused.
   bool accept_batch(uint64_t version);
   void record_episode(float episode_return);
+  // Each evaluation's mean return goes through here: a new best is kept in best_eval_ and its
+  // networks are written to <run dir>/best (a checkpoint folder without buffers), so a run that
+  // trains past its best policy does not lose it.
+  void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed);
   double mean_recent_return() const;
   // Env steps per second and mean policy lag since the last call.
   struct Window {
@@ -102,7 +109,7 @@ class LearnerService {
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
   farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
-  std::string run_dir_, ckpt_dir_;
+  std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;
   farm::msg::TransitionBatch batch_;
   Transitions pending_;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <random>
 #include <sstream>
 
@@ -14,6 +15,8 @@
 #include "rollout.h"
 
 namespace farm {
+
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -130,7 +133,7 @@ class OffPolicyLearner final : public LearnerService {
     }
     const double mean = recs.empty() ? 0 : sum / recs.size();
     last_eval_ = mean;
-    best_eval_ = std::isnan(best_eval_) ? mean : std::max(best_eval_, mean);
+    record_evaluation(mean, p.version, algo_->updates(), elapsed);
     std::string metric_txt;
     for (size_t i = 0; i < metrics.size() && !recs.empty(); ++i)
       metric_txt += ", " + names[i] + " " + fmt("%.3f", metrics[i] / recs.size());
@@ -201,6 +204,12 @@ class OffPolicyLearner final : public LearnerService {
     const double t = now_seconds();
     save_checkpoint(ckpt_dir_, m, *algo_, replay_);
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+  }
+
+  void save_networks(const std::string& dir) const override {
+    const std::string sub = (fs::path(dir) / algo_->name()).string();
+    fs::create_directories(sub);
+    algo_->save(sub);
   }
 
   void final_evaluation(double elapsed) override { final_return_ = evaluate(cfg_.eval().final_episodes(), elapsed, "final"); }

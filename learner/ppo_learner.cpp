@@ -288,7 +288,7 @@ class PpoLearner final : public LearnerService {
     auto recs = evaluate_policy(task_, policy_, episodes, cfg_.seed() + 1000003ull * ++evals_);
     EvalReport r = summarize(recs, task_->spec().metric_names.size());
     last_eval_ = r;
-    best_eval_ = std::isnan(best_eval_) ? r.mean : std::max(best_eval_, r.mean);
+    record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
     std::string metrics;
     for (size_t i = 0; i < r.metrics.size(); ++i)
       metrics += ", " + task_->spec().metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
@@ -331,11 +331,13 @@ class PpoLearner final : public LearnerService {
     m.set_run_steps(uint64_t(sched_.run_steps()));
     rng_to_manifest(nullptr, m);
     const double t = now_seconds();
-    write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) {
-      fs::create_directories(fs::path(tmp) / "ppo");
-      ppo_.save((fs::path(tmp) / "ppo").string());
-    });
+    write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) { save_networks(tmp); });
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+  }
+
+  void save_networks(const std::string& dir) const override {
+    fs::create_directories(fs::path(dir) / "ppo");
+    ppo_.save((fs::path(dir) / "ppo").string());
   }
 
   void final_evaluation(double elapsed) override { final_eval_ = evaluate(cfg_.eval().final_episodes(), elapsed, "final"); }

@@ -8,10 +8,12 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <deque>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <regex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -79,6 +81,25 @@ inline bool wait_for_text(const std::string& path, const std::string& needle, do
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
   }
   return false;
+}
+
+// What is wrong with the best policy a learner kept in <run>/best, given the run's summary: the
+// folder must hold the algorithm's networks (sub-folder algo, not empty) and no buffers, and its
+// manifest the best evaluation return the summary reports. "" when nothing is wrong.
+inline std::string best_policy_problem(const std::string& run, const std::string& summary, const std::string& algo) {
+  namespace fs = std::filesystem;
+  const fs::path best = fs::path(run) / "best";
+  if (!fs::is_directory(best / algo) || fs::is_empty(best / algo)) return (best / algo).string() + " is missing or empty";
+  if (fs::exists(best / "replay.pt")) return best.string() + " holds the replay buffer; it should hold networks only";
+  std::smatch s, m;
+  if (!std::regex_search(summary, s, std::regex(R"(best eval return\s+(-?[0-9.]+))")))
+    return "the summary has no best eval return:\n" + summary;
+  const std::string manifest = slurp((best / "manifest.txtpb").string());
+  if (!std::regex_search(manifest, m, std::regex(R"(best_eval_return: (-?[0-9.eE+-]+))")))
+    return (best / "manifest.txtpb").string() + " has no best_eval_return:\n" + manifest;
+  if (std::fabs(std::stod(s[1]) - std::stod(m[1])) > 0.051)
+    return "best/manifest.txtpb says " + std::string(m[1]) + ", the summary " + std::string(s[1]);
+  return "";
 }
 
 // A DDS domain of our own (offset keeps test suites apart), so parallel runs and a running farm

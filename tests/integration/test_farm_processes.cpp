@@ -122,6 +122,9 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const double final_return = number_after(summary, "final eval return");
   EXPECT_GT(final_return, -400.0) << summary;
   EXPECT_TRUE(fs::exists(run + "/checkpoint/manifest.txtpb"));
+  // The best evaluation's networks were kept beside the checkpoint.
+  EXPECT_EQ(best_policy_problem(run, summary, "sac"), "");
+  EXPECT_NE(learner_log.find("best evaluation so far"), std::string::npos) << learner_log;
 }
 
 TEST_F(FarmProcesses, MisspelledConfigFieldIsNamedAndNothingIsLost) {

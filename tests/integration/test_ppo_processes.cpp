@@ -54,6 +54,7 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   std::smatch m;
   ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(final eval return\s+(-?[0-9.]+))"))) << summary;
   EXPECT_GE(std::stod(m[1]), kTargetReturn - 30.0) << summary;  // the final, larger evaluation
+  EXPECT_EQ(best_policy_problem(run, summary, "ppo"), "");  // the best evaluation's networks, kept
   ASSERT_TRUE(std::regex_search(
       summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+), stale (\d+))")))
       << summary;
@@ -82,6 +83,7 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   for (const char* col : {"steps_used", "steps_carried", "stale_dropped", "kl", "learning_rate", "clip_fraction",
                           "value_loss", "entropy", "mean_return"})
     EXPECT_NE(header.find(col), std::string::npos) << col << " not in " << header;
+  set.cleanup(::testing::Test::HasFailure());
 }
 
 TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
@@ -110,6 +112,7 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   EXPECT_EQ(m[4], "0") << summary;
   EXPECT_NE(summary.find("ppo-b session"), std::string::npos) << summary;
   EXPECT_NE(summary.find("stream open"), std::string::npos) << summary;  // the killed worker's
+  set.cleanup(::testing::Test::HasFailure());
 }
 
 }  // namespace
