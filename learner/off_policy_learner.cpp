@@ -133,13 +133,13 @@ class OffPolicyLearner final : public LearnerService {
     }
     const double mean = recs.empty() ? 0 : sum / recs.size();
     last_eval_ = mean;
-    record_evaluation(mean, p.version, algo_->updates(), elapsed);
     std::string metric_txt;
     for (size_t i = 0; i < metrics.size() && !recs.empty(); ++i)
       metric_txt += ", " + names[i] + " " + fmt("%.3f", metrics[i] / recs.size());
     log(label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(recs.size()) +
         " deterministic episodes" + metric_txt + " (policy v" + std::to_string(p.version) + ", " +
         std::to_string(algo_->updates()) + " updates, " + fmt("%.1f", elapsed) + " s)");
+    record_evaluation(mean, p.version, algo_->updates(), elapsed);
     return mean;
   }
 

@@ -288,7 +288,6 @@ class PpoLearner final : public LearnerService {
     auto recs = evaluate_policy(task_, policy_, episodes, cfg_.seed() + 1000003ull * ++evals_);
     EvalReport r = summarize(recs, task_->spec().metric_names.size());
     last_eval_ = r;
-    record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
     std::string metrics;
     for (size_t i = 0; i < r.metrics.size(); ++i)
       metrics += ", " + task_->spec().metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
@@ -296,6 +295,7 @@ class PpoLearner final : public LearnerService {
         ") over " + std::to_string(r.episodes) + " deterministic episodes, length " + fmt("%.1f", r.mean_length) +
         metrics + " (policy v" + std::to_string(policy_.version) + ", " + std::to_string(ppo_.fits()) + " fits, " +
         fmt("%.1f", elapsed) + " s)");
+    record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
     return r;
   }
 

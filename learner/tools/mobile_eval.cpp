@@ -29,16 +29,17 @@ namespace fs = std::filesystem;
 namespace {
 
 struct Options {
-  std::string run_dir, plot;
+  std::string run_dir, plot, checkpoint = "checkpoint";
   int episodes = 100, plot_episodes = 6;
   uint64_t seed = 20261123;
   bool failures = false;
 };
 
 void usage() {
-  std::cout << "usage: farm-mobile-eval --run-dir DIR [--episodes N] [--seed S]\n"
+  std::cout << "usage: farm-mobile-eval --run-dir DIR [--best] [--episodes N] [--seed S]\n"
                "                        [--plot FILE.png] [--plot-episodes K] [--failures]\n"
-               "Runs N episodes (default 100) of the deterministic policy in DIR/checkpoint on\n"
+               "Runs N episodes (default 100) of the deterministic policy in DIR/checkpoint\n"
+               "(with --best: in DIR/best, the networks of the learner's best evaluation) on\n"
                "fresh random maps drawn from seed S, prints success rate, mean episode time and\n"
                "path length, and with --plot draws the first K episodes (default 6) over their maps.\n"
                "--failures lists every episode that did not reach the goal: where it ended, the\n"
@@ -54,6 +55,7 @@ Options parse(int argc, char** argv) {
       return argv[++i];
     };
     if (a == "--run-dir") o.run_dir = value();
+    else if (a == "--best") o.checkpoint = "best";
     else if (a == "--episodes") o.episodes = std::stoi(value());
     else if (a == "--seed") o.seed = std::stoull(value());
     else if (a == "--plot") o.plot = value();
@@ -147,7 +149,7 @@ void describe_failure(const MobileTask& task, const MobileState& s, int episode,
 int main(int argc, char** argv) {
   try {
     const Options o = parse(argc, argv);
-    const fs::path ckpt = fs::path(o.run_dir) / "checkpoint";
+    const fs::path ckpt = fs::path(o.run_dir) / o.checkpoint;
     std::ifstream in(ckpt / "manifest.txtpb");
     if (!in) throw std::runtime_error("no checkpoint manifest in " + ckpt.string());
     std::stringstream ss;

@@ -2,6 +2,7 @@
 # farm-mclari-eval on a real checkpoint: a learner and a worker (real DDS) train the swept mCLARI
 # config for a few seconds with 6-step episodes; the evaluation prints the six-terrain table and
 # --trace writes each step's gait, which must lie in the config's group set and frequency range.
+# The learner's best policy (run/best) evaluates as the checkpoint when the final evaluation was its only one.
 # A small sweep's best.csv gives the comparison column, and the table says when the sweep's runs
 # were not as long as the episodes.
 # usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
@@ -46,6 +47,13 @@ for t, rs in by.items():
     assert rs[-1]["end"] in ("terminated", "truncated") and all(r["end"] == "" for r in rs[:-1]), (t, rs[-1])
 print("trace ok: %d steps over 6 terrains" % len(rows))
 PY
+
+# The learner kept its best evaluation's networks in run/best. Its one evaluation was the final
+# one, after the last update, so they are the checkpoint's networks: the same table.
+[ -d "$T/run/best/sac" ] || fail "no best policy in $T/run"
+"$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/best" --episodes 2 --threads 2 > "$T/best.out" 2> "$T/best.err" \
+    || { cat "$T/best.err"; fail "evaluation of run/best failed"; }
+diff <(grep '^| ' "$T/eval.out") <(grep '^| ' "$T/best.out") || fail "run/best does not evaluate as the checkpoint"
 
 # The comparison with a sweep: runs as long as the episodes (6 s) compare without a note, 2 s ones
 # get the note that names both lengths.
