@@ -32,7 +32,8 @@ void usage() {
   std::cout << "usage: farm-learner --config FILE [--resume] [--run-dir DIR] [--domain D]\n"
                "                    [--dds-profiles FILE] [--security DIR]\n"
                "Trains the experiment in FILE with the workers that join on DDS domain D.\n"
-               "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint.\n"
+               "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint;\n"
+               "the networks of the best evaluation so far to <run-dir>/best.\n"
                "--resume carries on from the checkpoint in the run dir. Without it, an existing\n"
                "run dir is moved aside (renamed with a time stamp), never overwritten.\n";
 }
