@@ -83,6 +83,17 @@ inline bool wait_for_text(const std::string& path, const std::string& needle, do
   return false;
 }
 
+// Polls a log file until a line of it matches `pattern`; false after timeout_s.
+inline bool wait_for_match(const std::string& path, const std::string& pattern, double timeout_s) {
+  const std::regex re(pattern);
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (std::regex_search(slurp(path), re)) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  return false;
+}
+
 // What is wrong with the best policy a learner kept in <run>/best, given the run's summary: the
 // folder must hold the algorithm's networks (sub-folder algo, not empty) and no buffers, and its
 // manifest the best evaluation return the summary reports. "" when nothing is wrong.
