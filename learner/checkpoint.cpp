@@ -49,15 +49,23 @@ void write_checkpoint(const std::string& dir, const config::CheckpointManifest& 
   remove_tree(old);
 }
 
+void save_networks(const std::string& dir, const std::string& name,
+                   const std::function<void(const std::string& folder)>& save_nets) {
+  fs::create_directories(fs::path(dir) / name);
+  save_nets((fs::path(dir) / name).string());
+}
+
+void save_networks(const std::string& dir, const OffPolicy& algo) {
+  save_networks(dir, algo.name(), [&](const std::string& d) { algo.save(d); });
+}
+
 namespace {
 
-// Networks are written by save_nets(folder) into the sub-folder `name`.
 template <class SaveNets>
 void save_checkpoint_with(const std::string& dir, const config::CheckpointManifest& manifest,
                           const std::string& name, SaveNets save_nets, const ReplayBuffer& replay) {
   write_checkpoint(dir, manifest, [&](const std::string& tmp) {
-    fs::create_directories(fs::path(tmp) / name);
-    save_nets((fs::path(tmp) / name).string());
+    save_networks(tmp, name, save_nets);
     replay.save((fs::path(tmp) / "replay.pt").string());
   });
 }

@@ -27,6 +27,12 @@ void save_checkpoint(const std::string& dir, const config::CheckpointManifest& m
 config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id,
                                            OffPolicy& algo, ReplayBuffer& replay);
 
+// The networks alone, written by save_nets into DIR/name (DIR/<algo.name()>): the layout a
+// checkpoint has, so a folder of networks and a manifest reads like a checkpoint.
+void save_networks(const std::string& dir, const std::string& name,
+                   const std::function<void(const std::string& folder)>& save_nets);
+void save_networks(const std::string& dir, const OffPolicy& algo);
+
 // The atomic write every checkpoint goes through: write_parts fills a fresh folder, the manifest is
 // added, and the folder is renamed over DIR (the previous one is kept as DIR.old until then).
 void write_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,

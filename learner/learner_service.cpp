@@ -100,7 +100,8 @@ void LearnerService::prepare_run_dir() {
     // one to beat: it is not overwritten by a weaker one after the resume.
     if (checkpoint_exists(best_dir_)) {
       const config::CheckpointManifest b = read_manifest(best_dir_, cfg_.experiment_id());
-      if (b.has_best_eval_return() && !(b.best_eval_return() <= best_eval_)) best_eval_ = b.best_eval_return();
+      if (b.has_best_eval_return() && (std::isnan(best_eval_) || b.best_eval_return() > best_eval_))
+        best_eval_ = b.best_eval_return();
     }
     episodes_total_ = m.episodes();
     accounts_from_manifest(m, ingest_);

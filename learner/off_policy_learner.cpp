@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <filesystem>
 #include <random>
 #include <sstream>
 
@@ -15,8 +14,6 @@
 #include "rollout.h"
 
 namespace farm {
-
-namespace fs = std::filesystem;
 
 namespace {
 
@@ -206,11 +203,7 @@ class OffPolicyLearner final : public LearnerService {
     log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
   }
 
-  void save_networks(const std::string& dir) const override {
-    const std::string sub = (fs::path(dir) / algo_->name()).string();
-    fs::create_directories(sub);
-    algo_->save(sub);
-  }
+  void save_networks(const std::string& dir) const override { farm::save_networks(dir, *algo_); }
 
   void final_evaluation(double elapsed) override { final_return_ = evaluate(cfg_.eval().final_episodes(), elapsed, "final"); }
 

@@ -336,8 +336,7 @@ class PpoLearner final : public LearnerService {
   }
 
   void save_networks(const std::string& dir) const override {
-    fs::create_directories(fs::path(dir) / "ppo");
-    ppo_.save((fs::path(dir) / "ppo").string());
+    farm::save_networks(dir, "ppo", [this](const std::string& d) { ppo_.save(d); });
   }
 
   void final_evaluation(double elapsed) override { final_eval_ = evaluate(cfg_.eval().final_episodes(), elapsed, "final"); }

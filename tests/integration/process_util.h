@@ -73,25 +73,26 @@ inline std::string slurp(const std::string& path) {
 
 inline void write_file(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
 
-// Polls a log file until it contains `needle`; false after timeout_s.
-inline bool wait_for_text(const std::string& path, const std::string& needle, double timeout_s) {
+// Polls a log file every 200 ms until found(its text); false after timeout_s.
+template <class Found>
+bool poll_log(const std::string& path, Found found, double timeout_s) {
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
   while (std::chrono::steady_clock::now() < deadline) {
-    if (slurp(path).find(needle) != std::string::npos) return true;
+    if (found(slurp(path))) return true;
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
   }
   return false;
 }
 
+// Polls a log file until it contains `needle`; false after timeout_s.
+inline bool wait_for_text(const std::string& path, const std::string& needle, double timeout_s) {
+  return poll_log(path, [&](const std::string& t) { return t.find(needle) != std::string::npos; }, timeout_s);
+}
+
 // Polls a log file until a line of it matches `pattern`; false after timeout_s.
 inline bool wait_for_match(const std::string& path, const std::string& pattern, double timeout_s) {
   const std::regex re(pattern);
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (std::regex_search(slurp(path), re)) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  }
-  return false;
+  return poll_log(path, [&](const std::string& t) { return std::regex_search(t, re); }, timeout_s);
 }
 
 // What is wrong with the best policy a learner kept in <run>/best, given the run's summary: the
