@@ -1,8 +1,11 @@
 #include "dds.h"
 
+#include "paths.h"
+
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <unistd.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -19,11 +22,8 @@ bool file_exists(const std::string& p) { return std::ifstream(p).good(); }
 // The profiles file a process uses when none is given: next to the binary's install prefix, then
 // the source tree it was built from.
 std::string default_profiles_file() {
-  char exe[4096] = {0};
-  ssize_t n = readlink("/proc/self/exe", exe, sizeof(exe) - 1);
-  if (n > 0) {
-    std::string dir(exe, static_cast<size_t>(n));
-    dir = dir.substr(0, dir.rfind('/'));
+  const std::string dir = executable_dir();
+  if (!dir.empty()) {
     for (const char* rel : {"/../share/farm/fastdds_profiles.xml", "/fastdds_profiles.xml"}) {
       if (file_exists(dir + rel)) return dir + rel;
     }
@@ -85,22 +85,34 @@ bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
 
 Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(opts.domain) {
   auto* factory = fdds::DomainParticipantFactory::get_instance();
-  const char* env = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
-  if (!opts.profiles_file.empty()) {
-    profiles_file_ = opts.profiles_file;
-  } else if (env && *env) {
-    profiles_file_ = env;  // the factory has already loaded it
-  } else {
-    profiles_file_ = default_profiles_file();
-  }
+  const char* env_value = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
+  const std::string env = env_value ? env_value : "";
+  profiles_file_ = !opts.profiles_file.empty() ? opts.profiles_file : !env.empty() ? env : default_profiles_file();
+  const char* from = !opts.profiles_file.empty() ? "--dds-profiles"
+                     : !env.empty()              ? "FASTRTPS_DEFAULT_PROFILES_FILE"
+                                                 : "the default";
   if (!file_exists(profiles_file_)) {
-    throw std::runtime_error("DDS profiles file not found: " + profiles_file_);
+    throw std::runtime_error(std::string("DDS profiles file not found: ") + profiles_file_ + " (from " + from + ")");
   }
-  if (!(env && *env && profiles_file_ == env)) {
-    if (factory->load_XML_profiles_file(profiles_file_) != ReturnCode_t::RETCODE_OK) {
-      throw std::runtime_error("cannot load DDS profiles from " + profiles_file_ +
-                               " (see Fast DDS's XML parser messages above)");
+  if (!env.empty()) {
+    std::error_code ec;
+    if (std::filesystem::equivalent(env, profiles_file_, ec)) {
+      profiles_file_ = env;  // the name Fast DDS loads it under, so it is parsed once
+    } else {
+      // Fast DDS would load the variable's file by itself as well, and refuse the flag's file for
+      // defining the same profiles again: the flag wins, for this process and its children.
+      std::fprintf(stderr, "--dds-profiles %s overrides FASTRTPS_DEFAULT_PROFILES_FILE=%s\n",
+                   profiles_file_.c_str(), env.c_str());
+      unsetenv("FASTRTPS_DEFAULT_PROFILES_FILE");
     }
+  }
+  // The file the standard variable names is loaded by the factory on its first participant, which
+  // is too late for the profile lookups below: load it now (once; a file already parsed is not
+  // parsed again), then the file in effect.
+  factory->load_profiles();
+  if (factory->load_XML_profiles_file(profiles_file_) != ReturnCode_t::RETCODE_OK) {
+    throw std::runtime_error("cannot load DDS profiles from " + profiles_file_ + " (from " + from +
+                             "; see Fast DDS's XML parser messages above)");
   }
   fdds::DomainParticipantQos pqos;
   if (factory->get_participant_qos_from_profile("farm_participant", pqos) != ReturnCode_t::RETCODE_OK) {

@@ -40,8 +40,8 @@ inline constexpr const char* kLearnerStatsTopic = "farm/LearnerStats";
 
 struct BusOptions {
   int domain = 0;
-  // Empty: FASTRTPS_DEFAULT_PROFILES_FILE if set (Fast DDS loads it itself), else the
-  // profiles file shipped in deploy/.
+  // Empty: FASTRTPS_DEFAULT_PROFILES_FILE if set, else fastdds_profiles.xml next to the program
+  // (or in ../share/farm), else the one in deploy/. A file given here wins over the variable.
   std::string profiles_file;
   // DDS Security: a folder made by deploy/make-pki.sh (ca.cert.pem, cert.pem, key.pem,
   // governance.p7s, permissions.p7s). Empty: FARM_SECURITY_DIR if set, else no security.

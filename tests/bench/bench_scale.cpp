@@ -6,11 +6,16 @@
 //
 //   bench_scale [--workers 1,2,4,8,15] [--envs E] [--steps T] [--seconds S] [--warmup S]
 //               [--worker-bin PATH] [--log-dir DIR] [--domain D] [--dds-profiles FILE]
+//
+// The workers: --worker-bin, else farm-worker next to this program (a copied or installed
+// folder), else ../worker/farm-worker (the build tree), else the path it was built at.
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
+#include <cstring>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -25,6 +30,7 @@
 #include "ingest.h"
 #include "meter.h"
 #include "mlp.h"
+#include "paths.h"
 
 namespace {
 
@@ -35,7 +41,7 @@ struct Options {
   std::vector<int> workers{1, 2, 4, 8, 15};
   int envs = 16, steps = 32;
   double seconds = 5, warmup = 3;
-  std::string worker_bin = FARM_WORKER_BIN;
+  std::string worker_bin;  // --worker-bin; else next to this program, then the build tree's
   std::string log_dir = "/tmp/bench_scale";
 };
 
@@ -69,6 +75,8 @@ Options parse(int argc, char** argv) {
     else throw std::invalid_argument("unknown option '" + a + "'");
   }
   if (!(o.seconds > 0) || o.warmup < 0) throw std::invalid_argument("--seconds must be > 0, --warmup >= 0");
+  o.worker_bin = farm::find_companion("farm-worker", o.worker_bin, "../worker/farm-worker", FARM_WORKER_BIN,
+                                      "--worker-bin");
   return o;
 }
 
@@ -82,6 +90,7 @@ pid_t spawn(const std::vector<std::string>& argv, const std::string& log) {
     for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
     args.push_back(nullptr);
     execv(args[0], args.data());
+    std::fprintf(stderr, "cannot start %s: %s\n", args[0], std::strerror(errno));
     _exit(127);
   }
   return pid;
@@ -118,6 +127,7 @@ class Sink {
     Clock::time_point t0{};
     double rate = -1;
     uint64_t refused = 0;
+    bool failed = false;
     for (;;) {
       batches_in_.wait(0.02);
       while (batches_in_.take(b)) {
@@ -129,6 +139,18 @@ class Sink {
       int active = 0;
       for (const auto& [key, acc] : w) active += acc.received >= 2;
       if (!measuring) {
+        for (size_t k = 0; k < pids.size(); ++k) {
+          int status = 0;
+          if (pids[k] > 0 && waitpid(pids[k], &status, WNOHANG) == pids[k]) {
+            std::fprintf(stderr, "worker w%zu (%s) exited with %s %d before delivering (log %s)\n", k,
+                         o_.worker_bin.c_str(), WIFEXITED(status) ? "code" : "signal",
+                         WIFEXITED(status) ? WEXITSTATUS(status) : WTERMSIG(status),
+                         (o_.log_dir + "/" + id + "_w" + std::to_string(k) + ".log").c_str());
+            pids[k] = -1;
+            failed = true;
+          }
+        }
+        if (failed) break;
         if (active == n && since(t_start) > o_.warmup) {
           measuring = true;
           steps0 = ingest.counters().env_steps;
@@ -143,10 +165,12 @@ class Sink {
         break;
       }
     }
-    for (pid_t p : pids) kill(p, SIGTERM);
+    for (pid_t p : pids)
+      if (p > 0) kill(p, SIGTERM);
     const auto t_stop = Clock::now();
     // Drain the end-of-stream batches so the accounting below covers every batch sent.
     for (pid_t p : pids) {
+      if (p <= 0) continue;
       int status = 0;
       while (waitpid(p, &status, WNOHANG) != p) {
         batches_in_.wait(0.02);
@@ -220,6 +244,7 @@ int main(int argc, char** argv) {
     if (!o.bus.profiles_file.empty())
       setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
     Sink sink(o);
+    std::printf("bench_scale: workers %s\n", o.worker_bin.c_str());
     std::printf("bench_scale: pendulum, %d envs x %d steps per batch per worker, 1 thread each, "
                 "%.0f s measured after %.0f s warm-up; %u cores\n",
                 o.envs, o.steps, o.seconds, o.warmup, std::thread::hardware_concurrency());

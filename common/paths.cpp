@@ -1,0 +1,50 @@
+#include "paths.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <stdexcept>
+
+namespace farm {
+
+std::string executable_dir() {
+  char exe[4096] = {0};
+  const ssize_t n = readlink("/proc/self/exe", exe, sizeof(exe) - 1);
+  if (n <= 0) return "";
+  const std::string path(exe, static_cast<size_t>(n));
+  return path.substr(0, path.rfind('/'));
+}
+
+std::string first_executable(const std::vector<std::string>& candidates, std::vector<std::string>& tried) {
+  for (const auto& c : candidates) {
+    if (c.empty()) continue;
+    tried.push_back(c);
+    struct stat st {};
+    if (stat(c.c_str(), &st) == 0 && S_ISREG(st.st_mode) && access(c.c_str(), X_OK) == 0) return c;
+  }
+  return "";
+}
+
+std::string find_companion(const std::string& name, const std::string& given, const std::string& relative,
+                           const std::string& built, const std::string& flag) {
+  std::vector<std::string> tried;
+  if (!given.empty()) {
+    if (first_executable({given}, tried).empty())
+      throw std::runtime_error(flag + " " + given + ": no executable file there");
+    return given;
+  }
+  const std::string dir = executable_dir();
+  std::vector<std::string> candidates;
+  if (!dir.empty()) {
+    candidates.push_back(dir + "/" + name);
+    if (!relative.empty()) candidates.push_back(dir + "/" + relative);
+  }
+  candidates.push_back(built);
+  const std::string found = first_executable(candidates, tried);
+  if (!found.empty()) return found;
+  std::string list;
+  for (const auto& t : tried) list += (list.empty() ? "" : ", ") + t;
+  throw std::runtime_error(name + " not found (tried " + list + "); give its path with " + flag + " PATH");
+}
+
+}  // namespace farm

@@ -1,0 +1,69 @@
+// The learner's worker roster: the join line says what is known of a worker's size, and the size
+// once the worker has built its environments; silence marks a worker dead, a heartbeat brings it back.
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "worker_roster.h"
+
+namespace {
+
+farm::msg::WorkerStatus status(uint32_t envs, const std::string& state) {
+  farm::msg::WorkerStatus s;
+  s.worker_id("local-2");
+  s.worker_session(42);
+  s.host("vm");
+  s.envs(envs);
+  s.threads(1);
+  s.state(state);
+  return s;
+}
+
+struct Lines {
+  std::vector<std::string> lines;
+  farm::WorkerRoster::Log log() {
+    return [this](const std::string& m) { lines.push_back(m); };
+  }
+};
+
+}  // namespace
+
+TEST(WorkerRoster, JoinBeforeTheSpecSaysSoThenTheSize) {
+  Lines l;
+  farm::WorkerRoster roster(10.0, l.log());
+  roster.heard(status(0, "waiting_for_learner"), 1.0);
+  ASSERT_EQ(l.lines.size(), 1u);
+  EXPECT_EQ(l.lines[0], "worker local-2 on vm joined (session 42, waiting for the spec)");
+  EXPECT_EQ(l.lines[0].find("0 envs"), std::string::npos);
+  roster.heard(status(0, "waiting_for_weights"), 2.0);
+  EXPECT_EQ(l.lines.size(), 1u) << "no line while the size is still unknown";
+  roster.heard(status(8, "running"), 3.0);
+  ASSERT_EQ(l.lines.size(), 2u);
+  EXPECT_EQ(l.lines[1], "worker local-2 on vm runs 8 envs on 1 threads");
+  roster.heard(status(8, "running"), 4.0);
+  EXPECT_EQ(l.lines.size(), 2u) << "the size is said once";
+}
+
+TEST(WorkerRoster, JoinWithEnvironmentsBuiltGivesTheSize) {
+  Lines l;
+  farm::WorkerRoster roster(10.0, l.log());
+  roster.heard(status(16, "running"), 1.0);
+  ASSERT_EQ(l.lines.size(), 1u);
+  EXPECT_EQ(l.lines[0], "worker local-2 on vm joined (session 42, 16 envs on 1 threads)");
+}
+
+TEST(WorkerRoster, SilentWorkerIsDeadAndComesBack) {
+  Lines l;
+  farm::WorkerRoster roster(5.0, l.log());
+  roster.heard(status(4, "running"), 1.0);
+  EXPECT_EQ(roster.live_count(2.0), 1);
+  roster.check(7.0);
+  EXPECT_EQ(roster.live_count(7.0), 0);
+  ASSERT_EQ(l.lines.size(), 2u);
+  EXPECT_NE(l.lines[1].find("marked dead"), std::string::npos) << l.lines[1];
+  roster.heard(status(4, "running"), 9.0);
+  EXPECT_EQ(roster.live_count(9.0), 1);
+  ASSERT_EQ(l.lines.size(), 3u);
+  EXPECT_NE(l.lines[2].find("is back after 8.0 s"), std::string::npos) << l.lines[2];
+}
