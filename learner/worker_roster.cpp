@@ -14,10 +14,14 @@ std::string seconds(double s) {
 
 void WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
   View& v = views_[s.worker_id() + "#" + std::to_string(s.worker_session())];
+  const std::string size = std::to_string(s.envs()) + " envs on " + std::to_string(s.threads()) + " threads";
+  // A worker builds its environments once it has the spec: until then its heartbeats carry no size.
   if (v.seen == 0)
     log_("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
-         ", " + std::to_string(s.envs()) + " envs, " + std::to_string(s.threads()) + " threads)");
-  else if (v.dead)
+         ", " + (s.envs() > 0 ? size : std::string("waiting for the spec")) + ")");
+  else if (s.envs() > 0 && v.last.envs() == 0)
+    log_("worker " + s.worker_id() + " on " + s.host() + " runs " + size);
+  if (v.seen != 0 && v.dead)
     log_("worker " + s.worker_id() + " on " + s.host() + " is back after " + seconds(now - v.seen) + " s");
   if (!s.last_error().empty() && s.last_error() != v.last.last_error())
     log_("worker " + s.worker_id() + " reports: " + s.last_error());
