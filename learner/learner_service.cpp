@@ -77,6 +77,9 @@ int LearnerService::run() {
     log("checkpoint written; resume with --resume");
     return 130;
   }
+  // A resumed run counts the evaluations before its checkpoint through the best return it kept.
+  evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
+  if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
   final_evaluation(elapsed);
   spec_.publish(true);
   drain_until_workers_end();
@@ -223,7 +226,17 @@ std::string LearnerService::summary_head(double elapsed, const std::string& reas
     << "stopped because   " << reason << "\n"
     << "wall time         " << fmt("%.1f", elapsed) << " s\n"
     << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9)) << " steps/s)\n";
+  if (const std::string n = untrained_stop_note(reason); !n.empty()) o << "note              " << n << "\n";
   return o.str();
+}
+
+std::string LearnerService::untrained_stop_note(const std::string& reason) const {
+  const bool step_limit = reason.rfind("env step limit", 0) == 0 || reason.rfind("update limit", 0) == 0;
+  if (!step_limit || evaluated_in_training_) return "";
+  return "the run stopped on its " + reason.substr(0, reason.find(" limit")) +
+         " limit before its first evaluation (eval.every_seconds " + fmt("%g", cfg_.eval().every_seconds()) +
+         "): its policy was never evaluated while it trained, and more workers reach a step limit sooner; "
+         "stop on time (stop.max_seconds) or on a target instead";
 }
 
 std::string LearnerService::summary_workers() const {

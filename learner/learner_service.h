@@ -94,6 +94,9 @@ class LearnerService {
   // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
   std::string summary_head(double elapsed, const std::string& reason) const;
   std::string summary_workers() const;
+  // A line for the log and summary when the run ended on an env step or update limit before its
+  // first evaluation (a limit that more workers reach sooner); "" otherwise.
+  std::string untrained_stop_note(const std::string& reason) const;
   void emit_summary(const std::string& text) const;
   void drain_until_workers_end();
 
@@ -117,6 +120,7 @@ class LearnerService {
   std::deque<float> recent_returns_;
   WorkerRoster roster_;
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
+  bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN;
 
  private:

@@ -91,6 +91,22 @@ TEST(Config, ShippedConfigsLoad) {
   EXPECT_GE(n, 8);
 }
 
+// A limit in env steps (or updates) ends a run sooner the more workers feed it, so a shipped
+// config stops on its goal or on time, never on a step count.
+TEST(Config, ShippedConfigsStopOnTheirGoalOrOnTime) {
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
+    if (e.path().extension() != ".txtpb") continue;
+    const auto c = farm::load_config_file(e.path().string());
+    EXPECT_EQ(c.stop().max_env_steps(), 0) << e.path() << ": stops on an env step limit";
+    EXPECT_EQ(c.stop().max_updates(), 0) << e.path() << ": stops on an update limit";
+    EXPECT_TRUE(c.stop().max_seconds() > 0 || !std::isnan(c.stop().target_eval_return()))
+        << e.path() << ": no time limit and no target";
+    ++n;
+  }
+  EXPECT_GE(n, 8);
+}
+
 TEST(Config, TextRoundTrip) {
   auto c = parse_config_text("experiment_id: \"rt\"\nsac { hidden: 64 hidden: 64 }\n", "x");
   auto d = parse_config_text(farm::config_to_text(c), "y");
