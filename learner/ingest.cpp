@@ -79,6 +79,16 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
   return "";
 }
 
+std::string Ingest::content_problem(const farm::msg::TransitionBatch& b, uint64_t current_version) const {
+  std::string why = check(b);
+  // No learner ever published a version above the current one (a resumed learner skips ahead of
+  // whatever its crashed predecessor published), so such a batch is forged or corrupted.
+  if (why.empty() && !b.end_of_stream() && b.policy_version() > current_version)
+    why = "policy version " + std::to_string(b.policy_version()) + " is newer than the learner's latest (" +
+          std::to_string(current_version) + ")";
+  return why;
+}
+
 std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
                            Transitions& out, std::vector<FinishedEpisode>& episodes) {
   if (b.experiment_id() != experiment_id_) {
@@ -87,41 +97,55 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     ++counters_.invalid;
     return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
   }
-  WorkerAccount& w = workers_[{b.worker_id(), b.worker_session()}];
-  if (w.worker_id.empty()) {
-    w.worker_id = b.worker_id();
-    w.session = b.worker_session();
-  }
-  w.last_seen = now;
   const uint64_t seq = b.sequence_number();
+  auto it = workers_.find({b.worker_id(), b.worker_session()});
+  if (it == workers_.end()) {
+    // A stream not seen before: its first batch passes every check before an account is opened,
+    // and accounts are bounded, so invented sessions cannot grow the map or the checkpoints.
+    std::string why = content_problem(b, current_version);
+    if (why.empty() && seq > kMaxSequenceJump)
+      why = "sequence number " + std::to_string(seq) + " opens a stream of " + b.worker_id() + " more than " +
+            std::to_string(kMaxSequenceJump) + " past its start";
+    if (why.empty() && workers_.size() >= kMaxAccounts)
+      why = "new stream of " + b.worker_id() + " refused: already " + std::to_string(workers_.size()) +
+            " worker streams (the most one run accounts)";
+    if (!why.empty()) {
+      ++counters_.invalid;
+      return why;
+    }
+    it = workers_.emplace(Key{b.worker_id(), b.worker_session()}, WorkerAccount{}).first;
+    it->second.worker_id = b.worker_id();
+    it->second.session = b.worker_session();
+  } else if (seq >= it->second.next_sequence && seq - it->second.next_sequence > kMaxSequenceJump) {
+    // No worker skips that far: forged or corrupted. Refused without moving the account.
+    ++counters_.invalid;
+    return "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(kMaxSequenceJump) +
+           " past " + std::to_string(it->second.next_sequence) + ", the next expected from " + b.worker_id();
+  }
+  WorkerAccount& w = it->second;
+  w.last_seen = now;
 
   // Sequence accounting happens before the content check: an invalid batch still used its number.
   if (seq < w.next_sequence) {
-    auto it = std::find(w.missing.begin(), w.missing.end(), seq);
-    if (it == w.missing.end()) {
+    auto m = std::find(w.missing.begin(), w.missing.end(), seq);
+    if (m == w.missing.end()) {
       ++w.duplicates;
       ++counters_.duplicate;
       return "duplicate sequence number " + std::to_string(seq) + " from " + b.worker_id();
     }
-    w.missing.erase(it);  // late, not lost after all
+    w.missing.erase(m);  // late, not lost after all
     --w.lost;
     --counters_.lost;
   } else {
-    for (uint64_t s = w.next_sequence; s < seq; ++s) {
-      if (w.missing.size() < 4096) w.missing.push_back(s);
-    }
+    // O(1) in the gap: only the first numbers of a gap are remembered as possibly late.
+    for (uint64_t s = w.next_sequence; s < seq && w.missing.size() < kMaxMissing; ++s) w.missing.push_back(s);
     w.lost += seq - w.next_sequence;
     counters_.lost += seq - w.next_sequence;
     w.next_sequence = seq + 1;
   }
   if (b.end_of_stream()) w.ended = true;
 
-  std::string why = check(b);
-  // No learner ever published a version above the current one (a resumed learner skips ahead of
-  // whatever its crashed predecessor published), so such a batch is forged or corrupted.
-  if (why.empty() && !b.end_of_stream() && b.policy_version() > current_version)
-    why = "policy version " + std::to_string(b.policy_version()) + " is newer than the learner's latest (" +
-          std::to_string(current_version) + ")";
+  const std::string why = content_problem(b, current_version);
   if (!why.empty()) {
     ++w.invalid;
     ++counters_.invalid;

@@ -79,11 +79,21 @@ class Ingest {
   // The shape/number check alone, exposed for tests and tools; "" when valid.
   std::string check(const farm::msg::TransitionBatch& b) const;
 
+  // A stream's sequence numbers never jump further than this (forged or corrupted otherwise);
+  // a run accounts at most kMaxAccounts streams (worker id, session); the first kMaxMissing numbers
+  // of a stream's gaps are remembered, so a late batch is not counted twice.
+  static constexpr uint64_t kMaxSequenceJump = uint64_t(1) << 20;
+  static constexpr size_t kMaxAccounts = 4096;
+  static constexpr size_t kMaxMissing = 4096;
+
   // Discrete actions (n > 0): each action must be an index in [0, n) instead of a value in
   // [-1, 1].
   void set_num_actions(int n) { num_actions_ = n; }
 
  private:
+  // check() plus the policy version against the learner's latest; "" when valid.
+  std::string content_problem(const farm::msg::TransitionBatch& b, uint64_t current_version) const;
+
   std::string experiment_id_;
   int obs_dim_, act_dim_;
   int num_actions_ = 0;

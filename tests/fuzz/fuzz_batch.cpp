@@ -32,15 +32,41 @@ void check_output(const farm::Transitions& t, int obs_dim, int act_dim) {
   }
 }
 
-void run(const farm::msg::TransitionBatch& b, uint64_t version) {
+// One batch into `ingest`: consistent transitions when accepted; whatever its sequence number and
+// session (the whole 64-bit range), the loss it books stays within the bound on a jump, and a
+// refused batch opens no account.
+std::string run_on(farm::Ingest& ingest, const farm::msg::TransitionBatch& b, uint64_t version) {
   const int obs_dim = 3, act_dim = 1;
-  farm::Ingest ingest("fuzz", obs_dim, act_dim);
   farm::Transitions out;
   std::vector<farm::FinishedEpisode> eps;
+  const uint64_t lost_before = ingest.counters().lost;
+  const size_t accounts_before = ingest.workers().size();
   std::string why = ingest.accept(b, version, 0.0, out, eps);
   if (why.empty()) check_output(out, obs_dim, act_dim);
+  if (ingest.counters().lost > lost_before + farm::Ingest::kMaxSequenceJump) {
+    std::fprintf(stderr, "one batch booked %llu lost\n", (unsigned long long)(ingest.counters().lost - lost_before));
+    std::abort();
+  }
+  if (!why.empty() && ingest.workers().size() != accounts_before) {
+    std::fprintf(stderr, "a refused batch opened an account: %s\n", why.c_str());
+    std::abort();
+  }
+  if (ingest.workers().size() > farm::Ingest::kMaxAccounts) std::abort();
+  for (const auto& [k, w] : ingest.workers()) {
+    if (w.next_sequence == 0 && w.received + w.invalid + w.duplicates > 0) {
+      std::fprintf(stderr, "next_sequence wrapped to 0\n");
+      std::abort();
+    }
+  }
+  return why;
+}
+
+void run(const farm::msg::TransitionBatch& b, uint64_t version) {
+  farm::Ingest ingest("fuzz", 3, 1);
+  const std::string why = run_on(ingest, b, version);
   // A second delivery of the same batch is a duplicate, never a second acceptance.
   farm::Transitions again;
+  std::vector<farm::FinishedEpisode> eps;
   if (why.empty() && ingest.accept(b, version, 0.0, again, eps).empty()) {
     std::fprintf(stderr, "the same sequence number was accepted twice\n");
     std::abort();
@@ -69,8 +95,10 @@ farm::msg::TransitionBatch build(FuzzedDataProvider& p) {
   farm::msg::TransitionBatch b;
   b.experiment_id(p.ConsumeBool() ? "fuzz" : p.ConsumeRandomLengthString(8));
   b.worker_id("w");
-  b.worker_session(1);
-  b.sequence_number(p.ConsumeIntegralInRange<uint64_t>(0, 3));
+  // Sessions and sequence numbers from the whole 64-bit range as well as the small ones a stream
+  // starts with.
+  b.worker_session(p.ConsumeBool() ? p.ConsumeIntegralInRange<uint64_t>(1, 2) : p.ConsumeIntegral<uint64_t>());
+  b.sequence_number(p.ConsumeBool() ? p.ConsumeIntegralInRange<uint64_t>(0, 3) : p.ConsumeIntegral<uint64_t>());
   b.policy_version(p.ConsumeIntegralInRange<uint64_t>(0, 5));
   const uint32_t T = p.ConsumeIntegralInRange<uint32_t>(0, 4), N = p.ConsumeIntegralInRange<uint32_t>(0, 4);
   b.num_steps(T);
@@ -124,8 +152,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     }
     run(b, data[0] >> 1);
   } else {
+    // Up to four batches into one learner's door, so jumps and sessions meet earlier streams.
     FuzzedDataProvider p(data + 1, size - 1);
-    run(build(p), data[0] >> 1);
+    farm::Ingest ingest("fuzz", 3, 1);
+    const int n = p.ConsumeIntegralInRange<int>(1, 4);
+    for (int k = 0; k < n && p.remaining_bytes() > 0; ++k) run_on(ingest, build(p), data[0] >> 1);
   }
   return 0;
 }

@@ -2,7 +2,12 @@
 // weights. Used by the security test: with DDS Security on, a participant without a valid
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
+//                 [--hostile 1]
+// --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
+// 2^64 or 2^63 and 50 batches of invented sessions with sequence numbers drawn from the whole 64-bit
+// range, all well-formed otherwise (the attack that once set a learner's lost count to 2^63).
 #include <cstdio>
+#include <random>
 #include <string>
 #include <thread>
 
@@ -14,6 +19,7 @@ int main(int argc, char** argv) {
   std::string experiment = "pendulum_sac", id = "intruder";
   unsigned obs = 3, act = 1;
   double seconds = 10;
+  bool hostile = false;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -25,6 +31,7 @@ int main(int argc, char** argv) {
       else if (a == "--obs") obs = std::stoul(v);
       else if (a == "--act") act = std::stoul(v);
       else if (a == "--seconds") seconds = std::stod(v);
+      else if (a == "--hostile") hostile = v == "1";
       else throw std::invalid_argument("unknown flag " + a);
     }
   } catch (const std::exception& e) {
@@ -59,7 +66,23 @@ int main(int argc, char** argv) {
     uint64_t sent = 0, weights_seen = 0, specs_seen = 0;
     int max_matched = 0;
     const double t0 = farm::now_seconds();
-    while (farm::now_seconds() - t0 < seconds) {
+    std::mt19937_64 rng(12345);
+    // Hostile: wait to be matched, so that every batch counted as sent reaches the learner.
+    while (hostile && out.matched() == 0 && farm::now_seconds() - t0 < 15)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    while (hostile && farm::now_seconds() - t0 < seconds) {
+      b.worker_session(1);
+      b.sequence_number(sent % 2 ? UINT64_MAX - sent : (uint64_t(1) << 63) + sent);
+      sent += out.write(b);
+      for (int k = 0; k < 50; ++k) {
+        b.worker_session(rng());
+        b.sequence_number(rng() | (uint64_t(1) << 40));
+        sent += out.write(b);
+      }
+      max_matched = std::max(max_matched, out.matched());
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    while (!hostile && farm::now_seconds() - t0 < seconds) {
       b.sequence_number(sent);
       if (out.write(b)) ++sent;
       max_matched = std::max(max_matched, out.matched());

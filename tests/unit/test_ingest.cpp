@@ -92,18 +92,20 @@ TEST_F(Fixture, WrongDimsAreRefused) {
 }
 
 TEST_F(Fixture, NaNIsRefusedAndTrainingDataStaysClean) {
-  auto b = make_batch(0);
+  EXPECT_EQ(take(make_batch(0)), "");
+  auto b = make_batch(1);
   auto o = b.observations();
   o[5] = std::nanf("");
   b.observations(o);
   std::string why = take(b);
   EXPECT_NE(why.find("non-finite value in observations at index 5"), std::string::npos) << why;
-  EXPECT_EQ(out.n, 0);
+  EXPECT_EQ(out.n, 6);
   // The next good batch is taken, and the bad one is counted invalid, not lost.
-  EXPECT_EQ(take(make_batch(1)), "");
+  EXPECT_EQ(take(make_batch(2)), "");
   EXPECT_EQ(ingest.counters().invalid, 1u);
   EXPECT_EQ(ingest.counters().lost, 0u);
-  EXPECT_EQ(ingest.counters().ok, 1u);
+  EXPECT_EQ(ingest.counters().ok, 2u);
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).invalid, 1u);
 }
 
 TEST_F(Fixture, InfiniteRewardAndOutOfRangeActionAreRefused) {
@@ -128,13 +130,67 @@ TEST_F(Fixture, WrongExperimentIsRefused) {
 }
 
 TEST_F(Fixture, PolicyVersionFromTheFutureIsRefusedAndItsNumberUsed) {
-  auto b = make_batch(0);
+  EXPECT_EQ(take(make_batch(0)), "");
+  auto b = make_batch(1);
   b.policy_version(6);  // the learner's latest is 5
   std::string why = take(b);
   EXPECT_NE(why.find("policy version 6 is newer than the learner's latest (5)"), std::string::npos) << why;
   EXPECT_EQ(ingest.counters().invalid, 1u);
-  EXPECT_EQ(take(make_batch(1)), "");
+  EXPECT_EQ(take(make_batch(2)), "");
   EXPECT_EQ(ingest.counters().lost, 0u);
+}
+
+// A stream's first batch is checked before an account is opened: a refused one opens none (its
+// number, if the stream is real, shows as lost when the next batch arrives).
+TEST_F(Fixture, RefusedFirstBatchOpensNoAccount) {
+  auto b = make_batch(0);
+  b.rewards({1, 2, 3});
+  EXPECT_NE(take(b).find("rewards has 3 values"), std::string::npos);
+  EXPECT_TRUE(ingest.workers().empty());
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+}
+
+// One forged batch claiming a sequence number near 2^64 on a live stream, or opening a stream
+// there: refused as invalid, O(1), and no account moves (the measured attack set lost to 2^63).
+TEST_F(Fixture, AbsurdSequenceJumpIsRefusedWithoutMovingTheAccount) {
+  EXPECT_EQ(take(make_batch(0)), "");
+  EXPECT_EQ(take(make_batch(1)), "");
+  for (uint64_t seq : {uint64_t(1) << 63, UINT64_MAX, uint64_t(3) + Ingest::kMaxSequenceJump}) {
+    const std::string why = take(make_batch(seq));
+    EXPECT_NE(why.find("jumps more than"), std::string::npos) << seq << ": " << why;
+  }
+  auto fresh = make_batch(UINT64_MAX);
+  fresh.worker_session(99);
+  EXPECT_NE(take(fresh).find("opens a stream"), std::string::npos);
+  const auto& w = ingest.workers().at({"w1", 7});
+  EXPECT_EQ(w.next_sequence, 2u);
+  EXPECT_EQ(w.lost, 0u);
+  EXPECT_EQ(w.invalid, 0u);
+  EXPECT_EQ(ingest.counters().lost, 0u);
+  EXPECT_EQ(ingest.counters().invalid, 4u);
+  EXPECT_EQ(ingest.workers().size(), 1u);
+  // The stream goes on as if nothing had come; a gap up to the bound is still plain loss.
+  EXPECT_EQ(take(make_batch(2)), "");
+  EXPECT_EQ(take(make_batch(3 + Ingest::kMaxSequenceJump)), "");
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).lost, Ingest::kMaxSequenceJump);
+  EXPECT_EQ(ingest.counters().ok, 4u);
+}
+
+// Invented sessions by the thousand: accounts stop at the bound, refused ones open nothing, and
+// the real streams are untouched.
+TEST_F(Fixture, InventedSessionsAreBounded) {
+  EXPECT_EQ(take(make_batch(0)), "");
+  size_t refused = 0;
+  for (uint64_t k = 0; k < Ingest::kMaxAccounts + 500; ++k) {
+    auto b = make_batch(0);
+    b.worker_session(1000 + k);
+    if (!take(b).empty()) ++refused;
+  }
+  EXPECT_EQ(ingest.workers().size(), Ingest::kMaxAccounts);
+  EXPECT_EQ(refused, 501u);
+  EXPECT_EQ(ingest.counters().invalid, 501u);
+  EXPECT_EQ(take(make_batch(1)), "");
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).received, 2u);
 }
 
 TEST_F(Fixture, DoneFlagsMustMatchFinalIndex) {

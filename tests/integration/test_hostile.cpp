@@ -1,0 +1,120 @@
+// A hostile participant on the farm's domain: batches claiming sequence numbers near 2^64 and 2^63,
+// and invented sessions by the thousand with sequence numbers from the whole 64-bit range. Every one
+// is refused and counted invalid, no account is opened or moved for them, the real worker's
+// figures are exactly what it sent, and the learner keeps training at its normal update rate
+// (printed: updates/s before and during the attack).
+#include <gtest/gtest.h>
+
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "process_util.h"
+
+using namespace farm::testing;
+
+namespace {
+
+const char* kConfig = R"(experiment_id: "it_hostile"
+seed: 5
+task { name: "pendulum" }
+sac { hidden: 64 hidden: 64 learning_starts: 1000 publish_every_updates: 25 }
+worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 4 }
+eval { episodes: 2 every_seconds: 600 final_episodes: 2 }
+checkpoint_every_seconds: 600
+stop { max_seconds: 36 }
+log_every_seconds: 1
+)";
+
+struct Row {
+  double elapsed, updates_per_s;
+  long long updates;
+};
+
+std::vector<Row> read_csv(const std::string& path) {
+  std::vector<Row> rows;
+  std::istringstream in(slurp(path));
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    std::vector<std::string> f;
+    std::stringstream ls(line);
+    for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+    if (f.size() < 5) continue;
+    rows.push_back({std::stod(f[0]), std::stod(f[4]), std::stoll(f[3])});
+  }
+  return rows;
+}
+
+double mean_rate(const std::vector<Row>& rows, double from, double to) {
+  double s = 0;
+  int n = 0;
+  for (const auto& r : rows)
+    if (r.elapsed > from && r.elapsed <= to) s += r.updates_per_s, ++n;
+  return n ? s / n : -1;
+}
+
+TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(91));
+  write_file(d + "/cfg.txtpb", kConfig);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain},
+                            "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  const std::string csv = d + "/run/learner.csv";
+  // Training settled: updates for a few seconds before the attack.
+  double first_update = -1;
+  ASSERT_TRUE(poll_log(csv, [&](const std::string&) {
+    const auto rows = read_csv(csv);
+    for (const auto& r : rows)
+      if (r.updates > 0) { first_update = r.elapsed; break; }
+    return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
+  }, 60)) << set.log("learner");
+  const double attack_start = read_csv(csv).back().elapsed;
+  Proc& hostile = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_hostile", "--id", "hostile",
+                             "--seconds", "12", "--hostile", "1"}, "hostile");
+  ASSERT_EQ(wait_for(hostile, 60), 0) << set.log("hostile");
+  const double attack_end = read_csv(csv).back().elapsed;
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+
+  std::smatch m;
+  const std::string h = set.log("hostile");
+  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << h;
+  const long long sent = std::stoll(m[1]);
+  EXPECT_GE(sent, 1000) << h;
+  EXPECT_GE(std::stoi(m[2]), 1) << h;
+
+  const std::string summary = slurp(d + "/run/summary.txt");
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 50) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(std::stoll(m[4]), sent) << summary;
+  // One account: the real worker's, with exactly what it says it sent.
+  const std::string wlog = set.log("worker");
+  std::smatch ws;
+  ASSERT_TRUE(std::regex_search(wlog, ws, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
+  EXPECT_NE(summary.find("worker            hw session"), std::string::npos) << summary;
+  EXPECT_TRUE(std::regex_search(summary, m, std::regex(R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
+      << summary;
+  EXPECT_EQ(m[1], ws[1]) << summary;
+  EXPECT_EQ(summary.find(" hostile session"), std::string::npos) << summary;
+  size_t lines = 0;
+  for (size_t p = summary.find("\nworker  "); p != std::string::npos; p = summary.find("\nworker  ", p + 1)) ++lines;
+  EXPECT_EQ(lines, 1u) << summary;
+
+  // Training went on at its rate: updates/s before and during the attack.
+  const auto rows = read_csv(csv);
+  const double before = mean_rate(rows, first_update + 2, attack_start);
+  const double during = mean_rate(rows, attack_start + 1, attack_end);
+  std::printf("updates/s before the attack %.0f, during it %.0f (ratio %.2f); %lld hostile batches refused\n", before,
+              during, before > 0 ? during / before : 0.0, sent);
+  ASSERT_GT(before, 0);
+  EXPECT_GE(during, 0.5 * before);
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+}  // namespace
