@@ -72,7 +72,9 @@ int LearnerService::run() {
   const double elapsed = now_seconds() - t0;
   log("stopping: " + stop_reason);
   if (stop_reason == "interrupted") {
-    // Workers stay and wait: a resumed learner picks them up again.
+    // Workers stay and wait: a resumed learner picks them up again. What the reader already
+    // acknowledged goes into the checkpoint first, or the resumed learner counts it lost.
+    drain_before_interrupted_stop();
     checkpoint(elapsed);
     log("checkpoint written; resume with --resume");
     return 130;
@@ -253,6 +255,31 @@ void LearnerService::emit_summary(const std::string& text) const {
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
   log("summary written to " + run_dir_ + "/summary.txt");
+}
+
+// The workers are told to hold (the current version re-sent with a quota of one batch; no new
+// version follows), so each sends at most one more batch and then waits: take batches until none
+// has come for 0.5 s and no live worker says it is running (or none for 3 s; 15 s at most).
+void LearnerService::drain_before_interrupted_stop() {
+  hold_workers();
+  const double t0 = now_seconds(), t_end = t0 + 15.0;
+  double last = t0;
+  size_t taken = 0;
+  while (now_seconds() < t_end) {
+    const size_t got = drain_batches(1024);
+    drain_status();
+    const double now = now_seconds();
+    if (got > 0) {
+      taken += got;
+      last = now;
+      continue;
+    }
+    bool running = false;
+    for (const auto& [k, v] : roster_.views()) running = running || (roster_.live(v, now) && v.last.state() == "running");
+    if (now - last >= 3.0 || (now - last >= 0.5 && !running)) break;
+    batches_in_.wait(0.05);
+  }
+  log("took the " + std::to_string(taken) + " batches in flight (" + fmt("%.1f", now_seconds() - t0) + " s)");
 }
 
 // After announcing the end, every batch still in flight is taken and accounted, so the summary

@@ -34,6 +34,11 @@ std::string fmt(const char* f, double v);
 
 class LearnerService {
  public:
+  // Policy versions skipped on --resume, for every algorithm: more than a learner publishes between
+  // two checkpoints, so the resumed learner's versions are numbers no worker holds yet (a worker
+  // holding the same number would keep the crashed learner's weights).
+  static constexpr uint64_t kResumeVersionSkip = 100000;
+
   virtual ~LearnerService() = default;
   // Runs the experiment to its end; returns the process exit code (130 when interrupted).
   int run();
@@ -62,6 +67,9 @@ class LearnerService {
   virtual void final_evaluation(double elapsed) = 0;
   virtual void write_summary(double elapsed, const std::string& reason) = 0;
   virtual void on_worker_heard() {}
+  // Re-sends the current policy version with a quota of one batch: every worker that already sent
+  // on it waits (the interrupted learner's stop uses it, so nothing is on its way at the checkpoint).
+  virtual void hold_workers() = 0;
   // The algorithm's networks, as its save writes them, into their sub-folder of dir: the layout a
   // checkpoint has, so evaluation programs read <run dir>/best and <run dir>/checkpoint alike.
   virtual void save_networks(const std::string& dir) const = 0;
@@ -99,6 +107,8 @@ class LearnerService {
   std::string untrained_stop_note(const std::string& reason) const;
   void emit_summary(const std::string& text) const;
   void drain_until_workers_end();
+  // On Ctrl-C / SIGTERM, before the checkpoint: the batches already on their way.
+  void drain_before_interrupted_stop();
 
   LearnerRunOptions opt_;
   config::ExperimentConfig cfg_;

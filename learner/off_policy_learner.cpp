@@ -17,9 +17,6 @@ namespace farm {
 
 namespace {
 
-// Versions skipped on --resume: more than a learner publishes between two checkpoints.
-constexpr uint64_t kResumeVersionSkip = 100000;
-
 class OffPolicyLearner final : public LearnerService {
  public:
   OffPolicyLearner(const LearnerRunOptions& o, const config::ExperimentConfig& cfg, const std::atomic<bool>& interrupted)
@@ -67,6 +64,13 @@ class OffPolicyLearner final : public LearnerService {
     ++version_;
     updates_since_publish_ = 0;
     batches_since_publish_ = 0;
+  }
+
+  void hold_workers() override {
+    farm::msg::PolicyWeights w;
+    farm::dds::to_wire(algo_->export_policy(current_version()), cfg_.experiment_id(), w);
+    w.batch_quota(1);
+    weights_out_.write(w);
   }
 
   uint64_t current_version() const { return version_ > 0 ? version_ - 1 : 0; }
@@ -191,7 +195,8 @@ class OffPolicyLearner final : public LearnerService {
     // it could have reached, so versions stay unique and batches claiming a newer one are refused.
     version_ = m.policy_version() + 1 + kResumeVersionSkip;
     rng_from_manifest(m, &rng_);  // after the algorithm's constructor seeded LibTorch
-    log("resumed from " + ckpt_dir_ + ": " + std::to_string(algo_->updates()) + " updates, " +
+    log("resumed from " + ckpt_dir_ + " (next policy v" + std::to_string(version_) + "): " +
+        std::to_string(algo_->updates()) + " updates, " +
         std::to_string(ingest_.counters().env_steps) + " env steps, buffer " + std::to_string(replay_.size()));
   }
 

@@ -133,12 +133,21 @@ class PpoLearner final : public LearnerService {
   }
 
   void resumed(const config::CheckpointManifest& m) override {
-    version_ = m.policy_version() + 1;
+    // Past any version the crashed learner published after its checkpoint, as the off-policy
+    // learner does: a worker holding the same number would keep the old weights.
+    version_ = m.policy_version() + 1 + kResumeVersionSkip;
     // The run's counters go on from where they were; data not yet fitted was not kept.
     rng_from_manifest(m, nullptr);
     sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
-    log("resumed from " + ckpt_dir_ + ": " + std::to_string(ppo_.fits()) + " fits, " +
+    log("resumed from " + ckpt_dir_ + " (next policy v" + std::to_string(version_) + "): " +
+        std::to_string(ppo_.fits()) + " fits, " +
         std::to_string(ingest_.counters().env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate()));
+  }
+
+  void hold_workers() override {
+    if (!published_) return;
+    quota_ = 1;
+    write_weights();
   }
 
   // The current version's weights with the current quota; re-sent with a larger quota to top up.

@@ -171,4 +171,40 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   EXPECT_LT(updates_2 - updates_1, 1500) << "the resumed run started from scratch";
 }
 
+// Ctrl-C on a busy learner, then --resume: the batches the learner's reader had already taken
+// when it stopped go into its checkpoint, so every worker's account ends with lost 0 and what it
+// says it sent (workers that never wait on their own: a budget of 1,000 batches per version).
+TEST_F(FarmProcesses, CleanStopAndResumeLoseNothing) {
+  const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
+  std::string text = kConfig;
+  text.replace(text.find("max_batches_per_version: 2"), std::string("max_batches_per_version: 2").size(),
+               "max_batches_per_version: 1000");
+  text.replace(text.find("publish_every_updates: 25"), std::string("publish_every_updates: 25").size(),
+               "publish_every_updates: 5");
+  text.replace(text.find("target_eval_return: -250 max_seconds: 300"),
+               std::string("target_eval_return: -250 max_seconds: 300").size(), "max_seconds: 24");
+  write_file(cfg, text);
+  Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
+  Proc& wa = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sa"}, "worker-a");
+  Proc& wb = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sb"}, "worker-b");
+  ASSERT_TRUE(wait_for_match(dir_ + "/learner-1.log", R"(upd/s \([1-9][0-9]{3,})", 120)) << slurp(dir_ + "/learner-1.log");
+  kill(first.pid, SIGINT);
+  ASSERT_EQ(wait_for(first, 60), 130) << slurp(dir_ + "/learner-1.log");
+  Proc& second = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
+  ASSERT_EQ(wait_for(second, 120), 0) << slurp(dir_ + "/learner-2.log");
+  EXPECT_EQ(wait_for(wa, 60), 0) << slurp(dir_ + "/worker-a.log");
+  EXPECT_EQ(wait_for(wb, 60), 0) << slurp(dir_ + "/worker-b.log");
+  const std::string summary = slurp(run + "/summary.txt");
+  for (const char* id : {"it-sa", "it-sb"}) {
+    const std::string wlog = slurp(dir_ + "/worker-" + std::string(id).substr(4) + ".log");
+    std::smatch sent, got;
+    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
+    ASSERT_TRUE(std::regex_search(summary, got, std::regex(std::string(id) +
+        R"( session \d+: received (\d+) of sequence 0\.\.\d+, lost (\d+), duplicate 0, invalid 0, stream closed)")))
+        << id << "\n" << summary;
+    EXPECT_EQ(got[2], "0") << id << "\n" << summary << "\n" << slurp(dir_ + "/learner-1.log");
+    EXPECT_EQ(got[1], sent[1]) << id << "\n" << summary;
+  }
+}
+
 }  // namespace

@@ -6,6 +6,7 @@
 
 #include <signal.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -112,6 +113,63 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   EXPECT_EQ(m[4], "0") << summary;
   EXPECT_NE(summary.find("ppo-b session"), std::string::npos) << summary;
   EXPECT_NE(summary.find("stream open"), std::string::npos) << summary;  // the killed worker's
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// The PPO learner killed with SIGKILL after a fit it made past its last checkpoint, then resumed:
+// the resumed learner publishes version numbers no worker holds yet (a worker holding the number
+// would keep the killed learner's weights and PPO would fit on another policy's log-probabilities),
+// the worker runs those weights, and the fits go on with nothing refused.
+TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(71)), run = d + "/run";
+  std::string text = config("it_ppo_resume", "max_seconds: 400");
+  text.replace(text.find("checkpoint_every_seconds: 30"), std::string("checkpoint_every_seconds: 30").size(),
+               "checkpoint_every_seconds: 4");
+  write_file(d + "/cfg.txtpb", text);
+  Proc& first = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain},
+                          "learner-1");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-r", "--log-every", "1"}, "worker");
+  // A fit after the latest checkpoint: the killed learner published a version the checkpoint lacks.
+  auto fit_after_checkpoint = [](const std::string& log) {
+    const size_t c = log.rfind("] checkpoint ");
+    return c != std::string::npos && log.find("] fit ", c) != std::string::npos;
+  };
+  ASSERT_TRUE(poll_log(d + "/learner-1.log", fit_after_checkpoint, 180)) << slurp(d + "/learner-1.log");
+  kill(first.pid, SIGKILL);
+  wait_for(first, 10);
+  const std::string log1 = slurp(d + "/learner-1.log");
+  const std::regex fit_line(R"(\] fit \d+ \| v(\d+) -> v(\d+) \|)");
+  uint64_t published = 0;
+  for (auto it = std::sregex_iterator(log1.begin(), log1.end(), fit_line); it != std::sregex_iterator(); ++it)
+    published = std::max<uint64_t>(published, std::stoull((*it)[2]));
+  ASSERT_GT(published, 0u) << log1;
+
+  Proc& second = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain,
+                            "--resume"}, "learner-2");
+  ASSERT_TRUE(poll_log(d + "/learner-2.log", [&](const std::string& t) { return count(t, fit_line) >= 2; }, 180))
+      << slurp(d + "/learner-2.log");
+  kill(second.pid, SIGINT);
+  EXPECT_EQ(wait_for(second, 60), 130) << slurp(d + "/learner-2.log");
+  const std::string log2 = slurp(d + "/learner-2.log");
+  // The first version the resumed learner fitted is the first it published.
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(log2, m, fit_line)) << log2;
+  const uint64_t next = std::stoull(m[1]);
+  EXPECT_GT(next, published) << "the resumed learner reuses version numbers the killed one published\n" << log2;
+  // Every fit of the resumed learner was made on its own versions.
+  int fits = 0;
+  for (auto it = std::sregex_iterator(log2.begin(), log2.end(), fit_line); it != std::sregex_iterator(); ++it, ++fits)
+    EXPECT_GE(std::stoull((*it)[1]), next) << (*it)[0];
+  EXPECT_GE(fits, 2) << log2;
+  EXPECT_EQ(log2.find("rejected batch"), std::string::npos) << log2;
+  // The worker ran the resumed learner's weights.
+  const std::string wlog = set.log("worker");
+  uint64_t worker_latest = 0;
+  const std::regex status_version(R"(policy v(\d+))");
+  for (auto it = std::sregex_iterator(wlog.begin(), wlog.end(), status_version); it != std::sregex_iterator(); ++it)
+    worker_latest = std::max<uint64_t>(worker_latest, std::stoull((*it)[1]));
+  EXPECT_GE(worker_latest, next) << wlog;
   set.cleanup(::testing::Test::HasFailure());
 }
 
