@@ -87,6 +87,9 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
       v.fail(c, "experiment_id", "experiment_id",
              "expected letters, digits, '_', '-' or '.', got \"" + c.experiment_id() + "\"");
   }
+  // It names the run folder (<run_root>/<experiment_id>): "." and ".." would name another one.
+  if (c.experiment_id() == "." || c.experiment_id() == "..")
+    v.fail(c, "experiment_id", "experiment_id", "\"" + c.experiment_id() + "\" is not a name for a run folder");
   if (c.algorithm() != "sac" && c.algorithm() != "ppo" && c.algorithm() != "dqn")
     v.fail(c, "algorithm", "algorithm", "expected one of: sac, ppo, dqn; got \"" + c.algorithm() + "\"");
 
@@ -180,8 +183,12 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
 
   const auto& w = c.worker();
   v.nest(c, "worker", w);
-  positive(w, "envs_per_worker", "worker.envs_per_worker", w.envs_per_worker());
-  positive(w, "steps_per_batch", "worker.steps_per_batch", w.steps_per_batch());
+  if (!(w.envs_per_worker() > 0 && w.envs_per_worker() <= kMaxEnvsPerWorker))
+    v.fail(w, "envs_per_worker", "worker.envs_per_worker",
+           "expected 1.." + std::to_string(kMaxEnvsPerWorker) + ", got " + num(w.envs_per_worker()));
+  if (!(w.steps_per_batch() > 0 && w.steps_per_batch() <= kMaxStepsPerBatch))
+    v.fail(w, "steps_per_batch", "worker.steps_per_batch",
+           "expected 1.." + std::to_string(kMaxStepsPerBatch) + ", got " + num(w.steps_per_batch()));
   positive(w, "max_batches_per_version", "worker.max_batches_per_version", w.max_batches_per_version());
 
   if (c.run_root().empty()) v.fail(c, "run_root", "run_root", "expected a directory path");
@@ -205,6 +212,52 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
   }
   Validator v(source, &tree);
   validate(cfg, v);
+  return cfg;
+}
+
+namespace {
+
+// Names of the fields that name a file to write; found at any depth of the config.
+bool is_output_path(const pb::FieldDescriptor* f) { return f->name() == "hfield_png"; }
+
+// Visits the set output-path fields under msg (path so far: prefix); clears them when asked.
+void walk_output_paths(pb::Message* msg, const std::string& prefix, bool clear, std::vector<std::string>* found) {
+  const pb::Reflection* r = msg->GetReflection();
+  std::vector<const pb::FieldDescriptor*> fields;
+  r->ListFields(*msg, &fields);
+  for (const pb::FieldDescriptor* f : fields) {
+    const std::string path = prefix + f->name();
+    if (f->type() == pb::FieldDescriptor::TYPE_MESSAGE) {
+      if (f->is_repeated()) {
+        for (int i = 0; i < r->FieldSize(*msg, f); ++i)
+          walk_output_paths(r->MutableRepeatedMessage(msg, f, i), path + "[" + std::to_string(i) + "].", clear, found);
+      } else {
+        walk_output_paths(r->MutableMessage(msg, f), path + ".", clear, found);
+      }
+    } else if (is_output_path(f)) {
+      if (found) found->push_back(path);
+      if (clear) r->ClearField(msg, f);
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg) {
+  config::ExperimentConfig copy = cfg;
+  std::vector<std::string> found;
+  walk_output_paths(&copy, "", false, &found);
+  return found;
+}
+
+void clear_output_paths(config::ExperimentConfig* cfg) { walk_output_paths(cfg, "", true, nullptr); }
+
+config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source) {
+  config::ExperimentConfig cfg = parse_config_text(text, source);
+  const std::vector<std::string> paths = output_path_fields(cfg);
+  if (!paths.empty())
+    throw ConfigError(source + ": field '" + paths.front() +
+                      "' names a file for this host to write; a config received over the bus may not");
   return cfg;
 }
 

@@ -5,10 +5,18 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "farm_config.pb.h"
 
 namespace farm {
+
+// Sizes a worker takes, from its flags, its config or a spec off the bus: they bound what one
+// worker's environments and one batch hold in memory.
+inline constexpr int kMaxEnvsPerWorker = 4096;
+inline constexpr int kMaxThreadsPerWorker = 256;
+inline constexpr int kMaxStepsPerBatch = 4096;
+inline constexpr long long kMaxBatchTransitions = 1 << 20;  // steps x envs of one batch
 
 struct ConfigError : std::runtime_error {
   using std::runtime_error::runtime_error;
@@ -17,6 +25,14 @@ struct ConfigError : std::runtime_error {
 // Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3").
 config::ExperimentConfig load_config_file(const std::string& path);
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source);
+
+// Fields that name a file the process building the task writes (today task.mclari.hfield_png):
+// the set ones, by path ("task.mclari.hfield_png"), and a way to clear them all.
+std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg);
+void clear_output_paths(config::ExperimentConfig* cfg);
+// parse_config_text for a config that came over the bus (a worker's ExperimentSpec): it may not
+// name a file for the receiving host to write; ConfigError names the field.
+config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source);
 
 // The experiment config as text (what the learner sends to the workers in the ExperimentSpec).
 std::string config_to_text(const config::ExperimentConfig& cfg);

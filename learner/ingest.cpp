@@ -1,5 +1,7 @@
 #include "ingest.h"
 
+#include "config.h"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -35,7 +37,9 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
   const size_t T = b.num_steps(), N = b.num_envs();
   if (T == 0 && !b.end_of_stream()) return "empty batch (0 steps) without end_of_stream";
   if (T > 0 && N == 0) return "0 environments";
-  if (T * N > (size_t(1) << 28)) return "implausible batch size " + std::to_string(T) + "x" + std::to_string(N);
+  if (T * N > size_t(kMaxBatchTransitions))
+    return "implausible batch size " + std::to_string(T) + "x" + std::to_string(N) + " (at most " +
+           std::to_string(kMaxBatchTransitions) + " transitions)";
   const size_t TN = T * N, od = obs_dim_, ad = act_dim_;
   for (auto r : {size_is(b.observations().size(), TN * od, "observations"),
                  size_is(b.actions().size(), TN * ad, "actions"),

@@ -7,7 +7,11 @@ namespace farm {
 SpecPublisher::SpecPublisher(farm::dds::Bus& bus, const config::ExperimentConfig& cfg, int obs_dim, int act_dim)
     : out_(bus, farm::dds::kSpecTopic, "latest_writer") {
   spec_.experiment_id(cfg.experiment_id());
-  spec_.config_text(config_to_text(cfg));
+  // Files the learner's config names for this host to write are not the workers' business: a
+  // worker refuses a spec that names one.
+  config::ExperimentConfig sent = cfg;
+  clear_output_paths(&sent);
+  spec_.config_text(config_to_text(sent));
   spec_.task_name(cfg.task().name());
   spec_.obs_dim(obs_dim);
   spec_.act_dim(act_dim);

@@ -63,8 +63,8 @@ Options parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--envs") o.envs = int_flag(a, value(), 1, 1 << 20);
-    else if (a == "--threads") o.threads = int_flag(a, value(), 1, 1024);
+    if (a == "--envs") o.envs = int_flag(a, value(), 1, farm::kMaxEnvsPerWorker);
+    else if (a == "--threads") o.threads = int_flag(a, value(), 1, farm::kMaxThreadsPerWorker);
     else if (a == "--id") o.id = value();
     else if (a == "--log-every") o.log_every = int_flag(a, value(), 1, 3600);
     else if (a == "--inject-nan-batch") o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
@@ -194,11 +194,17 @@ class Worker {
       end_stream();
     }
     try {
-      config::ExperimentConfig cfg = parse_config_text(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+      config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+      int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
+      // A spec off the bus sizes this worker's batches: bounded before anything is allocated.
+      if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||
+          (long long)s.steps_per_batch() * envs > kMaxBatchTransitions)
+        throw std::runtime_error("spec's steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " +
+                                 std::to_string(envs) + " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) +
+                                 " steps and " + std::to_string(kMaxBatchTransitions) + " transitions per batch");
       std::shared_ptr<const robots::Task> task = robots::make_task(cfg.task());
       if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
         throw std::runtime_error("task '" + cfg.task().name() + "' shapes differ from the spec");
-      int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
       uint64_t seed = s.seed() ^ fnv1a(opt_.id);
       rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
       split_at_ = {};

@@ -2,12 +2,16 @@
 // weights. Used by the security test: with DDS Security on, a participant without a valid
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
-//                 [--hostile 1]
+//                 [--hostile 1] [--spec-config FILE [--spec-steps T]]
+// --spec-config FILE: also publish an ExperimentSpec for the experiment whose config text is FILE's
+// (a learner's impostor: what a worker does with a spec it did not ask for).
 // --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
 // 2^64 or 2^63 and 50 batches of invented sessions with sequence numbers drawn from the whole 64-bit
 // range, all well-formed otherwise (the attack that once set a learner's lost count to 2^63).
 #include <cstdio>
+#include <fstream>
 #include <random>
+#include <sstream>
 #include <string>
 #include <thread>
 
@@ -20,6 +24,8 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false;
+  std::string spec_config;
+  unsigned spec_steps = 4;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -32,6 +38,8 @@ int main(int argc, char** argv) {
       else if (a == "--act") act = std::stoul(v);
       else if (a == "--seconds") seconds = std::stod(v);
       else if (a == "--hostile") hostile = v == "1";
+      else if (a == "--spec-config") spec_config = v;
+      else if (a == "--spec-steps") spec_steps = std::stoul(v);
       else throw std::invalid_argument("unknown flag " + a);
     }
   } catch (const std::exception& e) {
@@ -46,6 +54,24 @@ int main(int argc, char** argv) {
         bus, farm::dds::kWeightsTopic, "latest_reader");
     farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(
         bus, farm::dds::kSpecTopic, "latest_reader");
+    farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out(
+        bus, farm::dds::kSpecTopic, "latest_writer");
+    if (!spec_config.empty()) {
+      std::ifstream in(spec_config);
+      if (!in) throw std::runtime_error("cannot read " + spec_config);
+      std::stringstream text;
+      text << in.rdbuf();
+      farm::msg::ExperimentSpec s;
+      s.experiment_id(experiment);
+      s.config_text(text.str());
+      s.obs_dim(obs);
+      s.act_dim(act);
+      s.steps_per_batch(spec_steps);
+      s.max_batches_per_version(4);
+      s.seed(1);
+      s.learner_session(1);
+      spec_out.write(s);
+    }
     // A well-formed batch: if it got through, the learner would accept it.
     const unsigned T = 1, N = 1;
     farm::msg::TransitionBatch b;

@@ -107,6 +107,51 @@ TEST(Config, ShippedConfigsStopOnTheirGoalOrOnTime) {
   EXPECT_GE(n, 8);
 }
 
+// The experiment id names the run folder: "." and ".." would name another one.
+TEST(Config, ExperimentIdIsASafeFolderName) {
+  for (const char* id : {".", "..", "a/b"}) {
+    try {
+      farm::parse_config_text(std::string("experiment_id: \"") + id + "\"\n", "x.txtpb");
+      ADD_FAILURE() << id << " accepted";
+    } catch (const farm::ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("x.txtpb:1:"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_NO_THROW(farm::parse_config_text("experiment_id: \"run.2\"\n", "x"));
+}
+
+// A worker's sizes are bounded where the config is read, with the line named.
+TEST(Config, WorkerSizesAreBounded) {
+  try {
+    farm::parse_config_text("experiment_id: \"w\"\nworker {\n  envs_per_worker: 5000\n}\n", "w.txtpb");
+    ADD_FAILURE() << "accepted";
+  } catch (const farm::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("w.txtpb:3:"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("expected 1..4096, got 5000"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(farm::parse_config_text("experiment_id: \"w\"\nworker { steps_per_batch: 100000 }\n", "w"),
+               farm::ConfigError);
+}
+
+// A config from the bus may not name a file for the receiving host to write.
+TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
+  const std::string text =
+      "experiment_id: \"m\"\ntask { name: \"mclari\" mclari { hfield_png: \"/etc/cron.d/x\" } }\n";
+  auto cfg = farm::parse_config_text(text, "learner.txtpb");  // the learner's own file may
+  ASSERT_EQ(farm::output_path_fields(cfg), std::vector<std::string>{"task.mclari.hfield_png"});
+  try {
+    farm::parse_config_from_bus(text, "ExperimentSpec(m)");
+    ADD_FAILURE() << "accepted";
+  } catch (const farm::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("ExperimentSpec(m): field 'task.mclari.hfield_png' names a file"),
+              std::string::npos) << e.what();
+  }
+  farm::clear_output_paths(&cfg);
+  EXPECT_TRUE(farm::output_path_fields(cfg).empty());
+  EXPECT_EQ(cfg.task().name(), "mclari");
+  EXPECT_NO_THROW(farm::parse_config_from_bus(farm::config_to_text(cfg), "ExperimentSpec(m)"));
+}
+
 TEST(Config, TextRoundTrip) {
   auto c = parse_config_text("experiment_id: \"rt\"\nsac { hidden: 64 hidden: 64 }\n", "x");
   auto d = parse_config_text(farm::config_to_text(c), "y");

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# A config received over the bus never names a file for a worker to write: a forged ExperimentSpec
+# whose mCLARI config names a height-field PNG is refused by the worker with the field named, and
+# no file appears; a learner whose own config names one still writes it on its host, publishes the
+# spec without it, and its worker joins. Sizes are bounded before anything is allocated: a spec
+# asking for a million steps per batch is refused, and so are --envs and --threads beyond their
+# bounds; an experiment id that would name another folder is refused.
+#   tests/integration/test_bus_config.sh LEARNER WORKER INTRUDER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
+dir=$(mktemp -d /tmp/farm-bus-config-test-XXXXXX)
+domain=$((20 + ($$ + 113) % 200))
+pids=()
+failed=0
+fail() { echo "FAIL: $*"; failed=1; }
+cleanup() {
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
+  wait 2>/dev/null
+  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
+}
+trap cleanup EXIT
+wait_text() {  # FILE TEXT SECONDS
+  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
+}
+
+# 1. The impostor's spec: a worker would write $dir/forged.png.
+sed -e 's/experiment_id: "mclari_sac"/experiment_id: "it_forged"/' "$src/deploy/configs/mclari_sac.txtpb" >"$dir/forged.txtpb"
+sed -i "0,/mclari {/s||mclari {\n    hfield_png: \"$dir/forged.png\"|" "$dir/forged.txtpb"
+grep -q "hfield_png: \"$dir/forged.png\"" "$dir/forged.txtpb" || fail "test set-up: no hfield_png in the forged config"
+"$intruder" --domain $domain --experiment it_forged --id impostor --obs 4 --act 2 --seconds 15 \
+  --spec-config "$dir/forged.txtpb" >"$dir/impostor.log" 2>&1 & pids+=($!)
+"$worker" --domain $domain --id bw >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+wait_text "$dir/worker.log" "hfield_png' names a file for this host to write" 20 ||
+  fail "the worker did not refuse the spec: $(tail -5 "$dir/worker.log")"
+sleep 1
+[ -e "$dir/forged.png" ] && fail "the worker wrote $dir/forged.png, named by a spec from the bus"
+grep -q "joined experiment 'it_forged'" "$dir/worker.log" && fail "the worker joined the forged experiment"
+kill -9 $wp 2>/dev/null; wait $wp 2>/dev/null
+
+# 2. The learner's own config names one: written by the learner, not sent; its worker joins.
+domain2=$((domain + 1))
+sed -e 's/experiment_id: "it_forged"/experiment_id: "it_own"/' -e "s|$dir/forged.png|$dir/own.png|" \
+  -e 's/max_seconds: 1500/max_seconds: 10/' "$dir/forged.txtpb" >"$dir/own.txtpb"
+"$learner" --config "$dir/own.txtpb" --run-dir "$dir/run" --domain $domain2 >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain2 --id ow --envs 1 >"$dir/worker2.log" 2>&1 & pids+=($!)
+wait_text "$dir/worker2.log" "joined experiment 'it_own'" 30 || fail "the learner's worker did not join: $(tail -5 "$dir/worker2.log")"
+[ -s "$dir/own.png" ] || fail "the learner did not write its own height field $dir/own.png"
+
+# 3. Sizes: a spec's steps per batch, the worker's flags.
+sed -e "s|hfield_png: \"$dir/forged.png\"||" "$dir/forged.txtpb" >"$dir/huge.txtpb"
+"$intruder" --domain $((domain + 2)) --experiment it_huge --id impostor2 --obs 4 --act 2 --seconds 15 \
+  --spec-config "$dir/huge.txtpb" --spec-steps 1000000 >"$dir/impostor2.log" 2>&1 & pids+=($!)
+"$worker" --domain $((domain + 2)) --id hw >"$dir/worker3.log" 2>&1 & pids+=($!)
+wait_text "$dir/worker3.log" "spec's steps_per_batch 1000000 x 4 envs is outside" 20 ||
+  fail "the worker did not refuse a million steps per batch: $(tail -5 "$dir/worker3.log")"
+out=$(timeout 10 "$worker" --envs 100000 2>&1); rc=$?
+[ $rc = 2 ] && grep -q -- "--envs expects an integer in \[1, 4096\], got '100000'" <<<"$out" || fail "--envs 100000: rc $rc, '$out'"
+out=$(timeout 10 "$worker" --threads 5000 2>&1); rc=$?
+[ $rc = 2 ] && grep -q -- "--threads expects an integer in \[1, 256\], got '5000'" <<<"$out" || fail "--threads 5000: rc $rc, '$out'"
+
+# 4. An experiment id that would name another folder.
+printf 'experiment_id: ".."\ntask { name: "pendulum" }\n' >"$dir/dots.txtpb"
+out=$(timeout 20 "$learner" --config "$dir/dots.txtpb" --run-dir "$dir/dots" 2>&1); rc=$?
+[ $rc = 2 ] && grep -q "is not a name for a run folder" <<<"$out" || fail "experiment_id \"..\": rc $rc, '$out'"
+
+[ $failed = 0 ] && echo "PASS"
+exit $failed

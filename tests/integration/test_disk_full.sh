@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# A full disk does not end a run: the learner's run directory on a small tmpfs, filled up after the
+# first checkpoint. The next checkpoint fails with a logged error, the last good one stays intact,
+# training goes on; when space comes back the next checkpoint succeeds, the run ends normally with
+# lost 0, and it resumes. A run whose checkpoint/ is gone but checkpoint.old/ is there resumes from
+# that. Needs to mount a tmpfs (root); skipped (exit 77) where mounting is refused.
+#   tests/integration/test_disk_full.sh LEARNER WORKER
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2")
+dir=$(mktemp -d /tmp/farm-disk-full-test-XXXXXX)
+domain=$((20 + ($$ + 191) % 200))
+pids=()
+failed=0
+fail() { echo "FAIL: $*"; failed=1; }
+cleanup() {
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
+  wait 2>/dev/null
+  mountpoint -q "$dir/disk" && umount "$dir/disk"
+  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
+}
+trap cleanup EXIT
+mkdir -p "$dir/disk"
+if ! mount -t tmpfs -o size=24m tmpfs "$dir/disk" 2>"$dir/mount.err"; then
+  echo "SKIP: cannot mount a tmpfs for the full disk ($(cat "$dir/mount.err")); run as root"
+  exit 77
+fi
+wait_text() {  # FILE TEXT SECONDS
+  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
+}
+updates_now() { grep -o "upd/s ([0-9]*" "$dir/learner.log" | tail -1 | grep -o "[0-9]*$"; }
+
+cat >"$dir/cfg.txtpb" <<'CFG'
+experiment_id: "it_disk_full"
+task { name: "pendulum" }
+sac { hidden: 64 hidden: 64 learning_starts: 500 buffer_size: 200000 publish_every_updates: 25 }
+worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 4 }
+eval { episodes: 2 every_seconds: 600 final_episodes: 2 }
+checkpoint_every_seconds: 2
+log_every_seconds: 1
+stop { max_seconds: 30 }
+CFG
+run="$dir/disk/run"
+"$learner" --config "$dir/cfg.txtpb" --run-dir "$run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain --id dw >"$dir/worker.log" 2>&1 & pids+=($!)
+wait_text "$dir/learner.log" "\] checkpoint $run/checkpoint" 60 || fail "no first checkpoint: $(tail -5 "$dir/learner.log")"
+good=$(grep -o "^updates: [0-9]*" "$run/checkpoint/manifest.txtpb")
+# Fill the disk.
+dd if=/dev/zero of="$dir/disk/filler" bs=64k 2>/dev/null
+wait_text "$dir/learner.log" "checkpoint failed: .*the last good checkpoint ($run/checkpoint) is kept" 20 ||
+  fail "no logged checkpoint failure on the full disk: $(tail -5 "$dir/learner.log")"
+grep "checkpoint failed" "$dir/learner.log" | head -1
+[ -f "$run/checkpoint/manifest.txtpb" ] || fail "the last good checkpoint is gone"
+ls "$run" | grep -q "checkpoint.tmp" && fail "a half-written checkpoint folder was left on the full disk"
+u1=$(updates_now); sleep 3; u2=$(updates_now)
+[ -n "$u1" ] && [ -n "$u2" ] && [ "$u2" -gt "$u1" ] || fail "training stopped on the full disk (updates $u1 -> $u2)"
+kill -0 $lp 2>/dev/null || fail "the learner died on the full disk"
+# Space again: the next checkpoint succeeds.
+fails=$(grep -c "checkpoint failed" "$dir/learner.log")
+rm -f "$dir/disk/filler"
+sleep 5
+last_ok=$(grep -n "\] checkpoint $run/checkpoint" "$dir/learner.log" | tail -1 | cut -d: -f1)
+last_fail=$(grep -n "checkpoint failed" "$dir/learner.log" | tail -1 | cut -d: -f1)
+[ -n "$last_ok" ] && [ "$last_ok" -gt "$last_fail" ] || fail "no checkpoint succeeded after space came back"
+wait $lp; rc=$?
+[ $rc = 0 ] || fail "learner exited $rc: $(tail -5 "$dir/learner.log")"
+grep -q "batches  *ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$run/summary.txt" || fail "summary: $(cat "$run/summary.txt")"
+echo "before the full disk: $good; $fails failed checkpoint(s) while full; now: $(grep -o "^updates: [0-9]*" "$run/checkpoint/manifest.txtpb")"
+
+# Only checkpoint.old/ left (a crash between the two renames of a save): --resume takes it.
+mv "$run/checkpoint" "$run/checkpoint.old"
+sed -i 's/max_seconds: 30/max_seconds: 34/' "$dir/cfg.txtpb"
+"$learner" --config "$dir/cfg.txtpb" --run-dir "$run" --domain $domain --resume >"$dir/learner-2.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain --id dw2 >"$dir/worker-2.log" 2>&1 & pids+=($!)
+wait $lp; rc=$?
+[ $rc = 0 ] || fail "resumed learner exited $rc: $(tail -5 "$dir/learner-2.log")"
+grep -q "resumed from $run/checkpoint" "$dir/learner-2.log" || fail "did not resume: $(head -5 "$dir/learner-2.log")"
+
+[ $failed = 0 ] && echo "PASS"
+exit $failed
