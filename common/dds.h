@@ -17,6 +17,7 @@
 #include <condition_variable>
 #include <map>
 #include <memory>
+#include <functional>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -112,7 +113,11 @@ class Writer {
 template <class T, class PubSubType>
 class Reader : public fdds::DataReaderListener {
  public:
-  Reader(Bus& bus, const std::string& topic_name, const std::string& profile) : bus_(bus) {
+  // on_data, if given, runs on Fast DDS's listener thread whenever samples arrive, with the DDS
+  // reader to take them from (take_from), independently of the thread that owns this Reader.
+  using OnData = std::function<void(fdds::DataReader*)>;
+  Reader(Bus& bus, const std::string& topic_name, const std::string& profile, OnData on_data = {})
+      : bus_(bus), on_data_(std::move(on_data)) {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
     reader_ = bus.subscriber()->create_datareader_with_profile(t, profile, this);
     if (!reader_) {
@@ -125,9 +130,10 @@ class Reader : public fdds::DataReaderListener {
     bus_.subscriber()->delete_datareader(reader_);
   }
   // Takes the next valid sample, if any; never blocks.
-  bool take(T& out) {
+  bool take(T& out) { return take_from(reader_, out); }
+  static bool take_from(fdds::DataReader* reader, T& out) {
     fdds::SampleInfo info;
-    while (reader_->take_next_sample(&out, &info) == eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
+    while (reader->take_next_sample(&out, &info) == eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
       if (info.valid_data) return true;
     }
     return false;
@@ -143,7 +149,8 @@ class Reader : public fdds::DataReaderListener {
     reader_->get_subscription_matched_status(st);
     return st.current_count;
   }
-  void on_data_available(fdds::DataReader*) override {
+  void on_data_available(fdds::DataReader* reader) override {
+    if (on_data_) on_data_(reader);
     std::lock_guard<std::mutex> lk(mu_);
     pending_ = true;
     cv_.notify_all();
@@ -151,6 +158,7 @@ class Reader : public fdds::DataReaderListener {
 
  private:
   Bus& bus_;
+  OnData on_data_;
   fdds::DataReader* reader_ = nullptr;
   std::mutex mu_;
   std::condition_variable cv_;

@@ -1,6 +1,8 @@
 #include "checkpoint.h"
 
+#include <fcntl.h>
 #include <ftw.h>
+#include <unistd.h>
 #include <google/protobuf/text_format.h>
 
 #include <cerrno>
@@ -28,25 +30,65 @@ void remove_tree(const fs::path& p) {
     throw std::runtime_error("cannot remove " + p.string() + ": " + std::strerror(errno));
 }
 
+// fsync of one file or folder (a folder's fsync makes the renames and new names in it durable).
+void sync_path(const fs::path& p) {
+  const int fd = open(p.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw std::runtime_error("cannot open " + p.string() + " to sync it: " + std::strerror(errno));
+  const int rc = fsync(fd);
+  const int err = errno;
+  close(fd);
+  if (rc != 0) throw std::runtime_error("cannot sync " + p.string() + ": " + std::strerror(err));
+}
+
+// fsync of every file and folder under root, deepest first.
+void sync_tree(const fs::path& root) {
+  static thread_local std::string failed;
+  failed.clear();
+  auto one = [](const char* path, const struct stat*, int type, struct FTW*) {
+    if (type != FTW_F && type != FTW_DP) return 0;
+    try {
+      sync_path(path);
+    } catch (const std::exception& e) {
+      failed = e.what();
+      return 1;
+    }
+    return 0;
+  };
+  if (nftw(root.c_str(), one, 16, FTW_DEPTH | FTW_PHYS) != 0)
+    throw std::runtime_error(failed.empty() ? "cannot walk " + root.string() + " to sync it" : failed);
+}
+
 }  // namespace
 
 void write_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
                       const std::function<void(const std::string& tmp_dir)>& write_parts) {
   const fs::path final_dir(dir), tmp = final_dir.string() + ".tmp", old = final_dir.string() + ".old";
   remove_tree(tmp);
-  fs::create_directories(tmp);
-  write_parts(tmp.string());
-  std::string text;
-  google::protobuf::TextFormat::PrintToString(manifest, &text);
-  {
+  try {
+    fs::create_directories(tmp);
+    write_parts(tmp.string());
+    std::string text;
+    google::protobuf::TextFormat::PrintToString(manifest, &text);
     std::ofstream out(tmp / "manifest.txtpb");
     out << text;
+    out.close();  // the check after the last flush: a full disk shows here
     if (!out) throw std::runtime_error("cannot write " + (tmp / "manifest.txtpb").string());
+    // Every file and folder on disk before the rename makes them the checkpoint.
+    sync_tree(tmp);
+  } catch (...) {
+    try {
+      remove_tree(tmp);  // a half-written folder would only take the space the next try needs
+    } catch (...) {
+    }
+    throw;
   }
+  const fs::path parent = final_dir.has_parent_path() ? final_dir.parent_path() : fs::path(".");
   remove_tree(old);
   if (fs::exists(final_dir)) fs::rename(final_dir, old);
   fs::rename(tmp, final_dir);
+  sync_path(parent);  // the renames on disk before the previous checkpoint goes
   remove_tree(old);
+  sync_path(parent);
 }
 
 void save_networks(const std::string& dir, const std::string& name,

@@ -1,4 +1,5 @@
 #include "dqn.h"
+#include "archive_io.h"
 
 #include <algorithm>
 #include <cmath>
@@ -205,7 +206,7 @@ void Dqn::save(const std::string& dir) const {
     root.write("optim", optim);
     root.write("updates", torch::full({1}, s.updates, torch::kInt64));
     root.write("env_steps", torch::full({1}, env_steps_, torch::kInt64));
-    root.save_to(tmp);
+    save_archive(root, tmp);
   } catch (const c10::Error& e) {
     throw std::runtime_error("dqn checkpoint " + tmp + ": " + e.what_without_backtrace());
   }

@@ -34,7 +34,15 @@ LearnerService::LearnerService(const LearnerRunOptions& o, const config::Experim
       weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
       stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
       batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
-      status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader"),
+      status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader",
+                 [this](eprosima::fastdds::dds::DataReader* r) {
+                   farm::msg::WorkerStatus s;
+                   while (decltype(status_in_)::take_from(r, s)) {
+                     std::lock_guard<std::mutex> lk(heard_mu_);
+                     if (heard_.size() >= kMaxHeard) heard_.pop_front();
+                     heard_.emplace_back(s, now_seconds());
+                   }
+                 }),
       roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
@@ -64,7 +72,7 @@ int LearnerService::run() {
     }
     spec_.republish_if_due(now);
     if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
-      checkpoint(now - t0);
+      try_checkpoint(now - t0);  // a failure is logged and tried again next period
       last_ckpt = now_seconds();
     }
     stop_reason = should_stop(now - t0);
@@ -75,7 +83,7 @@ int LearnerService::run() {
     // Workers stay and wait: a resumed learner picks them up again. What the reader already
     // acknowledged goes into the checkpoint first, or the resumed learner counts it lost.
     drain_before_interrupted_stop();
-    checkpoint(elapsed);
+    if (!try_checkpoint(elapsed)) return 1;
     log("checkpoint written; resume with --resume");
     return 130;
   }
@@ -85,9 +93,21 @@ int LearnerService::run() {
   final_evaluation(elapsed);
   spec_.publish(true);
   drain_until_workers_end();
-  checkpoint(elapsed);
+  const bool saved = try_checkpoint(elapsed);
   write_summary(elapsed, stop_reason);
-  return 0;
+  return saved ? 0 : 1;
+}
+
+bool LearnerService::try_checkpoint(double elapsed) {
+  try {
+    checkpoint(elapsed);
+    return true;
+  } catch (const std::exception& e) {
+    log(std::string("checkpoint failed: ") + e.what() + "; the last good checkpoint" +
+        (checkpoint_exists(ckpt_dir_) ? " (" + usable_checkpoint(ckpt_dir_) + ")" : std::string(" (none yet)")) +
+        " is kept, training goes on, next try in " + fmt("%.0f", cfg_.checkpoint_every_seconds()) + " s");
+    return false;
+  }
 }
 
 void LearnerService::log(const std::string& s) const {
@@ -126,10 +146,14 @@ void LearnerService::prepare_run_dir() {
 }
 
 void LearnerService::drain_status() {
-  farm::msg::WorkerStatus s;
-  while (status_in_.take(s)) {
+  std::deque<std::pair<farm::msg::WorkerStatus, double>> got;
+  {
+    std::lock_guard<std::mutex> lk(heard_mu_);
+    got.swap(heard_);
+  }
+  for (const auto& [s, when] : got) {
     on_worker_heard();
-    roster_.heard(s, now_seconds());
+    roster_.heard(s, when);
   }
   roster_.check(now_seconds());
 }
@@ -154,10 +178,18 @@ void LearnerService::record_episode(float episode_return) {
 
 void LearnerService::record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) {
   if (std::isnan(mean_return) || mean_return <= best_eval_) return;
+  const double previous_best = best_eval_;
   best_eval_ = mean_return;
   const double t = now_seconds();
-  write_checkpoint(best_dir_, base_manifest(version, updates, elapsed),
-                   [this](const std::string& tmp) { save_networks(tmp); });
+  try {
+    write_checkpoint(best_dir_, base_manifest(version, updates, elapsed),
+                     [this](const std::string& tmp) { save_networks(tmp); });
+  } catch (const std::exception& e) {
+    best_eval_ = previous_best;  // the folder still holds the previous best: it stays the bar
+    log(std::string("best evaluation so far (") + fmt("%.1f", mean_return) + ") not kept: " + e.what() +
+        "; training goes on");
+    return;
+  }
   log("best evaluation so far (" + fmt("%.1f", mean_return) + ", policy v" + std::to_string(version) + "): kept in " +
       best_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
 }

@@ -11,7 +11,9 @@
 #include <deque>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "dds.h"
@@ -107,6 +109,9 @@ class LearnerService {
   std::string untrained_stop_note(const std::string& reason) const;
   void emit_summary(const std::string& text) const;
   void drain_until_workers_end();
+  // checkpoint() that survives a failure (a full disk): logged, the last good checkpoint kept;
+  // false when it failed.
+  bool try_checkpoint(double elapsed);
   // On Ctrl-C / SIGTERM, before the checkpoint: the batches already on their way.
   void drain_before_interrupted_stop();
 
@@ -121,6 +126,12 @@ class LearnerService {
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
   farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  // Heartbeats are taken on Fast DDS's listener thread as they arrive, with their arrival time, so
+  // a long fit or evaluation cannot let them be overwritten in the reader's history (16 deep for
+  // all workers together) and live workers be marked dead; the main loop hands them to roster_.
+  std::mutex heard_mu_;
+  std::deque<std::pair<farm::msg::WorkerStatus, double>> heard_;  // bounded: kMaxHeard
+  static constexpr size_t kMaxHeard = 65536;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
   std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;

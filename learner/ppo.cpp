@@ -1,4 +1,5 @@
 #include "ppo.h"
+#include "archive_io.h"
 
 #include <algorithm>
 #include <cmath>
@@ -314,7 +315,7 @@ void Ppo::save(const std::string& dir) const {
   ar.write("lr", torch::tensor(s.lr, torch::kFloat64));
   ar.write("counts", torch::tensor(std::vector<int64_t>{s.fits, s.updates}, torch::kLong));
   const std::string path = (std::filesystem::path(dir) / "ppo.pt").string();
-  ar.save_to(path + ".tmp");
+  save_archive(ar, path + ".tmp");
   std::filesystem::rename(path + ".tmp", path);
 }
 

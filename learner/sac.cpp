@@ -1,4 +1,5 @@
 #include "sac.h"
+#include "archive_io.h"
 
 #include <dlfcn.h>
 #include <malloc.h>
@@ -409,7 +410,7 @@ void Sac::save(const std::string& dir) const {
     }
     root.write("log_alpha", s.log_alpha.detach());
     root.write("updates", torch::full({1}, s.updates, torch::kInt64));
-    root.save_to(tmp);
+    save_archive(root, tmp);
   } catch (const c10::Error& e) {
     throw std::runtime_error("sac checkpoint " + tmp + ": " + e.what_without_backtrace());
   }
