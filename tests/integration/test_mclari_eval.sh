@@ -8,7 +8,13 @@
 # usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
 set -euo pipefail
 LEARNER=$1 WORKER=$2 EVAL=$3 SRC=$4 SWEEP=$5
-T=$(mktemp -d); trap 'pkill -f "domain 94" || true; rm -rf "$T"' EXIT
+# Only the processes this test started are ended, by their ids (not every process on domain 94):
+# a bystander whose command line says "--domain 94" must outlive the test's clean-up.
+T=$(mktemp -d); PIDS=()
+cleanup() { for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done; }
+trap 'cleanup; kill $BYSTANDER 2>/dev/null; rm -rf "$T"' EXIT
+(exec -a "bystander --domain 94" sleep 600) &
+BYSTANDER=$!
 fail() { echo "FAIL: $*"; exit 1; }
 sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seconds: 100000/' \
     -e 's/final_episodes: 6/final_episodes: 1/' \
@@ -16,8 +22,9 @@ sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seco
     "$SRC/deploy/configs/mclari_sac_swept.txtpb" > "$T/c.txtpb"
 grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episodes of the swept config"
 "$LEARNER" --config "$T/c.txtpb" --run-dir "$T/run" --domain 94 > "$T/learner.log" 2>&1 &
-L=$!
+L=$!; PIDS+=($L)
 "$WORKER" --domain 94 --id eval1 > "$T/worker.log" 2>&1 &
+PIDS+=($!)
 wait $L || { tail -20 "$T/learner.log"; fail "learner failed"; }
 [ -d "$T/run/checkpoint/sac" ] || fail "no checkpoint in $T/run"
 
@@ -71,4 +78,7 @@ grep -q "ran 2 s, these episodes up to 6 s" "$T/cmp2.out" || { cat "$T/cmp2.out"
 if "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 1 --threads 2 \
     --trace "$T/no/such/dir/trace.csv" > /dev/null 2> "$T/err.txt"; then fail "unwritable trace accepted"; fi
 grep -q "no/such/dir/trace.csv" "$T/err.txt" || { cat "$T/err.txt"; fail "error does not name the trace path"; }
+cleanup
+sleep 0.5
+kill -0 $BYSTANDER 2>/dev/null || fail "the clean-up ended a process this test did not start"
 echo "PASS"

@@ -1,10 +1,14 @@
-// The worker's hot loop allocates nothing once warmed up: every global operator new in this test
-// binary is counted, and Rollout::collect must not call it after the first batches have sized
-// every buffer, including batches in which episodes end (their records and final observations).
+// The worker's hot loop allocates nothing once warmed up: every heap allocation in this test
+// binary is counted, C++ and C alike (malloc, calloc, realloc and the aligned allocations Eigen and
+// MuJoCo use are replaced here and forwarded to glibc; operator new goes through malloc), and
+// Rollout::collect must not make one after the first batches have sized every buffer, including
+// batches in which episodes end (their records and final observations).
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cerrno>
 #include <cstdlib>
+#include <cstring>
 #include <memory>
 #include <new>
 #include <random>
@@ -17,21 +21,37 @@ namespace {
 std::atomic<uint64_t> g_allocations{0};
 }  // namespace
 
-void* operator new(std::size_t n) {
+// glibc's own entry points, under the names it exports for replacements like these.
+extern "C" {
+void* __libc_malloc(size_t);
+void* __libc_calloc(size_t, size_t);
+void* __libc_realloc(void*, size_t);
+void* __libc_memalign(size_t, size_t);
+
+void* malloc(size_t n) {
   g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
+  return __libc_malloc(n);
 }
-void* operator new[](std::size_t n) { return operator new(n); }
-void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
+void* calloc(size_t k, size_t n) {
   g_allocations.fetch_add(1, std::memory_order_relaxed);
-  return std::malloc(n ? n : 1);
+  return __libc_calloc(k, n);
 }
-void* operator new[](std::size_t n, const std::nothrow_t& t) noexcept { return operator new(n, t); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+void* realloc(void* p, size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  return __libc_realloc(p, n);
+}
+void* memalign(size_t a, size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  return __libc_memalign(a, n);
+}
+void* aligned_alloc(size_t a, size_t n) { return memalign(a, n); }
+int posix_memalign(void** out, size_t a, size_t n) {
+  void* p = memalign(a, n);
+  if (!p) return ENOMEM;
+  *out = p;
+  return 0;
+}
+}
 
 namespace {
 
@@ -74,11 +94,20 @@ void expect_no_allocation(int envs, int threads) {
                              << " env steps (" << envs << " envs, " << threads << " threads)";
 }
 
-TEST(RolloutAllocation, CountingAllocatorSeesNew) {
-  const uint64_t before = g_allocations.load();
+TEST(RolloutAllocation, CountingAllocatorSeesNewAndMalloc) {
+  uint64_t before = g_allocations.load();
   auto p = std::make_unique<int>(1);
   EXPECT_EQ(*p, 1);
   EXPECT_GT(g_allocations.load(), before);
+  before = g_allocations.load();
+  void* volatile m = std::malloc(64);
+  EXPECT_GT(g_allocations.load(), before);
+  std::free(m);
+  before = g_allocations.load();
+  void* a = nullptr;
+  ASSERT_EQ(posix_memalign(&a, 64, 256), 0);  // how Eigen and MuJoCo get aligned memory
+  EXPECT_GT(g_allocations.load(), before);
+  std::free(a);
 }
 
 TEST(RolloutAllocation, OneThreadCollectAllocatesNothing) { expect_no_allocation(8, 1); }
