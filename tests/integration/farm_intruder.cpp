@@ -10,6 +10,7 @@
 // range, all well-formed otherwise (the attack that once set a learner's lost count to 2^63).
 #include <cstdio>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <string>
@@ -54,9 +55,11 @@ int main(int argc, char** argv) {
         bus, farm::dds::kWeightsTopic, "latest_reader");
     farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(
         bus, farm::dds::kSpecTopic, "latest_reader");
-    farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_out(
-        bus, farm::dds::kSpecTopic, "latest_writer");
+    // Only when asked: a worker's certificate may not even create a spec writer (access control).
+    using SpecWriter = farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType>;
+    std::unique_ptr<SpecWriter> spec_out;
     if (!spec_config.empty()) {
+      spec_out = std::make_unique<SpecWriter>(bus, farm::dds::kSpecTopic, "latest_writer");
       std::ifstream in(spec_config);
       if (!in) throw std::runtime_error("cannot read " + spec_config);
       std::stringstream text;
@@ -70,7 +73,7 @@ int main(int argc, char** argv) {
       s.max_batches_per_version(4);
       s.seed(1);
       s.learner_session(1);
-      spec_out.write(s);
+      spec_out->write(s);
     }
     // A well-formed batch: if it got through, the learner would accept it.
     const unsigned T = 1, N = 1;
