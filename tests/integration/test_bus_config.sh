@@ -8,20 +8,8 @@
 #   tests/integration/test_bus_config.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
-dir=$(mktemp -d /tmp/farm-bus-config-test-XXXXXX)
-domain=$((20 + ($$ + 113) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
-wait_text() {  # FILE TEXT SECONDS
-  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
-}
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init bus-config 113
 
 # 1. The impostor's spec: a worker would write $dir/forged.png.
 sed -e 's/experiment_id: "mclari_sac"/experiment_id: "it_forged"/' "$src/deploy/configs/mclari_sac.txtpb" >"$dir/forged.txtpb"
@@ -63,5 +51,4 @@ printf 'experiment_id: ".."\ntask { name: "pendulum" }\n' >"$dir/dots.txtpb"
 out=$(timeout 20 "$learner" --config "$dir/dots.txtpb" --run-dir "$dir/dots" 2>&1); rc=$?
 [ $rc = 2 ] && grep -q "is not a name for a run folder" <<<"$out" || fail "experiment_id \"..\": rc $rc, '$out'"
 
-[ $failed = 0 ] && echo "PASS"
-exit $failed
+farm_test_end

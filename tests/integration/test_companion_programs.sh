@@ -6,14 +6,8 @@
 #   tests/integration/test_companion_programs.sh BENCH_SCALE WORKER
 set -uo pipefail
 bench_scale=$(readlink -f "$1") worker=$(readlink -f "$2")
-dir=$(mktemp -d /tmp/farm-companion-test-XXXXXX)
-domain=$((20 + ($$ + 53) % 200))
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init companion 53
 
 # 1. A copied folder: bench_scale and farm-worker side by side, started from elsewhere.
 mkdir -p "$dir/bin"
@@ -41,5 +35,4 @@ took=$(( $(date +%s) - start ))
   fail "worker exiting at once: rc $rc, '$out'"
 [ $took -le 15 ] || fail "a worker exiting at once took $took s to report"
 
-[ $failed = 0 ] && echo "PASS"
-exit $failed
+farm_test_end

@@ -7,26 +7,14 @@
 #   tests/integration/test_disk_full.sh LEARNER WORKER
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2")
-dir=$(mktemp -d /tmp/farm-disk-full-test-XXXXXX)
-domain=$((20 + ($$ + 191) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  mountpoint -q "$dir/disk" && umount "$dir/disk"
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init disk-full 191
+before_cleanup() { mountpoint -q "$dir/disk" && umount "$dir/disk"; }
 mkdir -p "$dir/disk"
 if ! mount -t tmpfs -o size=24m tmpfs "$dir/disk" 2>"$dir/mount.err"; then
   echo "SKIP: cannot mount a tmpfs for the full disk ($(cat "$dir/mount.err")); run as root"
   exit 77
 fi
-wait_text() {  # FILE TEXT SECONDS
-  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
-}
 updates_now() { grep -o "upd/s ([0-9]*" "$dir/learner.log" | tail -1 | grep -o "[0-9]*$"; }
 
 cat >"$dir/cfg.txtpb" <<'CFG'
@@ -75,5 +63,4 @@ wait $lp; rc=$?
 [ $rc = 0 ] || fail "resumed learner exited $rc: $(tail -5 "$dir/learner-2.log")"
 grep -q "resumed from $run/checkpoint" "$dir/learner-2.log" || fail "did not resume: $(head -5 "$dir/learner-2.log")"
 
-[ $failed = 0 ] && echo "PASS"
-exit $failed
+farm_test_end

@@ -5,17 +5,8 @@
 #   tests/integration/test_heartbeats.sh LEARNER WORKER [WORKERS]
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") n=${3:-40}
-dir=$(mktemp -d /tmp/farm-heartbeats-test-XXXXXX)
-domain=$((20 + ($$ + 151) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init heartbeats 151
 
 cat >"$dir/cfg.txtpb" <<'CFG'
 experiment_id: "it_heartbeats"
@@ -23,7 +14,7 @@ task { name: "pendulum" }
 sac { hidden: 32 hidden: 32 learning_starts: 500 batch_size: 64 publish_every_updates: 50 }
 worker { envs_per_worker: 1 steps_per_batch: 50 max_batches_per_version: 2 }
 # An evaluation of thousands of episodes in the learner's main loop: several heartbeat timeouts long.
-eval { episodes: 10000 every_seconds: 4 final_episodes: 2 }
+eval { episodes: 15000 every_seconds: 4 final_episodes: 2 }
 worker_timeout_seconds: 2
 checkpoint_every_seconds: 600
 log_every_seconds: 1
@@ -61,5 +52,4 @@ if not any(g >= 4 for g in long_evals):
 PY
 grep "marked dead" "$dir/learner.log" | head -3 | sed 's/^/FAIL: /'
 grep -q "marked dead" "$dir/learner.log" && failed=1
-[ $failed = 0 ] && echo "PASS: $n workers, none marked dead"
-exit $failed
+farm_test_end "$n workers, none marked dead"

@@ -8,17 +8,8 @@
 # 4. The discovery profiles in deploy/discovery/ carry the same topic QoS as deploy/fastdds_profiles.xml.
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3") src=$(readlink -f "$4")
-dir=$(mktemp -d /tmp/farm-monitor-test-XXXXXX)
-domain=$((20 + ($$ + 77) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init monitor 77
 
 # 4. Topic QoS of the discovery profiles = the farm's (everything from the first topic profile on).
 topic_qos() { sed -n '/<!-- ExperimentSpec and PolicyWeights/,$p' "$1"; }
@@ -50,9 +41,6 @@ EOF
 "$worker" --domain $domain --id mon-a >"$dir/worker-a.log" 2>&1 & pids+=($!)
 "$worker" --domain $domain --id mon-b >"$dir/worker-b.log" 2>&1 & pid_b=$!; pids+=($pid_b)
 
-wait_text() {  # FILE TEXT SECONDS
-  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
-}
 for w in a b; do wait_text "$dir/worker-$w.log" "joined experiment" 30 || fail "worker mon-$w did not join: $(tail -5 "$dir/worker-$w.log")"; done
 sleep 4
 

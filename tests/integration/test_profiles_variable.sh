@@ -11,17 +11,8 @@
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3")
 bench_scale=$(readlink -f "$4") bench_transport=$(readlink -f "$5") src=$(readlink -f "$6")
-dir=$(mktemp -d /tmp/farm-profiles-test-XXXXXX)
-domain=$((20 + ($$ + 131) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init profiles 131
 
 # A copy away from every default place, so only the way under test can name it.
 profiles="$dir/my_profiles.xml"
@@ -50,9 +41,6 @@ run_with() {
   esac
 }
 
-wait_text() {  # FILE TEXT SECONDS
-  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
-}
 
 for way in var flag both; do
   d=$((domain + ${#way}))
@@ -107,5 +95,4 @@ out=$(FASTRTPS_DEFAULT_PROFILES_FILE="$dir/empty.xml" timeout 20 "$monitor" --on
 [ $rc = 1 ] && grep -q "overrides FASTRTPS_DEFAULT_PROFILES_FILE=$dir/empty.xml" <<<"$out" &&
   grep -q "nothing found on DDS domain" <<<"$out" || fail "flag over a different variable: rc $rc, '$out'"
 
-[ $failed = 0 ] && echo "PASS"
-exit $failed
+farm_test_end

@@ -5,17 +5,8 @@
 #   tests/integration/test_stop_rules.sh LEARNER WORKER
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2")
-dir=$(mktemp -d /tmp/farm-stop-test-XXXXXX)
-domain=$((20 + ($$ + 171) % 200))
-pids=()
-failed=0
-fail() { echo "FAIL: $*"; failed=1; }
-cleanup() {
-  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
-  wait 2>/dev/null
-  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
-}
-trap cleanup EXIT
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init stop 171
 
 # run NAME EVAL_EVERY_SECONDS: a pendulum learner with a 100,000-step limit and one worker.
 run() {
@@ -48,5 +39,4 @@ run evaluated 0.2
 grep -q "^\[learner\] eval: mean return" "$dir/evaluated.log" || fail "evaluated: no evaluation before the limit"
 grep -q "^note" "$dir/evaluated/summary.txt" && fail "evaluated: a note where the run was evaluated: $(cat "$dir/evaluated/summary.txt")"
 
-[ $failed = 0 ] && echo "PASS"
-exit $failed
+farm_test_end

@@ -1,0 +1,34 @@
+# What the shell integration tests share; source it, then call farm_test_init.
+#   source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"; farm_test_init NAME OFFSET
+# gives: $dir (a fresh folder, removed at exit when the test passed and FARM_KEEP_LOGS is unset),
+# $domain (a DDS domain of its own: 20 + (pid + OFFSET) mod 200), pids=() (killed at exit),
+# failed=0, fail MESSAGE, wait_text FILE TEXT SECONDS and farm_test_end [WHAT]. A test that must
+# undo something before its folder goes (a mount) defines before_cleanup.
+
+farm_test_init() {
+  dir=$(mktemp -d "/tmp/farm-$1-test-XXXXXX")
+  domain=$((20 + ($$ + $2) % 200))
+  pids=()
+  failed=0
+  trap farm_test_cleanup EXIT
+}
+
+fail() { echo "FAIL: $*"; failed=1; }
+
+farm_test_cleanup() {
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
+  wait 2>/dev/null
+  if declare -F before_cleanup >/dev/null; then before_cleanup; fi
+  if [ "$failed" = 0 ] && [ -z "${FARM_KEEP_LOGS:-}" ]; then rm -rf "$dir"; else echo "logs kept in $dir"; fi
+}
+
+# Polls FILE every 0.2 s until it holds TEXT (a grep pattern); false after SECONDS.
+wait_text() {
+  for _ in $(seq $(($3 * 5))); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done
+  return 1
+}
+
+farm_test_end() {
+  [ "$failed" = 0 ] && echo "PASS${1:+: $1}"
+  exit "$failed"
+}
