@@ -87,10 +87,16 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   const char* env_value = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
   const std::string env = env_value ? env_value : "";
-  profiles_file_ = !opts.profiles_file.empty() ? opts.profiles_file : !env.empty() ? env : default_profiles_file();
-  const char* from = !opts.profiles_file.empty() ? "--dds-profiles"
-                     : !env.empty()              ? "FASTRTPS_DEFAULT_PROFILES_FILE"
-                                                 : "the default";
+  const char* from = "the default";
+  if (!opts.profiles_file.empty()) {
+    profiles_file_ = opts.profiles_file;
+    from = "--dds-profiles";
+  } else if (!env.empty()) {
+    profiles_file_ = env;
+    from = "FASTRTPS_DEFAULT_PROFILES_FILE";
+  } else {
+    profiles_file_ = default_profiles_file();
+  }
   if (!file_exists(profiles_file_)) {
     throw std::runtime_error(std::string("DDS profiles file not found: ") + profiles_file_ + " (from " + from + ")");
   }
