@@ -7,7 +7,7 @@ list has a valley between the gait the policy holds and a better one, the policy
 (docs/MCLARI.md step 11). This prints, for the given groups, every terrain's efficiency along the
 list at that terrain's best frequency, and the orders in which a climb from any index to a better
 neighbour ends within 10 % of that terrain's best.
-usage: python3 learner/tools/mclari_group_order.py SWEEP_DIR 5,11,15,19,20,23 [--at-most 10]"""
+usage: python3 tools/mclari_group_order.py SWEEP_DIR 5,11,15,19,20,23 [--at-most 10]"""
 import csv
 import itertools
 import os

@@ -2,7 +2,7 @@
 // frequencies on each terrain, each run as one fixed-action episode, spread over threads.
 // Writes <out>/trajectories.csv (centre of mass after every 1 s step), <out>/summary.csv (mean
 // power, speed and efficiency per terrain, group and frequency), <out>/best.csv (the best fixed
-// (group, f) per terrain by efficiency) and <out>/height_field.png; learner/tools/mclari_plots.py draws
+// (group, f) per terrain by efficiency) and <out>/height_field.png; tools/mclari_plots.py draws
 // the 27-panel trajectory grid and efficiency against frequency from them.
 #include <algorithm>
 #include <array>

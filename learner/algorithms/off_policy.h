@@ -10,7 +10,7 @@
 #include "farm_config.pb.h"
 #include "mlp.h"
 #include "replay_buffer.h"
-#include "task.h"
+#include "task_spec.h"
 
 namespace farm {
 

@@ -1,0 +1,21 @@
+// What a task looks like from outside: its name, observation and action sizes, episode limit and
+// metric names. Plain data, so the learner's algorithms and the wire code read it without MuJoCo.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace farm::robots {
+
+struct TaskSpec {
+  std::string name;
+  int obs_dim = 0;
+  int act_dim = 0;               // actions are in [-1, 1]; the task scales them
+  int max_episode_steps = 0;     // truncation
+  std::vector<std::string> metric_names;  // per-episode metrics, reported with every episode
+  // > 0: discrete actions; act_dim is 1 and the action is the index, in [0, num_actions), as a
+  // float. 0: continuous actions in [-1, 1].
+  int num_actions = 0;
+};
+
+}  // namespace farm::robots
