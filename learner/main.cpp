@@ -12,7 +12,7 @@
 #include "dds.h"
 #include "off_policy_learner.h"
 #include "ppo_learner.h"
-#include "sac.h"  // configure_compute
+#include "compute.h"
 
 using namespace farm;
 

@@ -7,7 +7,7 @@
 #include <stdexcept>
 
 #include "config.h"
-#include "sac.h"  // learner_device
+#include "compute.h"
 
 namespace farm {
 

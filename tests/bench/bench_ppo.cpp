@@ -18,7 +18,7 @@
 
 #include "ppo.h"
 #include "rollout_storage.h"
-#include "sac.h"  // configure_compute
+#include "compute.h"
 
 namespace {
 

@@ -4,7 +4,7 @@
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
 // Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread on a shared machine (see
-// configure_compute in sac.h).
+// configure_compute in compute.h).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "replay_buffer.h"
+#include "compute.h"
 #include "sac.h"
 
 namespace {
