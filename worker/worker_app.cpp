@@ -1,0 +1,283 @@
+// The farm-worker service (worker_app.h): the experiment it follows, the policy it runs, the
+// batches it streams and the heartbeats it beats.
+#include "worker_app.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "config.h"
+#include "task.h"
+
+namespace farm {
+
+namespace {
+
+uint64_t fnv1a(const std::string& s) {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) { h ^= c; h *= 1099511628211ull; }
+  return h;
+}
+
+void to_wire(const RolloutBatch& r, farm::msg::TransitionBatch& b) {
+  b.num_steps(r.T);
+  b.num_envs(r.N);
+  b.obs_dim(r.obs_dim);
+  b.act_dim(r.act_dim);
+  b.policy_version(r.policy_version);
+  b.observations(r.obs);
+  b.actions(r.actions);
+  b.rewards(r.rewards);
+  b.terminated(r.terminated);
+  b.truncated(r.truncated);
+  b.log_probs(r.log_probs);
+  b.next_observations(r.next_obs);
+  b.final_index(r.final_index);
+  b.final_observations(r.final_obs);
+  std::vector<farm::msg::EpisodeSummary> eps(r.episodes.size());
+  for (size_t i = 0; i < eps.size(); ++i) {
+    eps[i].env(r.episodes[i].env);
+    eps[i].episode_return(r.episodes[i].episode_return);
+    eps[i].length(r.episodes[i].length);
+    eps[i].terminated(r.episodes[i].terminated);
+    eps[i].metrics(r.episodes[i].metrics);
+  }
+  b.episodes(std::move(eps));
+}
+
+}  // namespace
+
+WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
+    : opt_(o),
+      stop_(stop),
+      bus_(o.bus, "farm-worker " + o.id),
+      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader"),
+      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader"),
+      batches_out_(bus_, farm::dds::kBatchTopic, "batch_writer"),
+      status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
+      session_(farm::dds::random_session_id()) {}
+
+int WorkerApp::run() {
+  log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
+      ", DDS profiles " + bus_.profiles_file() +
+      (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
+  double last_wait_note = -1e9;
+  while (!stop_) {
+    poll_spec();
+    if (finished_) break;
+    if (!rollout_) {
+      state_ = "waiting_for_learner";
+      if (now_seconds() - last_wait_note > 5.0) {
+        log("waiting for a learner: no ExperimentSpec on DDS domain " + std::to_string(bus_.domain()) + " yet");
+        last_wait_note = now_seconds();
+      }
+      heartbeat();
+      spec_in_.wait(0.2);
+      continue;
+    }
+    poll_weights();
+    // The learner's quota for this version (PPO: how much the next fit needs), else the spec's cap.
+    const uint32_t cap = batch_quota_ > 0 ? batch_quota_ : spec_.max_batches_per_version();
+    if (!have_policy_ || batches_on_version_ >= cap) {
+      // No weights yet, or this version has produced its share: wait for the next one.
+      state_ = have_policy_ ? "throttled" : "waiting_for_weights";
+      heartbeat();
+      weights_in_.wait(0.05);
+      continue;
+    }
+    if (batches_out_.matched() == 0) {
+      // Nobody would receive the batch: hold on rather than lose it.
+      state_ = "waiting_for_learner";
+      heartbeat();
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      continue;
+    }
+    state_ = "running";
+    rollout_->collect(static_cast<int>(spec_.steps_per_batch()), batch_);
+    const double t_publish = now_seconds();
+    publish_batch(false);
+    publish_s_ += now_seconds() - t_publish;
+    steps_.add(static_cast<uint64_t>(batch_.T) * batch_.N);
+    ++batches_on_version_;
+    heartbeat();
+  }
+  finish();
+  return exit_code_;
+}
+
+void WorkerApp::log(const std::string& s) {
+  std::printf("[worker %s] %s\n", opt_.id.c_str(), s.c_str());
+  std::fflush(stdout);
+}
+
+void WorkerApp::poll_spec() {
+  farm::msg::ExperimentSpec s;
+  bool got = false;
+  while (spec_in_.take(s)) got = true;
+  if (!got) return;
+  if (s.finished()) {
+    if (rollout_ && s.experiment_id() == spec_.experiment_id()) {
+      log("learner finished experiment '" + s.experiment_id() + "'");
+      finished_ = true;
+    }
+    return;
+  }
+  if (rollout_ && s.experiment_id() == spec_.experiment_id()) {
+    if (s.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
+    spec_ = s;
+    return;
+  }
+  if (rollout_) {
+    log("new experiment '" + s.experiment_id() + "' replaces '" + spec_.experiment_id() + "'");
+    end_stream();
+  }
+  try {
+    config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+    int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
+    // A spec off the bus sizes this worker's batches: bounded before anything is allocated.
+    if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||
+        (long long)s.steps_per_batch() * envs > kMaxBatchTransitions)
+      throw std::runtime_error("spec's steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " +
+                               std::to_string(envs) + " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) +
+                               " steps and " + std::to_string(kMaxBatchTransitions) + " transitions per batch");
+    std::shared_ptr<const robots::Task> task = robots::make_task(cfg.task());
+    if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
+      throw std::runtime_error("task '" + cfg.task().name() + "' shapes differ from the spec");
+    uint64_t seed = s.seed() ^ fnv1a(opt_.id);
+    rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
+    split_at_ = {};
+    spec_ = s;
+    sequence_ = 0;
+    have_policy_ = false;
+    batches_on_version_ = 0;
+    last_error_.clear();
+    log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " +
+        std::to_string(envs) + " envs on " + std::to_string(opt_.threads) + " threads, " +
+        std::to_string(s.steps_per_batch()) + " steps per batch");
+  } catch (const std::exception& e) {
+    last_error_ = e.what();
+    state_ = "error";
+    log(std::string("cannot run this experiment: ") + e.what());
+    rollout_.reset();
+    heartbeat(true);
+  }
+}
+
+void WorkerApp::poll_weights() {
+  farm::msg::PolicyWeights w;
+  bool got = false;
+  while (weights_in_.take(w)) got = true;
+  if (!got || w.experiment_id() != spec_.experiment_id()) return;
+  if (have_policy_ && w.version() == rollout_->policy_version()) {
+    batch_quota_ = w.batch_quota();  // the same version re-sent: a topped-up quota
+    return;
+  }
+  try {
+    PolicyParams p = farm::dds::from_wire(w);
+    rollout_->set_policy(p);
+    have_policy_ = true;
+    batches_on_version_ = 0;
+    batch_quota_ = w.batch_quota();
+  } catch (const std::exception& e) {
+    last_error_ = std::string("bad PolicyWeights: ") + e.what();
+    log(last_error_);
+  }
+}
+
+void WorkerApp::publish_batch(bool end_of_stream) {
+  farm::msg::TransitionBatch b;
+  b.experiment_id(spec_.experiment_id());
+  b.worker_id(opt_.id);
+  b.worker_session(session_);
+  b.sequence_number(sequence_);
+  b.end_of_stream(end_of_stream);
+  if (!end_of_stream) {
+    to_wire(batch_, b);
+    if (int64_t(sequence_) == opt_.inject_nan_batch && !b.observations().empty()) {
+      b.observations()[0] = std::nanf("");
+      log("fault injection: batch " + std::to_string(sequence_) + " carries a NaN");
+    }
+  } else {
+    b.obs_dim(spec_.obs_dim());
+    b.act_dim(spec_.act_dim());
+    b.policy_version(rollout_ ? rollout_->policy_version() : 0);
+  }
+  // A full reliable history makes write() time out: retry, never drop.
+  double first_try = now_seconds();
+  while (!batches_out_.write(b)) {
+    if (now_seconds() - first_try > 30.0 && (stop_ || finished_)) {
+      log("gave up sending batch " + std::to_string(sequence_) + " at shutdown (no learner acknowledges)");
+      return;
+    }
+    state_ = "backpressure";
+    heartbeat();
+  }
+  ++sequence_;
+}
+
+void WorkerApp::end_stream() {
+  if (!rollout_ || batches_out_.matched() == 0) return;
+  publish_batch(true);
+  if (!batches_out_.wait_for_acks(10.0)) log("learner did not acknowledge every batch within 10 s");
+}
+
+void WorkerApp::finish() {
+  end_stream();
+  state_ = "finished";
+  heartbeat(true);
+  log("finished: " + std::to_string(sequence_) + " batches sent (sequence 0.." +
+      std::to_string(sequence_ ? sequence_ - 1 : 0) + "), " + std::to_string(steps_.total()) +
+      " env steps, mean " + std::to_string(int64_t(steps_.mean_rate())) + " steps/s");
+}
+
+void WorkerApp::heartbeat(bool force) {
+  double t = now_seconds();
+  if (!force && t - last_status_ < 1.0) return;
+  double rate = steps_.rate();
+  last_status_ = t;
+  farm::msg::WorkerStatus s;
+  s.worker_id(opt_.id);
+  s.worker_session(session_);
+  s.host(farm::dds::hostname());
+  s.experiment_id(spec_.experiment_id());
+  s.envs(rollout_ ? rollout_->num_envs() : 0);
+  s.threads(opt_.threads);
+  s.steps_per_second(rate);
+  s.env_steps(steps_.total());
+  s.batches_sent(sequence_);
+  s.policy_version(rollout_ ? rollout_->policy_version() : 0);
+  s.state(state_);
+  s.last_error(last_error_);
+  status_out_.write(s);
+  if (t - last_log_ >= opt_.log_every && rollout_) {
+    log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " +
+        std::to_string(sequence_) + " batches sent, policy v" +
+        std::to_string(rollout_->policy_version()));
+    last_log_ = t;
+  }
+}
+
+// Where the wall time since the last log line went: simulation and policy inference (thread
+// time over the rollout's threads) and publishing batches; the rest is waiting (throttled,
+// back-pressure) and bookkeeping.
+std::string WorkerApp::time_split(double t) {
+  const Rollout::Timing now = rollout_->timing();
+  const double wall = t - last_log_, k = rollout_->num_threads();
+  std::string s;
+  if (last_log_ > 0 && wall > 0) {
+    auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
+    s = " (simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
+        pct((now.infer_s - split_at_.infer_s) / k) + ", publish " +
+        pct(publish_s_ - split_publish_s_) + ")";
+  }
+  split_at_ = now;
+  split_publish_s_ = publish_s_;
+  return s;
+}
+
+}  // namespace farm
