@@ -369,7 +369,10 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
   const size_t n = joints_.size();
   std::vector<double>& a = s.action;
   for (size_t j = 0; j < n; ++j) {
-    a[j] = std::clamp(double(action[j]), -1.0, 1.0) * cfg_.action_range();  // legged_gym's units
+    // A NaN action (diverged policy) would poison the simulation and the observed last action; it
+    // means the default pose. std::clamp passes NaN through.
+    const double aj = std::isnan(action[j]) ? 0.0 : std::clamp(double(action[j]), -1.0, 1.0);
+    a[j] = aj * cfg_.action_range();  // legged_gym's units
     s.targets[j] = default_pose_[j] + s.action_scale * a[j];
   }
   legged::control_steps(s.model, d, cfg_.decimation(), [&](mjData* dd) { pd_control(s, dd); });
