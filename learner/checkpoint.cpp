@@ -91,40 +91,6 @@ void write_checkpoint(const std::string& dir, const config::CheckpointManifest& 
   sync_path(parent);
 }
 
-void save_networks(const std::string& dir, const std::string& name,
-                   const std::function<void(const std::string& folder)>& save_nets) {
-  fs::create_directories(fs::path(dir) / name);
-  save_nets((fs::path(dir) / name).string());
-}
-
-void save_networks(const std::string& dir, const OffPolicy& algo) {
-  save_networks(dir, algo.name(), [&](const std::string& d) { algo.save(d); });
-}
-
-namespace {
-
-template <class SaveNets>
-void save_checkpoint_with(const std::string& dir, const config::CheckpointManifest& manifest,
-                          const std::string& name, SaveNets save_nets, const ReplayBuffer& replay) {
-  write_checkpoint(dir, manifest, [&](const std::string& tmp) {
-    save_networks(tmp, name, save_nets);
-    replay.save((fs::path(tmp) / "replay.pt").string());
-  });
-}
-
-}  // namespace
-
-void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest, const Sac& sac,
-                     const ReplayBuffer& replay) {
-  save_checkpoint_with(dir, manifest, "sac", [&](const std::string& d) { sac.save(d); }, replay);
-}
-
-void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
-                     const OffPolicy& algo, const ReplayBuffer& replay) {
-  save_checkpoint_with(dir, manifest, algo.name(), [&](const std::string& d) { algo.save(d); },
-                       replay);
-}
-
 // A crash between the two renames of a save leaves only DIR.old, which is complete: use it.
 std::string usable_checkpoint(const std::string& dir) {
   if (!fs::exists(fs::path(dir) / "manifest.txtpb") && fs::exists(fs::path(dir + ".old") / "manifest.txtpb"))
@@ -155,33 +121,6 @@ std::string move_run_dir_aside(const std::string& run_dir) {
 }
 
 bool checkpoint_exists(const std::string& dir) { return fs::exists(fs::path(usable_checkpoint(dir)) / "manifest.txtpb"); }
-
-namespace {
-
-template <class LoadNets>
-config::CheckpointManifest load_checkpoint_with(const std::string& dir, const std::string& experiment_id,
-                                                const std::string& name, LoadNets load_nets,
-                                                ReplayBuffer& replay) {
-  config::CheckpointManifest m = read_manifest(dir, experiment_id);
-  const fs::path from(usable_checkpoint(dir));
-  load_nets((from / name).string());
-  replay.load((from / "replay.pt").string());
-  return m;
-}
-
-}  // namespace
-
-config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
-                                           ReplayBuffer& replay) {
-  return load_checkpoint_with(dir, experiment_id, "sac", [&](const std::string& d) { sac.load(d); },
-                              replay);
-}
-
-config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id,
-                                           OffPolicy& algo, ReplayBuffer& replay) {
-  return load_checkpoint_with(dir, experiment_id, algo.name(),
-                              [&](const std::string& d) { algo.load(d); }, replay);
-}
 
 void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m) {
   m.clear_workers();

@@ -1,5 +1,5 @@
-// Checkpoints: networks and optimizers (Sac::save), the replay buffer, and a Protobuf manifest
-// with counters and per-worker sequence accounting. Written to a fresh folder and swapped in
+// Checkpoints: what the algorithm saves (networks, optimizers, a replay buffer) and a Protobuf
+// manifest with counters and per-worker sequence accounting. Written to a fresh folder and swapped in
 // with renames, so a crash mid-write never leaves a half checkpoint behind.
 #pragma once
 
@@ -8,30 +8,10 @@
 
 #include "farm_config.pb.h"
 #include "ingest.h"
-#include "off_policy.h"
-#include "replay_buffer.h"
-#include "sac.h"
 
 namespace farm {
 
-void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest, const Sac& sac,
-                     const ReplayBuffer& replay);
 bool checkpoint_exists(const std::string& dir);
-// Throws std::runtime_error naming the file and what did not match.
-config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id, Sac& sac,
-                                           ReplayBuffer& replay);
-
-// The same for any off-policy algorithm; its networks go to the sub-folder named algo.name().
-void save_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
-                     const OffPolicy& algo, const ReplayBuffer& replay);
-config::CheckpointManifest load_checkpoint(const std::string& dir, const std::string& experiment_id,
-                                           OffPolicy& algo, ReplayBuffer& replay);
-
-// The networks alone, written by save_nets into DIR/name (DIR/<algo.name()>): the layout a
-// checkpoint has, so a folder of networks and a manifest reads like a checkpoint.
-void save_networks(const std::string& dir, const std::string& name,
-                   const std::function<void(const std::string& folder)>& save_nets);
-void save_networks(const std::string& dir, const OffPolicy& algo);
 
 // The atomic write every checkpoint goes through: write_parts fills a fresh folder, the manifest is
 // added, and the folder is renamed over DIR (the previous one is kept as DIR.old until then).

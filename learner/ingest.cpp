@@ -192,34 +192,7 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
 }
 
 void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double gamma, int n_step) {
-  const int64_t T = b.num_steps(), N = b.num_envs(), TN = T * N;
-  const int64_t od = int64_t(rows.obs.size()) / std::max<int64_t>(1, rows.n);
-  const int64_t base = rows.n - TN;
-  if (base < 0) throw std::logic_error("fold_n_step: fewer rows than the batch holds");
-  if (rows.horizon.size() < size_t(rows.n)) rows.horizon.resize(rows.n, 1.f);
-  if (n_step <= 1) return;
-  // Rows in increasing order: row i only reads rows j >= i, which are still one-step rows.
-  for (int64_t t = 0; t < T; ++t) {
-    for (int64_t e = 0; e < N; ++e) {
-      const int64_t i = base + t * N + e;
-      double ret = 0, discount = 1;
-      int64_t j = i, m = 0;
-      for (int64_t k = 0; k < n_step; ++k) {
-        j = base + (t + k) * N + e;
-        ret += discount * rows.rewards[j];
-        discount *= gamma;
-        m = k + 1;
-        const int64_t bj = j - base;
-        if (b.terminated()[bj] || b.truncated()[bj] || t + k == T - 1) break;
-      }
-      rows.rewards[i] = float(ret);
-      rows.terminated[i] = rows.terminated[j];
-      rows.horizon[i] = float(m);
-      if (j != i)
-        std::copy(rows.next_obs.begin() + j * od, rows.next_obs.begin() + (j + 1) * od,
-                  rows.next_obs.begin() + i * od);
-    }
-  }
+  fold_n_step(b.num_steps(), b.num_envs(), b.truncated().data(), rows, gamma, n_step);
 }
 
 void Ingest::restore(const std::map<Key, WorkerAccount>& workers, const IngestCounters& counters) {

@@ -9,29 +9,10 @@
 #include <utility>
 #include <vector>
 
+#include "batch.h"
 #include "farm.h"
 
 namespace farm {
-
-// Transitions flattened for a replay buffer: row i is (obs, action, reward, terminated, next_obs),
-// plus its horizon (steps from obs to next_obs) once fold_n_step has run; empty horizon: all 1.
-struct Transitions {
-  int64_t n = 0;
-  std::vector<float> obs, actions, rewards, next_obs, horizon;
-  std::vector<uint8_t> terminated;
-  void clear() {
-    n = 0;
-    obs.clear(); actions.clear(); rewards.clear(); next_obs.clear(); horizon.clear();
-    terminated.clear();
-  }
-};
-
-struct FinishedEpisode {
-  std::string worker_id;
-  float episode_return = 0.f;
-  uint32_t length = 0;
-  std::vector<float> metrics;
-};
 
 struct WorkerAccount {
   std::string worker_id;
@@ -53,12 +34,7 @@ struct IngestCounters {
   double lag_sum = 0.0;  // sum over accepted batches of (current version - batch version)
 };
 
-// Folds the one-step rows that Ingest::accept appended for batch `b` (the last T*N rows of
-// `rows`, in the batch's [t][n] order) into n-step rows, in place: row (t, e) gets
-// r_t + gamma r_{t+1} + ... + gamma^(m-1) r_{t+m-1}, the next observation and `terminated` of step
-// t+m-1, and horizon m, where m <= n_step stops early at the step that ends env e's episode
-// (terminated or truncated) or at the batch's last step. Nothing is dropped: every row stays, the
-// last ones of a batch with shorter horizons.
+// fold_n_step (batch.h) for the rows that Ingest::accept appended for batch `b`.
 void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double gamma, int n_step);
 
 class Ingest {

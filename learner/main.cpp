@@ -1,6 +1,5 @@
-// farm-learner: reads the options and the experiment, then runs the learner service its algorithm
-// needs (off_policy_learner.cpp for SAC and DQN, ppo_learner.cpp for PPO; what they share is in
-// learner_service.cpp).
+// farm-learner: reads the options and the experiment, then runs the farm service
+// (farm_service.cpp) with the experiment's algorithm from the registry (algorithms/registry.cpp).
 #include <signal.h>
 
 #include <atomic>
@@ -10,8 +9,7 @@
 
 #include "config.h"
 #include "dds.h"
-#include "off_policy_learner.h"
-#include "ppo_learner.h"
+#include "farm_service.h"
 #include "compute.h"
 
 using namespace farm;
@@ -73,9 +71,8 @@ int main(int argc, char** argv) {
   signal(SIGTERM, on_signal);
   configure_compute(cfg.torch_threads());
   try {
-    const LearnerRunOptions run{opt.bus, opt.resume, opt.run_dir};
-    if (cfg.algorithm() == "ppo") return run_ppo_learner(run, cfg, g_interrupted);
-    return run_off_policy_learner(run, cfg, g_interrupted);
+    FarmService farm({opt.bus, opt.resume, opt.run_dir}, cfg, g_interrupted);
+    return farm.run();
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-learner: %s\n", e.what());
     return 1;

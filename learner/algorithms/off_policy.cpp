@@ -71,26 +71,21 @@ class DqnAlgorithm final : public OffPolicy {
 
 }  // namespace
 
-std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg,
-                                           const robots::TaskSpec& spec) {
-  if (cfg.algorithm() == "sac") {
-    if (spec.num_actions > 0) {
-      throw std::invalid_argument("algorithm \"sac\" needs continuous actions, but task '" +
-                                  spec.name + "' has " + std::to_string(spec.num_actions) +
-                                  " discrete ones (set its scene.discrete_actions: false, or use "
-                                  "algorithm \"dqn\")");
-    }
-    return std::make_unique<SacAlgorithm>(cfg, spec);
+std::unique_ptr<OffPolicy> make_sac(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
+  if (spec.num_actions > 0) {
+    throw std::invalid_argument("algorithm \"sac\" needs continuous actions, but task '" + spec.name + "' has " +
+                                std::to_string(spec.num_actions) +
+                                " discrete ones (set its scene.discrete_actions: false, or use algorithm \"dqn\")");
   }
-  if (cfg.algorithm() == "dqn") {
-    if (spec.num_actions == 0) {
-      throw std::invalid_argument("algorithm \"dqn\" needs discrete actions, but task '" +
-                                  spec.name + "' has continuous ones");
-    }
-    return std::make_unique<DqnAlgorithm>(cfg, spec);
+  return std::make_unique<SacAlgorithm>(cfg, spec);
+}
+
+std::unique_ptr<OffPolicy> make_dqn(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
+  if (spec.num_actions == 0) {
+    throw std::invalid_argument("algorithm \"dqn\" needs discrete actions, but task '" + spec.name +
+                                "' has continuous ones");
   }
-  throw std::invalid_argument("algorithm \"" + cfg.algorithm() +
-                              "\" is not an off-policy algorithm (known: \"sac\", \"dqn\")");
+  return std::make_unique<DqnAlgorithm>(cfg, spec);
 }
 
 }  // namespace farm

@@ -1,5 +1,5 @@
-// The learner loop's view of an off-policy algorithm: SAC for continuous actions, DQN for
-// discrete ones, chosen by the experiment's `algorithm`. The loop feeds replay minibatches,
+// The replay-buffer driver's view of an off-policy algorithm: SAC for continuous actions, DQN for
+// discrete ones, chosen by the experiment's `algorithm`. The driver feeds replay minibatches,
 // publishes exported policies, and paces updates with the algorithm's own limits.
 #pragma once
 
@@ -46,9 +46,18 @@ class OffPolicy {
   virtual std::string describe() const = 0;
 };
 
-// cfg.algorithm() "sac" (continuous tasks) or "dqn" (tasks with discrete actions). Throws
-// std::invalid_argument when the algorithm is unknown or does not fit the task's action space.
-std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg,
-                                           const robots::TaskSpec& spec);
+// The adapters; each throws std::invalid_argument when the task's action space does not fit.
+std::unique_ptr<OffPolicy> make_sac(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+std::unique_ptr<OffPolicy> make_dqn(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+// The adapter of cfg.algorithm(), looked up in the algorithm registry (registry.cpp). Throws
+// std::invalid_argument when the algorithm is unknown, not off-policy, or does not fit the task.
+std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+class Algorithm;
+// The replay-buffer driver (off_policy_algorithm.cpp) running an adapter in the learner.
+std::unique_ptr<Algorithm> make_off_policy_algorithm(std::unique_ptr<OffPolicy> algo,
+                                                     const config::ExperimentConfig& cfg,
+                                                     const robots::TaskSpec& spec);
 
 }  // namespace farm

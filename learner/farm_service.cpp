@@ -1,4 +1,4 @@
-#include "learner_service.h"
+#include "farm_service.h"
 
 #include <algorithm>
 #include <cstdio>
@@ -9,18 +9,14 @@
 #include "checkpoint.h"
 #include "config.h"
 #include "meter.h"
+#include "registry.h"
+#include "rollout.h"
 
 namespace farm {
 
 namespace fs = std::filesystem;
 
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-
-LearnerService::LearnerService(const LearnerRunOptions& o, const config::ExperimentConfig& cfg,
+FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentConfig& cfg,
                                const std::atomic<bool>& interrupted)
     : opt_(o),
       cfg_(cfg),
@@ -43,28 +39,30 @@ LearnerService::LearnerService(const LearnerRunOptions& o, const config::Experim
                      heard_.emplace_back(s, now_seconds());
                    }
                  }),
-      roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }) {
+      roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }),
+      algo_(make_algorithm(cfg_, task_->spec())) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   best_dir_ = (fs::path(run_dir_) / "best").string();
   ingest_.set_num_actions(task_->spec().num_actions);
 }
 
-int LearnerService::run() {
+int FarmService::run() {
   prepare_run_dir();
   spec_.publish(false);
-  on_start();
+  t0_ = now_seconds() - elapsed_offset_;
+  algo_->start(*this);
   log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
-      ", act " + std::to_string(act_dim_) + "), " + describe() + ", DDS domain " + std::to_string(bus_.domain()) +
+      ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " + std::to_string(bus_.domain()) +
       ", run dir " + run_dir_ + (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
-  const double t0 = now_seconds() - elapsed_offset_;
+  const double t0 = t0_;
   double last_log = now_seconds(), last_ckpt = now_seconds();
   std::string stop_reason;
   while (stop_reason.empty()) {
     if (interrupted_) { stop_reason = "interrupted"; break; }
-    work(t0);
+    work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
       progress(now - t0, now - last_log);
@@ -90,7 +88,7 @@ int LearnerService::run() {
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
   evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
-  final_evaluation(elapsed);
+  algo_->final_evaluation(*this, elapsed);
   spec_.publish(true);
   drain_until_workers_end();
   const bool saved = try_checkpoint(elapsed);
@@ -98,7 +96,117 @@ int LearnerService::run() {
   return saved ? 0 : 1;
 }
 
-bool LearnerService::try_checkpoint(double elapsed) {
+void FarmService::work() {
+  const size_t got = drain_batches(256);
+  drain_status();
+  const double wait = algo_->train(*this, got > 0);
+  if (wait > 0) batches_in_.wait(wait);
+}
+
+size_t FarmService::drain_batches(size_t max) {
+  size_t n = 0;
+  while (n < max && batches_in_.take(batch_)) {
+    ++n;
+    if (!accept_batch()) continue;
+    Batch b;
+    b.worker_id = batch_.worker_id();
+    b.policy_version = batch_.policy_version();
+    b.num_steps = int(batch_.num_steps());
+    b.num_envs = int(batch_.num_envs());
+    b.truncated = batch_.truncated().data();
+    b.log_probs = batch_.log_probs().data();
+    b.rows = &pending_;
+    b.episodes = &episodes_;
+    if (!algo_->take(b)) continue;
+    for (const auto& e : episodes_) record_episode(e.episode_return);
+  }
+  return n;
+}
+
+void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
+  farm::msg::PolicyWeights w;
+  farm::dds::to_wire(policy, cfg_.experiment_id(), w);
+  if (batch_quota > 0) w.batch_quota(batch_quota);
+  weights_out_.write(w);
+}
+
+std::vector<Farm::LiveWorker> FarmService::live_workers() const {
+  std::vector<LiveWorker> out;
+  const double now = now_seconds();
+  for (const auto& [k, v] : roster_.views()) {
+    if (!roster_.live(v, now)) continue;
+    out.push_back({v.last.worker_id(), v.last.state(), v.last.policy_version(), int(v.last.envs())});
+  }
+  return out;
+}
+
+FarmFigures FarmService::figures() const {
+  const auto& c = ingest_.counters();
+  FarmFigures f;
+  f.env_steps = c.env_steps;
+  f.ok = c.ok;
+  f.lost = c.lost;
+  f.duplicate = c.duplicate;
+  f.invalid = c.invalid;
+  f.episodes = episodes_total_;
+  f.workers = live_count();
+  f.mean_return = mean_recent_return();
+  f.best_eval = best_eval_;
+  return f;
+}
+
+double FarmService::elapsed() const { return now_seconds() - t0_; }
+
+EvalReport FarmService::evaluate(const PolicyParams& policy, int episodes) {
+  const auto recs = evaluate_policy(task_, policy, episodes, cfg_.seed() + 1000003ull * ++evals_);
+  const size_t num_metrics = task_->spec().metric_names.size();
+  EvalReport r;
+  r.episodes = int(recs.size());
+  r.metrics.assign(num_metrics, 0.0);
+  if (recs.empty()) return r;
+  double sum = 0, len = 0;
+  r.min = r.max = recs[0].episode_return;
+  for (const auto& e : recs) {
+    sum += e.episode_return;
+    len += e.length;
+    r.min = std::min<double>(r.min, e.episode_return);
+    r.max = std::max<double>(r.max, e.episode_return);
+    for (size_t i = 0; i < num_metrics && i < e.metrics.size(); ++i) r.metrics[i] += e.metrics[i];
+  }
+  r.mean = sum / recs.size();
+  r.mean_length = len / recs.size();
+  for (auto& m : r.metrics) m /= recs.size();
+  return r;
+}
+
+void FarmService::csv_row(const std::string& row) {
+  csv_ << row << '\n';
+  csv_.flush();
+}
+
+void FarmService::checkpoint(double elapsed) {
+  config::CheckpointManifest m = base_manifest(algo_->version(), algo_->updates(), elapsed);
+  algo_->to_manifest(m);
+  const double t = now_seconds();
+  write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) { algo_->save(tmp); });
+  log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+}
+
+// Live workers that wait on the learner (for new weights, or for room in the batch queue): the
+// learner is the bottleneck and the workers are held back instead of piling up data.
+std::string FarmService::waiting_note() const {
+  int throttled = 0, backpressure = 0;
+  for (const auto& w : live_workers()) {
+    throttled += w.state == "throttled";
+    backpressure += w.state == "backpressure";
+  }
+  std::string note;
+  if (throttled) note += ", " + std::to_string(throttled) + " throttled";
+  if (backpressure) note += ", " + std::to_string(backpressure) + " in backpressure";
+  return note.empty() ? "" : " (" + note.substr(2) + ")";
+}
+
+bool FarmService::try_checkpoint(double elapsed) {
   try {
     checkpoint(elapsed);
     return true;
@@ -110,15 +218,16 @@ bool LearnerService::try_checkpoint(double elapsed) {
   }
 }
 
-void LearnerService::log(const std::string& s) const {
+void FarmService::log(const std::string& s) const {
   std::printf("[learner] %s\n", s.c_str());
   std::fflush(stdout);
 }
 
-void LearnerService::prepare_run_dir() {
+void FarmService::prepare_run_dir() {
   if (opt_.resume) {
     if (!checkpoint_exists(ckpt_dir_)) throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
-    const config::CheckpointManifest m = restore_algorithm();
+    const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
+    algo_->load(usable_checkpoint(ckpt_dir_));
     elapsed_offset_ = m.elapsed_seconds();
     best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
     // A best policy kept after the checkpoint (the learner stopped before the next one) stays the
@@ -134,7 +243,7 @@ void LearnerService::prepare_run_dir() {
     last_steps_ = ingest_.counters().env_steps;
     last_ok_ = ingest_.counters().ok;
     last_lag_sum_ = ingest_.counters().lag_sum;
-    resumed(m);
+    log("resumed from " + ckpt_dir_ + " " + algo_->resumed(m, ingest_.counters().env_steps));
   } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
@@ -142,48 +251,48 @@ void LearnerService::prepare_run_dir() {
   const bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
   csv_.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
   if (!csv_) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
-  if (new_csv) csv_ << csv_header() << '\n';
+  if (new_csv) csv_ << algo_->csv_header() << '\n';
 }
 
-void LearnerService::drain_status() {
+void FarmService::drain_status() {
   std::deque<std::pair<farm::msg::WorkerStatus, double>> got;
   {
     std::lock_guard<std::mutex> lk(heard_mu_);
     got.swap(heard_);
   }
   for (const auto& [s, when] : got) {
-    on_worker_heard();
+    if (first_heard_ == 0) first_heard_ = now_seconds();
     roster_.heard(s, when);
   }
   roster_.check(now_seconds());
 }
 
-int LearnerService::live_workers() const { return roster_.live_count(now_seconds()); }
+int FarmService::live_count() const { return roster_.live_count(now_seconds()); }
 
-bool LearnerService::accept_batch(uint64_t version) {
+bool FarmService::accept_batch() {
   pending_.clear();
   episodes_.clear();
-  const std::string why = ingest_.accept(batch_, version, now_seconds(), pending_, episodes_);
+  const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_);
   if (why.empty()) return true;
   if (++rejections_logged_ <= 20)
     log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + batch_.worker_id() + ": " + why);
   return false;
 }
 
-void LearnerService::record_episode(float episode_return) {
+void FarmService::record_episode(float episode_return) {
   recent_returns_.push_back(episode_return);
   if (recent_returns_.size() > 100) recent_returns_.pop_front();
   ++episodes_total_;
 }
 
-void LearnerService::record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) {
+void FarmService::record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) {
   if (std::isnan(mean_return) || mean_return <= best_eval_) return;
   const double previous_best = best_eval_;
   best_eval_ = mean_return;
   const double t = now_seconds();
   try {
     write_checkpoint(best_dir_, base_manifest(version, updates, elapsed),
-                     [this](const std::string& tmp) { save_networks(tmp); });
+                     [this](const std::string& tmp) { algo_->save_networks(tmp); });
   } catch (const std::exception& e) {
     best_eval_ = previous_best;  // the folder still holds the previous best: it stays the bar
     log(std::string("best evaluation so far (") + fmt("%.1f", mean_return) + ") not kept: " + e.what() +
@@ -194,43 +303,50 @@ void LearnerService::record_evaluation(double mean_return, uint64_t version, int
       best_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
 }
 
-double LearnerService::mean_recent_return() const {
+double FarmService::mean_recent_return() const {
   if (recent_returns_.empty()) return NAN;
   double s = 0;
   for (float x : recent_returns_) s += x;
   return s / double(recent_returns_.size());
 }
 
-LearnerService::Window LearnerService::take_window(double window) {
+void FarmService::progress(double elapsed, double window) {
   const auto& c = ingest_.counters();
-  Window w;
-  w.in_rate = double(c.env_steps - last_steps_) / window;
-  w.lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
+  FarmFigures f = figures();
+  f.in_rate = double(c.env_steps - last_steps_) / window;
+  f.lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
+  f.waiting_note = waiting_note();
   last_steps_ = c.env_steps;
   last_ok_ = c.ok;
   last_lag_sum_ = c.lag_sum;
-  return w;
-}
-
-farm::msg::LearnerStats LearnerService::base_stats(double elapsed, const Window& w) const {
-  const auto& c = ingest_.counters();
+  AlgorithmStats a;
+  algo_->progress(*this, f, elapsed, &a);
   farm::msg::LearnerStats st;
   st.experiment_id(cfg_.experiment_id());
   st.elapsed_seconds(elapsed);
   st.env_steps(c.env_steps);
-  st.env_steps_per_second(w.in_rate);
-  st.policy_lag(w.lag);
-  st.mean_return(mean_recent_return());
+  st.env_steps_per_second(f.in_rate);
+  st.policy_lag(f.lag);
+  st.mean_return(f.mean_return);
   st.batches_ok(c.ok);
   st.batches_lost(c.lost);
   st.batches_duplicate(c.duplicate);
   st.batches_invalid(c.invalid);
-  st.workers(live_workers());
-  return st;
+  st.workers(f.workers);
+  st.updates(a.updates);
+  st.updates_per_second(a.updates_per_second);
+  st.buffer_fill(a.buffer_fill);
+  st.critic_loss(a.critic_loss);
+  st.actor_loss(a.actor_loss);
+  st.eval_return(a.eval_return);
+  stats_out_.write(st);
 }
 
-std::string LearnerService::limit_reached(double elapsed, double last_eval, int64_t updates) const {
+std::string FarmService::should_stop(double elapsed) const {
+  if (std::string own = algo_->stop_reason(); !own.empty()) return own;
   const auto& s = cfg_.stop();
+  const double last_eval = algo_->last_eval();
+  const int64_t updates = algo_->updates();
   if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval) && last_eval >= s.target_eval_return())
     return "evaluation return " + fmt("%.1f", last_eval) + " reached the target " + fmt("%.1f", s.target_eval_return());
   if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
@@ -240,7 +356,7 @@ std::string LearnerService::limit_reached(double elapsed, double last_eval, int6
   return "";
 }
 
-config::CheckpointManifest LearnerService::base_manifest(uint64_t version, int64_t updates, double elapsed) const {
+config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t updates, double elapsed) const {
   config::CheckpointManifest m;
   m.set_experiment_id(cfg_.experiment_id());
   m.set_policy_version(version);
@@ -253,7 +369,7 @@ config::CheckpointManifest LearnerService::base_manifest(uint64_t version, int64
   return m;
 }
 
-std::string LearnerService::summary_head(double elapsed, const std::string& reason) const {
+std::string FarmService::summary_head(double elapsed, const std::string& reason) const {
   const auto& c = ingest_.counters();
   std::ostringstream o;
   o << "experiment        " << cfg_.experiment_id() << "\n"
@@ -264,7 +380,7 @@ std::string LearnerService::summary_head(double elapsed, const std::string& reas
   return o.str();
 }
 
-std::string LearnerService::untrained_stop_note(const std::string& reason) const {
+std::string FarmService::untrained_stop_note(const std::string& reason) const {
   const bool step_limit = reason.rfind("env step limit", 0) == 0 || reason.rfind("update limit", 0) == 0;
   if (!step_limit || evaluated_in_training_) return "";
   return "the run stopped on its " + reason.substr(0, reason.find(" limit")) +
@@ -273,7 +389,7 @@ std::string LearnerService::untrained_stop_note(const std::string& reason) const
          "stop on time (stop.max_seconds) or on a target instead";
 }
 
-std::string LearnerService::summary_workers() const {
+std::string FarmService::summary_workers() const {
   std::ostringstream o;
   for (auto& [k, w] : ingest_.workers()) {
     o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
@@ -283,7 +399,9 @@ std::string LearnerService::summary_workers() const {
   return o.str();
 }
 
-void LearnerService::emit_summary(const std::string& text) const {
+void FarmService::write_summary(double elapsed, const std::string& reason) {
+  FarmFigures f = figures();
+  const std::string text = summary_head(elapsed, reason) + algo_->summary(f, elapsed) + summary_workers();
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
   log("summary written to " + run_dir_ + "/summary.txt");
@@ -292,8 +410,8 @@ void LearnerService::emit_summary(const std::string& text) const {
 // The workers are told to hold (the current version re-sent with a quota of one batch; no new
 // version follows), so each sends at most one more batch and then waits: take batches until none
 // has come for 0.5 s and no live worker says it is running (or none for 3 s; 15 s at most).
-void LearnerService::drain_before_interrupted_stop() {
-  hold_workers();
+void FarmService::drain_before_interrupted_stop() {
+  algo_->hold_workers(*this);
   const double t0 = now_seconds(), t_end = t0 + 15.0;
   double last = t0;
   size_t taken = 0;
@@ -316,7 +434,7 @@ void LearnerService::drain_before_interrupted_stop() {
 
 // After announcing the end, every batch still in flight is taken and accounted, so the summary
 // can say exactly what was sent and what arrived.
-void LearnerService::drain_until_workers_end() {
+void FarmService::drain_until_workers_end() {
   const double t_end = now_seconds() + 15.0;
   while (now_seconds() < t_end) {
     drain_batches(1024);

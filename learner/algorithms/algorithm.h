@@ -1,0 +1,128 @@
+// The line between the farm and an algorithm.
+//
+// The farm side (learner/farm_service.*) owns the bus: it takes the workers' batches through
+// ingest and accounts them, keeps the roster, publishes the experiment and the weights it is
+// handed, runs evaluations, writes checkpoints, the best policy, progress lines and the summary,
+// and applies the stop rules. An algorithm takes accepted data, trains, exports weights and
+// saves/loads itself; it reaches the workers only through the Farm below. SAC and DQN share one
+// replay-buffer driver (off_policy_algorithm.cpp); PPO has its own (ppo_algorithm.cpp). A new
+// algorithm implements Algorithm and adds one line to registry.cpp.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "batch.h"
+#include "farm_config.pb.h"
+#include "mlp.h"
+
+namespace farm {
+
+// printf-style formatting of one number.
+std::string fmt(const char* f, double v);
+
+// What an evaluation reports: returns, lengths and the task's own metrics.
+struct EvalReport {
+  int episodes = 0;
+  double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
+  std::vector<double> metrics;  // means, in the order of TaskSpec::metric_names
+};
+
+// The farm's own figures, for an algorithm's progress line, fit line and summary.
+struct FarmFigures {
+  uint64_t env_steps = 0, ok = 0, lost = 0, duplicate = 0, invalid = 0;
+  uint64_t episodes = 0;           // finished episodes taken so far
+  int workers = 0;                 // live workers
+  double mean_return = NAN;        // of the last 100 training episodes
+  double best_eval = NAN;          // the best evaluation so far (kept in <run dir>/best)
+  // At a progress line only: env steps/s and mean policy lag since the last line, and the live
+  // workers that wait on the learner (" (2 throttled)"; "" when none).
+  double in_rate = 0, lag = 0;
+  std::string waiting_note;
+};
+
+// The algorithm's figures in the LearnerStats a progress line publishes.
+struct AlgorithmStats {
+  int64_t updates = 0;
+  double updates_per_second = 0, buffer_fill = 0, critic_loss = 0, actor_loss = 0, eval_return = NAN;
+};
+
+// What the farm offers an algorithm.
+class Farm {
+ public:
+  struct LiveWorker {
+    std::string worker_id, state;  // state: "running", "throttled", "backpressure", ...
+    uint64_t policy_version = 0;   // the version it runs
+    int envs = 0;
+  };
+
+  virtual ~Farm() = default;
+  // Sends a policy to the workers; batch_quota: how many batches each worker may send on this
+  // version before it waits for the next (0: no limit).
+  virtual void publish(const PolicyParams& policy, uint32_t batch_quota) = 0;
+  virtual std::vector<LiveWorker> live_workers() const = 0;
+  // When the first worker was heard (now_seconds() clock); 0 while none has been.
+  virtual double first_worker_heard() const = 0;
+  virtual FarmFigures figures() const = 0;
+  // Seconds of training so far (a resumed run counts on from its checkpoint).
+  virtual double elapsed() const = 0;
+  // `episodes` deterministic episodes of `policy` on the experiment's task.
+  virtual EvalReport evaluate(const PolicyParams& policy, int episodes) = 0;
+  // Each evaluation's mean return goes through here: a new best is kept in <run dir>/best.
+  virtual void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) = 0;
+  virtual void log(const std::string& line) const = 0;
+  // One row of <run dir>/learner.csv, without the newline (columns: Algorithm::csv_header).
+  virtual void csv_row(const std::string& row) = 0;
+};
+
+class Algorithm {
+ public:
+  virtual ~Algorithm() = default;
+  // The algorithm's part of the start line ("SAC 3-256-256-2 relu actor").
+  virtual std::string describe() const = 0;
+  virtual std::string csv_header() const = 0;  // without the trailing newline
+  // The policy version batches are checked against, and the one a checkpoint records.
+  virtual uint64_t version() const = 0;
+  virtual int64_t updates() const = 0;
+  // The mean return of the latest evaluation (NaN before the first), for the stop target.
+  virtual double last_eval() const = 0;
+
+  // After the experiment is published, before the first batch.
+  virtual void start(Farm&) {}
+  // One batch that ingest accepted; false when the algorithm does not use it (counted by the
+  // algorithm, e.g. stale beyond its lag window): its episodes then do not count either.
+  virtual bool take(const Batch& batch) = 0;
+  // One pass of the loop after the farm took what arrived (got_data: whether anything did): train
+  // when due, publish, evaluate. Returns how long the farm may wait for data before the next pass.
+  virtual double train(Farm& farm, bool got_data) = 0;
+  // Re-sends the current version with a quota of one batch, so every worker that already sent on
+  // it waits (the interrupted learner's stop: nothing is on its way at the checkpoint).
+  virtual void hold_workers(Farm& farm) = 0;
+  // The periodic progress: a log line, and for algorithms that write per period, a CSV row.
+  virtual void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) = 0;
+  // The algorithm's own end (PPO's run length); "" while it goes on.
+  virtual std::string stop_reason() const { return ""; }
+  virtual void final_evaluation(Farm& farm, double elapsed) = 0;
+  // The summary's lines between the farm's head and its worker lines.
+  virtual std::string summary(const FarmFigures& f, double elapsed) const = 0;
+
+  // The networks, in their sub-folder of dir (the layout of <run dir>/best and of a checkpoint).
+  virtual void save_networks(const std::string& dir) const = 0;
+  // Everything a checkpoint holds of the algorithm (networks, and a replay buffer where there is
+  // one), and what it adds to the manifest (random state, run counters).
+  virtual void save(const std::string& dir) const { save_networks(dir); }
+  virtual void to_manifest(config::CheckpointManifest& m) const = 0;
+  virtual void load(const std::string& dir) = 0;
+  // After load and the farm's counters: versions and schedules go on. Returns the rest of the log
+  // line "resumed from DIR ...".
+  virtual std::string resumed(const config::CheckpointManifest& m, uint64_t env_steps) = 0;
+
+  // Policy versions skipped on --resume, for every algorithm: more than a learner publishes between
+  // two checkpoints, so the resumed learner's versions are numbers no worker holds yet (a worker
+  // holding the same number would keep the crashed learner's weights).
+  static constexpr uint64_t kResumeVersionSkip = 100000;
+};
+
+}  // namespace farm

@@ -1,0 +1,216 @@
+// The replay-buffer driver that runs every off-policy algorithm (SAC, DQN): keeps the workers'
+// transitions in a replay buffer, updates as fast as the data and the algorithm's pacing allow,
+// publishes the policy every few updates, evaluates on a timer, and checkpoints the networks with
+// the buffer.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <sstream>
+
+#include "algorithm.h"
+#include "divergence.h"
+#include "meter.h"
+#include "off_policy.h"
+#include "replay_buffer.h"
+#include "rng_state.h"
+
+namespace farm {
+
+namespace {
+
+class OffPolicyAlgorithm final : public Algorithm {
+ public:
+  OffPolicyAlgorithm(std::unique_ptr<OffPolicy> algo, const config::ExperimentConfig& cfg,
+                     const robots::TaskSpec& spec)
+      : cfg_(cfg),
+        algo_(std::move(algo)),
+        algo_name_(algo_->name()),
+        metric_names_(spec.metric_names),
+        replay_(algo_->buffer_size(), spec.obs_dim, spec.act_dim),
+        rng_(cfg_.seed() * 7919 + 17) {}
+
+  std::string describe() const override { return algo_->describe(); }
+
+  std::string csv_header() const override {
+    return "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,buffer_fill,"
+           "policy_version,policy_lag,critic_loss,actor_loss,alpha,mean_return,eval_return,"
+           "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers";
+  }
+
+  uint64_t version() const override { return version_ > 0 ? version_ - 1 : 0; }
+  int64_t updates() const override { return algo_->updates(); }
+  double last_eval() const override { return last_eval_; }
+
+  void start(Farm& farm) override {
+    publish_weights(farm);
+    last_eval_time_ = now_seconds();
+  }
+
+  bool take(const Batch& b) override {
+    ++batches_since_publish_;
+    Transitions& rows = *b.rows;
+    if (rows.n > 0) {
+      fold_n_step(b.num_steps, b.num_envs, b.truncated, rows, algo_->gamma(), algo_->n_step());
+      replay_.add_n(rows.n, rows.obs.data(), rows.actions.data(), rows.rewards.data(), rows.terminated.data(),
+                    rows.next_obs.data(), rows.horizon.data());
+    }
+    return true;
+  }
+
+  double train(Farm& farm, bool got_data) override {
+    bool updated = false;
+    for (int k = 0; k < 8 && can_update(farm); ++k) {
+      train_step();
+      updated = true;
+    }
+    if (updates_since_publish_ >= algo_->publish_every_updates()) publish_weights(farm);
+    double wait = 0;
+    if (!updated) {
+      // Starved (no data, or the ratio limiter holds): let the workers' throttle go with a new
+      // version, so neither side waits for the other.
+      if (updates_since_publish_ > 0 || batches_since_publish_ > 0) publish_weights(farm);
+      if (!got_data) wait = 0.01;
+    }
+    if (now_seconds() - last_eval_time_ >= cfg_.eval().every_seconds() && algo_->updates() > 0) {
+      evaluate(farm, cfg_.eval().episodes(), farm.elapsed(), "eval");
+      last_eval_time_ = now_seconds();
+    }
+    return wait;
+  }
+
+  void hold_workers(Farm& farm) override {
+    farm.publish(algo_->export_policy(version()), 1);
+  }
+
+  void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) override {
+    const double upd_rate = updates_meter_.rate();
+    const double utd = f.env_steps > 0 ? double(algo_->updates()) / double(f.env_steps) : 0.0;
+    const double fill = double(replay_.size()) / double(replay_.capacity());
+    std::ostringstream o;
+    o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", f.in_rate) << " steps/s (" << f.env_steps << ") | "
+      << fmt("%.0f", upd_rate) << " upd/s (" << algo_->updates() << ", utd " << fmt("%.3f", utd) << ") | buffer "
+      << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
+      << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
+      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << " | workers " << f.workers
+      << f.waiting_note;
+    farm.log(o.str());
+    std::ostringstream row;
+    row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates()
+        << ',' << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ',' << version()
+        << ',' << fmt("%.2f", f.lag) << ',' << fmt("%.5g", last_stats_.critic_loss) << ','
+        << fmt("%.5g", last_stats_.actor_loss) << ',' << fmt("%.5g", last_stats_.alpha) << ','
+        << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ',' << f.ok << ',' << f.lost << ','
+        << f.duplicate << ',' << f.invalid << ',' << f.workers;
+    farm.csv_row(row.str());
+    stats->updates = algo_->updates();
+    stats->updates_per_second = upd_rate;
+    stats->buffer_fill = fill;
+    stats->critic_loss = last_stats_.critic_loss;
+    stats->actor_loss = last_stats_.actor_loss;
+    stats->eval_return = last_eval_;
+  }
+
+  void final_evaluation(Farm& farm, double elapsed) override {
+    final_return_ = evaluate(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  std::string summary(const FarmFigures& f, double elapsed) const override {
+    std::ostringstream o;
+    o << "updates           " << algo_->updates() << " ("
+      << fmt("%.0f", algo_->updates() / std::max(elapsed, 1e-9)) << " updates/s)\n"
+      << "policy versions   " << version() << "\n"
+      << "episodes          " << f.episodes << "\n"
+      << "final eval return " << fmt("%.1f", final_return_) << " (mean of " << cfg_.eval().final_episodes()
+      << " deterministic episodes)\n"
+      << "best eval return  " << fmt("%.1f", f.best_eval) << "\n"
+      << "batches           ok " << f.ok << ", lost " << f.lost << ", duplicate " << f.duplicate << ", invalid "
+      << f.invalid << "\n";
+    return o.str();
+  }
+
+  void save_networks(const std::string& dir) const override {
+    std::filesystem::create_directories(std::filesystem::path(dir) / algo_->name());
+    algo_->save((std::filesystem::path(dir) / algo_->name()).string());
+  }
+  void save(const std::string& dir) const override {
+    save_networks(dir);
+    replay_.save((std::filesystem::path(dir) / "replay.pt").string());
+  }
+  void to_manifest(config::CheckpointManifest& m) const override { rng_to_manifest(&rng_, m); }
+  void load(const std::string& dir) override {
+    algo_->load((std::filesystem::path(dir) / algo_->name()).string());
+    replay_.load((std::filesystem::path(dir) / "replay.pt").string());
+  }
+
+  std::string resumed(const config::CheckpointManifest& m, uint64_t env_steps) override {
+    // The crashed learner may have published versions after its last checkpoint; skip past any
+    // it could have reached, so versions stay unique and batches claiming a newer one are refused.
+    version_ = m.policy_version() + 1 + kResumeVersionSkip;
+    rng_from_manifest(m, &rng_);  // after the algorithm's constructor seeded LibTorch
+    return "(next policy v" + std::to_string(version_) + "): " + std::to_string(algo_->updates()) + " updates, " +
+           std::to_string(env_steps) + " env steps, buffer " + std::to_string(replay_.size());
+  }
+
+ private:
+  void publish_weights(Farm& farm) {
+    algo_->set_env_steps(int64_t(farm.figures().env_steps));  // DQN's exploration schedule
+    farm.publish(algo_->export_policy(version_), 0);
+    ++version_;
+    updates_since_publish_ = 0;
+    batches_since_publish_ = 0;
+  }
+
+  bool can_update(const Farm& farm) const {
+    if (replay_.size() < std::max<int64_t>(algo_->learning_starts(), algo_->batch_size())) return false;
+    if (cfg_.stop().max_updates() > 0 && algo_->updates() >= cfg_.stop().max_updates()) return false;
+    return double(algo_->updates()) < algo_->max_updates_per_step() * double(farm.figures().env_steps) + 1;
+  }
+
+  void train_step() {
+    last_stats_ = algo_->update(replay_.sample(algo_->batch_size(), rng_));
+    require_finite_update(algo_name_, algo_->updates(),
+                          {{"critic loss", last_stats_.critic_loss},
+                           {"actor loss", last_stats_.actor_loss},
+                           {algo_name_ == "dqn" ? "epsilon" : "alpha", last_stats_.alpha}});
+    ++updates_since_publish_;
+    updates_meter_.add(1);
+  }
+
+  double evaluate(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    const PolicyParams p = algo_->export_policy(version());
+    const EvalReport r = farm.evaluate(p, episodes);
+    const double mean = r.episodes > 0 ? r.mean : 0;
+    last_eval_ = mean;
+    std::string metric_txt;
+    for (size_t i = 0; i < r.metrics.size() && r.episodes > 0; ++i)
+      metric_txt += ", " + metric_names_[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(r.episodes) +
+             " deterministic episodes" + metric_txt + " (policy v" + std::to_string(p.version) + ", " +
+             std::to_string(algo_->updates()) + " updates, " + fmt("%.1f", elapsed) + " s)");
+    farm.record_evaluation(mean, p.version, algo_->updates(), elapsed);
+    return mean;
+  }
+
+  const config::ExperimentConfig cfg_;
+  std::unique_ptr<OffPolicy> algo_;
+  const std::string algo_name_;  // for the per-update divergence check
+  const std::vector<std::string> metric_names_;
+  ReplayBuffer replay_;
+  std::mt19937_64 rng_;
+  OffPolicyStats last_stats_{};
+  Meter updates_meter_;
+  uint64_t version_ = 0;  // the next version to publish
+  int updates_since_publish_ = 0, batches_since_publish_ = 0;
+  double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
+};
+
+}  // namespace
+
+std::unique_ptr<Algorithm> make_off_policy_algorithm(std::unique_ptr<OffPolicy> algo,
+                                                     const config::ExperimentConfig& cfg,
+                                                     const robots::TaskSpec& spec) {
+  return std::make_unique<OffPolicyAlgorithm>(std::move(algo), cfg, spec);
+}
+
+}  // namespace farm

@@ -1,0 +1,339 @@
+#include "ppo_algorithm.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <sstream>
+#include <stdexcept>
+
+#include "divergence.h"
+#include "fit_scheduler.h"
+#include "meter.h"
+#include "ppo.h"
+#include "rng_state.h"
+#include "rollout_storage.h"
+
+namespace farm {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+FitPlan plan_of(const config::PpoConfig& c) {
+  FitPlan p;
+  p.steps_per_fit = c.steps_per_fit();
+  p.episodes_per_fit = c.episodes_per_fit();
+  p.steps_per_run = c.steps_per_run();
+  p.episodes_per_run = c.episodes_per_run();
+  return p;
+}
+
+class PpoAlgorithm final : public Algorithm {
+ public:
+  PpoAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : cfg_(cfg),
+        spec_(spec),
+        pc_(cfg.ppo()),
+        ppo_(pc_, spec.obs_dim, spec.act_dim, cfg_.seed()),
+        storage_(spec.obs_dim, spec.act_dim),
+        sched_(plan_of(pc_)) {}
+
+  std::string describe() const override {
+    const auto& p = pc_;
+    return "PPO (" + p.variant() + ") " + ppo_.export_policy(0).layout.describe() + " actor, " +
+           (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps"
+                                  : std::to_string(p.episodes_per_fit()) + " episodes") +
+           " per fit, max policy lag " + std::to_string(p.max_policy_lag());
+  }
+
+  uint64_t version() const override { return version_; }
+  int64_t updates() const override { return ppo_.updates(); }
+  double last_eval() const override { return last_eval_.mean; }
+
+  void start(Farm&) override { last_data_ = now_seconds(); }
+
+  double train(Farm& farm, bool got_data) override {
+    if (!published_) {
+      // The first weights wait for the first worker and a short grace for the others, so the
+      // first quota is shared out over the workers that are there.
+      const double first_join = farm.first_worker_heard();
+      if (first_join > 0 && now_seconds() - first_join >= kJoinGraceSeconds) {
+        quota_ = batches_for_next_fit(farm);
+        publish_weights(farm);
+        published_ = true;
+        return 0;
+      }
+      return 0.05;
+    }
+    if (sched_.fit_due()) {
+      fit(farm, farm.elapsed());
+      return 0;
+    }
+    if (got_data) return 0;
+    top_up_if_starved(farm);
+    return 0.01;
+  }
+
+  std::string csv_header() const override {
+    std::string h =
+        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
+        "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
+        "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
+        "batches_stale,workers,episodes";
+    // The task's own per-episode metrics: means over the episodes finished since the last fit
+    // (train_*) and over the evaluation episodes (eval_*).
+    for (const auto& m : spec_.metric_names) h += ",train_" + m;
+    for (const auto& m : spec_.metric_names) h += ",eval_" + m;
+    return h;
+  }
+
+  void load(const std::string& dir) override { ppo_.load((fs::path(dir) / "ppo").string()); }
+
+  std::string resumed(const config::CheckpointManifest& m, uint64_t env_steps) override {
+    // Past any version the crashed learner published after its checkpoint, as the off-policy
+    // learner does: a worker holding the same number would keep the old weights.
+    version_ = m.policy_version() + 1 + kResumeVersionSkip;
+    // The run's counters go on from where they were; data not yet fitted was not kept.
+    rng_from_manifest(m, nullptr);
+    sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
+    return "(next policy v" + std::to_string(version_) + "): " + std::to_string(ppo_.fits()) + " fits, " +
+           std::to_string(env_steps) + " env steps, learning rate " + fmt("%.3g", ppo_.learning_rate());
+  }
+
+  void hold_workers(Farm& farm) override {
+    if (!published_) return;
+    quota_ = 1;
+    farm.publish(policy_, quota_);
+  }
+
+ private:
+  // The current version's weights with the current quota; re-sent with a larger quota to top up.
+  void publish_weights(Farm& farm) {
+    policy_ = ppo_.export_policy(version_);
+    delivered_.clear();
+    farm.publish(policy_, quota_);
+  }
+
+  // Steps one round (one batch from every live worker) brings.
+  int64_t round_steps(const Farm& farm) const {
+    int64_t envs = 0;
+    for (const auto& w : farm.live_workers()) envs += w.envs;
+    if (envs == 0) envs = cfg_.worker().envs_per_worker();  // none seen yet: assume one default worker
+    return envs * cfg_.worker().steps_per_batch();
+  }
+
+  // Batches each worker should send on this version so that the fit (and no more than the run)
+  // gets what it needs: the fit's missing steps, or for a fit by episodes the episodes still
+  // missing spread over the environments, each up to a full horizon.
+  uint32_t batches_for(const Farm& farm, int64_t steps_needed) const {
+    const int64_t r = round_steps(farm);
+    return uint32_t(std::max<int64_t>(1, (steps_needed + r - 1) / r));
+  }
+  uint32_t batches_for_next_fit(const Farm& farm) const {
+    int64_t need = sched_.steps_wanted();
+    if (pc_.episodes_per_fit() > 0) {
+      const int64_t eps = std::max<int64_t>(1, sched_.episodes_wanted());
+      const int64_t envs = round_steps(farm) / cfg_.worker().steps_per_batch();
+      const int64_t by_eps = (eps + envs - 1) / envs * std::max(1, spec_.max_episode_steps) * envs;
+      need = need < 0 ? by_eps : std::min(need, by_eps);
+    }
+    return batches_for(farm, std::max<int64_t>(need, 1));
+  }
+
+  // Every live worker delivered its quota and the fit still lacks data (a worker left, or
+  // episodes run longer than estimated): raise the quota of the same version.
+  void top_up_if_starved(Farm& farm) {
+    if (sched_.run_done() || now_seconds() - last_data_ < 0.5) return;
+    bool all_done = false;
+    for (const auto& w : farm.live_workers()) {
+      auto it = delivered_.find(w.worker_id);
+      const bool done = it != delivered_.end() && it->second >= quota_;
+      const bool idle = w.state == "throttled" && w.policy_version == version_;
+      if (!done && !idle) return;
+      all_done = true;
+    }
+    if (!all_done) return;
+    int64_t need = sched_.steps_wanted();
+    if (pc_.episodes_per_fit() > 0) need = round_steps(farm);
+    quota_ += batches_for(farm, std::max<int64_t>(need, 1));
+    ++top_ups_;
+    last_data_ = now_seconds();
+    farm.publish(policy_, quota_);
+  }
+
+ public:
+
+  bool take(const Batch& b) override {
+    const Transitions& rows = *b.rows;
+    if (rows.n == 0) return false;  // end of stream
+    last_data_ = now_seconds();
+    if (b.policy_version + uint64_t(pc_.max_policy_lag()) < version_ || sched_.run_done()) {
+      // Made by a policy older than the lag allows (or after the run's end): counted, not used.
+      ++stale_total_;
+      ++stale_fit_;
+      return false;
+    }
+    if (b.policy_version == version_) delivered_[b.worker_id] += 1;
+    storage_.add(b.num_steps, b.num_envs, rows.obs.data(), rows.actions.data(), rows.rewards.data(),
+                 rows.terminated.data(), b.truncated, b.log_probs, rows.next_obs.data(), b.policy_version);
+    sched_.on_data(rows.n, int64_t(b.episodes->size()));
+    for (const auto& e : *b.episodes) {
+      ++fit_episodes_;
+      fit_metric_sums_.resize(spec_.metric_names.size(), 0.0);
+      for (size_t i = 0; i < fit_metric_sums_.size() && i < e.metrics.size(); ++i) fit_metric_sums_[i] += e.metrics[i];
+    }
+    return true;
+  }
+
+  void fit(Farm& farm, double elapsed) {
+    const double t = now_seconds();
+    const FitScheduler::Fit f = sched_.take_fit();
+    PpoSamples samples;
+    storage_.take(f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(),
+                  pc_.gae_lambda(), version_, samples);
+    const PpoStats st = ppo_.fit(samples);
+    require_finite_update("ppo", ppo_.fits(),
+                          {{"value loss", st.value_loss}, {"policy loss", st.policy_loss}, {"kl", st.kl}});
+    // The normalizer moves between versions only, so a version is one fixed policy.
+    if (pc_.normalize_observations()) ppo_.normalizer().update(samples.obs.data(), samples.n);
+    const double fit_s = now_seconds() - t;
+    last_stats_ = st;
+    const uint64_t fitted = version_;
+    ++version_;
+    quota_ = batches_for_next_fit(farm);
+    if (!sched_.run_done()) publish_weights(farm);
+    else policy_ = ppo_.export_policy(version_);
+    const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0;
+    if (eval_now) evaluate(farm, cfg_.eval().episodes(), elapsed, "eval");
+    const FarmFigures c = farm.figures();
+    const double mean_ret = c.mean_return;
+    std::ostringstream o;
+    o << "fit " << ppo_.fits() << " | v" << fitted << " -> v" << version_ << " | steps used " << f.steps_used
+      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | kl " << fmt("%.4f", st.kl)
+      << " lr " << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction) << " | value loss "
+      << fmt("%.4g", st.value_loss) << " entropy " << fmt("%.3f", st.entropy) << " | return " << fmt("%.1f", mean_ret)
+      << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps
+      << " env steps, " << fmt("%.1f", elapsed) << " s";
+    farm.log(o.str());
+    std::ostringstream csv;
+    csv << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
+         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
+         << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
+         << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ','
+         << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "")
+         << ',' << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ','
+         << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "") << ',' << c.ok << ',' << c.lost << ','
+         << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ',' << c.workers << ',' << fit_episodes_;
+    const size_t nm = spec_.metric_names.size();
+    for (size_t i = 0; i < nm; ++i)
+      csv << ',' << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_) : "");
+    for (size_t i = 0; i < nm; ++i)
+      csv << ',' << (eval_now && i < last_eval_.metrics.size() ? fmt("%.5g", last_eval_.metrics[i]) : "");
+    farm.csv_row(csv.str());
+    fit_episodes_ = 0;
+    fit_metric_sums_.assign(nm, 0.0);
+    stale_fit_ = 0;
+  }
+
+  EvalReport evaluate(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    const EvalReport r = farm.evaluate(policy_, episodes);
+    last_eval_ = r;
+    std::string metrics;
+    for (size_t i = 0; i < r.metrics.size(); ++i) metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " + fmt("%.1f", r.max) +
+        ") over " + std::to_string(r.episodes) + " deterministic episodes, length " + fmt("%.1f", r.mean_length) +
+        metrics + " (policy v" + std::to_string(policy_.version) + ", " + std::to_string(ppo_.fits()) + " fits, " +
+        fmt("%.1f", elapsed) + " s)");
+    farm.record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
+    return r;
+  }
+
+  void progress(Farm& farm, const FarmFigures& c, double elapsed, AlgorithmStats* stats) override {
+    stats->updates = ppo_.updates();
+    stats->updates_per_second = 0;
+    stats->buffer_fill = pc_.steps_per_fit() > 0 ? double(storage_.steps()) / double(pc_.steps_per_fit()) : 0.0;
+    stats->critic_loss = last_stats_.value_loss;
+    stats->actor_loss = last_stats_.policy_loss;
+    stats->eval_return = last_eval_.mean;
+    farm.log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", c.in_rate) + " steps/s (" + std::to_string(c.env_steps) +
+             ") | v" + std::to_string(version_) + " collecting " + std::to_string(sched_.fit_steps()) +
+             " steps, quota " + std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) +
+             " lost " + std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " +
+             std::to_string(c.invalid) + " stale " + std::to_string(stale_total_) + " | workers " +
+             std::to_string(c.workers));
+  }
+
+  std::string stop_reason() const override {
+    if (sched_.run_done() && !sched_.fit_due()) {
+      if (pc_.steps_per_run() > 0 && sched_.run_steps() >= pc_.steps_per_run())
+        return "run length " + std::to_string(pc_.steps_per_run()) + " steps";
+      return "run length " + std::to_string(pc_.episodes_per_run()) + " episodes";
+    }
+    return "";
+  }
+
+  void to_manifest(config::CheckpointManifest& m) const override {
+    m.set_run_steps(uint64_t(sched_.run_steps()));
+    rng_to_manifest(nullptr, m);
+  }
+
+  void save_networks(const std::string& dir) const override {
+    fs::create_directories(fs::path(dir) / "ppo");
+    ppo_.save((fs::path(dir) / "ppo").string());
+  }
+
+  void final_evaluation(Farm& farm, double elapsed) override {
+    final_eval_ = evaluate(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  std::string summary(const FarmFigures& c, double) const override {
+    const EvalReport& fe = final_eval_;
+    std::ostringstream o;
+    o << "updates           " << ppo_.updates() << " (" << ppo_.fits() << " fits)\n"
+      << "policy versions   " << version_ << "\n"
+      << "episodes          " << c.episodes << "\n"
+      << "final eval return " << fmt("%.1f", fe.mean) << " (mean of " << fe.episodes << " deterministic episodes)\n"
+      << "final eval range  min " << fmt("%.1f", fe.min) << ", max " << fmt("%.1f", fe.max) << ", length "
+      << fmt("%.1f", fe.mean_length) << "\n";
+    for (size_t i = 0; i < fe.metrics.size(); ++i)
+      o << "final eval metric " << spec_.metric_names[i] << " " << fmt("%.4f", fe.metrics[i]) << "\n";
+    o << "best eval return  " << fmt("%.1f", c.best_eval) << "\n"
+      << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
+      << c.invalid << ", stale " << stale_total_ << "\n"
+      << "quota top-ups     " << top_ups_ << "\n";
+    return o.str();
+  }
+
+ private:
+  const config::ExperimentConfig cfg_;
+  const robots::TaskSpec spec_;
+  config::PpoConfig pc_;
+  Ppo ppo_;
+  RolloutStorage storage_;
+  FitScheduler sched_;
+  uint64_t fit_episodes_ = 0;              // episodes finished since the last fit
+  std::vector<double> fit_metric_sums_;    // their task metrics, summed
+  std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
+  PolicyParams policy_;
+  PpoStats last_stats_{};
+  EvalReport last_eval_, final_eval_;
+  uint64_t version_ = 0;
+  uint32_t quota_ = 1;
+  uint64_t stale_total_ = 0, stale_fit_ = 0, top_ups_ = 0;
+  double last_data_ = 0;
+  bool published_ = false;
+  static constexpr double kJoinGraceSeconds = 1.0;
+};
+
+}  // namespace
+
+std::unique_ptr<Algorithm> make_ppo(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
+  check_ppo_config(cfg.ppo());
+  if (spec.num_actions > 0)
+    throw std::invalid_argument("algorithm \"ppo\" needs continuous actions; task '" + cfg.task().name() +
+                                "' has discrete ones");
+  return std::make_unique<PpoAlgorithm>(cfg, spec);
+}
+
+}  // namespace farm

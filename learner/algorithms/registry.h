@@ -1,0 +1,33 @@
+// The learner's algorithms, one registration line each (registry.cpp), as robots/task.cpp lists
+// the tasks. The learner's dispatch, the off-policy adapters that evaluation programs load and
+// the tests read this one list; the config check reads the algorithm sections of
+// common/farm_config.proto, and a unit test holds the two together.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "algorithm.h"
+#include "farm_config.pb.h"
+#include "off_policy.h"
+#include "task_spec.h"
+
+namespace farm {
+
+struct AlgorithmRegistration {
+  const char* name;  // the config's `algorithm`, and the name of its config section
+  // An algorithm with its own driver (PPO); null for an off-policy one.
+  std::unique_ptr<Algorithm> (*make)(const config::ExperimentConfig&, const robots::TaskSpec&);
+  // An off-policy algorithm: the adapter the replay-buffer driver runs; null otherwise.
+  std::unique_ptr<OffPolicy> (*make_off_policy)(const config::ExperimentConfig&, const robots::TaskSpec&);
+};
+
+const std::vector<AlgorithmRegistration>& algorithms();
+std::vector<std::string> algorithm_names();
+// The registration of cfg.algorithm(); throws std::invalid_argument naming the known ones.
+const AlgorithmRegistration& find_algorithm(const std::string& name);
+// The learner's side of cfg.algorithm() for a task of this spec.
+std::unique_ptr<Algorithm> make_algorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+}  // namespace farm

@@ -1,0 +1,118 @@
+// The farm side of the learner: publishes the experiment, takes and accounts the workers'
+// batches (ingest), hears their heartbeats (roster), publishes the weights the algorithm hands it,
+// runs evaluations, and runs the main loop (progress lines, checkpoints, the best policy, stop
+// rules, Ctrl-C), resumes from a checkpoint, closes the workers' streams at the end and writes the
+// summary. What it trains with is an Algorithm (algorithms/algorithm.h) from the registry.
+#pragma once
+
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <deque>
+#include <fstream>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "algorithm.h"
+#include "dds.h"
+#include "farm_config.pb.h"
+#include "ingest.h"
+#include "spec_publisher.h"
+#include "task.h"
+#include "worker_roster.h"
+
+namespace farm {
+
+struct LearnerRunOptions {
+  farm::dds::BusOptions bus;
+  bool resume = false;
+  std::string run_dir;  // default <run_root>/<experiment_id>
+};
+
+class FarmService final : public Farm {
+ public:
+  FarmService(const LearnerRunOptions& o, const config::ExperimentConfig& cfg, const std::atomic<bool>& interrupted);
+  // Runs the experiment to its end; returns the process exit code (130 when interrupted).
+  int run();
+
+  // --- Farm: what the algorithm may ask ---
+  void publish(const PolicyParams& policy, uint32_t batch_quota) override;
+  std::vector<LiveWorker> live_workers() const override;
+  double first_worker_heard() const override { return first_heard_; }
+  FarmFigures figures() const override;
+  double elapsed() const override;
+  EvalReport evaluate(const PolicyParams& policy, int episodes) override;
+  void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) override;
+  void log(const std::string& s) const override;
+  void csv_row(const std::string& row) override;
+
+ private:
+  void prepare_run_dir();
+  void work();
+  size_t drain_batches(size_t max);
+  void drain_status();
+  int live_count() const;
+  // Takes batch_ (just read) through the ingest's checks against the algorithm's version:
+  // pending_ and episodes_ hold its transitions and finished episodes; false (and a log line for
+  // the first 20) when the batch is refused.
+  bool accept_batch();
+  void record_episode(float episode_return);
+  double mean_recent_return() const;
+  void progress(double elapsed, double window);
+  // The stop limits of the experiment's stop block (target return, time, env steps, updates).
+  std::string should_stop(double elapsed) const;
+  void checkpoint(double elapsed);
+  // checkpoint() that survives a failure (a full disk): logged, the last good checkpoint kept;
+  // false when it failed.
+  bool try_checkpoint(double elapsed);
+  // The manifest fields every checkpoint carries.
+  config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
+  // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
+  std::string summary_head(double elapsed, const std::string& reason) const;
+  std::string summary_workers() const;
+  // A line for the log and summary when the run ended on an env step or update limit before its
+  // first evaluation (a limit that more workers reach sooner); "" otherwise.
+  std::string untrained_stop_note(const std::string& reason) const;
+  void write_summary(double elapsed, const std::string& reason);
+  void drain_until_workers_end();
+  // On Ctrl-C / SIGTERM, before the checkpoint: the batches already on their way.
+  void drain_before_interrupted_stop();
+  // Live workers that wait on the learner (for new weights, or for room in the batch queue).
+  std::string waiting_note() const;
+
+  LearnerRunOptions opt_;
+  config::ExperimentConfig cfg_;
+  const std::atomic<bool>& interrupted_;
+  std::shared_ptr<const robots::Task> task_;
+  int obs_dim_, act_dim_;
+  Ingest ingest_;
+  farm::dds::Bus bus_;
+  SpecPublisher spec_;
+  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
+  farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
+  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  // Heartbeats are taken on Fast DDS's listener thread as they arrive, with their arrival time, so
+  // a long fit or evaluation cannot let them be overwritten in the reader's history (16 deep for
+  // all workers together) and live workers be marked dead; the main loop hands them to roster_.
+  std::mutex heard_mu_;
+  std::deque<std::pair<farm::msg::WorkerStatus, double>> heard_;  // bounded: kMaxHeard
+  static constexpr size_t kMaxHeard = 65536;
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  WorkerRoster roster_;
+  std::unique_ptr<Algorithm> algo_;
+  std::string run_dir_, ckpt_dir_, best_dir_;
+  std::ofstream csv_;
+  farm::msg::TransitionBatch batch_;
+  Transitions pending_;
+  std::vector<FinishedEpisode> episodes_;
+  std::deque<float> recent_returns_;
+  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
+  bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
+  double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
+  int rejections_logged_ = 0;
+};
+
+}  // namespace farm

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Checkpoints written before the learner was split into its farm side and its algorithms still
+# resume: a pendulum SAC checkpoint (networks, optimizers, replay buffer, random state) and a
+# cart-pole PPO checkpoint from tests/data/checkpoint_v1, each resumed by today's farm-learner with
+# one worker to a normal end: the counters go on from the checkpoint, nothing is lost.
+#   tests/integration/test_checkpoint_compat.sh LEARNER WORKER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") data=$(readlink -f "$3")/tests/data/checkpoint_v1
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init compat 177
+
+# resume NAME: the fixture's checkpoint in a fresh run dir, resumed to the config's time limit.
+resume() {
+  local name=$1 run="$dir/$1"
+  mkdir -p "$run" && cp -r "$data/$name/checkpoint" "$run/checkpoint"
+  local updates_before
+  updates_before=$(sed -n 's/^updates: \([0-9]*\)/\1/p' "$run/checkpoint/manifest.txtpb")
+  "$learner" --config "$data/$name.txtpb" --run-dir "$run" --domain $domain --resume >"$dir/$name.log" 2>&1 &
+  local lp=$!
+  pids+=($lp)
+  "$worker" --domain $domain --id compat-$name >"$dir/$name-worker.log" 2>&1 & pids+=($!)
+  wait $lp; local rc=$?
+  cat "$dir/$name.log" | grep -v "^\[learner\] *[0-9.]*s |" | head -20
+  [ $rc = 0 ] || fail "$name: learner exited $rc: $(tail -5 "$dir/$name.log")"
+  grep -q "^\[learner\] resumed from $run/checkpoint (next policy v" "$dir/$name.log" ||
+    fail "$name: no 'resumed from' line"
+  [ -f "$run/summary.txt" ] || { fail "$name: no summary"; return; }
+  cat "$run/summary.txt"
+  local updates_after
+  updates_after=$(sed -n 's/^updates           \([0-9]*\).*/\1/p' "$run/summary.txt")
+  [ -n "$updates_before" ] && [ -n "$updates_after" ] && [ "$updates_after" -gt "$updates_before" ] ||
+    fail "$name: updates did not go on from the checkpoint's $updates_before: $updates_after"
+  grep -q "^batches           ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$run/summary.txt" ||
+    fail "$name: batches not all accounted: $(grep '^batches' "$run/summary.txt")"
+  # The new checkpoint is written in the same layout as the fixture's.
+  for f in $(cd "$data/$name/checkpoint" && find . -type f | sort); do
+    [ -f "$run/checkpoint/$f" ] || fail "$name: the new checkpoint has no $f"
+  done
+}
+
+resume sac
+resume ppo
+farm_test_end "checkpoints written before the split resume"
