@@ -18,12 +18,23 @@ inline constexpr int kMaxThreadsPerWorker = 256;
 inline constexpr int kMaxStepsPerBatch = 4096;
 inline constexpr long long kMaxBatchTransitions = 1 << 20;  // steps x envs of one batch
 
+// mCLARI's counts that bound its config's lists and indices (robots/mclari asserts they agree):
+// phase groups (seed 001 §2.2), the reduced set of them (§4.1.2) and terrains (§3.3).
+inline constexpr int kMclariPhaseGroups = 27;
+inline constexpr int kMclariReducedGroups = 8;
+inline constexpr int kMclariTerrains = 6;
+
 struct ConfigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3").
+// Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3"). Every range
+// a task or an algorithm needs of its section is checked here; only the section of the task that
+// runs (task.name) is checked, and the dqn and ppo sections only when the algorithm is theirs.
 config::ExperimentConfig load_config_file(const std::string& path);
+// The ExperimentConfig fields marked as algorithm sections (farm_options.proto), in schema order:
+// the names `algorithm` may take.
+std::vector<std::string> algorithm_sections();
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source);
 
 // Fields that name a file the process building the task writes (today task.mclari.hfield_png):
@@ -39,6 +50,20 @@ std::string config_to_text(const config::ExperimentConfig& cfg);
 
 // "cpu", "cuda" or "cuda:N" (N a device index): the learner devices a config may name.
 bool valid_device_name(const std::string& name);
+
+// The loader's range checks of one section, for a task or an algorithm built from a config that
+// did not come through the loader (unit tests, tools that change a loaded config). The error names
+// the field path, as there is no file: std::invalid_argument("field 'task.a1.kp': expected > 0, got 0").
+void check_config(const config::PendulumConfig& c);  // task.pendulum
+void check_config(const config::CartpoleConfig& c);  // task.cartpole
+void check_config(const config::JetbotConfig& c);    // task.jetbot, its scene included
+void check_config(const config::KayaConfig& c);      // task.kaya, its scene included
+void check_config(const config::MclariConfig& c);    // task.mclari
+// task: the section the config stands for, "a1", "honey_badger" or "silver_badger".
+void check_config(const config::LeggedConfig& c, const std::string& task);
+void check_config(const config::SacConfig& c);
+void check_config(const config::DqnConfig& c);
+void check_config(const config::PpoConfig& c);
 
 // Hidden sizes of the SAC networks (the schema's default when the list is empty).
 std::vector<int> sac_hidden(const config::SacConfig& sac);

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "config.h"
+
 namespace farm {
 
 namespace {
@@ -35,10 +37,6 @@ std::vector<int> dqn_hidden(const config::DqnConfig& c) {
   return {c.hidden().begin(), c.hidden().end()};
 }
 
-void require(bool ok, const std::string& what) {
-  if (!ok) throw std::invalid_argument("dqn config: " + what);
-}
-
 }  // namespace
 
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
@@ -62,32 +60,11 @@ double dqn_epsilon(const config::DqnConfig& c, int64_t env_steps) {
          progress * (c.exploration_final_eps() - c.exploration_initial_eps());
 }
 
-void check_dqn_config(const config::DqnConfig& c) {
-  require(c.learning_rate() > 0, "learning_rate must be > 0");
-  require(c.buffer_size() >= 1, "buffer_size must be >= 1");
-  require(c.exploration_fraction() >= 0 && c.exploration_fraction() <= 1,
-          "exploration_fraction must be in [0, 1]");
-  require(c.schedule_env_steps() >= 1, "schedule_env_steps must be >= 1");
-  require(c.exploration_initial_eps() >= 0 && c.exploration_initial_eps() <= 1,
-          "exploration_initial_eps must be in [0, 1]");
-  require(c.exploration_final_eps() >= 0 && c.exploration_final_eps() <= 1,
-          "exploration_final_eps must be in [0, 1]");
-  require(c.gamma() >= 0 && c.gamma() <= 1, "gamma must be in [0, 1]");
-  require(c.batch_size() >= 1, "batch_size must be >= 1");
-  require(c.learning_starts() >= 0, "learning_starts must be >= 0");
-  require(c.target_update_updates() >= 1, "target_update_updates must be >= 1");
-  require(c.max_grad_norm() > 0, "max_grad_norm must be > 0");
-  require(c.max_updates_per_step() > 0, "max_updates_per_step must be > 0");
-  require(c.publish_every_updates() >= 1, "publish_every_updates must be >= 1");
-  require(c.n_step() >= 1, "n_step must be >= 1");
-  for (int h : c.hidden()) require(h > 0, "hidden sizes must be > 0");
-}
-
 struct Dqn::Impl {
   Impl(const config::DqnConfig& c, int obs, int actions)
       : cfg(c), obs_dim(obs), num_actions(actions), hidden(dqn_hidden(c)),
         online(sizes()), target(sizes()) {
-    check_dqn_config(c);
+    check_config(c);  // the loader's checks, for a config built in code
     if (obs < 1 || actions < 2) {
       throw std::invalid_argument("dqn: needs obs_dim >= 1 and >= 2 discrete actions, got " +
                                   std::to_string(obs) + " and " + std::to_string(actions));

@@ -37,9 +37,6 @@ torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& termi
 // schedule_env_steps steps, then stays (sb3's linear schedule).
 double dqn_epsilon(const config::DqnConfig& cfg, int64_t env_steps);
 
-// Throws std::invalid_argument naming the first dqn.* field that cannot work.
-void check_dqn_config(const config::DqnConfig& cfg);
-
 class Dqn {
  public:
   // Seeds torch's global generator with `seed` (initial weights).

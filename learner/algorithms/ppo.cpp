@@ -41,10 +41,6 @@ torch::Tensor from_floats(const float* p, int64_t rows, int64_t cols) {
   return torch::from_blob(const_cast<float*>(p), {rows, cols}, torch::kFloat32).clone();
 }
 
-void require(bool ok, const std::string& field, const std::string& what) {
-  if (!ok) throw std::invalid_argument("ppo." + field + ": " + what);
-}
-
 }  // namespace
 
 double adapt_learning_rate(double lr, double kl, const config::PpoConfig& c) {
@@ -54,36 +50,6 @@ double adapt_learning_rate(double lr, double kl, const config::PpoConfig& c) {
   return std::clamp(lr, c.lr_min(), c.lr_max());
 }
 
-void check_ppo_config(const config::PpoConfig& c) {
-  require(c.variant() == "clip_kl" || c.variant() == "plain", "variant",
-          "expected \"clip_kl\" or \"plain\", got \"" + c.variant() + "\"");
-  require(c.steps_per_fit() >= 0 && c.episodes_per_fit() >= 0, "steps_per_fit",
-          "steps_per_fit and episodes_per_fit must be >= 0");
-  require((c.steps_per_fit() > 0) != (c.episodes_per_fit() > 0), "episodes_per_fit",
-          "set exactly one of steps_per_fit and episodes_per_fit > 0 (set steps_per_fit: 0 to fit by episodes)");
-  require(c.mini_batch_size() > 0, "mini_batch_size", "expected > 0, got " + std::to_string(c.mini_batch_size()));
-  require(c.learning_rate() > 0, "learning_rate", "expected > 0");
-  require(c.gamma() > 0 && c.gamma() <= 1, "gamma", "expected in (0, 1]");
-  require(c.gae_lambda() >= 0 && c.gae_lambda() <= 1, "gae_lambda", "expected in [0, 1]");
-  require(c.entropy_coef() >= 0, "entropy_coef", "expected >= 0");
-  require(c.clip_epsilon() > 0, "clip_epsilon", "expected > 0");
-  require(c.epochs() > 0, "epochs", "expected > 0");
-  require(c.max_grad_norm() > 0, "max_grad_norm", "expected > 0");
-  require(c.desired_kl() > 0, "desired_kl", "expected > 0");
-  require(c.kl_band() > 1, "kl_band", "expected > 1");
-  require(c.lr_factor() > 1, "lr_factor", "expected > 1");
-  require(c.lr_min() > 0 && c.lr_min() <= c.lr_max(), "lr_min", "expected 0 < lr_min <= lr_max");
-  require(valid_device_name(c.device()), "device", "expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + c.device() + "\"");
-  require(c.value_loss_coef() >= 0, "value_loss_coef", "expected >= 0");
-  for (int h : c.hidden()) require(h > 0, "hidden", "expected sizes > 0, got " + std::to_string(h));
-  require(c.activation() == "tanh" || c.activation() == "relu", "activation",
-          "expected \"tanh\" or \"relu\", got \"" + c.activation() + "\"");
-  require(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < ppo.log_std_max");
-  require(c.max_policy_lag() >= 0, "max_policy_lag", "expected >= 0");
-  require(c.steps_per_run() >= 0 && c.episodes_per_run() >= 0, "steps_per_run",
-          "steps_per_run and episodes_per_run must be >= 0 (0 = no limit)");
-  require(c.eval_every_fits() >= 0, "eval_every_fits", "expected >= 0 (0 = only at the end)");
-}
 
 std::vector<int> ppo_hidden(const config::PpoConfig& c) {
   if (c.hidden_size() == 0) return {64, 64};
@@ -128,7 +94,7 @@ struct Ppo::Impl {
 };
 
 Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) : impl_(std::make_unique<Impl>()) {
-  check_ppo_config(cfg);
+  check_config(cfg);  // the loader's checks, for a config built in code
   if (obs_dim <= 0 || act_dim <= 0) throw std::invalid_argument("Ppo: obs_dim and act_dim must be > 0");
   Impl& s = *impl_;
   torch::manual_seed(seed);

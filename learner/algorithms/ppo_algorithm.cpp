@@ -329,7 +329,6 @@ class PpoAlgorithm final : public Algorithm {
 }  // namespace
 
 std::unique_ptr<Algorithm> make_ppo(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
-  check_ppo_config(cfg.ppo());
   if (spec.num_actions > 0)
     throw std::invalid_argument("algorithm \"ppo\" needs continuous actions; task '" + cfg.task().name() +
                                 "' has discrete ones");

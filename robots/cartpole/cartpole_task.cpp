@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "config.h"
 #include "embedded_mjcf.h"
 
 namespace farm::robots {
@@ -14,11 +15,6 @@ namespace farm::robots {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-void require_positive(double v, const char* field) {
-  if (!(v > 0) || !std::isfinite(v))
-    throw std::invalid_argument(std::string("cartpole config: ") + field + " must be > 0, got " + std::to_string(v));
-}
 
 // dm_control's rewards.tolerance with bounds (0, 0): gaussian sigmoid, value 0.1 at the margin.
 double gaussian_tolerance(double x, double margin) {
@@ -29,16 +25,8 @@ double gaussian_tolerance(double x, double margin) {
 }  // namespace
 
 CartpoleTask::CartpoleTask(const config::CartpoleConfig& cfg) : cfg_(cfg) {
-  require_positive(cfg.physics_dt(), "physics_dt");
-  require_positive(cfg.max_force(), "max_force");
-  require_positive(cfg.gear(), "gear");
-  require_positive(cfg.rail_limit(), "rail_limit");
-  if (cfg.control_substeps() <= 0)
-    throw std::invalid_argument("cartpole config: control_substeps must be > 0, got " + std::to_string(cfg.control_substeps()));
-  if (cfg.max_episode_steps() <= 0)
-    throw std::invalid_argument("cartpole config: max_episode_steps must be > 0, got " + std::to_string(cfg.max_episode_steps()));
-  if (!(cfg.init_noise() >= 0))
-    throw std::invalid_argument("cartpole config: init_noise must be >= 0, got " + std::to_string(cfg.init_noise()));
+  // The loader has checked a config read from a file; this one may have been built in code.
+  check_config(cfg);
   spec_.name = "cartpole";
   spec_.obs_dim = 5;
   spec_.act_dim = 1;

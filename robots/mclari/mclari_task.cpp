@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "check.h"
+#include "config.h"
 #include "embedded_mjcf.h"
 #include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
@@ -21,23 +23,9 @@ constexpr char kXml[] = "mclari/mclari.xml";
 // g mm^2 / s^3 (MMGS power) in W.
 constexpr double kPowerToWatt = 1e-9;
 
-std::invalid_argument bad(const std::string& field, const std::string& what) {
-  return std::invalid_argument("mclari config: " + field + " " + what);
-}
-
-// A config list whose entries must lie in [lo, hi] and appear once; errors name the field.
-template <typename List>
-std::vector<int> distinct_in_range(const List& list, int lo, int hi, const std::string& field,
-                                   const std::string& range, const std::string& prefix, const std::string& unit) {
-  std::vector<int> out;
-  for (int v : list) {
-    if (v < lo || v > hi) throw bad(field, "entries must be in " + range + ", got " + std::to_string(v));
-    if (std::find(out.begin(), out.end(), v) != out.end())
-      throw bad(field, "lists " + prefix + std::to_string(v) + unit + " twice");
-    out.push_back(v);
-  }
-  return out;
-}
+// The counts the loader bounds the config's lists and indices with (common/config.h).
+static_assert(mclari::kNumGroups == kMclariPhaseGroups);
+static_assert(mclari::kNumTerrains == kMclariTerrains);
 
 void replace_all(std::string& s, const std::string& from, const std::string& to) {
   for (size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size()))
@@ -98,74 +86,21 @@ McLariState::~McLariState() {
 }
 
 McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
-  auto positive = [](double v, const char* field) {
-    if (!(v > 0) || !std::isfinite(v)) throw bad(field, "must be > 0, got " + std::to_string(v));
-  };
-  positive(cfg.voltage(), "voltage");
-  positive(cfg.frequency_step(), "frequency_step");
-  positive(cfg.step_seconds(), "step_seconds");
-  positive(cfg.power_sample_seconds(), "power_sample_seconds");
-  positive(cfg.gravity_si(), "gravity_si");
-  positive(cfg.target_radius(), "target_radius");
-  positive(cfg.ground_half_size(), "ground_half_size");
-  positive(cfg.hfield_height(), "hfield_height");
-  positive(cfg.obs_power_scale(), "obs_power_scale");
-  positive(cfg.obs_speed_scale(), "obs_speed_scale");
-  positive(cfg.obs_distance_scale(), "obs_distance_scale");
-  if (cfg.min_frequency() < 1 || cfg.max_frequency() < cfg.min_frequency())
-    throw bad("min_frequency/max_frequency", "must satisfy 1 <= min <= max, got " +
-                                                 std::to_string(cfg.min_frequency()) + ", " +
-                                                 std::to_string(cfg.max_frequency()));
-  if (cfg.initial_frequency() < cfg.min_frequency() || cfg.initial_frequency() > cfg.max_frequency())
-    throw bad("initial_frequency", "must be in [min_frequency, max_frequency], got " +
-                                       std::to_string(cfg.initial_frequency()));
-  if (cfg.steps_per_period() < 1)
-    throw bad("steps_per_period", "must be >= 1, got " + std::to_string(cfg.steps_per_period()));
-  if (cfg.max_timestep() < 0 || !std::isfinite(cfg.max_timestep()))
-    throw bad("max_timestep", "must be >= 0 (0 = no cap), got " + std::to_string(cfg.max_timestep()));
-  if (cfg.max_episode_steps() < 1)
-    throw bad("max_episode_steps", "must be >= 1, got " + std::to_string(cfg.max_episode_steps()));
-  if (cfg.target_min_distance() < 0 || cfg.target_max_distance() < cfg.target_min_distance())
-    throw bad("target_min_distance/target_max_distance", "must satisfy 0 <= min <= max");
-  if (cfg.target_max_distance() >= cfg.ground_half_size())
-    throw bad("target_max_distance", "must be inside the ground (< ground_half_size)");
-  if (cfg.tendon_stiffness() < 0 || cfg.tendon_rest_length() < 0)
-    throw bad("tendon_stiffness/tendon_rest_length", "must be >= 0");
-  if (cfg.fixed_frequency() < 0 || cfg.fixed_frequency() > cfg.max_frequency())
-    throw bad("fixed_frequency", "must be 0 (off) or in [1, max_frequency], got " +
-                                     std::to_string(cfg.fixed_frequency()));
-  if (cfg.fixed_group() < 0 || cfg.fixed_group() >= mclari::kNumGroups)
-    throw bad("fixed_group", "must be in [0, 27), got " + std::to_string(cfg.fixed_group()));
+  // The loader has checked a config read from a file; this one may have been built in code.
+  check_config(cfg);
+  farm::require(mclari::reduced_groups().size() == size_t(kMclariReducedGroups),
+                "mclari: the reduced group set has " + std::to_string(mclari::reduced_groups().size()) +
+                    " groups, the config's ranges expect " + std::to_string(kMclariReducedGroups));
 
-  groups_.clear();
   if (cfg.groups_size() > 0) {
-    if (cfg.reduced_groups())
-      throw bad("groups", "and reduced_groups: set one or the other, not both");
-    groups_ = distinct_in_range(cfg.groups(), 0, mclari::kNumGroups - 1, "groups", "[0, 27)", "group ", "");
+    groups_.assign(cfg.groups().begin(), cfg.groups().end());
   } else if (cfg.reduced_groups()) {
     groups_ = mclari::reduced_groups();
   } else {
     for (int g = 0; g < mclari::kNumGroups; ++g) groups_.push_back(g);
   }
-  frequencies_ = distinct_in_range(cfg.frequencies(), cfg.min_frequency(), cfg.max_frequency(), "frequencies",
-                                  "[min_frequency, max_frequency]", "", " Hz");
-  if (cfg.initial_group() < 0 || cfg.initial_group() >= int(groups_.size()))
-    throw bad("initial_group", "must index the active group set of " +
-                                   std::to_string(groups_.size()) + ", got " +
-                                   std::to_string(cfg.initial_group()));
-  if (cfg.reference_efficiency_size() != 0 && cfg.reference_efficiency_size() != mclari::kNumTerrains)
-    throw bad("reference_efficiency", "needs one value per terrain (6) or none, got " +
-                                          std::to_string(cfg.reference_efficiency_size()));
-  for (int t = 0; t < cfg.reference_efficiency_size(); ++t)
-    if (!(cfg.reference_efficiency(t) > 0) || !std::isfinite(cfg.reference_efficiency(t)))
-      throw bad("reference_efficiency", "entry " + std::to_string(t) + " (" + mclari::terrain_name(t) +
-                                            ") must be finite and > 0, got " +
-                                            std::to_string(cfg.reference_efficiency(t)));
-  for (int t : cfg.terrains()) {
-    if (t < 0 || t >= mclari::kNumTerrains)
-      throw bad("terrains", "entries must be in [0, 6), got " + std::to_string(t));
-    terrains_.push_back(t);
-  }
+  frequencies_.assign(cfg.frequencies().begin(), cfg.frequencies().end());
+  terrains_.assign(cfg.terrains().begin(), cfg.terrains().end());
   if (terrains_.empty())
     for (int t = 0; t < mclari::kNumTerrains; ++t) terrains_.push_back(t);
 

@@ -6,6 +6,9 @@
 #include <cstdio>
 #include <random>
 #include <stdexcept>
+#include <string>
+
+#include "check.h"
 
 namespace farm::robots::mclari {
 
@@ -53,10 +56,11 @@ std::vector<float> mean_filter(const std::vector<float>& v, int n, int k) {
 }
 
 std::vector<float> rough_height_field(int n, double sigma, int k, uint64_t seed) {
-  if (n < 2) throw std::invalid_argument("mclari hfield_size must be >= 2, got " + std::to_string(n));
-  if (!(sigma > 0)) throw std::invalid_argument("mclari hfield_sigma must be > 0");
-  if (k < 1 || k % 2 == 0)
-    throw std::invalid_argument("mclari hfield_filter must be odd and >= 1, got " + std::to_string(k));
+  // The loader checks the config's hfield_* fields; these are the function's own arguments.
+  farm::require(n >= 2, "rough_height_field: n (hfield_size) must be >= 2, got " + std::to_string(n));
+  farm::require(sigma > 0, "rough_height_field: sigma (hfield_sigma) must be > 0, got " + std::to_string(sigma));
+  farm::require(k >= 1 && k % 2 == 1, "rough_height_field: k (hfield_filter) must be odd and >= 1, got " +
+                                          std::to_string(k));
   auto v = gaussian_field(n, sigma, seed);
   normalize_min_max(v);
   return mean_filter(v, n, k);

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "config.h"
 #include "embedded_mjcf.h"
 #include "mobile/kinematics.h"
 
@@ -93,19 +94,6 @@ int joint_id(const mjModel* m, const std::string& name, const std::string& file)
 
 MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   const auto& c = robot.scene;
-  const char* who = robot.name.c_str();
-  check_scene_config(c, who);
-  auto positive = [&](double v, const char* field) {
-    if (!(v > 0) || !std::isfinite(v)) {
-      throw std::invalid_argument(robot.name + " config: " + field + " must be > 0, got " +
-                                  std::to_string(v));
-    }
-  };
-  positive(robot.max_linear_speed, "max_linear_speed");
-  positive(robot.max_angular_speed, "max_angular_speed");
-  positive(robot.wheel_kv, "wheel_kv");
-  positive(robot.wheel_max_torque, "wheel_max_torque");
-
   const std::vector<ObstacleSlot> slots = obstacle_slots(c);
   std::string xml = embedded_text(robot.mjcf);
   const std::string marker = "<!--SCENE-->";
@@ -401,6 +389,8 @@ void MobileTask::episode_metrics(const TaskState& ts, float* out) const {
 
 std::unique_ptr<Task> make_jetbot_task(const config::TaskConfig& cfg) {
   const auto& j = cfg.jetbot();
+  // The loader has checked a config read from a file; this one may have been built in code.
+  check_config(j);
   MobileRobotSpec r;
   r.name = "jetbot";
   r.mjcf = "mobile/jetbot.xml";
@@ -415,6 +405,7 @@ std::unique_ptr<Task> make_jetbot_task(const config::TaskConfig& cfg) {
 
 std::unique_ptr<Task> make_kaya_task(const config::TaskConfig& cfg) {
   const auto& k = cfg.kaya();
+  check_config(k);
   MobileRobotSpec r;
   r.name = "kaya";
   r.mjcf = "mobile/kaya.xml";

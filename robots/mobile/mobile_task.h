@@ -41,7 +41,8 @@ struct MobileRobotSpec {
 
 class MobileTask final : public Task {
  public:
-  // Throws std::invalid_argument naming the config field that cannot work.
+  // `robot` comes from a checked section (make_jetbot_task and make_kaya_task check it); throws
+  // std::invalid_argument when the robot does not fit the arena.
   explicit MobileTask(const MobileRobotSpec& robot);
   ~MobileTask() override;
   MobileTask(const MobileTask&) = delete;

@@ -6,14 +6,12 @@
 #include <stdexcept>
 #include <string>
 
+#include "check.h"
+
 namespace farm::robots::mobile {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
-
-void require(bool ok, const char* task, const char* field, const std::string& what) {
-  if (!ok) throw std::invalid_argument(std::string(task) + " config: scene." + field + " " + what);
-}
 }  // namespace
 
 double ObstacleSlot::bound() const { return box ? half_size * std::sqrt(2.0) : half_size; }
@@ -40,45 +38,16 @@ double distance_to_obstacle(const ObstacleSlot& slot, const PlacedObstacle& o, d
   return std::hypot(std::max(lx, 0.0), std::max(ly, 0.0));
 }
 
-void check_scene_config(const config::MobileSceneConfig& c, const char* task) {
-  require(c.lidar_rays() >= 1 && c.lidar_rays() <= 1024, task, "lidar_rays",
-          "must be in [1, 1024], got " + std::to_string(c.lidar_rays()));
-  require(c.lidar_range() > 0, task, "lidar_range", "must be > 0");
-  require(c.lidar_fov_deg() > 0 && c.lidar_fov_deg() <= 360, task, "lidar_fov_deg",
-          "must be in (0, 360]");
-  require(c.arena_half_size() > 0, task, "arena_half_size", "must be > 0");
-  require(c.wall_height() > 0, task, "wall_height", "must be > 0");
-  require(c.min_obstacles() >= 0, task, "min_obstacles", "must be >= 0");
-  require(c.max_obstacles() >= c.min_obstacles(), task, "max_obstacles",
-          "must be >= min_obstacles (" + std::to_string(c.min_obstacles()) + "), got " +
-              std::to_string(c.max_obstacles()));
-  require(c.max_obstacles() <= 256, task, "max_obstacles", "must be <= 256");
-  require(c.obstacle_min_half_size() > 0, task, "obstacle_min_half_size", "must be > 0");
-  require(c.obstacle_max_half_size() >= c.obstacle_min_half_size(), task,
-          "obstacle_max_half_size", "must be >= obstacle_min_half_size");
-  require(c.obstacle_max_half_size() < c.arena_half_size(), task, "obstacle_max_half_size",
-          "must be < arena_half_size");
-  require(c.clearance() >= 0, task, "clearance", "must be >= 0");
-  require(c.min_start_goal_distance() >= 0, task, "min_start_goal_distance", "must be >= 0");
-  require(c.goal_radius() > 0, task, "goal_radius", "must be > 0");
-  require(c.max_episode_steps() > 0, task, "max_episode_steps", "must be > 0");
-  require(c.physics_dt() > 0 && c.physics_dt() <= 0.05, task, "physics_dt", "must be in (0, 0.05]");
-  require(c.control_substeps() >= 1, task, "control_substeps", "must be >= 1");
-  require(c.distance_weight() >= 0, task, "distance_weight", "must be >= 0");
-  require(c.collision_penalty() >= 0, task, "collision_penalty", "must be >= 0 (it is subtracted)");
-  require(c.max_reset_tries() >= 1, task, "max_reset_tries", "must be >= 1");
-}
-
 MapGenerator::MapGenerator(const config::MobileSceneConfig& cfg, double robot_radius)
     : cfg_(cfg), robot_radius_(robot_radius), slots_(obstacle_slots(cfg)) {
   if (cfg.static_map()) {
     std::mt19937_64 rng(cfg.static_map_seed());
     draw_obstacles(rng, static_map_);
   }
-  if (2 * (robot_radius + cfg.clearance()) >= 2 * cfg.arena_half_size()) {
-    throw std::invalid_argument("mobile scene: the robot (radius " + std::to_string(robot_radius) +
-                                " m) plus clearance does not fit in the arena");
-  }
+  // The config's ranges are the loader's (common/config.cpp); this one needs the robot's model too.
+  farm::require(robot_radius + cfg.clearance() < cfg.arena_half_size(),
+                "mobile scene: the robot (radius " + std::to_string(robot_radius) +
+                    " m) plus clearance does not fit in the arena");
 }
 
 void MapGenerator::draw_obstacles(std::mt19937_64& rng, MobileMap& map) const {

@@ -35,9 +35,6 @@ std::vector<ObstacleSlot> obstacle_slots(const config::MobileSceneConfig& cfg);
 // Distance from (x, y) to the footprint of obstacle o (0 inside).
 double distance_to_obstacle(const ObstacleSlot& slot, const PlacedObstacle& o, double x, double y);
 
-// Throws std::invalid_argument naming the field of a scene config that cannot work.
-void check_scene_config(const config::MobileSceneConfig& cfg, const char* task);
-
 class MapGenerator {
  public:
   // robot_radius: the robot's footprint radius; start and goal keep robot_radius + clearance

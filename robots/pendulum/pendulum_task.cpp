@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "config.h"
 #include "embedded_mjcf.h"
 
 namespace farm::robots {
@@ -24,20 +25,6 @@ double angle_normalize(double x) {
   return r - kPi;
 }
 
-void require_positive(double v, const char* field) {
-  if (!(v > 0) || !std::isfinite(v)) {
-    throw std::invalid_argument(std::string("pendulum config: ") + field + " must be > 0, got " +
-                                std::to_string(v));
-  }
-}
-
-void require_non_negative(double v, const char* field) {
-  if (!(v >= 0) || !std::isfinite(v)) {
-    throw std::invalid_argument(std::string("pendulum config: ") + field + " must be >= 0, got " +
-                                std::to_string(v));
-  }
-}
-
 PendulumState& as_pendulum(TaskState& s) { return static_cast<PendulumState&>(s); }
 const PendulumState& as_pendulum(const TaskState& s) {
   return static_cast<const PendulumState&>(s);
@@ -46,19 +33,8 @@ const PendulumState& as_pendulum(const TaskState& s) {
 }  // namespace
 
 PendulumTask::PendulumTask(const config::PendulumConfig& cfg) : cfg_(cfg) {
-  require_positive(cfg.gravity(), "gravity");
-  require_positive(cfg.mass(), "mass");
-  require_positive(cfg.length(), "length");
-  require_positive(cfg.dt(), "dt");
-  require_positive(cfg.max_speed(), "max_speed");
-  require_positive(cfg.max_torque(), "max_torque");
-  require_non_negative(cfg.velocity_cost(), "velocity_cost");
-  require_non_negative(cfg.torque_cost(), "torque_cost");
-  require_non_negative(cfg.init_max_speed(), "init_max_speed");
-  if (cfg.max_episode_steps() <= 0) {
-    throw std::invalid_argument("pendulum config: max_episode_steps must be > 0, got " +
-                                std::to_string(cfg.max_episode_steps()));
-  }
+  // The loader has checked a config read from a file; this one may have been built in code.
+  check_config(cfg);
 
   spec_.name = "pendulum";
   spec_.obs_dim = 3;

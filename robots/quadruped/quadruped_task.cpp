@@ -7,6 +7,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "config.h"
 #include "embedded_mjcf.h"
 
 namespace farm::robots::quadruped {
@@ -48,37 +49,6 @@ config::LeggedConfig with_robot_defaults(Robot r, config::LeggedConfig c) {
   return c;
 }
 
-void require(bool ok, const std::string& field, const std::string& what) {
-  if (!ok) throw std::invalid_argument("task config: " + field + ": " + what);
-}
-
-void validate(const config::LeggedConfig& c) {
-  require(c.decimation() >= 1, "decimation", "expected >= 1");
-  require(c.physics_dt() > 0 && c.physics_dt() <= 0.05, "physics_dt", "expected in (0, 0.05] s");
-  require(c.kp() > 0, "kp", "expected > 0");
-  require(c.kd() >= 0, "kd", "expected >= 0");
-  require(c.action_scale() > 0, "action_scale", "expected > 0");
-  require(c.action_range() > 0, "action_range", "expected > 0");
-  require(c.max_episode_steps() >= 1, "max_episode_steps", "expected >= 1");
-  require(c.command_resample_prob() >= 0 && c.command_resample_prob() <= 1, "command_resample_prob",
-          "expected in [0, 1]");
-  require(c.lin_vel_x_max() >= 0 && c.lin_vel_y_max() >= 0 && c.ang_vel_max() >= 0, "lin_vel_x_max",
-          "command ranges must be >= 0");
-  require(c.tracking_sigma() > 0, "tracking_sigma", "expected > 0");
-  require(c.soft_dof_pos_limit() > 0 && c.soft_dof_pos_limit() <= 1, "soft_dof_pos_limit", "expected in (0, 1]");
-  require(c.friction_min() > 0 && c.friction_min() <= c.friction_max(), "friction_min",
-          "expected 0 < friction_min <= friction_max");
-  require(c.init_joint_scale_min() <= c.init_joint_scale_max(), "init_joint_scale_min",
-          "expected <= init_joint_scale_max");
-  require(c.push_interval_s() >= 0, "push_interval_s", "expected >= 0 (0: no pushes)");
-  require(c.noise_level() >= 0, "noise_level", "expected >= 0");
-  for (double r : {c.trunk_mass_rel(), c.torque_limit_rel(), c.velocity_limit_rel(), c.foot_size_rel(), c.kp_rel(),
-                   c.kd_rel(), c.action_scale_rel(), c.torque_multiplier_rel()})
-    require(r >= 0 && r < 1, "randomization", "relative ranges (*_rel) must be in [0, 1)");
-  require(c.velocity_limit() > 0, "velocity_limit", "expected > 0");
-  require(c.armature_max() >= 0.005, "armature_max", "expected >= 0.005 (the lower end of its range)");
-}
-
 }  // namespace
 
 QuadrupedState::~QuadrupedState() {
@@ -87,8 +57,9 @@ QuadrupedState::~QuadrupedState() {
 
 QuadrupedTask::QuadrupedTask(Robot robot, const config::LeggedConfig& cfg)
     : robot_(robot), cfg_(with_robot_defaults(robot, cfg)) {
-  validate(cfg_);
   const RobotInfo ri = info(robot);
+  // The loader has checked a config read from a file; this one may have been built in code.
+  check_config(cfg_, ri.task_name);
   model_ = load_embedded_model(ri.mjcf);
   model_->opt.timestep = cfg_.physics_dt();
   using namespace legged;

@@ -170,3 +170,96 @@ TEST(Config, LearnerDeviceDefaultsToCpuAndIsChecked) {
   EXPECT_NE(e.find("sac.device"), std::string::npos) << e;
   EXPECT_NE(e.find("\"gpu\""), std::string::npos) << e;
 }
+
+// Every task section is range-checked where the config is read, so the error names the file, the
+// line, the column and the field path; a task's constructor knows none of them.
+TEST(Config, TaskSectionErrorsNameFileLineAndField) {
+  struct Case {
+    const char* task;
+    const char* section;  // written at line 4, column 3 of the file
+    const char* error;
+  };
+  const Case cases[] = {
+      {"pendulum", "pendulum {\n    gravity: 0\n  }",
+       "exp.txtpb:5:5: field 'task.pendulum.gravity': expected > 0, got 0"},
+      {"pendulum", "pendulum {\n    dt: inf\n  }",
+       "exp.txtpb:5:5: field 'task.pendulum.dt': expected a finite value, got inf"},
+      {"cartpole", "cartpole {\n    gear: 0\n  }", "exp.txtpb:5:5: field 'task.cartpole.gear': expected > 0, got 0"},
+      {"cartpole", "cartpole {\n    init_noise: -1\n  }",
+       "exp.txtpb:5:5: field 'task.cartpole.init_noise': expected >= 0, got -1"},
+      {"a1", "a1 {\n    decimation: 0\n  }", "exp.txtpb:5:5: field 'task.a1.decimation': expected >= 1, got 0"},
+      {"honey_badger", "honey_badger {\n    kp_rel: 1\n  }",
+       "exp.txtpb:5:5: field 'task.honey_badger.kp_rel': expected in [0, 1), got 1"},
+      {"silver_badger", "silver_badger {\n    friction_min: 2\n  }",
+       "exp.txtpb:5:5: field 'task.silver_badger.friction_min': "
+       "expected 0 < friction_min <= friction_max (1.25), got 2"},
+      {"a1", "a1 {\n    reward { tracking_lin_vel: 1 }\n    physics_dt: 0.1\n  }",
+       "exp.txtpb:6:5: field 'task.a1.physics_dt': expected in (0, 0.05], got 0.1"},
+      {"jetbot", "jetbot {\n    wheel_kv: 0\n  }", "exp.txtpb:5:5: field 'task.jetbot.wheel_kv': expected > 0, got 0"},
+      {"kaya", "kaya {\n    max_linear_speed: -1\n  }",
+       "exp.txtpb:5:5: field 'task.kaya.max_linear_speed': expected > 0, got -1"},
+      {"jetbot", "jetbot {\n    scene {\n      lidar_rays: 0\n    }\n  }",
+       "exp.txtpb:6:7: field 'task.jetbot.scene.lidar_rays': expected in [1, 1024], got 0"},
+      {"kaya", "kaya {\n    scene {\n      min_obstacles: 3\n      max_obstacles: 2\n    }\n  }",
+       "exp.txtpb:7:7: field 'task.kaya.scene.max_obstacles': expected >= min_obstacles (3), got 2"},
+      // A field left at its default is named by the section the file writes.
+      {"jetbot", "jetbot {\n    scene {\n      min_obstacles: 10\n    }\n  }",
+       "exp.txtpb:5:5: field 'task.jetbot.scene.max_obstacles': expected >= min_obstacles (10), got 8"},
+      {"jetbot", "jetbot {\n    scene {\n      obstacle_max_half_size: 3\n    }\n  }",
+       "exp.txtpb:6:7: field 'task.jetbot.scene.obstacle_max_half_size': expected < arena_half_size (2), got 3"},
+      {"mclari", "mclari {\n    voltage: -1\n  }", "exp.txtpb:5:5: field 'task.mclari.voltage': expected > 0, got -1"},
+      {"mclari", "mclari {\n    initial_frequency: 200\n  }",
+       "exp.txtpb:5:5: field 'task.mclari.initial_frequency': "
+       "expected in [min_frequency, max_frequency] = [1, 150], got 200"},
+      {"mclari", "mclari {\n    hfield_filter: 2\n  }",
+       "exp.txtpb:5:5: field 'task.mclari.hfield_filter': expected odd and >= 1, got 2"},
+      {"mclari", "mclari {\n    hfield_size: 1\n  }",
+       "exp.txtpb:5:5: field 'task.mclari.hfield_size': expected >= 2, got 1"},
+      {"mclari", "mclari {\n    terrains: 0\n    terrains: 6\n  }",
+       "exp.txtpb:6:5: field 'task.mclari.terrains': entries must be in [0, 6), got 6"},
+      {"mclari", "mclari {\n    groups: 3\n    groups: 3\n  }",
+       "exp.txtpb:6:5: field 'task.mclari.groups': lists group 3 twice"},
+  };
+  for (const Case& c : cases) {
+    const std::string text =
+        std::string("experiment_id: \"a\"\ntask {\n  name: \"") + c.task + "\"\n  " + c.section + "\n}\n";
+    EXPECT_EQ(error_of(text), c.error) << text;
+  }
+}
+
+// Only the section of the task that runs is checked: the others are never used.
+TEST(Config, UnusedTaskSectionsAreNotChecked) {
+  EXPECT_NO_THROW(parse_config_text("experiment_id: \"a\"\ntask {\n  name: \"a1\"\n  cartpole { gear: 0 }\n}\n", "x"));
+  EXPECT_NE(error_of("experiment_id: \"a\"\ntask {\n  name: \"cartpole\"\n  cartpole { gear: 0 }\n}\n"), "");
+}
+
+// The algorithms' own checks are the loader's too, with the line named.
+TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  kl_band: 1\n}\n"),
+            "exp.txtpb:4:3: field 'ppo.kl_band': expected > 1, got 1");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  eval_every_fits: -1\n}\n"),
+            "exp.txtpb:4:3: field 'ppo.eval_every_fits': expected >= 0 (0: only at the end), got -1");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  n_step: 0\n}\n"),
+            "exp.txtpb:4:3: field 'dqn.n_step': expected >= 1, got 0");
+}
+
+// A section built in code (a unit test, a tool that changes a loaded config) gets the loader's
+// checks through check_config; with no file to name, the error names the field path.
+TEST(Config, SectionsBuiltInCodeAreCheckedAlike) {
+  farm::config::PendulumConfig p;
+  p.set_length(-1);
+  try {
+    farm::check_config(p);
+    ADD_FAILURE() << "accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_STREQ(e.what(), "field 'task.pendulum.length': expected > 0, got -1");
+  }
+  farm::config::LeggedConfig a1;
+  a1.set_kp(0);
+  EXPECT_THROW(farm::check_config(a1, "a1"), std::invalid_argument);
+  farm::config::JetbotConfig j;
+  j.mutable_scene()->set_lidar_rays(2000);
+  EXPECT_THROW(farm::check_config(j), std::invalid_argument);
+  EXPECT_NO_THROW(farm::check_config(farm::config::MclariConfig{}));
+  EXPECT_NO_THROW(farm::check_config(farm::config::PpoConfig{}));
+}

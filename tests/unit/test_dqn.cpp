@@ -2,6 +2,8 @@
 // the discrete-Q policy head the workers run, target copies, a small learning problem, and
 // checkpoints.
 #include <gtest/gtest.h>
+
+#include "config.h"
 #include <torch/torch.h>
 
 #include <cmath>
@@ -61,7 +63,7 @@ TEST(DqnConfig, DefaultsAreSeedTableThree) {
   EXPECT_EQ(c.schedule_env_steps(), 3000000);
   c.set_gamma(1.5);
   try {
-    check_dqn_config(c);
+    farm::check_config(c);
     FAIL() << "expected an error";
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("gamma"), std::string::npos) << e.what();

@@ -4,6 +4,8 @@
 // move the policy toward the better action).
 #include <gtest/gtest.h>
 
+#include "config.h"
+
 #include <cmath>
 #include <numeric>
 #include <random>
@@ -368,12 +370,12 @@ TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
   config::PpoConfig c;
   c.set_variant("fancy");
   try {
-    check_ppo_config(c);
+    farm::check_config(c);
     FAIL();
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("ppo.variant"), std::string::npos) << e.what();
   }
   config::PpoConfig d;
   d.set_episodes_per_fit(4);  // with the default steps_per_fit: two triggers
-  EXPECT_THROW(check_ppo_config(d), std::invalid_argument);
+  EXPECT_THROW(farm::check_config(d), std::invalid_argument);
 }

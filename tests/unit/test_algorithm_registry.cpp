@@ -1,0 +1,120 @@
+// The algorithm registry: every registered algorithm builds for a task that fits it, refuses one
+// that does not, saves and loads its networks in its own sub-folder, and the config's algorithm
+// sections and the registry name the same algorithms.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+#include "config.h"
+#include "registry.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+farm::robots::TaskSpec continuous_spec() {
+  farm::robots::TaskSpec s;
+  s.name = "test_continuous";
+  s.obs_dim = 3;
+  s.act_dim = 1;
+  s.max_episode_steps = 200;
+  s.metric_names = {"m"};
+  return s;
+}
+
+farm::robots::TaskSpec discrete_spec() {
+  farm::robots::TaskSpec s = continuous_spec();
+  s.name = "test_discrete";
+  s.num_actions = 4;
+  return s;
+}
+
+farm::config::ExperimentConfig config_for(const std::string& algorithm) {
+  const std::string text = "experiment_id: \"registry_test\"\nalgorithm: \"" + algorithm +
+                           "\"\nsac { hidden: [8, 8] }\ndqn { hidden: [8] }\nppo { hidden: [8, 8] }\n";
+  return farm::parse_config_text(text, "registry_test.txtpb");
+}
+
+// The spec an algorithm is meant for: DQN takes discrete actions, the others continuous ones.
+bool wants_discrete(const std::string& name) { return name == "dqn"; }
+
+TEST(AlgorithmRegistry, NamesAreUniqueAndEachHasOneWayToRun) {
+  std::set<std::string> seen;
+  ASSERT_FALSE(farm::algorithms().empty());
+  for (const auto& a : farm::algorithms()) {
+    EXPECT_TRUE(seen.insert(a.name).second) << "registered twice: " << a.name;
+    EXPECT_NE(a.make == nullptr, a.make_off_policy == nullptr)
+        << a.name << ": exactly one of make (own driver) and make_off_policy (replay driver)";
+  }
+}
+
+TEST(AlgorithmRegistry, ConfigSectionsAndRegistryNameTheSameAlgorithms) {
+  const std::vector<std::string> sections = farm::algorithm_sections();
+  const std::vector<std::string> registered = farm::algorithm_names();
+  EXPECT_EQ(std::set<std::string>(sections.begin(), sections.end()),
+            std::set<std::string>(registered.begin(), registered.end()))
+      << "an algorithm needs its config section in farm_config.proto, marked (algorithm_section), and one line "
+         "in learner/algorithms/registry.cpp";
+}
+
+TEST(AlgorithmRegistry, EveryAlgorithmBuildsSavesAndLoads) {
+  const fs::path dir = fs::temp_directory_path() / ("farm_registry_" + std::to_string(::getpid()));
+  for (const auto& a : farm::algorithms()) {
+    SCOPED_TRACE(a.name);
+    const auto cfg = config_for(a.name);
+    const auto spec = wants_discrete(a.name) ? discrete_spec() : continuous_spec();
+    auto algo = farm::make_algorithm(cfg, spec);
+    ASSERT_NE(algo, nullptr);
+    EXPECT_FALSE(algo->describe().empty());
+    EXPECT_EQ(algo->csv_header().rfind("elapsed_s,", 0), 0u) << algo->csv_header();
+    EXPECT_EQ(algo->updates(), 0);
+    EXPECT_TRUE(std::isnan(algo->last_eval()));
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    algo->save_networks(dir.string());
+    EXPECT_TRUE(fs::is_directory(dir / a.name)) << "networks go to the sub-folder named for the algorithm";
+    auto again = farm::make_algorithm(cfg, spec);
+    algo->save(dir.string());
+    EXPECT_NO_THROW(again->load(dir.string()));
+  }
+  fs::remove_all(dir);
+}
+
+TEST(AlgorithmRegistry, ATaskOfTheWrongActionSpaceIsRefusedByName) {
+  for (const auto& a : farm::algorithms()) {
+    SCOPED_TRACE(a.name);
+    const auto spec = wants_discrete(a.name) ? continuous_spec() : discrete_spec();
+    try {
+      farm::make_algorithm(config_for(a.name), spec);
+      FAIL() << "built for the wrong action space";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(a.name), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(AlgorithmRegistry, UnknownNamesAndNonOffPolicyAdaptersAreRefused) {
+  try {
+    farm::find_algorithm("a3c");
+    FAIL() << "unknown algorithm accepted";
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    for (const auto& n : farm::algorithm_names()) EXPECT_NE(what.find(n), std::string::npos) << what;
+  }
+  for (const auto& a : farm::algorithms()) {
+    if (a.make_off_policy) {
+      EXPECT_NE(farm::make_off_policy(config_for(a.name), wants_discrete(a.name) ? discrete_spec() : continuous_spec()),
+                nullptr);
+    } else {
+      EXPECT_THROW(farm::make_off_policy(config_for(a.name), continuous_spec()), std::invalid_argument) << a.name;
+    }
+  }
+}
+
+}  // namespace
