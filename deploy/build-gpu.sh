@@ -9,6 +9,7 @@
 # Other dependencies: installed (deploy/install-deps.sh), or, on a host where nothing can be
 #   installed, a folder made by deploy/make-gpu-kit.sh on a Debian machine, given as FARM_GPU_KIT.
 # FARM_WITH_DDS=OFF builds only the learner core and bench_sac (no Fast DDS needed).
+# FARM_GPU_TARGETS="bench_sac test_sac" builds just those targets instead of the default ones.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=${1:-$root/build-gpu}
@@ -27,6 +28,7 @@ if [ -n "${FARM_GPU_KIT:-}" ]; then
 fi
 targets=(bench_sac bench_ppo)
 [ "$with_dds" = ON ] && targets+=(farm-learner)
+[ -n "${FARM_GPU_TARGETS:-}" ] && read -r -a targets <<<"$FARM_GPU_TARGETS"
 gen=()
 command -v ninja >/dev/null && gen=(-G Ninja)
 cmake -S "$root" -B "$build" "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \

@@ -1,10 +1,12 @@
 #include "sac.h"
+#include "sac_impl.h"
 #include "archive_io.h"
 #include "compute.h"
 
-
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <sstream>
 #include <stdexcept>
@@ -12,86 +14,14 @@
 
 #include "config.h"
 
+// FARM_CUDA_GRAPHS: defined by learner/algorithms/CMakeLists.txt when LibTorch has CUDA. Without
+// it (CPU LibTorch) every update runs eagerly, on whatever device the config names.
+
 namespace farm {
 
 namespace {
 
-// Matches torch::nn::Linear's default init (kaiming_uniform with a = sqrt(5) reduces to this), so
-// the fused critics start from the same distribution as sb3's nn.Linear critics.
-void linear_init_(torch::Tensor t, int64_t fan_in) {
-  const double bound = 1.0 / std::sqrt(double(fan_in));
-  t.uniform_(-bound, bound);
-}
-
-// Plain MLP of torch::nn::Linear layers, so that weight.flatten() then bias is the flat layout the
-// workers' EigenMlp reads.
-struct ActorImpl : torch::nn::Module {
-  ActorImpl(const std::vector<int64_t>& sizes, bool tanh_hidden) : tanh_hidden(tanh_hidden) {
-    for (size_t i = 0; i + 1 < sizes.size(); ++i)
-      layers.push_back(register_module("l" + std::to_string(i),
-                                       torch::nn::Linear(sizes[i], sizes[i + 1])));
-  }
-  torch::Tensor forward(torch::Tensor x) {
-    for (size_t i = 0; i < layers.size(); ++i) {
-      x = layers[i]->forward(x);
-      if (i + 1 < layers.size()) tanh_hidden ? x.tanh_() : x.relu_();
-    }
-    return x;
-  }
-  std::vector<torch::nn::Linear> layers;
-  bool tanh_hidden;
-};
-TORCH_MODULE(Actor);
-
-// Both critics in one module, evaluated together as batched matmuls over a leading critic
-// dimension of 2: half the ops of two separate MLPs, which is what bounds small-network updates on
-// CPU. Weights are stored [critic, in, out] so no transpose is needed per call.
-struct TwinCriticImpl : torch::nn::Module {
-  TwinCriticImpl(const std::vector<int64_t>& sizes, bool tanh_hidden) : tanh_hidden(tanh_hidden) {
-    torch::NoGradGuard no_grad;
-    for (size_t i = 0; i + 1 < sizes.size(); ++i) {
-      const std::string k = std::to_string(i);
-      w.push_back(register_parameter("w" + k, torch::empty({2, sizes[i], sizes[i + 1]})));
-      b.push_back(register_parameter("b" + k, torch::empty({2, 1, sizes[i + 1]})));
-      linear_init_(w.back(), sizes[i]);
-      linear_init_(b.back(), sizes[i]);
-    }
-  }
-  // obs [B, obs], act [B, act] -> [2, B]: row 0 is Q1, row 1 is Q2.
-  torch::Tensor forward(const torch::Tensor& obs, const torch::Tensor& act) {
-    const auto sa = torch::cat({obs, act}, 1);
-    torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
-    for (size_t i = 0; i < w.size(); ++i) {
-      x = torch::baddbmm(b[i], x, w[i]);
-      if (i + 1 < w.size()) tanh_hidden ? x.tanh_() : x.relu_();
-    }
-    return x.squeeze(-1);
-  }
-  std::vector<torch::Tensor> w, b;
-  bool tanh_hidden;
-};
-TORCH_MODULE(TwinCritic);
-
-// One network's parameters made views of a single contiguous buffer. Adam and the polyak update
-// then run a handful of ops on one tensor instead of a handful per parameter tensor: on small
-// networks the per-op overhead, not the arithmetic, is what an update costs.
-struct FlatParams {
-  explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
-    int64_t n = 0;
-    for (const auto& p : params) n += p.numel();
-    flat = torch::empty({n}, params.empty() ? torch::TensorOptions() : params[0].options());
-    torch::NoGradGuard no_grad;
-    int64_t offset = 0;
-    for (auto& p : params) {
-      const auto view = flat.narrow(0, offset, p.numel()).view(p.sizes());
-      view.copy_(p);
-      p.set_(view);
-      offset += p.numel();
-    }
-  }
-  std::vector<torch::Tensor> params;  // the module's own parameter tensors, in module order
-  torch::Tensor flat;
-};
+using namespace sac_detail;
 
 std::string shape_str(c10::IntArrayRef s) {
   std::ostringstream o;
@@ -139,23 +69,6 @@ void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::T
   for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
 }
 
-// autograd::grad computes only what these parameters need (the actor loss runs through the
-// critics without producing critic weight gradients), and the result replaces the previous .grad
-// instead of accumulating into it: zero_grad(set_to_none) without a pass of its own.
-void step(torch::optim::Optimizer& opt, FlatParams& net, const torch::Tensor& loss) {
-  const auto grads = torch::autograd::grad({loss}, net.params);
-  std::vector<torch::Tensor> flat;
-  flat.reserve(grads.size());
-  for (const auto& g : grads) flat.push_back(g.view(-1));
-  net.flat.mutable_grad() = torch::cat(flat);
-  opt.step();
-}
-
-void step(torch::optim::Optimizer& opt, const torch::Tensor& param, const torch::Tensor& loss) {
-  param.mutable_grad() = torch::autograd::grad({loss}, {param})[0];
-  opt.step();
-}
-
 }  // namespace
 
 torch::Tensor sac_critic_target(const torch::Tensor& reward, const torch::Tensor& terminated,
@@ -179,78 +92,6 @@ torch::Tensor squashed_gaussian_log_prob(const torch::Tensor& mean, const torch:
   return (gaussian - squash).sum(-1);
 }
 
-// SacConfig.activation: "tanh" or "relu" (anything else is refused by config validation).
-bool tanh_hidden(const config::SacConfig& c) {
-  if (c.activation() != "relu" && c.activation() != "tanh")
-    throw std::invalid_argument("sac.activation must be \"relu\" or \"tanh\", got \"" +
-                                c.activation() + "\"");
-  return c.activation() == "tanh";
-}
-
-// Moves a module's parameters to `d` before FlatParams gathers them there.
-template <class M>
-M& placed(M& m, torch::Device d) {
-  m->to(d);
-  return m;
-}
-
-struct Sac::Impl {
-  Impl(const config::SacConfig& c, int obs, int act)
-      : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
-        critic_hidden(sac_critic_hidden(c)),
-        target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
-        device(learner_device(c.device(), "sac.device")),
-        actor(layer_sizes(obs, hidden, 2 * act), tanh_hidden(c)),
-        critic(layer_sizes(obs + act, critic_hidden, 1), tanh_hidden(c)),
-        critic_target(layer_sizes(obs + act, critic_hidden, 1), tanh_hidden(c)), actor_p(*placed(actor, device)),
-        critic_p(*placed(critic, device)), target_p(*placed(critic_target, device)) {
-    {
-      torch::NoGradGuard no_grad;
-      target_p.flat.copy_(critic_p.flat);
-      for (auto& t : target_p.params) t.requires_grad_(false);
-    }
-    log_alpha = torch::full({1}, std::log(cfg.initial_alpha()),
-                            torch::TensorOptions().device(device).requires_grad(true));
-    // Each optimizer owns one flat buffer; its .grad is the concatenated parameter gradients.
-    actor_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{actor_p.flat}, torch::optim::AdamOptions(cfg.actor_lr()));
-    critic_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{critic_p.flat}, torch::optim::AdamOptions(cfg.critic_lr()));
-    alpha_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{log_alpha}, torch::optim::AdamOptions(cfg.alpha_lr()));
-  }
-
-  static std::vector<int64_t> layer_sizes(int in, const std::vector<int>& hidden, int out) {
-    std::vector<int64_t> s{in};
-    s.insert(s.end(), hidden.begin(), hidden.end());
-    s.push_back(out);
-    return s;
-  }
-
-  // Reparameterized sample: returns (tanh action, log_prob [B]).
-  std::pair<torch::Tensor, torch::Tensor> sample(const torch::Tensor& obs) {
-    const auto out = actor->forward(obs);
-    const auto mean = out.narrow(1, 0, act_dim);
-    const auto log_std =
-        out.narrow(1, act_dim, act_dim).clamp(cfg.log_std_min(), cfg.log_std_max());
-    const auto pre_tanh = torch::addcmul(mean, torch::exp(log_std), torch::randn_like(mean));
-    return {torch::tanh(pre_tanh), squashed_gaussian_log_prob(mean, log_std, pre_tanh)};
-  }
-
-  config::SacConfig cfg;
-  int obs_dim, act_dim;
-  std::vector<int> hidden, critic_hidden;
-  double target_entropy;
-  torch::Device device;
-  Actor actor;
-  TwinCritic critic, critic_target;
-  FlatParams actor_p, critic_p, target_p;
-  torch::Tensor log_alpha;
-  std::unique_ptr<torch::optim::Adam> actor_opt, critic_opt, alpha_opt;
-  int64_t updates = 0;
-};
-
-// Construction order matters: the seed must be set before the networks are initialized.
 static const config::SacConfig& seeded(const config::SacConfig& cfg, uint64_t seed) {
   torch::manual_seed(seed);
   return cfg;
@@ -264,6 +105,7 @@ Sac& Sac::operator=(Sac&&) noexcept = default;
 
 SacStats Sac::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
+  if (s.use_graph()) return s.graph_update(host_batch);
   SacStats st;
   // On the CPU these are the same tensors; on a GPU, one copy of the minibatch per update.
   SampledBatch batch;
@@ -338,6 +180,7 @@ PolicyParams Sac::export_policy(uint64_t version) const {
 }
 
 int64_t Sac::updates() const { return impl_->updates; }
+bool Sac::uses_cuda_graph() const { return impl_->use_graph(); }
 int Sac::obs_dim() const { return impl_->obs_dim; }
 int Sac::act_dim() const { return impl_->act_dim; }
 const std::vector<int>& Sac::hidden() const { return impl_->hidden; }
@@ -426,6 +269,7 @@ void Sac::load(const std::string& dir) {
     s.critic_opt->load(critic_opt);
     s.alpha_opt->load(alpha_opt);
     s.updates = updates.item<int64_t>();
+    s.drop_graph();  // the optimizer state tensors a CUDA graph was captured with were replaced
   } catch (const c10::Error& e) {
     throw fail(e.what_without_backtrace());
   }

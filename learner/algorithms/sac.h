@@ -55,6 +55,10 @@ class Sac {
   PolicyParams export_policy(uint64_t version) const;
 
   int64_t updates() const;
+  // True when updates replay a captured CUDA graph: a CUDA device, sac.cuda_graph, and a learner
+  // built against a CUDA LibTorch. Same arithmetic as the eager path, a few hundred kernel launches
+  // fewer per update.
+  bool uses_cuda_graph() const;
   int obs_dim() const;
   int act_dim() const;
   const std::vector<int>& hidden() const;

@@ -1,12 +1,17 @@
 // SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
 // the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
-//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]]
+//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N]
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
+// On CUDA each size is measured twice in the same run, eager (sac.cuda_graph false) and as CUDA
+// graph replays (the learner's default), and before that a check runs N updates (default 200) of
+// both paths from the same start on the same batches and compares figures and parameters; a
+// mismatch beyond float tolerance makes the exit status 1.
 // Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread on a shared machine (see
 // configure_compute in compute.h).
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -45,6 +50,115 @@ std::string describe(int obs, const std::vector<int>& hidden, int act) {
   return s.str();
 }
 
+struct Rate {
+  int64_t n = 0;
+  double elapsed = 0, sample_s = 0;
+};
+
+Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds, std::mt19937_64& rng) {
+  // Warm-up: first-touch allocations, Adam's state creation and the graph capture are not the
+  // steady state.
+  const auto warm = Clock::now();
+  while (seconds_since(warm) < std::min(0.5, seconds / 4)) sac.update(buf.sample(batch, rng));
+  Rate r;
+  const auto t0 = Clock::now();
+  while (r.elapsed < seconds) {
+    const auto ts = Clock::now();
+    const auto b = buf.sample(batch, rng);
+    r.sample_s += seconds_since(ts);
+    sac.update(b);
+    ++r.n;
+    r.elapsed = seconds_since(t0);
+  }
+  return r;
+}
+
+void print_rate(const char* what, const std::string& net, int batch, const std::string& device, int n_threads,
+                const Rate& r) {
+  std::printf("sac update (%s, batch %d, %s%s, %d thread%s): %.0f updates/s "
+              "(%.1f us/update, of which sampling %.1f us = %.1f%% waiting for data)\n",
+              net.c_str(), batch, device.c_str(), what, n_threads, n_threads == 1 ? "" : "s", r.n / r.elapsed,
+              1e6 * r.elapsed / r.n, 1e6 * r.sample_s / r.n, 100.0 * r.sample_s / r.elapsed);
+  std::fflush(stdout);
+}
+
+double rel_diff(const std::vector<torch::Tensor>& a, const std::vector<torch::Tensor>& b) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    num += (a[i] - b[i]).to(torch::kDouble).square().sum().item<double>();
+    den += b[i].to(torch::kDouble).square().sum().item<double>();
+  }
+  return std::sqrt(num / std::max(den, 1e-30));
+}
+
+double figure_diff(const farm::SacStats& g, const farm::SacStats& e, const char** which) {
+  const std::pair<const char*, std::pair<double, double>> figs[] = {
+      {"critic_loss", {g.critic_loss, e.critic_loss}}, {"actor_loss", {g.actor_loss, e.actor_loss}},
+      {"alpha_loss", {g.alpha_loss, e.alpha_loss}},    {"alpha", {g.alpha, e.alpha}},
+      {"entropy", {g.entropy, e.entropy}},             {"q_mean", {g.q_mean, e.q_mean}}};
+  double worst = 0;
+  for (const auto& [name, v] : figs) {
+    const double d = std::abs(v.first - v.second) / std::max(1.0, std::abs(v.second));
+    if (!(d <= worst)) {  // NaN counts as worst
+      worst = std::isnan(d) ? INFINITY : d;
+      *which = name;
+    }
+  }
+  return worst;
+}
+
+// Graph against eager: `updates` updates from one seed on the same batches, the policy's noise
+// from the same CUDA generator state. They differ by float rounding only (the temperature as a
+// float tensor, the fused Adam kernel), which compounds over updates: the figures of the first 10
+// updates (3 warm-ups, the capture, 6 replays) must agree within 1e-4 (|graph - eager| /
+// max(1, |eager|)), and those of all updates within 1e-2; the parameters' drift is printed.
+bool check_graph(const std::vector<int>& hidden, int batch, const std::string& device, int updates,
+                 farm::ReplayBuffer& buf, std::mt19937_64& rng) {
+  constexpr int kObs = 3, kAct = 1;
+  std::vector<farm::SampledBatch> batches;
+  for (int i = 0; i < updates; ++i) batches.push_back(buf.sample(batch, rng));
+  farm::config::SacConfig cfg;
+  for (int h : hidden) cfg.add_hidden(h);
+  cfg.set_device(device);
+  cfg.set_cuda_graph(false);
+  std::vector<farm::SacStats> eager_stats;
+  farm::Sac eager(cfg, kObs, kAct, 7);  // constructing seeds the CPU and CUDA generators
+  for (const auto& b : batches) eager_stats.push_back(eager.update(b));
+  cfg.set_cuda_graph(true);
+  farm::Sac graph(cfg, kObs, kAct, 7);
+  if (!graph.uses_cuda_graph()) {
+    std::printf("graph vs eager check: this build has no CUDA graph path (CPU LibTorch)\n");
+    return true;
+  }
+  constexpr int kEarly = 10;
+  double early = 0, drift = 0;
+  int drift_at = 0;
+  const char *early_name = "", *drift_name = "";
+  for (int i = 0; i < updates; ++i) {
+    const char* name = "";
+    const double d = figure_diff(graph.update(batches[i]), eager_stats[i], &name);
+    if (i < kEarly && !(d <= early)) {
+      early = std::isnan(d) ? INFINITY : d;
+      early_name = name;
+    }
+    if (!(d <= drift)) {
+      drift = std::isnan(d) ? INFINITY : d;
+      drift_at = i + 1;
+      drift_name = name;
+    }
+  }
+  const double actor = rel_diff(graph.actor_parameters(), eager.actor_parameters());
+  const double critic = rel_diff(graph.critic_parameters(), eager.critic_parameters());
+  const bool ok = early <= 1e-4 && drift <= 1e-2 && updates >= kEarly;
+  std::printf("graph vs eager check (%s, batch %d, %s, one seed, same batches): figures of updates 1-%d differ "
+              "by at most %.1e (%s); over %d updates by %.1e (%s, update %d); parameters after them by %.1e "
+              "actor, %.1e critics (relative norm): %s\n",
+              describe(kObs, hidden, kAct).c_str(), batch, device.c_str(), kEarly, early, early_name, updates,
+              drift, drift_name, drift_at, actor, critic, ok ? "PASS" : "FAIL");
+  std::fflush(stdout);
+  return ok;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -52,12 +166,15 @@ int main(int argc, char** argv) {
   int batch = 256;
   std::vector<int> threads{1, 2};
   std::string device = "cpu";
+  int check_updates = 200;
   for (int i = 1; i < argc; ++i) {
     const bool has_value = i + 1 < argc;
     if (!std::strcmp(argv[i], "--seconds") && has_value) {
       seconds = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--device") && has_value) {
       device = argv[++i];
+    } else if (!std::strcmp(argv[i], "--check") && has_value) {
+      check_updates = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--batch") && has_value) {
       batch = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
@@ -67,7 +184,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]]\n",
+                   "[--device cpu|cuda[:N]] [--check N]\n",
                    argv[0]);
       return 2;
     }
@@ -77,6 +194,12 @@ int main(int argc, char** argv) {
   farm::ReplayBuffer buf(100000, kObs, kAct);
   std::mt19937_64 rng(1);
   fill(buf, buf.capacity(), rng);
+  const bool cuda = device.rfind("cuda", 0) == 0;
+  bool ok = true;
+  if (cuda && check_updates > 0) {
+    farm::configure_compute(threads.empty() ? 1 : threads[0]);
+    ok = check_graph({256, 256}, batch, device, check_updates, buf, rng);
+  }
 
   for (const std::vector<int>& hidden : {std::vector<int>{64, 64}, std::vector<int>{256, 256}}) {
     for (int n_threads : threads) {
@@ -84,30 +207,32 @@ int main(int argc, char** argv) {
       farm::config::SacConfig cfg;
       for (int h : hidden) cfg.add_hidden(h);
       cfg.set_device(device);
-      farm::Sac sac(cfg, kObs, kAct, 1);
-      // Warm-up: first-touch allocations and Adam's state creation are not the steady state.
-      const auto warm = Clock::now();
-      while (seconds_since(warm) < std::min(0.5, seconds / 4)) sac.update(buf.sample(batch, rng));
-
-      int64_t n = 0;
-      double sample_s = 0;
-      const auto t0 = Clock::now();
-      double elapsed = 0;
-      while (elapsed < seconds) {
-        const auto ts = Clock::now();
-        const auto b = buf.sample(batch, rng);
-        sample_s += seconds_since(ts);
-        sac.update(b);
-        ++n;
-        elapsed = seconds_since(t0);
+      const std::string net = describe(kObs, hidden, kAct);
+      if (!cuda) {
+        farm::Sac sac(cfg, kObs, kAct, 1);
+        print_rate("", net, batch, device, n_threads, measure(sac, buf, batch, seconds, rng));
+        continue;
       }
-      std::printf("sac update (%s, batch %d, %s, %d thread%s): %.0f updates/s "
-                  "(%.1f us/update, of which sampling %.1f us = %.1f%% waiting for data)\n",
-                  describe(kObs, hidden, kAct).c_str(), batch, device.c_str(), n_threads,
-                  n_threads == 1 ? "" : "s", n / elapsed, 1e6 * elapsed / n, 1e6 * sample_s / n,
-                  100.0 * sample_s / elapsed);
+      // Both CUDA paths in the same process, one after the other.
+      cfg.set_cuda_graph(false);
+      Rate eager, graph;
+      {
+        farm::Sac sac(cfg, kObs, kAct, 1);
+        eager = measure(sac, buf, batch, seconds, rng);
+        print_rate(" eager", net, batch, device, n_threads, eager);
+      }
+      cfg.set_cuda_graph(true);
+      farm::Sac sac(cfg, kObs, kAct, 1);
+      if (!sac.uses_cuda_graph()) {
+        std::printf("sac update (%s, %s cuda graph): not in this build (CPU LibTorch)\n", net.c_str(), device.c_str());
+        continue;
+      }
+      graph = measure(sac, buf, batch, seconds, rng);
+      print_rate(" cuda graph", net, batch, device, n_threads, graph);
+      std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx\n", net.c_str(), batch,
+                  device.c_str(), (graph.n / graph.elapsed) / (eager.n / eager.elapsed));
       std::fflush(stdout);
     }
   }
-  return 0;
+  return ok ? 0 : 1;
 }

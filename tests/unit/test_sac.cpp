@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <stdexcept>
@@ -237,6 +238,83 @@ TEST(Sac, SaveLoadRoundTrip) {
   const auto ac = a.critic_parameters(), bc = b.critic_parameters();
   for (size_t i = 0; i < ac.size(); ++i) EXPECT_TRUE(torch::equal(ac[i], bc[i])) << i;
   EXPECT_NEAR(a.alpha(), b.alpha(), 0);
+  std::filesystem::remove_all(dir);
+}
+
+// |a - b| relative to b's norm, over a network's parameter tensors.
+double relative_difference(const std::vector<torch::Tensor>& a, const std::vector<torch::Tensor>& b) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    num += (a[i] - b[i]).to(torch::kDouble).square().sum().item<double>();
+    den += b[i].to(torch::kDouble).square().sum().item<double>();
+  }
+  return std::sqrt(num / den);
+}
+
+void expect_stats_near(const SacStats& got, const SacStats& want, double tol, int update) {
+  auto near = [&](double g, double w, const char* name) {
+    EXPECT_LE(std::abs(g - w), tol * std::max(1.0, std::abs(w))) << name << " at update " << update;
+  };
+  near(got.critic_loss, want.critic_loss, "critic_loss");
+  near(got.actor_loss, want.actor_loss, "actor_loss");
+  near(got.alpha_loss, want.alpha_loss, "alpha_loss");
+  near(got.alpha, want.alpha, "alpha");
+  near(got.entropy, want.entropy, "entropy");
+  near(got.q_mean, want.q_mean, "q_mean");
+}
+
+// Only where a GPU and a CUDA LibTorch are there: the CUDA-graph update (warm-up, capture, replays)
+// computes what the eager CUDA update computes from the same start on the same batches.
+TEST(SacCuda, GraphUpdateMatchesEager) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = small_config();
+  cfg.set_device("cuda");
+  auto eager_cfg = cfg;
+  eager_cfg.set_cuda_graph(false);
+  Sac graph(cfg, 3, 2, 5), eager(eager_cfg, 3, 2, 5);
+  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  EXPECT_FALSE(eager.uses_cuda_graph());
+  constexpr double kTol = 1e-3;
+  // random_batch seeds the generators, so both instances draw the same policy noise.
+  for (int k = 0; k < 30; ++k) {
+    const SacStats g = graph.update(random_batch(64, 3, 2, 500 + k));
+    const SacStats e = eager.update(random_batch(64, 3, 2, 500 + k));
+    expect_stats_near(g, e, kTol, k);
+  }
+  EXPECT_EQ(graph.updates(), 30);
+  EXPECT_LE(relative_difference(graph.actor_parameters(), eager.actor_parameters()), kTol);
+  EXPECT_LE(relative_difference(graph.critic_parameters(), eager.critic_parameters()), kTol);
+  EXPECT_LE(relative_difference(graph.target_critic_parameters(), eager.target_critic_parameters()), kTol);
+}
+
+// The optimizer state of graph updates goes through save/load: into an eager instance, and into a
+// graph instance that must capture again, both then update as the saved one does.
+TEST(SacCuda, GraphStateSurvivesSaveLoad) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = small_config();
+  cfg.set_device("cuda");
+  auto eager_cfg = cfg;
+  eager_cfg.set_cuda_graph(false);
+  Sac graph(cfg, 3, 2, 5);
+  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  int k = 0;
+  for (; k < 30; ++k) graph.update(random_batch(64, 3, 2, 500 + k));
+  const std::string dir = temp_dir("sac_cuda_graph");
+  graph.save(dir);
+  Sac loaded_eager(eager_cfg, 3, 2, 9), loaded_graph(cfg, 3, 2, 9);
+  loaded_eager.load(dir);
+  loaded_graph.load(dir);
+  EXPECT_EQ(loaded_graph.updates(), 30);
+  constexpr double kTol = 1e-3;
+  for (; k < 40; ++k) {
+    const SacStats e = loaded_eager.update(random_batch(64, 3, 2, 500 + k));
+    const SacStats g = loaded_graph.update(random_batch(64, 3, 2, 500 + k));
+    const SacStats o = graph.update(random_batch(64, 3, 2, 500 + k));
+    expect_stats_near(g, e, kTol, k);
+    expect_stats_near(o, e, kTol, k);
+  }
+  EXPECT_LE(relative_difference(loaded_graph.actor_parameters(), loaded_eager.actor_parameters()), kTol);
+  EXPECT_LE(relative_difference(graph.critic_parameters(), loaded_eager.critic_parameters()), kTol);
   std::filesystem::remove_all(dir);
 }
 
