@@ -261,8 +261,8 @@ void FarmService::drain_status() {
     got.swap(heard_);
   }
   for (const auto& [s, when] : got) {
-    if (first_heard_ == 0) first_heard_ = now_seconds();
-    roster_.heard(s, when);
+    // Only a worker of this experiment counts as heard (another experiment's may share the domain).
+    if (roster_.heard(s, when) && first_heard_ == 0) first_heard_ = now_seconds();
   }
   roster_.check(now_seconds());
 }

@@ -12,7 +12,15 @@ std::string seconds(double s) {
 }
 }  // namespace
 
-void WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
+bool WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
+  if (!experiment_id_.empty() && s.experiment_id() != experiment_id_) {
+    // A worker with no experiment yet (it waits for a spec) is not ours until it says so; one of
+    // another experiment is noted once per experiment, so a shared domain shows in the log.
+    if (!s.experiment_id().empty() && foreign_.size() < kMaxForeignNoted && foreign_.insert(s.experiment_id()).second)
+      log_("heartbeats of another experiment, '" + s.experiment_id() + "' (worker " + s.worker_id() +
+           "), are ignored: only workers of '" + experiment_id_ + "' count");
+    return false;
+  }
   View& v = views_[s.worker_id() + "#" + std::to_string(s.worker_session())];
   const std::string size = std::to_string(s.envs()) + " envs on " + std::to_string(s.threads()) + " threads";
   // A worker builds its environments once it has the spec: until then its heartbeats carry no size.
@@ -28,6 +36,7 @@ void WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
   v.last = s;
   v.seen = now;
   v.dead = false;
+  return true;
 }
 
 void WorkerRoster::check(double now) {

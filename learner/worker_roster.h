@@ -1,10 +1,13 @@
 // The learner's view of its workers, from their WorkerStatus heartbeats: who joined, who came
 // back, who reports an error, and who went silent for longer than the timeout (marked dead;
 // training goes on with the others, and a dead worker's batches are welcome again if it returns).
+// Only workers of the learner's own experiment count: another experiment's workers on the same
+// domain (or behind a shared Discovery Server) must not shrink what each of ours is asked for.
 #pragma once
 
 #include <functional>
 #include <map>
+#include <set>
 #include <string>
 
 #include "farm.h"
@@ -20,10 +23,14 @@ class WorkerRoster {
   };
   using Log = std::function<void(const std::string&)>;
 
-  WorkerRoster(double timeout_seconds, Log log) : timeout_(timeout_seconds), log_(std::move(log)) {}
+  // experiment_id: the learner's experiment; heartbeats of any other are ignored. Empty: every
+  // heartbeat counts.
+  WorkerRoster(double timeout_seconds, Log log, std::string experiment_id = "")
+      : timeout_(timeout_seconds), log_(std::move(log)), experiment_id_(std::move(experiment_id)) {}
 
-  // One heartbeat, received at `now`.
-  void heard(const farm::msg::WorkerStatus& s, double now);
+  // One heartbeat, received at `now`; false when it is not of this experiment (ignored; one log
+  // line for the first heartbeat of each other experiment).
+  bool heard(const farm::msg::WorkerStatus& s, double now);
   // Marks the workers silent for longer than the timeout dead, each with a log line.
   void check(double now);
   // Heard within the timeout, not dead, not finished.
@@ -34,7 +41,10 @@ class WorkerRoster {
  private:
   double timeout_;
   Log log_;
+  std::string experiment_id_;
   std::map<std::string, View> views_;
+  std::set<std::string> foreign_;  // other experiments already noted (bounded: kMaxForeignNoted)
+  static constexpr size_t kMaxForeignNoted = 16;
 };
 
 }  // namespace farm

@@ -24,11 +24,14 @@ std::atomic<bool> g_stop{false};
 void on_signal(int) { g_stop = true; }
 
 void usage() {
-  std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D]\n"
+  std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D] [--experiment ID]\n"
                "                   [--dds-profiles FILE] [--security DIR] [--log-every SECONDS]\n"
                "                   [--inject-nan-batch SEQ]   (fault injection for tests)\n"
                "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
-               "the experiment's worker.envs_per_worker) on the given number of threads.\n";
+               "the experiment's worker.envs_per_worker) on the given number of threads.\n"
+               "--experiment ID: serve only the experiment with this experiment_id; without it, the\n"
+               "worker serves the first experiment it joins on the domain. Either way it ignores any\n"
+               "other experiment on the domain and ends when its experiment ends.\n";
 }
 
 int int_flag(const std::string& name, const std::string& v, int lo, int hi) {
@@ -54,6 +57,10 @@ WorkerOptions parse(int argc, char** argv) {
     if (a == "--envs") o.envs = int_flag(a, value(), 1, farm::kMaxEnvsPerWorker);
     else if (a == "--threads") o.threads = int_flag(a, value(), 1, farm::kMaxThreadsPerWorker);
     else if (a == "--id") o.id = value();
+    else if (a == "--experiment") {
+      o.experiment = value();
+      if (o.experiment.empty()) throw std::invalid_argument("--experiment needs a non-empty experiment id");
+    }
     else if (a == "--log-every") o.log_every = int_flag(a, value(), 1, 3600);
     else if (a == "--inject-nan-batch") o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
     else if (a == "-h" || a == "--help") { usage(); std::exit(0); }

@@ -18,6 +18,8 @@ namespace farm {
 
 namespace {
 
+constexpr size_t kMaxForeignNoted = 16;
+
 uint64_t fnv1a(const std::string& s) {
   uint64_t h = 1469598103934665603ull;
   for (unsigned char c : s) { h ^= c; h *= 1099511628211ull; }
@@ -56,14 +58,37 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
     : opt_(o),
       stop_(stop),
       bus_(o.bus, "farm-worker " + o.id),
-      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader"),
-      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader"),
+      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader",
+               [this](eprosima::fastdds::dds::DataReader* r) {
+                 farm::msg::ExperimentSpec s;
+                 while (decltype(spec_in_)::take_from(r, s)) {
+                   std::lock_guard<std::mutex> lk(in_mu_);
+                   if (specs_in_.size() >= kMaxSpecsIn) specs_in_.pop_front();
+                   specs_in_.push_back(s);
+                 }
+               }),
+      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader",
+                  [this](eprosima::fastdds::dds::DataReader* r) {
+                    farm::msg::PolicyWeights w;
+                    while (decltype(weights_in_)::take_from(r, w)) {
+                      std::lock_guard<std::mutex> lk(in_mu_);
+                      if (weights_in_by_.size() >= kMaxExperimentsKept && !weights_in_by_.count(w.experiment_id())) {
+                        // Bounded against a flood of invented experiments; the bound one is kept.
+                        auto victim = weights_in_by_.begin();
+                        if (victim->first == experiment_) ++victim;
+                        weights_in_by_.erase(victim);
+                      }
+                      weights_in_by_[w.experiment_id()] = std::move(w);
+                    }
+                  }),
       batches_out_(bus_, farm::dds::kBatchTopic, "batch_writer"),
       status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
-      session_(farm::dds::random_session_id()) {}
+      session_(farm::dds::random_session_id()),
+      experiment_(o.experiment) {}
 
 int WorkerApp::run() {
   log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
+      (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
       ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   double last_wait_note = -1e9;
@@ -73,7 +98,9 @@ int WorkerApp::run() {
     if (!rollout_) {
       state_ = "waiting_for_learner";
       if (now_seconds() - last_wait_note > 5.0) {
-        log("waiting for a learner: no ExperimentSpec on DDS domain " + std::to_string(bus_.domain()) + " yet");
+        log("waiting for a learner: no ExperimentSpec" +
+            (experiment_.empty() ? std::string() : " of experiment '" + experiment_ + "'") + " on DDS domain " +
+            std::to_string(bus_.domain()) + " yet");
         last_wait_note = now_seconds();
       }
       heartbeat();
@@ -116,26 +143,49 @@ void WorkerApp::log(const std::string& s) {
 }
 
 void WorkerApp::poll_spec() {
-  farm::msg::ExperimentSpec s;
-  bool got = false;
-  while (spec_in_.take(s)) got = true;
-  if (!got) return;
+  std::deque<farm::msg::ExperimentSpec> got;
+  {
+    std::lock_guard<std::mutex> lk(in_mu_);
+    got.swap(specs_in_);
+  }
+  for (const auto& s : got) {
+    on_spec(s);
+    if (finished_) return;
+  }
+}
+
+void WorkerApp::on_spec(const farm::msg::ExperimentSpec& s) {
+  if (experiment_.empty()) {
+    // Without --experiment the first experiment this worker can run binds it (join); one that is
+    // over is no one's to join, and one it cannot run (a forged or broken spec) must not keep it
+    // from the next.
+    if (!s.finished()) join(s);
+    return;
+  }
+  // One experiment per worker process: another one's spec (a second learner on the domain, or
+  // behind a shared Discovery Server) never takes this worker over, and its sequence numbers never
+  // restart under a learner that already counted them. When its experiment ends the worker ends
+  // too, so serving a new experiment always starts a new process with a new session.
+  if (s.experiment_id() != experiment_) {
+    note_foreign(s.experiment_id());
+    return;
+  }
   if (s.finished()) {
-    if (rollout_ && s.experiment_id() == spec_.experiment_id()) {
+    if (rollout_) {
       log("learner finished experiment '" + s.experiment_id() + "'");
       finished_ = true;
     }
     return;
   }
-  if (rollout_ && s.experiment_id() == spec_.experiment_id()) {
+  if (rollout_) {
     if (s.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
     spec_ = s;
     return;
   }
-  if (rollout_) {
-    log("new experiment '" + s.experiment_id() + "' replaces '" + spec_.experiment_id() + "'");
-    end_stream();
-  }
+  join(s);
+}
+
+void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
   try {
     config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
@@ -148,13 +198,20 @@ void WorkerApp::poll_spec() {
     std::shared_ptr<const robots::Task> task = robots::make_task(cfg.task());
     if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
       throw std::runtime_error("task '" + cfg.task().name() + "' shapes differ from the spec");
+    // Sequence numbers restart only with a new session, so no learner counts them duplicate.
+    if (sequence_ > 0) session_ = farm::dds::random_session_id();
     uint64_t seed = s.seed() ^ fnv1a(opt_.id);
     rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
+    if (experiment_.empty()) {
+      std::lock_guard<std::mutex> lk(in_mu_);  // the weights listener reads experiment_
+      experiment_ = s.experiment_id();
+    }
     split_at_ = {};
     spec_ = s;
     sequence_ = 0;
     have_policy_ = false;
     batches_on_version_ = 0;
+    batch_quota_ = 0;
     last_error_.clear();
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " +
         std::to_string(envs) + " envs on " + std::to_string(opt_.threads) + " threads, " +
@@ -168,11 +225,23 @@ void WorkerApp::poll_spec() {
   }
 }
 
+void WorkerApp::note_foreign(const std::string& experiment_id) {
+  if (foreign_.size() >= kMaxForeignNoted || !foreign_.insert(experiment_id).second) return;
+  log("ignores experiment '" + experiment_id + "' on the bus: this worker's experiment is '" + experiment_ + "'" +
+      (opt_.experiment.empty() ? " (the first one it joined; --experiment chooses)" : ""));
+}
+
 void WorkerApp::poll_weights() {
   farm::msg::PolicyWeights w;
-  bool got = false;
-  while (weights_in_.take(w)) got = true;
-  if (!got || w.experiment_id() != spec_.experiment_id()) return;
+  {
+    std::lock_guard<std::mutex> lk(in_mu_);
+    for (const auto& [id, _] : weights_in_by_)
+      if (id != experiment_) note_foreign(id);
+    auto it = weights_in_by_.find(experiment_);
+    if (it == weights_in_by_.end()) return;
+    w = std::move(it->second);
+    weights_in_by_.erase(it);
+  }
   if (have_policy_ && w.version() == rollout_->policy_version()) {
     batch_quota_ = w.batch_quota();  // the same version re-sent: a topped-up quota
     return;
@@ -244,7 +313,7 @@ void WorkerApp::heartbeat(bool force) {
   s.worker_id(opt_.id);
   s.worker_session(session_);
   s.host(farm::dds::hostname());
-  s.experiment_id(spec_.experiment_id());
+  s.experiment_id(experiment_);
   s.envs(rollout_ ? rollout_->num_envs() : 0);
   s.threads(opt_.threads);
   s.steps_per_second(rate);

@@ -1,12 +1,17 @@
 // The farm-worker service: joins the learner's experiment from the ExperimentSpec on the bus,
 // takes its PolicyWeights, collects rollouts and streams them as TransitionBatches, and beats a
-// WorkerStatus heartbeat. It follows whatever experiment the bus announces (join, learner restart,
-// a new experiment, the end), so a worker can join late or restart at any time.
+// WorkerStatus heartbeat. It can join late or restart at any time, and follows a restarted learner.
+// It is bound to one experiment (--experiment, else the first one it joins) and ignores the specs
+// and weights of any other that shares the domain; it ends with its experiment.
 #pragma once
 
 #include <atomic>
 #include <cstdint>
+#include <deque>
+#include <map>
 #include <memory>
+#include <mutex>
+#include <set>
 #include <string>
 
 #include "dds.h"
@@ -20,6 +25,8 @@ struct WorkerOptions {
   int envs = 0;      // 0: the experiment's worker.envs_per_worker
   int threads = 1;
   std::string id;
+  // The experiment this worker serves; empty: the first one it can join.
+  std::string experiment;
   double log_every = 5.0;
   // Fault injection for reliability tests: corrupt the batch with this sequence number (NaN).
   int64_t inject_nan_batch = -1;
@@ -36,6 +43,10 @@ class WorkerApp {
  private:
   void log(const std::string& s);
   void poll_spec();
+  void on_spec(const farm::msg::ExperimentSpec& s);
+  void join(const farm::msg::ExperimentSpec& s);
+  // One log line the first time an experiment other than this worker's shows up.
+  void note_foreign(const std::string& experiment_id);
   void poll_weights();
   void publish_batch(bool end_of_stream);
   void end_stream();
@@ -45,13 +56,23 @@ class WorkerApp {
 
   WorkerOptions opt_;
   const std::atomic<bool>& stop_;
+  // Specs and weights are taken on Fast DDS's listener thread as they arrive: the readers keep
+  // one sample for all learners together, so with two experiments on the domain the other one's
+  // next write would otherwise replace ours before the main loop takes it. Specs are kept in
+  // order (the first experiment seen binds an unbound worker), weights the latest per experiment.
+  std::mutex in_mu_;
+  std::deque<farm::msg::ExperimentSpec> specs_in_;                  // bounded: kMaxSpecsIn
+  std::map<std::string, farm::msg::PolicyWeights> weights_in_by_;  // bounded: kMaxExperimentsKept
+  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
   farm::dds::Bus bus_;
   farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
   farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
   farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
   farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
   uint64_t session_;
-  farm::msg::ExperimentSpec spec_;
+  std::string experiment_;             // the bound experiment; empty until the first join (no --experiment)
+  std::set<std::string> foreign_;      // other experiments already noted (bounded)
+  farm::msg::ExperimentSpec spec_;     // of experiment_, once joined
   std::unique_ptr<Rollout> rollout_;
   RolloutBatch batch_;
   uint64_t sequence_ = 0;

@@ -67,3 +67,31 @@ TEST(WorkerRoster, SilentWorkerIsDeadAndComesBack) {
   ASSERT_EQ(l.lines.size(), 3u);
   EXPECT_NE(l.lines[2].find("is back after 8.0 s"), std::string::npos) << l.lines[2];
 }
+
+// Another experiment's workers on the same domain are not this learner's: no join or dead lines,
+// not live, not heard; one line says such heartbeats are ignored. A worker that has no experiment
+// yet (it waits for a spec) is not counted either.
+TEST(WorkerRoster, OnlyWorkersOfItsExperimentCount) {
+  Lines l;
+  farm::WorkerRoster roster(5.0, l.log(), "exp_a");
+  farm::msg::WorkerStatus foreign = status(8, "running");
+  foreign.experiment_id("exp_b");
+  EXPECT_FALSE(roster.heard(foreign, 1.0));
+  EXPECT_FALSE(roster.heard(foreign, 2.0));
+  farm::msg::WorkerStatus unbound = status(0, "waiting_for_learner");
+  EXPECT_FALSE(roster.heard(unbound, 2.0));
+  ASSERT_EQ(l.lines.size(), 1u) << "the other experiment is noted once";
+  EXPECT_EQ(l.lines[0], "heartbeats of another experiment, 'exp_b' (worker local-2), are ignored: only workers of "
+                        "'exp_a' count");
+  EXPECT_EQ(roster.live_count(2.0), 0);
+  EXPECT_TRUE(roster.views().empty());
+  roster.check(20.0);
+  EXPECT_EQ(l.lines.size(), 1u) << "no dead-worker line for a worker that was never ours";
+
+  farm::msg::WorkerStatus own = status(4, "running");
+  own.experiment_id("exp_a");
+  EXPECT_TRUE(roster.heard(own, 21.0));
+  EXPECT_EQ(roster.live_count(21.0), 1);
+  ASSERT_EQ(l.lines.size(), 2u);
+  EXPECT_EQ(l.lines[1], "worker local-2 on vm joined (session 42, 4 envs on 1 threads)");
+}
