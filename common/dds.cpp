@@ -3,11 +3,14 @@
 #include "paths.h"
 
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/log/Log.hpp>
 #include <unistd.h>
 
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
+#include <mutex>
 #include <fstream>
 #include <random>
 
@@ -156,6 +159,33 @@ fdds::Topic* Bus::topic(const std::string& name, fdds::TypeSupport type) {
   topics_[name] = t;
   return t;
 }
+
+namespace {
+
+std::atomic<uint64_t> g_refused_for_size{0};
+
+// The error ReaderHistory::can_change_be_added_nts logs for a sample over the history's payload size.
+class RefusedForSizeCounter : public eprosima::fastdds::dds::LogConsumer {
+ public:
+  void Consume(const eprosima::fastdds::dds::Log::Entry& e) override {
+    if (e.kind == eprosima::fastdds::dds::Log::Kind::Error && e.context.category != nullptr &&
+        std::strcmp(e.context.category, "RTPS_READER_HISTORY") == 0 &&
+        e.message.find("is larger than the history payload size") != std::string::npos) {
+      g_refused_for_size.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
+};
+
+}  // namespace
+
+void count_samples_refused_for_size() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    eprosima::fastdds::dds::Log::RegisterConsumer(std::make_unique<RefusedForSizeCounter>());
+  });
+}
+
+uint64_t samples_refused_for_size() { return g_refused_for_size.load(std::memory_order_relaxed); }
 
 void to_wire(const PolicyParams& p, const std::string& experiment_id, farm::msg::PolicyWeights& w) {
   w.experiment_id(experiment_id);

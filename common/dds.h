@@ -13,8 +13,10 @@
 #include <fastdds/dds/topic/Topic.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <cstdint>
 #include <map>
 #include <memory>
 #include <functional>
@@ -110,6 +112,25 @@ class Writer {
   fdds::DataWriter* writer_ = nullptr;
 };
 
+// A generated type with a maximum serialized size of max_bytes. fastddsgen gives a type with
+// unbounded sequences a nominal maximum (100 elements each) that a reader's history only grows from:
+// under PREALLOCATED_WITH_REALLOC every sample gets what it claims to need, however large.
+template <class PubSubType>
+class BoundedType : public PubSubType {
+ public:
+  explicit BoundedType(uint32_t max_bytes) { this->m_typeSize = max_bytes; }
+};
+
+// Samples the readers of this process refused because they were larger than their type's
+// maximum size (only readers with PREALLOCATED_MEMORY_MODE check; of the farm's, only a bounded
+// Reader has it). Fast DDS 2.9 reports these refusals only in its log (category
+// RTPS_READER_HISTORY, once per sample: the sample is marked irrelevant and never sent again), so
+// count_samples_refused_for_size() adds a consumer to that log, once per process, that counts them;
+// the default consumer still prints them. A Fast DDS built without error logs (LOG_NO_ERROR) or a
+// log filter that drops that category leaves the count at 0: the samples are refused all the same.
+void count_samples_refused_for_size();
+uint64_t samples_refused_for_size();
+
 template <class T, class PubSubType>
 class Reader : public fdds::DataReaderListener {
  public:
@@ -123,6 +144,36 @@ class Reader : public fdds::DataReaderListener {
     if (!reader_) {
       throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" +
                                profile + "' (is it in " + bus.profiles_file() + "?)");
+    }
+  }
+  // A reader that takes no sample larger than max_sample_bytes serialized (encapsulation included).
+  // The bound becomes the type's maximum size and the history PREALLOCATED_MEMORY_MODE, whatever
+  // the profile says: that is the one memory policy under which Fast DDS 2.9 compares a sample's
+  // announced size with the maximum when its first fragment arrives
+  // (ReaderHistory::can_change_be_added_nts), and refuses it there, before a payload is reserved
+  // for it, marking it irrelevant so the writer does not send it again. Each preallocated payload
+  // is calloc'ed at the bound, so only the bytes a sample fills become resident. Fast DDS tells no
+  // listener of such a refusal (neither sample lost nor sample rejected fires); it logs one error
+  // per sample, which refused() counts (samples_refused_for_size). The topic must not have been
+  // created on this bus with another type size.
+  Reader(Bus& bus, const std::string& topic_name, const std::string& profile, uint32_t max_sample_bytes)
+      : bus_(bus), max_sample_bytes_(max_sample_bytes) {
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new BoundedType<PubSubType>(max_sample_bytes)));
+    fdds::TypeSupport registered = bus.participant()->find_type(t->get_type_name());
+    if (registered.empty() || registered->m_typeSize != max_sample_bytes) {
+      throw std::logic_error("DDS topic " + topic_name + " was created without the bound of " +
+                             std::to_string(max_sample_bytes) + " bytes per sample");
+    }
+    fdds::DataReaderQos qos;
+    if (bus.subscriber()->get_datareader_qos_from_profile(profile, qos) !=
+        eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
+      throw std::runtime_error("no DDS reader profile '" + profile + "' in " + bus.profiles_file());
+    }
+    qos.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
+    count_samples_refused_for_size();
+    reader_ = bus.subscriber()->create_datareader(t, qos, this);
+    if (!reader_) {
+      throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" + profile + "'");
     }
   }
   ~Reader() override {
@@ -155,9 +206,14 @@ class Reader : public fdds::DataReaderListener {
     pending_ = true;
     cv_.notify_all();
   }
+  // Samples refused for their size (bounded constructor) in this process so far.
+  uint64_t refused() const { return max_sample_bytes_ ? samples_refused_for_size() : 0; }
+  // The bound of the bounded constructor; 0 for none.
+  uint32_t max_sample_bytes() const { return max_sample_bytes_; }
 
  private:
   Bus& bus_;
+  uint32_t max_sample_bytes_ = 0;
   OnData on_data_;
   fdds::DataReader* reader_ = nullptr;
   std::mutex mu_;

@@ -29,7 +29,13 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       spec_(bus_, cfg_, obs_dim_, act_dim_),
       weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
       stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
-      batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader"),
+      // Samples over what this experiment's workers can send are refused before memory is taken for
+      // them (docs/RELIABILITY.md, "size limits before memory").
+      batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader",
+                  static_cast<uint32_t>(std::min<uint64_t>(
+                      Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_->spec().metric_names.size()),
+                                              cfg_.worker().steps_per_batch()),
+                      UINT32_MAX))),
       status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader",
                  [this](eprosima::fastdds::dds::DataReader* r) {
                    farm::msg::WorkerStatus s;
@@ -39,7 +45,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                      heard_.emplace_back(s, now_seconds());
                    }
                  }),
-      roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }),
+      roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id()),
       algo_(make_algorithm(cfg_, task_->spec())) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
@@ -105,6 +111,12 @@ void FarmService::work() {
 
 size_t FarmService::drain_batches(size_t max) {
   size_t n = 0;
+  if (const uint64_t refused = ingest_.count_refused_samples(batches_in_.refused())) {
+    if (++rejections_logged_ <= 20)
+      log("refused " + std::to_string(refused) + " batch sample(s) larger than " +
+          std::to_string(batches_in_.max_sample_bytes()) +
+          " bytes serialized (the most this experiment's workers send) before deserialization");
+  }
   while (n < max && batches_in_.take(batch_)) {
     ++n;
     if (!accept_batch()) continue;

@@ -191,6 +191,23 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
   return "";
 }
 
+uint64_t Ingest::max_batch_bytes(int obs_dim, int act_dim, int num_metrics, int steps_per_batch) {
+  const uint64_t n = kMaxEnvsPerWorker, od = obs_dim, ad = act_dim, m = num_metrics;
+  const uint64_t tn = std::min<uint64_t>(uint64_t(steps_per_batch) * n, kMaxBatchTransitions);
+  const uint64_t per_step = 4 * od + 4 * ad + 4 + 1 + 1 + 4  // observation, action, reward, flags, log-prob
+                            + 4 + 4 * od                    // final_index, final observation
+                            + 4 + 4 + 4 + 1 + 3 + 4 + 4 * m;  // episode summary, padded, with its metrics
+  return tn * per_step + 4 * n * od + kBatchHeaderBytes;
+}
+
+uint64_t Ingest::count_refused_samples(uint64_t refused_total) {
+  if (refused_total <= refused_samples_) return 0;
+  const uint64_t fresh = refused_total - refused_samples_;
+  refused_samples_ = refused_total;
+  counters_.invalid += fresh;
+  return fresh;
+}
+
 void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double gamma, int n_step) {
   fold_n_step(b.num_steps(), b.num_envs(), b.truncated().data(), rows, gamma, n_step);
 }

@@ -62,6 +62,21 @@ class Ingest {
   static constexpr size_t kMaxAccounts = 4096;
   static constexpr size_t kMaxMissing = 4096;
 
+  // The largest serialized TransitionBatch (CDR, encapsulation included) a worker of this
+  // experiment can send: steps_per_batch steps of kMaxEnvsPerWorker envs (a worker may run more envs
+  // than the config's), at most kMaxBatchTransitions, every step ending an episode with its final
+  // observation and a summary of num_metrics metrics, plus kBatchHeaderBytes for ids and headers.
+  // The learner's batch reader refuses larger samples before taking memory for them
+  // (dds::Reader's max_sample_bytes); pendulum at 25 steps per batch: 6.9 MB. A refused sample
+  // takes no memory: fed 26 MiB batches, the learner of integration.hostile stays under its
+  // documented 320 MiB peak RSS (docs/RELIABILITY.md, "size limits before memory").
+  static uint64_t max_batch_bytes(int obs_dim, int act_dim, int num_metrics, int steps_per_batch);
+  static constexpr uint64_t kBatchHeaderBytes = 64 * 1024;
+  // Samples the bus refused before they became batches (over max_batch_bytes), as the reader's
+  // running total: the ones not yet counted are counted invalid, on no account since their sender is
+  // unknown. Returns how many were new.
+  uint64_t count_refused_samples(uint64_t refused_total);
+
   // Discrete actions (n > 0): each action must be an index in [0, n) instead of a value in
   // [-1, 1].
   void set_num_actions(int n) { num_actions_ = n; }
@@ -75,6 +90,7 @@ class Ingest {
   int num_actions_ = 0;
   IngestCounters counters_;
   std::map<Key, WorkerAccount> workers_;
+  uint64_t refused_samples_ = 0;  // of this process's reader, so not checkpointed
 };
 
 }  // namespace farm

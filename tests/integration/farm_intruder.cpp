@@ -2,12 +2,16 @@
 // weights. Used by the security test: with DDS Security on, a participant without a valid
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
-//                 [--hostile 1] [--spec-config FILE [--spec-steps T]]
+//                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]]
 // --spec-config FILE: also publish an ExperimentSpec for the experiment whose config text is FILE's
 // (a learner's impostor: what a worker does with a spec it did not ask for).
 // --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
 // 2^64 or 2^63 and 50 batches of invented sessions with sequence numbers drawn from the whole 64-bit
 // range, all well-formed otherwise (the attack that once set a learner's lost count to 2^63).
+// --oversize 1: instead of a plain stream, every 500 ms one batch of 256 steps x 4096 envs (2^20
+// transitions, tens of MB serialized) of a stream of its own, consistent in every field: each
+// dimension within its bound (kMaxStepsPerBatch, kMaxEnvsPerWorker, kMaxBatchTransitions), but far
+// larger than any batch an experiment of a few steps per batch sends. Prints the serialized size.
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -16,6 +20,7 @@
 #include <string>
 #include <thread>
 
+#include "config.h"
 #include "dds.h"
 #include "meter.h"
 
@@ -24,7 +29,7 @@ int main(int argc, char** argv) {
   std::string experiment = "pendulum_sac", id = "intruder";
   unsigned obs = 3, act = 1;
   double seconds = 10;
-  bool hostile = false;
+  bool hostile = false, oversize = false;
   std::string spec_config;
   unsigned spec_steps = 4;
   try {
@@ -39,6 +44,7 @@ int main(int argc, char** argv) {
       else if (a == "--act") act = std::stoul(v);
       else if (a == "--seconds") seconds = std::stod(v);
       else if (a == "--hostile") hostile = v == "1";
+      else if (a == "--oversize") oversize = v == "1";
       else if (a == "--spec-config") spec_config = v;
       else if (a == "--spec-steps") spec_steps = std::stoul(v);
       else throw std::invalid_argument("unknown flag " + a);
@@ -97,8 +103,32 @@ int main(int argc, char** argv) {
     const double t0 = farm::now_seconds();
     std::mt19937_64 rng(12345);
     // Hostile: wait to be matched, so that every batch counted as sent reaches the learner.
-    while (hostile && out.matched() == 0 && farm::now_seconds() - t0 < 15)
+    while ((hostile || oversize) && out.matched() == 0 && farm::now_seconds() - t0 < 15)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (oversize) {
+      const unsigned OT = farm::kMaxStepsPerBatch / 16, ON = farm::kMaxEnvsPerWorker;
+      static_assert(farm::kMaxStepsPerBatch / 16 * farm::kMaxEnvsPerWorker <= farm::kMaxBatchTransitions);
+      const size_t TN = size_t(OT) * ON;
+      b.worker_session(rng());
+      b.num_steps(OT);
+      b.num_envs(ON);
+      b.observations(std::vector<float>(TN * obs, 0.5f));
+      b.actions(std::vector<float>(TN * act, 0.0f));
+      b.rewards(std::vector<float>(TN, 0.0f));
+      b.terminated(std::vector<uint8_t>(TN, 0));
+      b.truncated(std::vector<uint8_t>(TN, 0));
+      b.log_probs(std::vector<float>(TN, 0.0f));
+      b.next_observations(std::vector<float>(size_t(ON) * obs, 0.5f));
+      std::printf("%s: oversized batches of %ux%u transitions, %zu bytes serialized\n", id.c_str(), OT, ON,
+                  farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4);
+      std::fflush(stdout);
+    }
+    while (oversize && farm::now_seconds() - t0 < seconds) {
+      b.sequence_number(sent);
+      if (out.write(b)) ++sent;
+      max_matched = std::max(max_matched, out.matched());
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    }
     while (hostile && farm::now_seconds() - t0 < seconds) {
       b.worker_session(1);
       b.sequence_number(sent % 2 ? UINT64_MAX - sent : (uint64_t(1) << 63) + sent);
@@ -111,7 +141,7 @@ int main(int argc, char** argv) {
       max_matched = std::max(max_matched, out.matched());
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
-    while (!hostile && farm::now_seconds() - t0 < seconds) {
+    while (!hostile && !oversize && farm::now_seconds() - t0 < seconds) {
       b.sequence_number(sent);
       if (out.write(b)) ++sent;
       max_matched = std::max(max_matched, out.matched());

@@ -3,11 +3,18 @@
 // is refused and counted invalid, no account is opened or moved for them, the real worker's
 // figures are exactly what it sent, and the learner keeps training at its normal update rate
 // (printed: updates/s before and during the attack).
+// Then oversized samples: well-formed batches of tens of MB, far above what the experiment's workers
+// can send, are refused before the learner takes memory for them, counted invalid, and the learner's
+// peak RSS stays under the bound documented in docs/RELIABILITY.md (item "size limits before memory").
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <chrono>
+#include <fstream>
 #include <regex>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "process_util.h"
@@ -53,6 +60,15 @@ double mean_rate(const std::vector<Row>& rows, double from, double to) {
   for (const auto& r : rows)
     if (r.elapsed > from && r.elapsed <= to) s += r.updates_per_s, ++n;
   return n ? s / n : -1;
+}
+
+// The process's peak resident set (VmHWM) in MiB, or -1 once it is gone.
+double peak_rss_mib(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  }
+  return -1;
 }
 
 TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
@@ -114,6 +130,89 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
               during, before > 0 ? during / before : 0.0, sent);
   ASSERT_GT(before, 0);
   EXPECT_GE(during, 0.5 * before);
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// Bound on the learner's peak RSS in this experiment (pendulum, 8 envs x 25 steps, SAC 64x64) while
+// it is fed 27 MB batches: what it needs for honest traffic with room to spare, and below what even
+// a few of the oversized samples would take once taken into memory. docs/RELIABILITY.md, item
+// "size limits before memory", gives the reasoning; Ingest::max_batch_bytes the per-sample bound.
+constexpr double kOversizeRssBoundMiB = 320;
+
+TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(93));
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("it_hostile"), 10, "it_oversize");
+  write_file(d + "/cfg.txtpb", cfg);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain},
+                            "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  const std::string csv = d + "/run/learner.csv";
+  double first_update = -1;
+  ASSERT_TRUE(poll_log(csv, [&](const std::string&) {
+    const auto rows = read_csv(csv);
+    for (const auto& r : rows)
+      if (r.updates > 0) { first_update = r.elapsed; break; }
+    return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
+  }, 60)) << set.log("learner");
+  const double rss_before = peak_rss_mib(learner.pid);
+  const double attack_start = read_csv(csv).back().elapsed;
+  Proc& intruder = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_oversize", "--id", "oversize",
+                              "--seconds", "12", "--oversize", "1"}, "oversize");
+  // VmHWM is the peak: followed while the attack lasts and a little after, while batches drain.
+  double rss_peak = rss_before;
+  const auto follow = [&](double seconds) {
+    for (auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+         std::chrono::steady_clock::now() < end;) {
+      rss_peak = std::max(rss_peak, peak_rss_mib(learner.pid));
+      std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    }
+  };
+  follow(12);
+  ASSERT_EQ(wait_for(intruder, 60), 0) << set.log("oversize");
+  follow(2);
+  const double attack_end = read_csv(csv).back().elapsed;
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+
+  std::smatch m;
+  const std::string h = set.log("oversize");
+  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"((\d+) bytes serialized)"))) << h;
+  const double sample_mib = std::stod(m[1]) / (1 << 20);
+  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << h;
+  const long long sent = std::stoll(m[1]);
+  EXPECT_GE(sent, 5) << h;
+  EXPECT_GE(std::stoi(m[2]), 1) << h;
+
+  const std::string summary = slurp(d + "/run/summary.txt");
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 50) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[3], "0") << summary;
+  EXPECT_EQ(std::stoll(m[4]), sent) << summary << set.log("learner");
+  const std::string llog = set.log("learner");
+  EXPECT_NE(llog.find("batch sample(s) larger than"), std::string::npos) << llog;
+  const std::string wlog = set.log("worker");
+  std::smatch ws;
+  ASSERT_TRUE(std::regex_search(wlog, ws, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
+  EXPECT_TRUE(std::regex_search(summary, m, std::regex(R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
+      << summary;
+  EXPECT_EQ(m[1], ws[1]) << summary;
+  EXPECT_EQ(summary.find(" oversize session"), std::string::npos) << summary;
+
+  const auto rows = read_csv(csv);
+  const double before = mean_rate(rows, first_update + 2, attack_start);
+  const double during = mean_rate(rows, attack_start + 1, attack_end);
+  std::printf("updates/s before the attack %.0f, during it %.0f (ratio %.2f); %lld oversized batches of %.1f MiB sent; "
+              "learner peak RSS %.0f MiB before, %.0f MiB after (bound %.0f MiB)\n",
+              before, during, before > 0 ? during / before : 0.0, sent, sample_mib, rss_before, rss_peak,
+              kOversizeRssBoundMiB);
+  ASSERT_GT(before, 0);
+  EXPECT_GE(during, 0.5 * before);
+  ASSERT_GT(rss_before, 0);
+  EXPECT_LT(rss_peak, kOversizeRssBoundMiB);
   set.cleanup(::testing::Test::HasFailure());
 }
 

@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "config.h"
 #include "ingest.h"
 
 using farm::Ingest;
@@ -304,4 +305,51 @@ TEST_F(Fixture, NStepFoldStopsAtTerminationAndKeepsItsFlag) {
   farm::fold_n_step(plain, one, 0.5, 1);
   EXPECT_EQ(one.rewards, before);
   EXPECT_EQ(one.horizon, std::vector<float>(6, 1.f));
+}
+
+// The batch reader's bound (Ingest::max_batch_bytes) lets through the largest batch a worker of the
+// experiment can send: every step of kMaxEnvsPerWorker envs ending an episode, with its final
+// observation and summary, and long ids. It is not much above it, so it refuses a larger one.
+TEST(IngestBound, MaxBatchBytesHoldsTheLargestValidBatchAndNotMuchMore) {
+  const unsigned T = 2, N = farm::kMaxEnvsPerWorker, od = 3, ad = 2, metrics = 2;
+  const size_t TN = size_t(T) * N;
+  farm::msg::TransitionBatch b;
+  b.experiment_id(std::string(200, 'e'));
+  b.worker_id(std::string(200, 'w'));
+  b.num_steps(T);
+  b.num_envs(N);
+  b.obs_dim(od);
+  b.act_dim(ad);
+  b.observations(std::vector<float>(TN * od, 0.f));
+  b.actions(std::vector<float>(TN * ad, 0.f));
+  b.rewards(std::vector<float>(TN, 0.f));
+  b.terminated(std::vector<uint8_t>(TN, 1));
+  b.truncated(std::vector<uint8_t>(TN, 0));
+  b.log_probs(std::vector<float>(TN, 0.f));
+  b.next_observations(std::vector<float>(size_t(N) * od, 0.f));
+  std::vector<uint32_t> idx(TN);
+  for (size_t i = 0; i < TN; ++i) idx[i] = uint32_t(i);
+  b.final_index(idx);
+  b.final_observations(std::vector<float>(TN * od, 0.f));
+  std::vector<farm::msg::EpisodeSummary> eps(TN);
+  for (auto& e : eps) e.metrics(std::vector<float>(metrics, 0.f));
+  b.episodes(eps);
+  const uint64_t size = farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4;  // + encapsulation
+  const uint64_t bound = Ingest::max_batch_bytes(od, ad, metrics, T);
+  EXPECT_GE(bound, size);
+  EXPECT_LE(bound, size + Ingest::kBatchHeaderBytes);
+  // More steps per batch, more room; never more transitions than kMaxBatchTransitions.
+  EXPECT_GT(Ingest::max_batch_bytes(od, ad, metrics, 4), bound);
+  EXPECT_EQ(Ingest::max_batch_bytes(od, ad, metrics, farm::kMaxStepsPerBatch),
+            Ingest::max_batch_bytes(od, ad, metrics, farm::kMaxBatchTransitions / farm::kMaxEnvsPerWorker));
+}
+
+TEST(IngestBound, SamplesRefusedByTheBusAreCountedInvalidOnce) {
+  Ingest in{"exp", 2, 1};
+  EXPECT_EQ(in.count_refused_samples(0), 0u);
+  EXPECT_EQ(in.count_refused_samples(3), 3u);
+  EXPECT_EQ(in.count_refused_samples(3), 0u);
+  EXPECT_EQ(in.count_refused_samples(5), 2u);
+  EXPECT_EQ(in.counters().invalid, 5u);
+  EXPECT_TRUE(in.workers().empty());
 }
