@@ -284,8 +284,16 @@ int FarmService::live_count() const { return roster_.live_count(now_seconds()); 
 bool FarmService::accept_batch() {
   pending_.clear();
   episodes_.clear();
+  const uint64_t foreign = ingest_.counters().foreign;
   const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_);
   if (why.empty()) return true;
+  if (ingest_.counters().foreign > foreign) {
+    // Another experiment shares the domain: said once per experiment, not once per batch.
+    if (foreign_noted_.size() < 16 && foreign_noted_.insert(batch_.experiment_id()).second)
+      log("batches of experiment '" + batch_.experiment_id() +
+          "' (another learner's, on this domain) are not used here; the summary counts them");
+    return false;
+  }
   if (++rejections_logged_ <= 20)
     log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + batch_.worker_id() + ": " + why);
   return false;
@@ -403,6 +411,8 @@ std::string FarmService::untrained_stop_note(const std::string& reason) const {
 
 std::string FarmService::summary_workers() const {
   std::ostringstream o;
+  if (ingest_.counters().foreign > 0)
+    o << "other experiments " << ingest_.counters().foreign << " batches of other experiments on the domain, not used\n";
   for (auto& [k, w] : ingest_.workers()) {
     o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
       << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "

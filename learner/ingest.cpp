@@ -96,9 +96,9 @@ std::string Ingest::content_problem(const farm::msg::TransitionBatch& b, uint64_
 std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
                            Transitions& out, std::vector<FinishedEpisode>& episodes) {
   if (b.experiment_id() != experiment_id_) {
-    // Another experiment on the same domain: not ours to account, but never silently taken.
+    // Another experiment on the same domain (its own learner accounts it): counted apart, never
+    // taken, and not invalid, which would hide a real fault among another run's normal traffic.
     ++counters_.foreign;
-    ++counters_.invalid;
     return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
   }
   const uint64_t seq = b.sequence_number();

@@ -29,7 +29,8 @@ struct WorkerAccount {
 };
 
 struct IngestCounters {
-  uint64_t ok = 0, lost = 0, duplicate = 0, invalid = 0, foreign = 0;
+  uint64_t ok = 0, lost = 0, duplicate = 0, invalid = 0;
+  uint64_t foreign = 0;  // batches of another experiment on the domain: not used, not invalid
   uint64_t env_steps = 0;
   double lag_sum = 0.0;  // sum over accepted batches of (current version - batch version)
 };

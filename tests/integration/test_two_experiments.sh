@@ -81,7 +81,10 @@ check_learner() {
   [ "$ids" = "$(printf '%s\n' "$@" | sort | tr '\n' ' ')" ] || fail "$name: summary has workers '$ids', expected '$*'"
   grep '^worker ' "$summary" | grep -v ', lost 0, duplicate 0, invalid 0, stream closed' |
     while read -r line; do echo "FAIL: $name: $line"; done | grep . && failed=1
-  grep -q '^batches .* lost 0, duplicate 0,' "$summary" || fail "$name: batches lost or duplicate: $(grep '^batches' "$summary")"
+  grep -q '^batches .* lost 0, duplicate 0, invalid 0' "$summary" ||
+    fail "$name: batches lost, duplicate or invalid: $(grep '^batches' "$summary")"
+  grep -q '^other experiments [1-9][0-9]* batches of other experiments on the domain, not used' "$summary" ||
+    fail "$name: the other experiment's batches are not counted apart"
   # The live workers of every progress line (what PPO divides its quota by) are its own only.
   grep -o '| workers [0-9]*$' "$dir/$name.log" | awk -v n=$# '$3 > n {bad = 1} END {exit bad}' ||
     fail "$name: counted more than its $# workers live: $(grep -o '| workers [0-9]*$' "$dir/$name.log" | sort -u | tr '\n' ' ')"

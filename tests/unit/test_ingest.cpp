@@ -126,7 +126,8 @@ TEST_F(Fixture, InfiniteRewardAndOutOfRangeActionAreRefused) {
 TEST_F(Fixture, WrongExperimentIsRefused) {
   std::string why = take(make_batch(0, "other"));
   EXPECT_NE(why.find("'other' is not 'exp'"), std::string::npos) << why;
-  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_EQ(ingest.counters().foreign, 1u);
+  EXPECT_EQ(ingest.counters().invalid, 0u) << "another run's batches are not faults of this one";
   EXPECT_TRUE(ingest.workers().empty());
 }
 
