@@ -22,8 +22,11 @@ namespace {
 // Task sections: the ranges their tasks (robots/) can run with.
 
 void check_pendulum(const Section& s, const config::PendulumConfig& p) {
-  for (auto [f, x] : {std::pair<const char*, double>{"gravity", p.gravity()}, {"mass", p.mass()},
-                      {"length", p.length()}, {"dt", p.dt()}, {"max_speed", p.max_speed()},
+  for (auto [f, x] : {std::pair<const char*, double>{"gravity", p.gravity()},
+                      {"mass", p.mass()},
+                      {"length", p.length()},
+                      {"dt", p.dt()},
+                      {"max_speed", p.max_speed()},
                       {"max_torque", p.max_torque()}})
     s.finite_positive(f, x);
   s.finite_non_negative("velocity_cost", p.velocity_cost());
@@ -106,15 +109,18 @@ void check_legged(const Section& s, const config::LeggedConfig& c) {
   s.in_unit("soft_dof_pos_limit", c.soft_dof_pos_limit());
   s.check(c.friction_min() > 0 && c.friction_min() <= c.friction_max(), "friction_min",
           "expected 0 < friction_min <= friction_max (" + num(c.friction_max()) + "), got " + num(c.friction_min()));
-  s.check(c.init_joint_scale_min() <= c.init_joint_scale_max(), "init_joint_scale_min",
-          "expected <= init_joint_scale_max (" + num(c.init_joint_scale_max()) + "), got " +
-              num(c.init_joint_scale_min()));
+  s.check(
+      c.init_joint_scale_min() <= c.init_joint_scale_max(), "init_joint_scale_min",
+      "expected <= init_joint_scale_max (" + num(c.init_joint_scale_max()) + "), got " + num(c.init_joint_scale_min()));
   s.check(c.push_interval_s() >= 0, "push_interval_s", "expected >= 0 (0: no pushes), got " + num(c.push_interval_s()));
   s.non_negative("noise_level", c.noise_level());
   // Relative randomization ranges +-x around the model's value: the value keeps its sign.
   for (auto [f, x] : {std::pair<const char*, double>{"trunk_mass_rel", c.trunk_mass_rel()},
-                      {"torque_limit_rel", c.torque_limit_rel()}, {"velocity_limit_rel", c.velocity_limit_rel()},
-                      {"foot_size_rel", c.foot_size_rel()}, {"kp_rel", c.kp_rel()}, {"kd_rel", c.kd_rel()},
+                      {"torque_limit_rel", c.torque_limit_rel()},
+                      {"velocity_limit_rel", c.velocity_limit_rel()},
+                      {"foot_size_rel", c.foot_size_rel()},
+                      {"kp_rel", c.kp_rel()},
+                      {"kd_rel", c.kd_rel()},
                       {"action_scale_rel", c.action_scale_rel()},
                       {"torque_multiplier_rel", c.torque_multiplier_rel()}})
     s.check(x >= 0 && x < 1, f, "expected in [0, 1), got " + num(x));
@@ -125,11 +131,16 @@ void check_legged(const Section& s, const config::LeggedConfig& c) {
 
 // mCLARI (robots/mclari), its gaits and its terrains.
 void check_mclari(const Section& s, const config::MclariConfig& c) {
-  for (auto [f, x] : {std::pair<const char*, double>{"voltage", c.voltage()}, {"frequency_step", c.frequency_step()},
-                      {"step_seconds", c.step_seconds()}, {"power_sample_seconds", c.power_sample_seconds()},
-                      {"gravity_si", c.gravity_si()}, {"target_radius", c.target_radius()},
-                      {"ground_half_size", c.ground_half_size()}, {"hfield_height", c.hfield_height()},
-                      {"obs_power_scale", c.obs_power_scale()}, {"obs_speed_scale", c.obs_speed_scale()},
+  for (auto [f, x] : {std::pair<const char*, double>{"voltage", c.voltage()},
+                      {"frequency_step", c.frequency_step()},
+                      {"step_seconds", c.step_seconds()},
+                      {"power_sample_seconds", c.power_sample_seconds()},
+                      {"gravity_si", c.gravity_si()},
+                      {"target_radius", c.target_radius()},
+                      {"ground_half_size", c.ground_half_size()},
+                      {"hfield_height", c.hfield_height()},
+                      {"obs_power_scale", c.obs_power_scale()},
+                      {"obs_speed_scale", c.obs_speed_scale()},
                       {"obs_distance_scale", c.obs_distance_scale()}})
     s.finite_positive(f, x);
   const int fmin = c.min_frequency(), fmax = c.max_frequency();
@@ -143,9 +154,9 @@ void check_mclari(const Section& s, const config::MclariConfig& c) {
           "expected >= 0 (0: no cap), got " + num(c.max_timestep()));
   s.at_least("max_episode_steps", c.max_episode_steps(), 1);
   s.non_negative("target_min_distance", c.target_min_distance());
-  s.check(c.target_max_distance() >= c.target_min_distance(), "target_max_distance",
-          "expected >= target_min_distance (" + num(c.target_min_distance()) + "), got " +
-              num(c.target_max_distance()));
+  s.check(
+      c.target_max_distance() >= c.target_min_distance(), "target_max_distance",
+      "expected >= target_min_distance (" + num(c.target_min_distance()) + "), got " + num(c.target_max_distance()));
   s.check(c.target_max_distance() < c.ground_half_size(), "target_max_distance",
           "expected inside the ground, < ground_half_size (" + num(c.ground_half_size()) + "), got " +
               num(c.target_max_distance()));
@@ -156,13 +167,13 @@ void check_mclari(const Section& s, const config::MclariConfig& c) {
   s.check(c.fixed_group() >= 0 && c.fixed_group() < kMclariPhaseGroups, "fixed_group",
           "expected in [0, " + num(kMclariPhaseGroups) + "), got " + num(c.fixed_group()));
   // Gaits the agent chooses from.
-  if (c.groups_size() > 0 && c.reduced_groups())
-    s.fail("groups", "set groups or reduced_groups, not both");
+  if (c.groups_size() > 0 && c.reduced_groups()) s.fail("groups", "set groups or reduced_groups, not both");
   s.distinct_in_range("groups", c.groups(), 0, kMclariPhaseGroups - 1, "[0, " + num(kMclariPhaseGroups) + ")",
                       [](int g) { return "group " + num(g); });
   s.distinct_in_range("frequencies", c.frequencies(), fmin, fmax, frange, [](int f) { return num(f) + " Hz"; });
-  const int groups = c.groups_size() > 0 ? c.groups_size() : c.reduced_groups() ? kMclariReducedGroups
-                                                                                 : kMclariPhaseGroups;
+  const int groups = c.groups_size() > 0  ? c.groups_size()
+                     : c.reduced_groups() ? kMclariReducedGroups
+                                          : kMclariPhaseGroups;
   s.check(c.initial_group() >= 0 && c.initial_group() < groups, "initial_group",
           "expected an index into the " + num(groups) + " active groups, got " + num(c.initial_group()));
   // Terrains, their reward references and the rough ground's height field.

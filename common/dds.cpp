@@ -2,16 +2,16 @@
 
 #include "paths.h"
 
+#include <unistd.h>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/log/Log.hpp>
-#include <unistd.h>
 
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <mutex>
 #include <fstream>
+#include <mutex>
 #include <random>
 
 namespace farm::dds {
@@ -40,7 +40,8 @@ void enable_security(std::string& dir, fdds::DomainParticipantQos& pqos) {
   dir = fs::absolute(dir).lexically_normal().string();
   for (const char* f : {"ca.cert.pem", "cert.pem", "key.pem", "governance.p7s", "permissions.p7s"}) {
     if (!file_exists(dir + "/" + f))
-      throw std::runtime_error("DDS Security: " + dir + "/" + f + " is missing (make the folder with deploy/make-pki.sh)");
+      throw std::runtime_error("DDS Security: " + dir + "/" + f +
+                               " is missing (make the folder with deploy/make-pki.sh)");
   }
   auto& props = pqos.properties().properties();
   auto set = [&](const std::string& k, const std::string& v) { props.emplace_back(k, v); };
@@ -110,8 +111,8 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     } else {
       // Fast DDS would load the variable's file by itself as well, and refuse the flag's file for
       // defining the same profiles again: the flag wins, for this process and its children.
-      std::fprintf(stderr, "--dds-profiles %s overrides FASTRTPS_DEFAULT_PROFILES_FILE=%s\n",
-                   profiles_file_.c_str(), env.c_str());
+      std::fprintf(stderr, "--dds-profiles %s overrides FASTRTPS_DEFAULT_PROFILES_FILE=%s\n", profiles_file_.c_str(),
+                   env.c_str());
       unsetenv("FASTRTPS_DEFAULT_PROFILES_FILE");
     }
   }
@@ -134,9 +135,10 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
   participant_ = factory->create_participant(opts.domain, pqos);
   if (!participant_) {
     throw std::runtime_error("cannot create DDS participant on domain " + std::to_string(opts.domain) +
-                             (security_dir_.empty() ? std::string()
-                                                    : " with DDS Security from " + security_dir_ +
-                                                          " (certificate, key or signed documents rejected; see messages above)"));
+                             (security_dir_.empty()
+                                  ? std::string()
+                                  : " with DDS Security from " + security_dir_ +
+                                        " (certificate, key or signed documents rejected; see messages above)"));
   }
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
@@ -180,9 +182,8 @@ class RefusedForSizeCounter : public eprosima::fastdds::dds::LogConsumer {
 
 void count_samples_refused_for_size() {
   static std::once_flag once;
-  std::call_once(once, [] {
-    eprosima::fastdds::dds::Log::RegisterConsumer(std::make_unique<RefusedForSizeCounter>());
-  });
+  std::call_once(once,
+                 [] { eprosima::fastdds::dds::Log::RegisterConsumer(std::make_unique<RefusedForSizeCounter>()); });
 }
 
 uint64_t samples_refused_for_size() { return g_refused_for_size.load(std::memory_order_relaxed); }

@@ -17,9 +17,9 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
-#include <functional>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -89,8 +89,8 @@ class Writer {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
     writer_ = bus.publisher()->create_datawriter_with_profile(t, profile);
     if (!writer_) {
-      throw std::runtime_error("cannot create DDS writer for " + topic_name + " with profile '" +
-                               profile + "' (is it in " + bus.profiles_file() + "?)");
+      throw std::runtime_error("cannot create DDS writer for " + topic_name + " with profile '" + profile +
+                               "' (is it in " + bus.profiles_file() + "?)");
     }
   }
   ~Writer() { bus_.publisher()->delete_datawriter(writer_); }
@@ -142,8 +142,8 @@ class Reader : public fdds::DataReaderListener {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
     reader_ = bus.subscriber()->create_datareader_with_profile(t, profile, this);
     if (!reader_) {
-      throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" +
-                               profile + "' (is it in " + bus.profiles_file() + "?)");
+      throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" + profile +
+                               "' (is it in " + bus.profiles_file() + "?)");
     }
   }
   // A reader that takes no sample larger than max_sample_bytes serialized (encapsulation included).

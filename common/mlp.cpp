@@ -53,24 +53,20 @@ std::string MlpLayout::describe() const {
 
 EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params) : layout_(layout) {
   if (layout.sizes.size() < 2) {
-    throw std::invalid_argument("mlp layout '" + layout.describe() +
-                                "': needs at least an input and an output size");
+    throw std::invalid_argument("mlp layout '" + layout.describe() + "': needs at least an input and an output size");
   }
   for (size_t i = 0; i < layout.sizes.size(); ++i) {
     if (layout.sizes[i] <= 0) {
-      throw std::invalid_argument("mlp layout '" + layout.describe() + "': size " +
-                                  std::to_string(i) + " is " + std::to_string(layout.sizes[i]) +
-                                  ", must be > 0");
+      throw std::invalid_argument("mlp layout '" + layout.describe() + "': size " + std::to_string(i) + " is " +
+                                  std::to_string(layout.sizes[i]) + ", must be > 0");
     }
   }
   if (layout.activation != Activation::kRelu && layout.activation != Activation::kTanh) {
-    throw std::invalid_argument("mlp layout: unknown activation " +
-                                std::to_string(int(layout.activation)));
+    throw std::invalid_argument("mlp layout: unknown activation " + std::to_string(int(layout.activation)));
   }
   if (params.size() != layout.num_params()) {
-    throw std::invalid_argument("mlp params: expected " + std::to_string(layout.num_params()) +
-                                " floats for layout " + layout.describe() + ", got " +
-                                std::to_string(params.size()));
+    throw std::invalid_argument("mlp params: expected " + std::to_string(layout.num_params()) + " floats for layout " +
+                                layout.describe() + ", got " + std::to_string(params.size()));
   }
   const size_t layers = layout.sizes.size() - 1;
   weights_.resize(layers);
@@ -132,8 +128,7 @@ void EigenMlp::forward(const float* in, int rows, float* out) {
 }
 
 Policy::Policy(const PolicyParams& p) : p_(p) {
-  if (p.head != PolicyHead::kSquashedGaussian && p.head != PolicyHead::kDiscreteQ &&
-      p.head != PolicyHead::kGaussian) {
+  if (p.head != PolicyHead::kSquashedGaussian && p.head != PolicyHead::kDiscreteQ && p.head != PolicyHead::kGaussian) {
     throw std::invalid_argument("policy head: unknown head " + std::to_string(int(p.head)));
   }
   if (p.layout.sizes.size() < 2) {
@@ -142,15 +137,13 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
   }
   for (size_t i = 0; i < p.layout.sizes.size(); ++i) {
     if (p.layout.sizes[i] <= 0) {
-      throw std::invalid_argument("policy layout '" + p.layout.describe() + "': size " +
-                                  std::to_string(i) + " is " + std::to_string(p.layout.sizes[i]) +
-                                  ", must be > 0");
+      throw std::invalid_argument("policy layout '" + p.layout.describe() + "': size " + std::to_string(i) + " is " +
+                                  std::to_string(p.layout.sizes[i]) + ", must be > 0");
     }
   }
   const int out = p.layout.sizes.back();
   if (p.head == PolicyHead::kDiscreteQ && !(p.epsilon >= 0.f && p.epsilon <= 1.f)) {
-    throw std::invalid_argument("policy: epsilon " + std::to_string(p.epsilon) +
-                                " is not a probability in [0, 1]");
+    throw std::invalid_argument("policy: epsilon " + std::to_string(p.epsilon) + " is not a probability in [0, 1]");
   }
   if (p.head == PolicyHead::kSquashedGaussian && out % 2 != 0) {
     throw std::invalid_argument("policy layout " + p.layout.describe() +
@@ -160,8 +153,7 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
   }
   if (p.head == PolicyHead::kGaussian && p.log_std.size() != size_t(out)) {
     throw std::invalid_argument("policy layout " + p.layout.describe() + ": gaussian head needs " +
-                                std::to_string(out) + " log_std values, got " +
-                                std::to_string(p.log_std.size()));
+                                std::to_string(out) + " log_std values, got " + std::to_string(p.log_std.size()));
   }
   if (p.params.size() != p.layout.num_params()) {
     throw std::invalid_argument("policy params: expected " + std::to_string(p.layout.num_params()) +
@@ -171,21 +163,20 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
   const size_t obs_dim = size_t(p.layout.sizes.front());
   if (!p.obs_mean.empty() || !p.obs_std.empty()) {
     if (p.obs_mean.size() != obs_dim || p.obs_std.size() != obs_dim) {
-      throw std::invalid_argument("policy normalizer: obs_mean has " +
-                                  std::to_string(p.obs_mean.size()) + " and obs_std " +
-                                  std::to_string(p.obs_std.size()) + " floats, expected both " +
+      throw std::invalid_argument("policy normalizer: obs_mean has " + std::to_string(p.obs_mean.size()) +
+                                  " and obs_std " + std::to_string(p.obs_std.size()) + " floats, expected both " +
                                   std::to_string(obs_dim) + " (the layout's input) or both empty");
     }
     for (size_t i = 0; i < obs_dim; ++i) {
       if (!(p.obs_std[i] > 0.f) || !std::isfinite(p.obs_std[i])) {
-        throw std::invalid_argument("policy normalizer: obs_std[" + std::to_string(i) + "] = " +
-                                    std::to_string(p.obs_std[i]) + ", must be finite and > 0");
+        throw std::invalid_argument("policy normalizer: obs_std[" + std::to_string(i) +
+                                    "] = " + std::to_string(p.obs_std[i]) + ", must be finite and > 0");
       }
     }
   }
   if (!(p.log_std_min <= p.log_std_max)) {
-    throw std::invalid_argument("policy: log_std_min " + std::to_string(p.log_std_min) +
-                                " > log_std_max " + std::to_string(p.log_std_max));
+    throw std::invalid_argument("policy: log_std_min " + std::to_string(p.log_std_min) + " > log_std_max " +
+                                std::to_string(p.log_std_max));
   }
   net_ = EigenMlp(p.layout, p.params);
 }
@@ -201,18 +192,18 @@ int Policy::act_dim() const {
   return p_.layout.sizes.empty() ? 0 : p_.layout.sizes.back() / 2;
 }
 
-void Policy::act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic,
-                 float* actions, float* log_prob) {
+void Policy::act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions,
+                 float* log_prob) {
   act_rows(obs, rows, &rng, 0, deterministic, actions, log_prob);
 }
 
-void Policy::act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic,
-                         float* actions, float* log_prob) {
+void Policy::act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic, float* actions,
+                         float* log_prob) {
   act_rows(obs, rows, row_rngs, 1, deterministic, actions, log_prob);
 }
 
-void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride,
-                      bool deterministic, float* actions, float* log_prob) {
+void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                      float* actions, float* log_prob) {
   if (rows <= 0) return;
   const int od = obs_dim(), ad = act_dim();
   const float* x = obs;
@@ -272,8 +263,8 @@ double gaussian_log_cdf(double z) {
   return -0.5 * z * z - std::log(-z) - 0.91893853320467274178;
 }
 
-void Policy::act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                          float* actions, float* log_prob) {
+void Policy::act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,
+                          float* log_prob) {
   const int ad = act_dim();
   for (int r = 0; r < rows; ++r) {
     const float* mean = out_.data() + size_t(r) * ad;
@@ -309,8 +300,8 @@ void Policy::act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bo
   }
 }
 
-void Policy::act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                          float* actions, float* log_prob) {
+void Policy::act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,
+                          float* log_prob) {
   const int n = p_.layout.sizes.back();
   const float eps = deterministic ? 0.f : p_.epsilon;
   for (int r = 0; r < rows; ++r) {

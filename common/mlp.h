@@ -47,9 +47,9 @@ class EigenMlp {
 
  private:
   MlpLayout layout_;
-  std::vector<Matrix> weights_;                              // [out x in]
+  std::vector<Matrix> weights_;  // [out x in]
   std::vector<Eigen::Matrix<float, 1, Eigen::Dynamic>> biases_;
-  std::vector<Matrix> acts_;                                 // scratch per layer
+  std::vector<Matrix> acts_;  // scratch per layer
   // [in x out] copies for layers at least as wide out as in, evaluated as sums of columns
   // (faster there than row dot products); empty for the other layers.
   std::vector<Matrix> weights_t_;
@@ -65,7 +65,7 @@ struct PolicyParams {
   std::vector<float> params;
   float log_std_min = -20.f;
   float log_std_max = 2.f;
-  float epsilon = 0.f;  // kDiscreteQ: exploration probability, in [0, 1]
+  float epsilon = 0.f;         // kDiscreteQ: exploration probability, in [0, 1]
   std::vector<float> log_std;  // kGaussian: act_dim values; empty for the other heads
 };
 
@@ -83,20 +83,19 @@ class Policy {
   int num_actions() const;
   // obs: [rows x obs_dim]; actions: [rows x act_dim] in [-1, 1]; log_prob: [rows] (may be null).
   // deterministic: the mode (tanh(mean)), no noise, log_prob of the mode is not computed.
-  void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions,
-           float* log_prob);
+  void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions, float* log_prob);
   // As act(), but row r draws its noise from row_rngs[r] only, so a row's action does not
   // depend on which other rows share the call (rollouts reproducible across thread splits).
-  void act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic,
-                   float* actions, float* log_prob);
+  void act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic, float* actions,
+                   float* log_prob);
 
  private:
-  void act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride,
-                bool deterministic, float* actions, float* log_prob);
-  void act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                    float* actions, float* log_prob);
-  void act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                    float* actions, float* log_prob);
+  void act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
+                float* actions, float* log_prob);
+  void act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,
+                    float* log_prob);
+  void act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,
+                    float* log_prob);
   PolicyParams p_;
   EigenMlp net_;
   std::vector<float> normed_, out_;

@@ -10,8 +10,8 @@ namespace farm::robots {
 struct TaskSpec {
   std::string name;
   int obs_dim = 0;
-  int act_dim = 0;               // actions are in [-1, 1]; the task scales them
-  int max_episode_steps = 0;     // truncation
+  int act_dim = 0;                        // actions are in [-1, 1]; the task scales them
+  int max_episode_steps = 0;              // truncation
   std::vector<std::string> metric_names;  // per-episode metrics, reported with every episode
   // > 0: discrete actions; act_dim is 1 and the action is the index, in [0, num_actions), as a
   // float. 0: continuous actions in [-1, 1].

@@ -13,6 +13,7 @@ PACKAGES=(
   zlib1g-dev python3-matplotlib                   # mCLARI height-field PNG, sweep plots
   clang libclang-rt-14-dev openssl                  # fuzz targets (libFuzzer); DDS Security PKI
   iproute2                                          # the several-hosts test: network namespaces, veth
+  clang-format                                      # the format check (deploy/format.sh --check)
 )
 
 missing=()

@@ -2,8 +2,8 @@
 
 #include <fcntl.h>
 #include <ftw.h>
-#include <unistd.h>
 #include <google/protobuf/text_format.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cstdio>
@@ -120,7 +120,9 @@ std::string move_run_dir_aside(const std::string& run_dir) {
   return aside;
 }
 
-bool checkpoint_exists(const std::string& dir) { return fs::exists(fs::path(usable_checkpoint(dir)) / "manifest.txtpb"); }
+bool checkpoint_exists(const std::string& dir) {
+  return fs::exists(fs::path(usable_checkpoint(dir)) / "manifest.txtpb");
+}
 
 void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m) {
   m.clear_workers();

@@ -17,7 +17,7 @@ namespace farm {
 namespace fs = std::filesystem;
 
 FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentConfig& cfg,
-                               const std::atomic<bool>& interrupted)
+                         const std::atomic<bool>& interrupted)
     : opt_(o),
       cfg_(cfg),
       interrupted_(interrupted),
@@ -45,7 +45,8 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                      heard_.emplace_back(s, now_seconds());
                    }
                  }),
-      roster_(cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id()),
+      roster_(
+          cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id()),
       algo_(make_algorithm(cfg_, task_->spec())) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
@@ -59,15 +60,19 @@ int FarmService::run() {
   t0_ = now_seconds() - elapsed_offset_;
   algo_->start(*this);
   log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
-      ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " + std::to_string(bus_.domain()) +
-      ", run dir " + run_dir_ + (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
+      ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " +
+      std::to_string(bus_.domain()) + ", run dir " + run_dir_ +
+      (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
   const double t0 = t0_;
   double last_log = now_seconds(), last_ckpt = now_seconds();
   std::string stop_reason;
   while (stop_reason.empty()) {
-    if (interrupted_) { stop_reason = "interrupted"; break; }
+    if (interrupted_) {
+      stop_reason = "interrupted";
+      break;
+    }
     work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
@@ -395,7 +400,8 @@ std::string FarmService::summary_head(double elapsed, const std::string& reason)
   o << "experiment        " << cfg_.experiment_id() << "\n"
     << "stopped because   " << reason << "\n"
     << "wall time         " << fmt("%.1f", elapsed) << " s\n"
-    << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9)) << " steps/s)\n";
+    << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9))
+    << " steps/s)\n";
   if (const std::string n = untrained_stop_note(reason); !n.empty()) o << "note              " << n << "\n";
   return o.str();
 }
@@ -412,7 +418,8 @@ std::string FarmService::untrained_stop_note(const std::string& reason) const {
 std::string FarmService::summary_workers() const {
   std::ostringstream o;
   if (ingest_.counters().foreign > 0)
-    o << "other experiments " << ingest_.counters().foreign << " batches of other experiments on the domain, not used\n";
+    o << "other experiments " << ingest_.counters().foreign
+      << " batches of other experiments on the domain, not used\n";
   for (auto& [k, w] : ingest_.workers()) {
     o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
       << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
@@ -447,7 +454,8 @@ void FarmService::drain_before_interrupted_stop() {
       continue;
     }
     bool running = false;
-    for (const auto& [k, v] : roster_.views()) running = running || (roster_.live(v, now) && v.last.state() == "running");
+    for (const auto& [k, v] : roster_.views())
+      running = running || (roster_.live(v, now) && v.last.state() == "running");
     if (now - last >= 3.0 || (now - last >= 0.5 && !running)) break;
     batches_in_.wait(0.05);
   }

@@ -32,8 +32,8 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
     return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
   if (b.worker_id().empty()) return "empty worker id";
   if (static_cast<int>(b.obs_dim()) != obs_dim_ || static_cast<int>(b.act_dim()) != act_dim_)
-    return "dims obs " + std::to_string(b.obs_dim()) + " act " + std::to_string(b.act_dim()) +
-           ", expected obs " + std::to_string(obs_dim_) + " act " + std::to_string(act_dim_);
+    return "dims obs " + std::to_string(b.obs_dim()) + " act " + std::to_string(b.act_dim()) + ", expected obs " +
+           std::to_string(obs_dim_) + " act " + std::to_string(act_dim_);
   const size_t T = b.num_steps(), N = b.num_envs();
   if (T == 0 && !b.end_of_stream()) return "empty batch (0 steps) without end_of_stream";
   if (T > 0 && N == 0) return "0 environments";
@@ -41,14 +41,12 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
     return "implausible batch size " + std::to_string(T) + "x" + std::to_string(N) + " (at most " +
            std::to_string(kMaxBatchTransitions) + " transitions)";
   const size_t TN = T * N, od = obs_dim_, ad = act_dim_;
-  for (auto r : {size_is(b.observations().size(), TN * od, "observations"),
-                 size_is(b.actions().size(), TN * ad, "actions"),
-                 size_is(b.rewards().size(), TN, "rewards"),
-                 size_is(b.terminated().size(), TN, "terminated"),
-                 size_is(b.truncated().size(), TN, "truncated"),
-                 size_is(b.log_probs().size(), TN, "log_probs"),
-                 size_is(b.next_observations().size(), T > 0 ? N * od : 0, "next_observations"),
-                 size_is(b.final_observations().size(), b.final_index().size() * od, "final_observations")}) {
+  for (auto r :
+       {size_is(b.observations().size(), TN * od, "observations"), size_is(b.actions().size(), TN * ad, "actions"),
+        size_is(b.rewards().size(), TN, "rewards"), size_is(b.terminated().size(), TN, "terminated"),
+        size_is(b.truncated().size(), TN, "truncated"), size_is(b.log_probs().size(), TN, "log_probs"),
+        size_is(b.next_observations().size(), T > 0 ? N * od : 0, "next_observations"),
+        size_is(b.final_observations().size(), b.final_index().size() * od, "final_observations")}) {
     if (!r.empty()) return r;
   }
   for (auto r : {all_finite(b.observations(), "observations"), all_finite(b.actions(), "actions"),
@@ -93,8 +91,8 @@ std::string Ingest::content_problem(const farm::msg::TransitionBatch& b, uint64_
   return why;
 }
 
-std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
-                           Transitions& out, std::vector<FinishedEpisode>& episodes) {
+std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
+                           std::vector<FinishedEpisode>& episodes) {
   if (b.experiment_id() != experiment_id_) {
     // Another experiment on the same domain (its own learner accounts it): counted apart, never
     // taken, and not invalid, which would hide a real fault among another run's normal traffic.
@@ -194,8 +192,8 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
 uint64_t Ingest::max_batch_bytes(int obs_dim, int act_dim, int num_metrics, int steps_per_batch) {
   const uint64_t n = kMaxEnvsPerWorker, od = obs_dim, ad = act_dim, m = num_metrics;
   const uint64_t tn = std::min<uint64_t>(uint64_t(steps_per_batch) * n, kMaxBatchTransitions);
-  const uint64_t per_step = 4 * od + 4 * ad + 4 + 1 + 1 + 4  // observation, action, reward, flags, log-prob
-                            + 4 + 4 * od                    // final_index, final observation
+  const uint64_t per_step = 4 * od + 4 * ad + 4 + 1 + 1 + 4   // observation, action, reward, flags, log-prob
+                            + 4 + 4 * od                      // final_index, final observation
                             + 4 + 4 + 4 + 1 + 3 + 4 + 4 * m;  // episode summary, padded, with its metrics
   return tn * per_step + 4 * n * od + kBatchHeaderBytes;
 }

@@ -17,14 +17,14 @@ namespace farm {
 struct WorkerAccount {
   std::string worker_id;
   uint64_t session = 0;
-  uint64_t next_sequence = 0;   // the next sequence number expected
-  uint64_t received = 0;        // accepted batches
-  uint64_t lost = 0;            // sequence numbers never seen (gaps)
+  uint64_t next_sequence = 0;  // the next sequence number expected
+  uint64_t received = 0;       // accepted batches
+  uint64_t lost = 0;           // sequence numbers never seen (gaps)
   uint64_t duplicates = 0;
   uint64_t invalid = 0;
   uint64_t env_steps = 0;
-  bool ended = false;           // end_of_stream seen
-  double last_seen = 0.0;       // seconds on the learner's clock
+  bool ended = false;             // end_of_stream seen
+  double last_seen = 0.0;         // seconds on the learner's clock
   std::vector<uint64_t> missing;  // gap sequence numbers that may still arrive late
 };
 
@@ -44,8 +44,8 @@ class Ingest {
 
   // Checks one batch. On success appends its transitions to `out`, its finished episodes to
   // `episodes`, and returns an empty string; otherwise returns why it was refused.
-  std::string accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now,
-                     Transitions& out, std::vector<FinishedEpisode>& episodes);
+  std::string accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
+                     std::vector<FinishedEpisode>& episodes);
 
   const IngestCounters& counters() const { return counters_; }
   using Key = std::pair<std::string, uint64_t>;  // (worker id, session)

@@ -7,10 +7,10 @@
 #include <iostream>
 #include <string>
 
+#include "compute.h"
 #include "config.h"
 #include "dds.h"
 #include "farm_service.h"
-#include "compute.h"
 
 using namespace farm;
 
@@ -45,11 +45,17 @@ Options parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--config") o.config_path = value();
-    else if (a == "--resume") o.resume = true;
-    else if (a == "--run-dir") o.run_dir = value();
-    else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
-    else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+    if (a == "--config")
+      o.config_path = value();
+    else if (a == "--resume")
+      o.resume = true;
+    else if (a == "--run-dir")
+      o.run_dir = value();
+    else if (a == "-h" || a == "--help") {
+      usage();
+      std::exit(0);
+    } else
+      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
   if (o.config_path.empty()) throw std::invalid_argument("--config FILE is required (see --help)");
   return o;

@@ -8,8 +8,8 @@
 
 #include "dds.h"
 #include "farm.h"
-#include "farm_config.pb.h"
 #include "farmPubSubTypes.h"
+#include "farm_config.pb.h"
 
 namespace farm {
 

@@ -29,8 +29,7 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
          ", " + (s.envs() > 0 ? size : std::string("waiting for the spec")) + ")");
   else if (s.envs() > 0 && v.last.envs() == 0)
     log_("worker " + s.worker_id() + " on " + s.host() + " runs " + size);
-  if (v.dead)
-    log_("worker " + s.worker_id() + " on " + s.host() + " is back after " + seconds(now - v.seen) + " s");
+  if (v.dead) log_("worker " + s.worker_id() + " on " + s.host() + " is back after " + seconds(now - v.seen) + " s");
   if (!s.last_error().empty() && s.last_error() != v.last.last_error())
     log_("worker " + s.worker_id() + " reports: " + s.last_error());
   v.last = s;

@@ -32,8 +32,7 @@ mjModel* load_embedded_model(const std::string& path) {
     if (path == f.path) file = &f;
   }
   if (!file) {
-    throw std::runtime_error("MJCF '" + path +
-                             "' is not embedded; embedded files: " + known_files());
+    throw std::runtime_error("MJCF '" + path + "' is not embedded; embedded files: " + known_files());
   }
   // The VFS keys files by name without directories; models that include other files would
   // need every embedded file registered under its base name.

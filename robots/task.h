@@ -18,16 +18,16 @@ namespace farm::robots {
 
 struct TaskState {
   virtual ~TaskState();
-  mjData_* data = nullptr;       // owned; freed by the destructor
+  mjData_* data = nullptr;  // owned; freed by the destructor
   std::mt19937_64 rng;
-  int step = 0;                  // steps in the current episode
+  int step = 0;  // steps in the current episode
   double episode_return = 0.0;
 };
 
 struct StepResult {
   float reward = 0.f;
-  bool terminated = false;       // a true end (fall, goal): do not bootstrap
-  bool truncated = false;        // time limit: bootstrap
+  bool terminated = false;  // a true end (fall, goal): do not bootstrap
+  bool truncated = false;   // time limit: bootstrap
 };
 
 class Task {

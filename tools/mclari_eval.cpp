@@ -78,8 +78,8 @@ std::map<int, Best> read_best(const std::string& path) {
 
 // One deterministic episode per terrain, each step's gait and figures as CSV rows: what the
 // policy does, where the table shows only its means.
-void write_trace(const std::string& path, const farm::config::MclariConfig& mc_cfg,
-                 const farm::PolicyParams& params, uint64_t seed) {
+void write_trace(const std::string& path, const farm::config::MclariConfig& mc_cfg, const farm::PolicyParams& params,
+                 uint64_t seed) {
   std::ofstream out(path);
   if (!out) throw std::runtime_error("cannot write " + path);
   out << "terrain,terrain_name,step,frequency_hz,group,group_name,power_w,speed_mm_s,efficiency,reward,end\n";
@@ -98,9 +98,9 @@ void write_trace(const std::string& path, const farm::config::MclariConfig& mc_c
       const auto& f = static_cast<const farm::robots::McLariState&>(*state).last;
       const char* end = r.terminated ? "terminated" : r.truncated ? "truncated" : "";
       char line[400];
-      std::snprintf(line, sizeof line, "%d,%s,%d,%d,%d,\"%s\",%.6e,%.5f,%.6f,%.6f,%s\n", t,
-                    mclari::terrain_name(t), k, f.frequency, f.group, mclari::group_name(f.group).c_str(),
-                    f.power, f.speed_mm_s, f.efficiency, r.reward, end);
+      std::snprintf(line, sizeof line, "%d,%s,%d,%d,%d,\"%s\",%.6e,%.5f,%.6f,%.6f,%s\n", t, mclari::terrain_name(t), k,
+                    f.frequency, f.group, mclari::group_name(f.group).c_str(), f.power, f.speed_mm_s, f.efficiency,
+                    r.reward, end);
       out << line;
       if (r.terminated || r.truncated) break;
     }
@@ -126,16 +126,27 @@ int main(int argc, char** argv) {
         if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
         return argv[++i];
       };
-      if (a == "--config") config_path = value();
-      else if (a == "--checkpoint") checkpoint = value();
-      else if (a == "--episodes") episodes = std::stoi(value());
-      else if (a == "--best") best_path = value();
-      else if (a == "--out") out_path = value();
-      else if (a == "--threads") threads = std::stoi(value());
-      else if (a == "--seed") seed = std::stoull(value());
-      else if (a == "--trace") trace_path = value();
-      else if (a == "--help" || a == "-h") { std::cout << kUsage; return 0; }
-      else throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
+      if (a == "--config")
+        config_path = value();
+      else if (a == "--checkpoint")
+        checkpoint = value();
+      else if (a == "--episodes")
+        episodes = std::stoi(value());
+      else if (a == "--best")
+        best_path = value();
+      else if (a == "--out")
+        out_path = value();
+      else if (a == "--threads")
+        threads = std::stoi(value());
+      else if (a == "--seed")
+        seed = std::stoull(value());
+      else if (a == "--trace")
+        trace_path = value();
+      else if (a == "--help" || a == "-h") {
+        std::cout << kUsage;
+        return 0;
+      } else
+        throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
     }
     if (config_path.empty() || checkpoint.empty())
       throw std::invalid_argument(std::string("--config and --checkpoint are required\n") + kUsage);
@@ -156,8 +167,8 @@ int main(int argc, char** argv) {
     std::mutex progress_mutex;
     int terrains_done = 0;
     const auto t0 = std::chrono::steady_clock::now();
-    std::fprintf(stderr, "farm-mclari-eval: %d deterministic episodes on each of %d terrains, %d threads\n",
-                 episodes, mclari::kNumTerrains, threads);
+    std::fprintf(stderr, "farm-mclari-eval: %d deterministic episodes on each of %d terrains, %d threads\n", episodes,
+                 mclari::kNumTerrains, threads);
     auto worker = [&]() {
       for (int t = next++; t < mclari::kNumTerrains; t = next++) {
         auto mc = cfg.task().mclari();
@@ -180,9 +191,9 @@ int main(int argc, char** argv) {
         r.distance /= r.episodes;
         // Long work (a 150 Hz episode is 540,000 physics steps): say when each terrain is done.
         const std::lock_guard<std::mutex> lock(progress_mutex);
-        std::fprintf(stderr, "farm-mclari-eval: %s done, %d episodes, efficiency %.4f, %d falls (%d of %d terrains, %.0f s)\n",
-                     mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, ++terrains_done,
-                     mclari::kNumTerrains,
+        std::fprintf(stderr,
+                     "farm-mclari-eval: %s done, %d episodes, efficiency %.4f, %d falls (%d of %d terrains, %.0f s)\n",
+                     mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, ++terrains_done, mclari::kNumTerrains,
                      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
       }
     };
@@ -192,7 +203,8 @@ int main(int argc, char** argv) {
     for (auto& th : pool) th.join();
 
     std::ostringstream table;
-    table << "| terrain | episodes | SAC efficiency | falls | targets reached | mean f [Hz] | best fixed (group, f) | best fixed efficiency | SAC / best |\n"
+    table << "| terrain | episodes | SAC efficiency | falls | targets reached | mean f [Hz] | best fixed (group, f) | "
+             "best fixed efficiency | SAC / best |\n"
           << "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     char line[512];
     for (int t = 0; t < mclari::kNumTerrains; ++t) {
@@ -207,8 +219,8 @@ int main(int argc, char** argv) {
         ratio = line;
       }
       std::snprintf(line, sizeof line, "| %s | %d | %.4f | %d / %d | %d / %d | %.1f | %s | %s | %s |\n",
-                    mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, r.episodes, r.reached,
-                    r.episodes, r.frequency, fixed.c_str(), fixed_eff.c_str(), ratio.c_str());
+                    mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, r.episodes, r.reached, r.episodes,
+                    r.frequency, fixed.c_str(), fixed_eff.c_str(), ratio.c_str());
       table << line;
     }
     // Rough ground's fixed gaits slow down over a long run (the robot settles into the height
@@ -218,11 +230,14 @@ int main(int argc, char** argv) {
     for (const auto& [t, b] : best) {
       char text[400];
       if (b.seconds == 0)
-        std::snprintf(text, sizeof text, "note: %s does not say how long its fixed points ran; these episodes run up to %g s\n",
+        std::snprintf(text, sizeof text,
+                      "note: %s does not say how long its fixed points ran; these episodes run up to %g s\n",
                       best_path.c_str(), episode_s);
       else if (std::abs(b.seconds - episode_s) > 1e-9)
-        std::snprintf(text, sizeof text, "note: not like for like: the fixed points of %s ran %g s, these episodes up to %g s "
-                      "(farm-mclari-sweep --seconds %g)\n", best_path.c_str(), b.seconds, episode_s, episode_s);
+        std::snprintf(text, sizeof text,
+                      "note: not like for like: the fixed points of %s ran %g s, these episodes up to %g s "
+                      "(farm-mclari-sweep --seconds %g)\n",
+                      best_path.c_str(), b.seconds, episode_s, episode_s);
       else
         continue;
       note = text;

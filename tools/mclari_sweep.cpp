@@ -64,7 +64,7 @@ struct Job {
 
 struct Result {
   Job job;
-  std::vector<std::array<double, 2>> path;  // com x, y after each step (mm), path[0] = start
+  std::vector<std::array<double, 2>> path;      // com x, y after each step (mm), path[0] = start
   double power = 0, speed = 0, efficiency = 0;  // means over the steps before a fall
   int steps = 0;
   bool fell = false;
@@ -87,17 +87,29 @@ int main(int argc, char** argv) {
         if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
         return argv[++i];
       };
-      if (a == "--out") out = value();
-      else if (a == "--config") config_path = value();
-      else if (a == "--seconds") seconds = std::stoi(value());
-      else if (a == "--frequencies") freqs = int_list(value(), "--frequencies");
-      else if (a == "--groups") groups_arg = value();
-      else if (a == "--terrains") terrains = int_list(value(), "--terrains");
-      else if (a == "--steps-per-period") spp = std::stoi(value());
-      else if (a == "--threads") threads = std::stoi(value());
-      else if (a == "--seed") seed = std::stoull(value());
-      else if (a == "--help" || a == "-h") { std::cout << kUsage; return 0; }
-      else throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
+      if (a == "--out")
+        out = value();
+      else if (a == "--config")
+        config_path = value();
+      else if (a == "--seconds")
+        seconds = std::stoi(value());
+      else if (a == "--frequencies")
+        freqs = int_list(value(), "--frequencies");
+      else if (a == "--groups")
+        groups_arg = value();
+      else if (a == "--terrains")
+        terrains = int_list(value(), "--terrains");
+      else if (a == "--steps-per-period")
+        spp = std::stoi(value());
+      else if (a == "--threads")
+        threads = std::stoi(value());
+      else if (a == "--seed")
+        seed = std::stoull(value());
+      else if (a == "--help" || a == "-h") {
+        std::cout << kUsage;
+        return 0;
+      } else
+        throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
     }
     if (out.empty()) throw std::invalid_argument(std::string("--out is required\n") + kUsage);
     if (seconds < 1) throw std::invalid_argument("--seconds must be >= 1");
@@ -110,9 +122,11 @@ int main(int argc, char** argv) {
       groups = int_list(groups_arg, "--groups");
     }
     for (int g : groups)
-      if (g < 0 || g >= mclari::kNumGroups) throw std::invalid_argument("--groups: " + std::to_string(g) + " not in [0, 27)");
+      if (g < 0 || g >= mclari::kNumGroups)
+        throw std::invalid_argument("--groups: " + std::to_string(g) + " not in [0, 27)");
     for (int t : terrains)
-      if (t < 0 || t >= mclari::kNumTerrains) throw std::invalid_argument("--terrains: " + std::to_string(t) + " not in [0, 6)");
+      if (t < 0 || t >= mclari::kNumTerrains)
+        throw std::invalid_argument("--terrains: " + std::to_string(t) + " not in [0, 6)");
 
     farm::config::MclariConfig base;
     if (!config_path.empty()) base = farm::load_config_file(config_path).task().mclari();
@@ -193,7 +207,8 @@ int main(int argc, char** argv) {
     for (auto& th : pool) th.join();
 
     std::sort(results.begin(), results.end(), [](const Result& a, const Result& b) {
-      return std::tie(a.job.terrain, a.job.group, a.job.frequency) < std::tie(b.job.terrain, b.job.group, b.job.frequency);
+      return std::tie(a.job.terrain, a.job.group, a.job.frequency) <
+             std::tie(b.job.terrain, b.job.group, b.job.frequency);
     });
     std::ofstream traj(out + "/trajectories.csv"), sum(out + "/summary.csv"), best(out + "/best.csv");
     if (!traj || !sum || !best) throw std::runtime_error("cannot write CSV files under " + out);
@@ -204,8 +219,8 @@ int main(int argc, char** argv) {
     char line[512];
     for (const auto& r : results) {
       for (size_t k = 0; k < r.path.size(); ++k) {
-        std::snprintf(line, sizeof line, "%d,%s,%d,%d,%zu,%.4f,%.4f\n", r.job.terrain, mclari::terrain_name(r.job.terrain),
-                      r.job.group, r.job.frequency, k, r.path[k][0], r.path[k][1]);
+        std::snprintf(line, sizeof line, "%d,%s,%d,%d,%zu,%.4f,%.4f\n", r.job.terrain,
+                      mclari::terrain_name(r.job.terrain), r.job.group, r.job.frequency, k, r.path[k][0], r.path[k][1]);
         traj << line;
       }
       std::snprintf(line, sizeof line, "%d,%s,%d,\"%s\",%d,%.6e,%.5f,%.6f,%d,%d,%.2f\n", r.job.terrain,
@@ -213,21 +228,23 @@ int main(int argc, char** argv) {
                     r.job.frequency, r.power, r.speed, r.efficiency, r.steps, int(r.fell), r.wall_s);
       sum << line;
     }
-    std::printf("%-13s %-18s %6s %10s %10s %12s\n", "terrain", "best group", "f [Hz]", "efficiency", "v [mm/s]", "P [W]");
+    std::printf("%-13s %-18s %6s %10s %10s %12s\n", "terrain", "best group", "f [Hz]", "efficiency", "v [mm/s]",
+                "P [W]");
     for (int t : terrains) {
       const Result* b = nullptr;
       for (const auto& r : results)
         if (r.job.terrain == t && !r.fell && (!b || r.efficiency > b->efficiency)) b = &r;
       if (!b) continue;
-      std::snprintf(line, sizeof line, "%d,%s,%d,\"%s\",%d,%.6f,%.5f,%.6e,%g\n", t, mclari::terrain_name(t), b->job.group,
-                    mclari::group_name(b->job.group).c_str(), b->job.frequency, b->efficiency, b->speed, b->power,
-                    seconds * base.step_seconds());
+      std::snprintf(line, sizeof line, "%d,%s,%d,\"%s\",%d,%.6f,%.5f,%.6e,%g\n", t, mclari::terrain_name(t),
+                    b->job.group, mclari::group_name(b->job.group).c_str(), b->job.frequency, b->efficiency, b->speed,
+                    b->power, seconds * base.step_seconds());
       best << line;
-      std::printf("%-13s %-18s %6d %10.4f %10.3f %12.3e\n", mclari::terrain_name(t), mclari::group_name(b->job.group).c_str(),
-                  b->job.frequency, b->efficiency, b->speed, b->power);
+      std::printf("%-13s %-18s %6d %10.4f %10.3f %12.3e\n", mclari::terrain_name(t),
+                  mclari::group_name(b->job.group).c_str(), b->job.frequency, b->efficiency, b->speed, b->power);
     }
     const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::printf("%zu runs of %d s on %d threads in %.0f s; CSV under %s\n", results.size(), seconds, threads, el, out.c_str());
+    std::printf("%zu runs of %d s on %d threads in %.0f s; CSV under %s\n", results.size(), seconds, threads, el,
+                out.c_str());
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-mclari-sweep: %s\n", e.what());

@@ -54,15 +54,25 @@ Options parse(int argc, char** argv) {
       if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
       return argv[++i];
     };
-    if (a == "--run-dir") o.run_dir = value();
-    else if (a == "--best") o.checkpoint = "best";
-    else if (a == "--episodes") o.episodes = std::stoi(value());
-    else if (a == "--seed") o.seed = std::stoull(value());
-    else if (a == "--plot") o.plot = value();
-    else if (a == "--plot-episodes") o.plot_episodes = std::stoi(value());
-    else if (a == "--failures") o.failures = true;
-    else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
-    else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+    if (a == "--run-dir")
+      o.run_dir = value();
+    else if (a == "--best")
+      o.checkpoint = "best";
+    else if (a == "--episodes")
+      o.episodes = std::stoi(value());
+    else if (a == "--seed")
+      o.seed = std::stoull(value());
+    else if (a == "--plot")
+      o.plot = value();
+    else if (a == "--plot-episodes")
+      o.plot_episodes = std::stoi(value());
+    else if (a == "--failures")
+      o.failures = true;
+    else if (a == "-h" || a == "--help") {
+      usage();
+      std::exit(0);
+    } else
+      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
   if (o.run_dir.empty()) throw std::invalid_argument("--run-dir DIR is required (see --help)");
   if (o.episodes < 1) throw std::invalid_argument("--episodes must be >= 1");
@@ -75,8 +85,8 @@ struct Episode {
   double time = 0, path = 0, ret = 0;
 };
 
-void draw_panel(tools::Canvas& c, int ox, int oy, int size, const MobileTask& task,
-                const MobileState& s, bool success) {
+void draw_panel(tools::Canvas& c, int ox, int oy, int size, const MobileTask& task, const MobileState& s,
+                bool success) {
   const double h = task.scene().arena_half_size();
   const double scale = (size - 20) / (2 * h);
   auto px = [&](double x) { return ox + 10 + (x + h) * scale; };
@@ -105,12 +115,10 @@ void draw_panel(tools::Canvas& c, int ox, int oy, int size, const MobileTask& ta
     c.fill_polygon(xs, ys, obstacle);
   }
   // Goal region, path, start.
-  c.fill_circle(px(s.map.goal_x), py(s.map.goal_y), std::max(4.0, task.scene().goal_radius() * scale),
-                {220, 40, 40});
+  c.fill_circle(px(s.map.goal_x), py(s.map.goal_y), std::max(4.0, task.scene().goal_radius() * scale), {220, 40, 40});
   const tools::Rgb path = success ? tools::Rgb{30, 90, 200} : tools::Rgb{120, 120, 120};
   for (size_t i = 2; i + 1 < s.trajectory.size(); i += 2) {
-    c.line(px(s.trajectory[i - 2]), py(s.trajectory[i - 1]), px(s.trajectory[i]),
-           py(s.trajectory[i + 1]), 2.5, path);
+    c.line(px(s.trajectory[i - 2]), py(s.trajectory[i - 1]), px(s.trajectory[i]), py(s.trajectory[i + 1]), 2.5, path);
   }
   c.fill_circle(px(s.map.start_x), py(s.map.start_y), task.robot_radius() * scale, {40, 160, 60});
 }
@@ -137,11 +145,11 @@ void describe_failure(const MobileTask& task, const MobileState& s, int episode,
       }
     }
   }
-  std::printf("episode %3d: %-9s at %5.1f s, (%+.2f, %+.2f) heading %+.0f deg, base at %.3f m, %.2f m "
-              "from the goal, shortest lidar range %.2f m%s%s\n",
-              episode, collision ? "collision" : "time-out", s.step * task.control_dt(), x, y,
-              yaw * 180 / M_PI, z, s.last_distance, nearest, touched.empty() ? "" : ", touching ",
-              touched.c_str());
+  std::printf(
+      "episode %3d: %-9s at %5.1f s, (%+.2f, %+.2f) heading %+.0f deg, base at %.3f m, %.2f m "
+      "from the goal, shortest lidar range %.2f m%s%s\n",
+      episode, collision ? "collision" : "time-out", s.step * task.control_dt(), x, y, yaw * 180 / M_PI, z,
+      s.last_distance, nearest, touched.empty() ? "" : ", touching ", touched.c_str());
 }
 
 }  // namespace
@@ -196,9 +204,8 @@ int main(int argc, char** argv) {
       crashed += e.collision;
     }
     std::printf("%s: policy v%llu (%lld updates, %llu env steps) on %d fresh maps (seed %llu)\n",
-                cfg.experiment_id().c_str(), (unsigned long long)m.policy_version(),
-                (long long)m.updates(), (unsigned long long)m.env_steps(), o.episodes,
-                (unsigned long long)o.seed);
+                cfg.experiment_id().c_str(), (unsigned long long)m.policy_version(), (long long)m.updates(),
+                (unsigned long long)m.env_steps(), o.episodes, (unsigned long long)o.seed);
     std::printf("success rate      %.1f %% (%d of %d)\n", 100.0 * ok / o.episodes, ok, o.episodes);
     std::printf("collisions        %d, time-outs %d\n", crashed, o.episodes - ok - crashed);
     if (ok > 0) {
@@ -213,9 +220,10 @@ int main(int argc, char** argv) {
       for (int i = 0; i < k; ++i)
         draw_panel(c, (i % cols) * size, (i / cols) * size, size, *task, *eps[i].state, eps[i].success);
       c.write_png(o.plot);
-      std::printf("trajectories      %s (%d episodes: start green, goal red, path blue when "
-                  "it reached the goal, grey when not; obstacles brown)\n",
-                  o.plot.c_str(), k);
+      std::printf(
+          "trajectories      %s (%d episodes: start green, goal red, path blue when "
+          "it reached the goal, grey when not; obstacles brown)\n",
+          o.plot.c_str(), k);
     }
     return 0;
   } catch (const std::exception& e) {

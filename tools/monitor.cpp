@@ -26,20 +26,19 @@ std::atomic<bool> g_stop{false};
 void on_signal(int) { g_stop = true; }
 
 void usage() {
-  std::cout <<
-      "usage: farm-monitor [--domain D] [--dds-profiles FILE] [--security DIR]\n"
-      "                    [--experiment ID] [--timeout S] [--interval S] [--forget S]\n"
-      "                    [--once [--wait S]] [--log FILE]\n"
-      "Shows the farm on DDS domain D live: every worker (host, id, envs, steps/s, batches sent,\n"
-      "policy version, state, age of its last heartbeat), the totals, and the learner (ingest and\n"
-      "update rates, buffer fill, policy lag, losses, returns, batch accounting).\n"
-      "  --experiment ID  only workers and learner statistics of experiment ID\n"
-      "  --timeout S      a worker silent for S seconds is shown dead, out of the totals (default 4)\n"
-      "  --interval S     refresh period (default 1)\n"
-      "  --forget S       dead workers leave the table after S seconds (default 300)\n"
-      "  --once           wait for one round of heartbeats, print one snapshot, exit (1: nothing found)\n"
-      "  --wait S         with --once: wait at most S seconds for data (default 5)\n"
-      "  --log FILE       append one JSON line per refresh (timestamp, workers, learner, totals)\n";
+  std::cout << "usage: farm-monitor [--domain D] [--dds-profiles FILE] [--security DIR]\n"
+               "                    [--experiment ID] [--timeout S] [--interval S] [--forget S]\n"
+               "                    [--once [--wait S]] [--log FILE]\n"
+               "Shows the farm on DDS domain D live: every worker (host, id, envs, steps/s, batches sent,\n"
+               "policy version, state, age of its last heartbeat), the totals, and the learner (ingest and\n"
+               "update rates, buffer fill, policy lag, losses, returns, batch accounting).\n"
+               "  --experiment ID  only workers and learner statistics of experiment ID\n"
+               "  --timeout S      a worker silent for S seconds is shown dead, out of the totals (default 4)\n"
+               "  --interval S     refresh period (default 1)\n"
+               "  --forget S       dead workers leave the table after S seconds (default 300)\n"
+               "  --once           wait for one round of heartbeats, print one snapshot, exit (1: nothing found)\n"
+               "  --wait S         with --once: wait at most S seconds for data (default 5)\n"
+               "  --log FILE       append one JSON line per refresh (timestamp, workers, learner, totals)\n";
 }
 
 double seconds_flag(const std::string& name, const std::string& v, double lo, double hi) {
@@ -64,21 +63,28 @@ MonitorOptions parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--timeout") o.timeout = seconds_flag(a, value(), 0.1, 3600);
-    else if (a == "--interval") o.interval = seconds_flag(a, value(), 0.1, 3600);
-    else if (a == "--forget") o.forget = seconds_flag(a, value(), 0, 1e7);
-    else if (a == "--once") o.once = true;
-    else if (a == "--wait") { o.wait = seconds_flag(a, value(), 0.1, 3600); wait_given = true; }
-    else if (a == "--log") {
+    if (a == "--timeout")
+      o.timeout = seconds_flag(a, value(), 0.1, 3600);
+    else if (a == "--interval")
+      o.interval = seconds_flag(a, value(), 0.1, 3600);
+    else if (a == "--forget")
+      o.forget = seconds_flag(a, value(), 0, 1e7);
+    else if (a == "--once")
+      o.once = true;
+    else if (a == "--wait") {
+      o.wait = seconds_flag(a, value(), 0.1, 3600);
+      wait_given = true;
+    } else if (a == "--log") {
       o.log_file = value();
       if (o.log_file.empty()) throw std::invalid_argument("--log needs a file name");
-    }
-    else if (a == "--experiment") {
+    } else if (a == "--experiment") {
       o.experiment = value();
       if (o.experiment.empty()) throw std::invalid_argument("--experiment needs an experiment id");
-    }
-    else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
-    else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+    } else if (a == "-h" || a == "--help") {
+      usage();
+      std::exit(0);
+    } else
+      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
   if (wait_given && !o.once) throw std::invalid_argument("--wait only applies with --once");
   return o;

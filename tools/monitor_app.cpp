@@ -28,11 +28,19 @@ std::string fmt(const char* f, double v) {
 std::string json_str(const std::string& s) {
   std::string o = "\"";
   for (unsigned char c : s) {
-    if (c == '"' || c == '\\') { o += '\\'; o += char(c); }
-    else if (c == '\n') o += "\\n";
-    else if (c == '\t') o += "\\t";
-    else if (c < 0x20) { char b[8]; std::snprintf(b, sizeof(b), "\\u%04x", c); o += b; }
-    else o += char(c);
+    if (c == '"' || c == '\\') {
+      o += '\\';
+      o += char(c);
+    } else if (c == '\n')
+      o += "\\n";
+    else if (c == '\t')
+      o += "\\t";
+    else if (c < 0x20) {
+      char b[8];
+      std::snprintf(b, sizeof(b), "\\u%04x", c);
+      o += b;
+    } else
+      o += char(c);
   }
   return o + "\"";
 }
@@ -89,8 +97,10 @@ int MonitorApp::run() {
     const double now = farm::now_seconds();
     if (now >= next) {
       std::string table = render(now);
-      if (tty) std::fputs("\033[H\033[2J", stdout);  // home, clear: the table refreshes in place
-      else std::fputs("\n", stdout);
+      if (tty)
+        std::fputs("\033[H\033[2J", stdout);  // home, clear: the table refreshes in place
+      else
+        std::fputs("\n", stdout);
       std::fputs(table.c_str(), stdout);
       std::fflush(stdout);
       write_log(now);
@@ -164,8 +174,10 @@ void MonitorApp::drain() {
     latest_learner_ = l.experiment_id();
   }
   for (auto it = workers_.begin(); it != workers_.end();) {
-    if (now - it->second.seen > opt_.timeout + opt_.forget) it = workers_.erase(it);
-    else ++it;
+    if (now - it->second.seen > opt_.timeout + opt_.forget)
+      it = workers_.erase(it);
+    else
+      ++it;
   }
 }
 
@@ -194,8 +206,14 @@ double MonitorApp::rate(const WorkerView& v, double now) const {
 MonitorApp::Totals MonitorApp::totals(double now) const {
   Totals t;
   for (auto& [k, v] : workers_) {
-    if (dead(v, now)) { ++t.dead; continue; }
-    if (v.last.state() == "finished") { ++t.finished; continue; }
+    if (dead(v, now)) {
+      ++t.dead;
+      continue;
+    }
+    if (v.last.state() == "finished") {
+      ++t.finished;
+      continue;
+    }
     ++t.live;
     t.envs += v.last.envs();
     t.env_steps += v.last.env_steps();
@@ -250,8 +268,8 @@ std::string MonitorApp::render(double now) const {
       << fmt("%.1f", now - l->seen) << " s ago, " << s.workers() << " live workers\n"
       << "  ingest   " << fmt("%.0f", s.env_steps_per_second()) << " steps/s (" << s.env_steps() << " env steps)\n"
       << "  updates  " << fmt("%.0f", s.updates_per_second()) << " upd/s (" << s.updates() << ")\n"
-      << "  buffer   " << fmt("%.1f", 100.0 * s.buffer_fill()) << "%   policy lag "
-      << fmt("%.1f", s.policy_lag()) << "\n"
+      << "  buffer   " << fmt("%.1f", 100.0 * s.buffer_fill()) << "%   policy lag " << fmt("%.1f", s.policy_lag())
+      << "\n"
       << "  losses   critic " << fmt("%.4g", s.critic_loss()) << "   actor " << fmt("%.4g", s.actor_loss()) << "\n"
       << "  return   mean " << fmt("%.1f", s.mean_return()) << "   eval " << fmt("%.1f", s.eval_return()) << "\n"
       << "  batches  ok " << s.batches_ok() << ", lost " << s.batches_lost() << ", duplicate " << s.batches_duplicate()

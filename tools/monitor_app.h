@@ -20,11 +20,11 @@ namespace farm {
 
 struct MonitorOptions {
   farm::dds::BusOptions bus;
-  double timeout = 4.0;    // a worker silent this long is dead
-  double interval = 1.0;   // refresh period
-  double forget = 300.0;   // dead workers leave the table after this long
+  double timeout = 4.0;   // a worker silent this long is dead
+  double interval = 1.0;  // refresh period
+  double forget = 300.0;  // dead workers leave the table after this long
   bool once = false;
-  double wait = 5.0;       // --once: longest wait for the first heartbeats
+  double wait = 5.0;  // --once: longest wait for the first heartbeats
   std::string log_file;
   std::string experiment;  // empty: every experiment on the domain
 };

@@ -27,8 +27,7 @@ void Canvas::pixel(int x, int y, Rgb c) {
 
 void Canvas::fill_rect(double x0, double y0, double x1, double y1, Rgb c) {
   for (int y = int(std::floor(std::min(y0, y1))); y <= int(std::ceil(std::max(y0, y1))); ++y)
-    for (int x = int(std::floor(std::min(x0, x1))); x <= int(std::ceil(std::max(x0, x1))); ++x)
-      pixel(x, y, c);
+    for (int x = int(std::floor(std::min(x0, x1))); x <= int(std::ceil(std::max(x0, x1))); ++x) pixel(x, y, c);
 }
 
 void Canvas::fill_circle(double cx, double cy, double r, Rgb c) {

@@ -41,8 +41,8 @@ int int_flag(const std::string& name, const std::string& v, int lo, int hi) {
     if (pos == v.size() && x >= lo && x <= hi) return x;
   } catch (...) {
   }
-  throw std::invalid_argument(name + " expects an integer in [" + std::to_string(lo) + ", " +
-                              std::to_string(hi) + "], got '" + v + "'");
+  throw std::invalid_argument(name + " expects an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                              "], got '" + v + "'");
 }
 
 WorkerOptions parse(int argc, char** argv) {
@@ -54,17 +54,24 @@ WorkerOptions parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--envs") o.envs = int_flag(a, value(), 1, farm::kMaxEnvsPerWorker);
-    else if (a == "--threads") o.threads = int_flag(a, value(), 1, farm::kMaxThreadsPerWorker);
-    else if (a == "--id") o.id = value();
+    if (a == "--envs")
+      o.envs = int_flag(a, value(), 1, farm::kMaxEnvsPerWorker);
+    else if (a == "--threads")
+      o.threads = int_flag(a, value(), 1, farm::kMaxThreadsPerWorker);
+    else if (a == "--id")
+      o.id = value();
     else if (a == "--experiment") {
       o.experiment = value();
       if (o.experiment.empty()) throw std::invalid_argument("--experiment needs a non-empty experiment id");
-    }
-    else if (a == "--log-every") o.log_every = int_flag(a, value(), 1, 3600);
-    else if (a == "--inject-nan-batch") o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
-    else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
-    else throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+    } else if (a == "--log-every")
+      o.log_every = int_flag(a, value(), 1, 3600);
+    else if (a == "--inject-nan-batch")
+      o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
+    else if (a == "-h" || a == "--help") {
+      usage();
+      std::exit(0);
+    } else
+      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
   }
   if (o.id.empty()) o.id = farm::dds::hostname() + "-" + std::to_string(getpid());
   return o;

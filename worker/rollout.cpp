@@ -16,25 +16,21 @@ constexpr uint64_t kNoiseStream = 0x6e6f697365ull;  // "noise"
 void check_fits(const Policy& p, const robots::TaskSpec& s) {
   if (p.obs_dim() != s.obs_dim || p.act_dim() != s.act_dim) {
     throw std::invalid_argument("policy obs/act sizes " + std::to_string(p.obs_dim()) + "/" +
-                                std::to_string(p.act_dim()) + " do not fit task '" + s.name +
-                                "' (" + std::to_string(s.obs_dim) + "/" +
-                                std::to_string(s.act_dim) + ")");
+                                std::to_string(p.act_dim()) + " do not fit task '" + s.name + "' (" +
+                                std::to_string(s.obs_dim) + "/" + std::to_string(s.act_dim) + ")");
   }
   if (p.num_actions() != s.num_actions) {
-    throw std::invalid_argument("policy has " + std::to_string(p.num_actions()) +
-                                " discrete actions, task '" + s.name + "' has " +
-                                std::to_string(s.num_actions) + " (0: continuous)");
+    throw std::invalid_argument("policy has " + std::to_string(p.num_actions()) + " discrete actions, task '" + s.name +
+                                "' has " + std::to_string(s.num_actions) + " (0: continuous)");
   }
 }
 
 }  // namespace
 
-Rollout::Rollout(std::shared_ptr<const robots::Task> task, int num_envs, int num_threads,
-                 uint64_t seed)
+Rollout::Rollout(std::shared_ptr<const robots::Task> task, int num_envs, int num_threads, uint64_t seed)
     : env_(std::move(task), num_envs, seed) {
   if (num_threads < 1) {
-    throw std::invalid_argument("Rollout: num_threads must be >= 1, got " +
-                                std::to_string(num_threads));
+    throw std::invalid_argument("Rollout: num_threads must be >= 1, got " + std::to_string(num_threads));
   }
   const int K = std::min(num_threads, num_envs);
   env_.reset_all();
@@ -100,12 +96,12 @@ void Rollout::run_chunk(Chunk& c, int T, RolloutBatch& out) {
     const auto t0 = Clock::now();
     float* obs_t = out.obs.data() + (row0 + b) * od;
     std::memcpy(obs_t, env_.obs(b), sizeof(float) * rows * od);
-    c.policy.act_per_row(obs_t, rows, noise_rng_.data() + b, false,
-                         out.actions.data() + (row0 + b) * ad, out.log_probs.data() + row0 + b);
+    c.policy.act_per_row(obs_t, rows, noise_rng_.data() + b, false, out.actions.data() + (row0 + b) * ad,
+                         out.log_probs.data() + row0 + b);
     const int before = c.ends.size();
     const auto t1 = Clock::now();
-    env_.step_range(b, c.end, out.actions.data() + row0 * ad, out.rewards.data() + row0,
-                    out.terminated.data() + row0, out.truncated.data() + row0, c.ends);
+    env_.step_range(b, c.end, out.actions.data() + row0 * ad, out.rewards.data() + row0, out.terminated.data() + row0,
+                    out.truncated.data() + row0, c.ends);
     const auto t2 = Clock::now();
     infer += t1 - t0;
     simulate += t2 - t1;
@@ -187,9 +183,8 @@ void Rollout::merge_ends(RolloutBatch& out) {
   }
 }
 
-std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task,
-                                           const PolicyParams& params, int episodes,
-                                           uint64_t seed) {
+std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
+                                           int episodes, uint64_t seed) {
   if (episodes <= 0) return {};
   Policy policy(params);
   VecEnv env(std::move(task), episodes, seed);
@@ -223,8 +218,8 @@ std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> t
     }
   }
   if (remaining > 0) {
-    throw std::logic_error("evaluate_policy: task '" + env.spec().name + "' ran past its " +
-                           std::to_string(max_steps) + "-step limit without ending");
+    throw std::logic_error("evaluate_policy: task '" + env.spec().name + "' ran past its " + std::to_string(max_steps) +
+                           "-step limit without ending");
   }
   return records;
 }

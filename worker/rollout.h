@@ -88,7 +88,7 @@ class Rollout {
 // Runs `episodes` complete episodes, one per env, side by side, with the deterministic policy
 // (tanh(mean)), and returns their records ordered by env. Throws std::invalid_argument if the
 // policy does not fit the task or the task has no time limit.
-std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task,
-                                           const PolicyParams& params, int episodes, uint64_t seed);
+std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
+                                           int episodes, uint64_t seed);
 
 }  // namespace farm

@@ -18,15 +18,15 @@ struct EpisodeRecord {
 struct RolloutBatch {
   int T = 0, N = 0, obs_dim = 0, act_dim = 0;
   uint64_t policy_version = 0;
-  std::vector<float> obs;          // [T][N][obs_dim]: observation the action was taken in
-  std::vector<float> actions;      // [T][N][act_dim]
-  std::vector<float> rewards;      // [T][N]
-  std::vector<uint8_t> terminated; // [T][N]
-  std::vector<uint8_t> truncated;  // [T][N]
-  std::vector<float> log_probs;    // [T][N]: behaviour log-probability of the action
-  std::vector<float> next_obs;     // [N][obs_dim]: observation after the last step (to bootstrap)
-  std::vector<uint32_t> final_index;  // t * N + n for every step where an episode ended
-  std::vector<float> final_obs;       // [final_index.size()][obs_dim]: true last observation
+  std::vector<float> obs;               // [T][N][obs_dim]: observation the action was taken in
+  std::vector<float> actions;           // [T][N][act_dim]
+  std::vector<float> rewards;           // [T][N]
+  std::vector<uint8_t> terminated;      // [T][N]
+  std::vector<uint8_t> truncated;       // [T][N]
+  std::vector<float> log_probs;         // [T][N]: behaviour log-probability of the action
+  std::vector<float> next_obs;          // [N][obs_dim]: observation after the last step (to bootstrap)
+  std::vector<uint32_t> final_index;    // t * N + n for every step where an episode ended
+  std::vector<float> final_obs;         // [final_index.size()][obs_dim]: true last observation
   std::vector<EpisodeRecord> episodes;  // episodes that finished in this batch
   void resize(int T, int N, int obs_dim, int act_dim);
   // Appends a record to `episodes`, reusing one of an earlier batch (and its metrics storage),

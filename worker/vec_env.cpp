@@ -15,8 +15,7 @@ EpisodeRecord& EpisodeEnds::add(int obs_dim, float** final_obs) {
   return records_[size_++];
 }
 
-VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed)
-    : task_(std::move(task)) {
+VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed) : task_(std::move(task)) {
   if (!task_) throw std::invalid_argument("VecEnv: no task");
   if (num_envs <= 0) {
     throw std::invalid_argument("VecEnv: num_envs must be > 0, got " + std::to_string(num_envs));
@@ -42,8 +41,8 @@ void VecEnv::reset_all() {
   for (int i = 0; i < num_envs(); ++i) reset(i);
 }
 
-void VecEnv::step_range(int begin, int end, const float* actions, float* rewards,
-                        uint8_t* terminated, uint8_t* truncated, EpisodeEnds& ends) {
+void VecEnv::step_range(int begin, int end, const float* actions, float* rewards, uint8_t* terminated,
+                        uint8_t* truncated, EpisodeEnds& ends) {
   for (int i = begin; i < end; ++i) {
     robots::TaskState& s = *states_[i];
     float* o = obs_.data() + size_t(i) * obs_dim_;

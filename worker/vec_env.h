@@ -74,8 +74,8 @@ class VecEnv {
   // rewards/terminated/truncated [N]); only rows [begin, end) are read or written. An env whose
   // episode ends has its true last observation and EpisodeRecord appended to `ends`, and is
   // reset at once, so obs(env) is then the first observation of its next episode.
-  void step_range(int begin, int end, const float* actions, float* rewards, uint8_t* terminated,
-                  uint8_t* truncated, EpisodeEnds& ends);
+  void step_range(int begin, int end, const float* actions, float* rewards, uint8_t* terminated, uint8_t* truncated,
+                  EpisodeEnds& ends);
 
  private:
   std::shared_ptr<const robots::Task> task_;

@@ -22,7 +22,10 @@ constexpr size_t kMaxForeignNoted = 16;
 
 uint64_t fnv1a(const std::string& s) {
   uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : s) { h ^= c; h *= 1099511628211ull; }
+  for (unsigned char c : s) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
   return h;
 }
 
@@ -88,8 +91,7 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
 
 int WorkerApp::run() {
   log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
-      (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
-      ", DDS profiles " + bus_.profiles_file() +
+      (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") + ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   double last_wait_note = -1e9;
   while (!stop_) {
@@ -213,9 +215,9 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
     batches_on_version_ = 0;
     batch_quota_ = 0;
     last_error_.clear();
-    log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " +
-        std::to_string(envs) + " envs on " + std::to_string(opt_.threads) + " threads, " +
-        std::to_string(s.steps_per_batch()) + " steps per batch");
+    log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
+        " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
+        " steps per batch");
   } catch (const std::exception& e) {
     last_error_ = e.what();
     state_ = "error";
@@ -300,8 +302,8 @@ void WorkerApp::finish() {
   state_ = "finished";
   heartbeat(true);
   log("finished: " + std::to_string(sequence_) + " batches sent (sequence 0.." +
-      std::to_string(sequence_ ? sequence_ - 1 : 0) + "), " + std::to_string(steps_.total()) +
-      " env steps, mean " + std::to_string(int64_t(steps_.mean_rate())) + " steps/s");
+      std::to_string(sequence_ ? sequence_ - 1 : 0) + "), " + std::to_string(steps_.total()) + " env steps, mean " +
+      std::to_string(int64_t(steps_.mean_rate())) + " steps/s");
 }
 
 void WorkerApp::heartbeat(bool force) {
@@ -324,9 +326,8 @@ void WorkerApp::heartbeat(bool force) {
   s.last_error(last_error_);
   status_out_.write(s);
   if (t - last_log_ >= opt_.log_every && rollout_) {
-    log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " +
-        std::to_string(sequence_) + " batches sent, policy v" +
-        std::to_string(rollout_->policy_version()));
+    log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " + std::to_string(sequence_) +
+        " batches sent, policy v" + std::to_string(rollout_->policy_version()));
     last_log_ = t;
   }
 }
@@ -341,8 +342,7 @@ std::string WorkerApp::time_split(double t) {
   if (last_log_ > 0 && wall > 0) {
     auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
     s = " (simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
-        pct((now.infer_s - split_at_.infer_s) / k) + ", publish " +
-        pct(publish_s_ - split_publish_s_) + ")";
+        pct((now.infer_s - split_at_.infer_s) / k) + ", publish " + pct(publish_s_ - split_publish_s_) + ")";
   }
   split_at_ = now;
   split_publish_s_ = publish_s_;

@@ -22,7 +22,7 @@ namespace farm {
 
 struct WorkerOptions {
   farm::dds::BusOptions bus;
-  int envs = 0;      // 0: the experiment's worker.envs_per_worker
+  int envs = 0;  // 0: the experiment's worker.envs_per_worker
   int threads = 1;
   std::string id;
   // The experiment this worker serves; empty: the first one it can join.
@@ -61,7 +61,7 @@ class WorkerApp {
   // next write would otherwise replace ours before the main loop takes it. Specs are kept in
   // order (the first experiment seen binds an unbound worker), weights the latest per experiment.
   std::mutex in_mu_;
-  std::deque<farm::msg::ExperimentSpec> specs_in_;                  // bounded: kMaxSpecsIn
+  std::deque<farm::msg::ExperimentSpec> specs_in_;                 // bounded: kMaxSpecsIn
   std::map<std::string, farm::msg::PolicyWeights> weights_in_by_;  // bounded: kMaxExperimentsKept
   static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
   farm::dds::Bus bus_;
@@ -70,9 +70,9 @@ class WorkerApp {
   farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
   farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
   uint64_t session_;
-  std::string experiment_;             // the bound experiment; empty until the first join (no --experiment)
-  std::set<std::string> foreign_;      // other experiments already noted (bounded)
-  farm::msg::ExperimentSpec spec_;     // of experiment_, once joined
+  std::string experiment_;          // the bound experiment; empty until the first join (no --experiment)
+  std::set<std::string> foreign_;   // other experiments already noted (bounded)
+  farm::msg::ExperimentSpec spec_;  // of experiment_, once joined
   std::unique_ptr<Rollout> rollout_;
   RolloutBatch batch_;
   uint64_t sequence_ = 0;

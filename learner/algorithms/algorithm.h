@@ -33,10 +33,10 @@ struct EvalReport {
 // The farm's own figures, for an algorithm's progress line, fit line and summary.
 struct FarmFigures {
   uint64_t env_steps = 0, ok = 0, lost = 0, duplicate = 0, invalid = 0;
-  uint64_t episodes = 0;           // finished episodes taken so far
-  int workers = 0;                 // live workers
-  double mean_return = NAN;        // of the last 100 training episodes
-  double best_eval = NAN;          // the best evaluation so far (kept in <run dir>/best)
+  uint64_t episodes = 0;     // finished episodes taken so far
+  int workers = 0;           // live workers
+  double mean_return = NAN;  // of the last 100 training episodes
+  double best_eval = NAN;    // the best evaluation so far (kept in <run dir>/best)
   // At a progress line only: env steps/s and mean policy lag since the last line, and the live
   // workers that wait on the learner (" (2 throttled)"; "" when none).
   double in_rate = 0, lag = 0;

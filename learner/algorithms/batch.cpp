@@ -30,8 +30,7 @@ void fold_n_step(int64_t T, int64_t N, const uint8_t* truncated, Transitions& ro
       rows.terminated[i] = rows.terminated[j];
       rows.horizon[i] = float(m);
       if (j != i)
-        std::copy(rows.next_obs.begin() + j * od, rows.next_obs.begin() + (j + 1) * od,
-                  rows.next_obs.begin() + i * od);
+        std::copy(rows.next_obs.begin() + j * od, rows.next_obs.begin() + (j + 1) * od, rows.next_obs.begin() + i * od);
     }
   }
 }

@@ -15,8 +15,7 @@ void configure_compute(int threads) {
   torch::set_num_threads(threads);
   // Looked up at run time: torch may be linked against a BLAS without this entry point.
   using SetThreads = void (*)(int);
-  if (auto f = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads")))
-    f(threads);
+  if (auto f = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) f(threads);
 #ifdef __GLIBC__
   // Fixed thresholds (which also turn off glibc's adaptive ones): tensors below 64 MiB come from
   // the heap, and up to 256 MiB of free heap is kept rather than trimmed.
@@ -28,8 +27,7 @@ void configure_compute(int threads) {
 // The device a config names, checked against what this LibTorch build and machine offer.
 torch::Device learner_device(const std::string& name, const std::string& field) {
   if (!valid_device_name(name))
-    throw std::invalid_argument(field + ": expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" +
-                                name + "\"");
+    throw std::invalid_argument(field + ": expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + name + "\"");
   torch::Device d(name);
   if (d.is_cuda()) {
     if (!torch::cuda::is_available())
@@ -37,8 +35,8 @@ torch::Device learner_device(const std::string& name, const std::string& field) 
                                "\" but this learner's LibTorch has no CUDA or sees no GPU "
                                "(build with deploy/build-gpu.sh on a GPU host, or use \"cpu\")");
     if (d.has_index() && d.index() >= int(torch::cuda::device_count()))
-      throw std::runtime_error(field + " is \"" + name + "\" but only " +
-                               std::to_string(torch::cuda::device_count()) + " GPU(s) are visible");
+      throw std::runtime_error(field + " is \"" + name + "\" but only " + std::to_string(torch::cuda::device_count()) +
+                               " GPU(s) are visible");
   }
   return d;
 }

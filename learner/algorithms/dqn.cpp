@@ -18,8 +18,7 @@ namespace {
 struct QNetImpl : torch::nn::Module {
   explicit QNetImpl(const std::vector<int64_t>& sizes) {
     for (size_t i = 0; i + 1 < sizes.size(); ++i)
-      layers.push_back(register_module("l" + std::to_string(i),
-                                       torch::nn::Linear(sizes[i], sizes[i + 1])));
+      layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
   }
   torch::Tensor forward(torch::Tensor x) {
     for (size_t i = 0; i < layers.size(); ++i) {
@@ -40,8 +39,8 @@ std::vector<int> dqn_hidden(const config::DqnConfig& c) {
 }  // namespace
 
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
-                         const torch::Tensor& next_q_online, const torch::Tensor& next_q_target,
-                         double gamma, bool double_q, const torch::Tensor& horizon) {
+                         const torch::Tensor& next_q_online, const torch::Tensor& next_q_target, double gamma,
+                         bool double_q, const torch::Tensor& horizon) {
   torch::Tensor next_v;
   if (double_q) {
     const auto best = next_q_online.argmax(1, /*keepdim=*/true);
@@ -56,23 +55,20 @@ torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& termi
 double dqn_epsilon(const config::DqnConfig& c, int64_t env_steps) {
   const double span = c.exploration_fraction() * double(c.schedule_env_steps());
   const double progress = span > 0 ? std::min(1.0, double(env_steps) / span) : 1.0;
-  return c.exploration_initial_eps() +
-         progress * (c.exploration_final_eps() - c.exploration_initial_eps());
+  return c.exploration_initial_eps() + progress * (c.exploration_final_eps() - c.exploration_initial_eps());
 }
 
 struct Dqn::Impl {
   Impl(const config::DqnConfig& c, int obs, int actions)
-      : cfg(c), obs_dim(obs), num_actions(actions), hidden(dqn_hidden(c)),
-        online(sizes()), target(sizes()) {
+      : cfg(c), obs_dim(obs), num_actions(actions), hidden(dqn_hidden(c)), online(sizes()), target(sizes()) {
     check_config(c);  // the loader's checks, for a config built in code
     if (obs < 1 || actions < 2) {
-      throw std::invalid_argument("dqn: needs obs_dim >= 1 and >= 2 discrete actions, got " +
-                                  std::to_string(obs) + " and " + std::to_string(actions));
+      throw std::invalid_argument("dqn: needs obs_dim >= 1 and >= 2 discrete actions, got " + std::to_string(obs) +
+                                  " and " + std::to_string(actions));
     }
     copy_target();
     for (auto& p : target->parameters()) p.requires_grad_(false);
-    opt = std::make_unique<torch::optim::Adam>(online->parameters(),
-                                               torch::optim::AdamOptions(cfg.learning_rate()));
+    opt = std::make_unique<torch::optim::Adam>(online->parameters(), torch::optim::AdamOptions(cfg.learning_rate()));
   }
   std::vector<int64_t> sizes() const {
     std::vector<int64_t> s{obs_dim};
@@ -113,8 +109,8 @@ DqnStats Dqn::update(const SampledBatch& batch) {
     torch::NoGradGuard no_grad;
     const auto next_target = s.target->forward(batch.next_obs);
     const auto next_online = s.cfg.double_q() ? s.online->forward(batch.next_obs) : next_target;
-    target = dqn_target(batch.rewards, batch.terminated, next_online, next_target,
-                        s.cfg.gamma(), s.cfg.double_q(), batch.horizon);
+    target = dqn_target(batch.rewards, batch.terminated, next_online, next_target, s.cfg.gamma(), s.cfg.double_q(),
+                        batch.horizon);
   }
   const auto q = s.online->forward(batch.obs).gather(1, actions).squeeze(1);
   const auto loss = torch::smooth_l1_loss(q, target);

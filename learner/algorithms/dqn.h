@@ -19,8 +19,8 @@
 namespace farm {
 
 struct DqnStats {
-  double loss = 0;     // Huber loss of the update
-  double q_mean = 0;   // mean Q(s, a) of the batch's actions
+  double loss = 0;    // Huber loss of the update
+  double q_mean = 0;  // mean Q(s, a) of the batch's actions
   double target_mean = 0;
 };
 
@@ -29,8 +29,8 @@ struct DqnStats {
 // plain:  r + gamma^h (1 - terminated) max_a Q_target(s', a),
 // h the rows' horizon [B] (multi-step returns); an undefined `horizon` means h = 1.
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
-                         const torch::Tensor& next_q_online, const torch::Tensor& next_q_target,
-                         double gamma, bool double_q, const torch::Tensor& horizon = {});
+                         const torch::Tensor& next_q_online, const torch::Tensor& next_q_target, double gamma,
+                         bool double_q, const torch::Tensor& horizon = {});
 
 // Exploration probability after `env_steps` environment steps: falls linearly from
 // exploration_initial_eps to exploration_final_eps over exploration_fraction *

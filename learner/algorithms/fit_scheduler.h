@@ -10,7 +10,7 @@
 namespace farm {
 
 struct FitPlan {
-  int64_t steps_per_fit = 0;     // exactly one of steps_per_fit, episodes_per_fit is > 0
+  int64_t steps_per_fit = 0;  // exactly one of steps_per_fit, episodes_per_fit is > 0
   int64_t episodes_per_fit = 0;
   int64_t steps_per_run = 0;     // 0: no limit
   int64_t episodes_per_run = 0;  // 0: no limit
@@ -61,7 +61,7 @@ class FitScheduler {
   int64_t fits() const { return fits_; }
   int64_t run_steps() const { return run_steps_; }
   int64_t run_episodes() const { return run_episodes_; }
-  int64_t fit_steps() const { return fit_steps_; }   // collected toward the next fit, carry included
+  int64_t fit_steps() const { return fit_steps_; }  // collected toward the next fit, carry included
   const FitPlan& plan() const { return plan_; }
 
  private:

@@ -2,9 +2,8 @@
 
 namespace farm {
 
-void compute_gae(const float* rewards, const float* values, const float* next_values,
-                 const uint8_t* terminated, const uint8_t* truncated, int64_t n, double gamma,
-                 double lambda, float* advantages, float* returns) {
+void compute_gae(const float* rewards, const float* values, const float* next_values, const uint8_t* terminated,
+                 const uint8_t* truncated, int64_t n, double gamma, double lambda, float* advantages, float* returns) {
   double next_adv = 0.0;
   for (int64_t t = n - 1; t >= 0; --t) {
     const double future = terminated[t] ? 0.0 : double(next_values[t]);

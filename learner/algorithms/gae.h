@@ -15,8 +15,7 @@ namespace farm {
 //   delta_t = r_t + gamma * (1 - terminated_t) * next_values_t - values_t
 //   A_t     = delta_t + gamma * lambda * (1 - terminated_t) * (1 - truncated_t) * A_{t+1}
 // with A_n = 0.
-void compute_gae(const float* rewards, const float* values, const float* next_values,
-                 const uint8_t* terminated, const uint8_t* truncated, int64_t n, double gamma,
-                 double lambda, float* advantages, float* returns);
+void compute_gae(const float* rewards, const float* values, const float* next_values, const uint8_t* terminated,
+                 const uint8_t* truncated, int64_t n, double gamma, double lambda, float* advantages, float* returns);
 
 }  // namespace farm

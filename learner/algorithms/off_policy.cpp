@@ -28,9 +28,7 @@ class SacAlgorithm final : public OffPolicy {
   double max_updates_per_step() const override { return cfg_.max_updates_per_step(); }
   int publish_every_updates() const override { return cfg_.publish_every_updates(); }
   double gamma() const override { return cfg_.gamma(); }
-  std::string describe() const override {
-    return "SAC " + sac_.export_policy(0).layout.describe() + " actor";
-  }
+  std::string describe() const override { return "SAC " + sac_.export_policy(0).layout.describe() + " actor"; }
 
  private:
   config::SacConfig cfg_;
@@ -59,9 +57,8 @@ class DqnAlgorithm final : public OffPolicy {
   int n_step() const override { return cfg_.n_step(); }
   double gamma() const override { return cfg_.gamma(); }
   std::string describe() const override {
-    return std::string(cfg_.double_q() ? "double DQN " : "DQN ") +
-           dqn_.export_policy(0).layout.describe() + " Q network" +
-           (cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "");
+    return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
+           " Q network" + (cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "");
   }
 
  private:

@@ -57,7 +57,6 @@ std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg, 
 class Algorithm;
 // The replay-buffer driver (off_policy_algorithm.cpp) running an adapter in the learner.
 std::unique_ptr<Algorithm> make_off_policy_algorithm(std::unique_ptr<OffPolicy> algo,
-                                                     const config::ExperimentConfig& cfg,
-                                                     const robots::TaskSpec& spec);
+                                                     const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
 
 }  // namespace farm

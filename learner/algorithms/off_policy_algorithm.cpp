@@ -21,8 +21,7 @@ namespace {
 
 class OffPolicyAlgorithm final : public Algorithm {
  public:
-  OffPolicyAlgorithm(std::unique_ptr<OffPolicy> algo, const config::ExperimentConfig& cfg,
-                     const robots::TaskSpec& spec)
+  OffPolicyAlgorithm(std::unique_ptr<OffPolicy> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
       : cfg_(cfg),
         algo_(std::move(algo)),
         algo_name_(algo_->name()),
@@ -79,9 +78,7 @@ class OffPolicyAlgorithm final : public Algorithm {
     return wait;
   }
 
-  void hold_workers(Farm& farm) override {
-    farm.publish(algo_->export_policy(version()), 1);
-  }
+  void hold_workers(Farm& farm) override { farm.publish(algo_->export_policy(version()), 1); }
 
   void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) override {
     const double upd_rate = updates_meter_.rate();
@@ -92,13 +89,12 @@ class OffPolicyAlgorithm final : public Algorithm {
       << fmt("%.0f", upd_rate) << " upd/s (" << algo_->updates() << ", utd " << fmt("%.3f", utd) << ") | buffer "
       << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
       << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
-      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << " | workers " << f.workers
-      << f.waiting_note;
+      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << " | workers " << f.workers << f.waiting_note;
     farm.log(o.str());
     std::ostringstream row;
-    row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates()
-        << ',' << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ',' << version()
-        << ',' << fmt("%.2f", f.lag) << ',' << fmt("%.5g", last_stats_.critic_loss) << ','
+    row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates() << ','
+        << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ',' << version() << ','
+        << fmt("%.2f", f.lag) << ',' << fmt("%.5g", last_stats_.critic_loss) << ','
         << fmt("%.5g", last_stats_.actor_loss) << ',' << fmt("%.5g", last_stats_.alpha) << ','
         << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ',' << f.ok << ',' << f.lost << ','
         << f.duplicate << ',' << f.invalid << ',' << f.workers;
@@ -117,8 +113,8 @@ class OffPolicyAlgorithm final : public Algorithm {
 
   std::string summary(const FarmFigures& f, double elapsed) const override {
     std::ostringstream o;
-    o << "updates           " << algo_->updates() << " ("
-      << fmt("%.0f", algo_->updates() / std::max(elapsed, 1e-9)) << " updates/s)\n"
+    o << "updates           " << algo_->updates() << " (" << fmt("%.0f", algo_->updates() / std::max(elapsed, 1e-9))
+      << " updates/s)\n"
       << "policy versions   " << version() << "\n"
       << "episodes          " << f.episodes << "\n"
       << "final eval return " << fmt("%.1f", final_return_) << " (mean of " << cfg_.eval().final_episodes()

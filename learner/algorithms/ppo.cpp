@@ -6,8 +6,8 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "config.h"
 #include "compute.h"
+#include "config.h"
 
 namespace farm {
 
@@ -45,11 +45,12 @@ torch::Tensor from_floats(const float* p, int64_t rows, int64_t cols) {
 
 double adapt_learning_rate(double lr, double kl, const config::PpoConfig& c) {
   if (!std::isfinite(kl)) return lr;
-  if (kl > c.kl_band() * c.desired_kl()) lr /= c.lr_factor();
-  else if (kl < c.desired_kl() / c.kl_band()) lr *= c.lr_factor();
+  if (kl > c.kl_band() * c.desired_kl())
+    lr /= c.lr_factor();
+  else if (kl < c.desired_kl() / c.kl_band())
+    lr *= c.lr_factor();
   return std::clamp(lr, c.lr_min(), c.lr_max());
 }
-
 
 std::vector<int> ppo_hidden(const config::PpoConfig& c) {
   if (c.hidden_size() == 0) return {64, 64};
@@ -103,7 +104,10 @@ Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) 
   s.act_dim = act_dim;
   s.hidden = ppo_hidden(cfg);
   std::vector<int64_t> a{obs_dim}, v{obs_dim};
-  for (int h : s.hidden) { a.push_back(h); v.push_back(h); }
+  for (int h : s.hidden) {
+    a.push_back(h);
+    v.push_back(h);
+  }
   a.push_back(act_dim);
   v.push_back(1);
   const bool th = cfg.activation() == "tanh";
@@ -112,7 +116,8 @@ Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) 
   s.device = learner_device(cfg.device(), "ppo.device");
   s.actor->to(s.device);
   s.critic->to(s.device);
-  s.log_std = torch::full({act_dim}, cfg.initial_log_std(), torch::TensorOptions().device(s.device).requires_grad(true));
+  s.log_std =
+      torch::full({act_dim}, cfg.initial_log_std(), torch::TensorOptions().device(s.device).requires_grad(true));
   std::vector<torch::Tensor> params = s.actor->parameters();
   for (auto& p : s.critic->parameters()) params.push_back(p);
   params.push_back(s.log_std);
@@ -136,7 +141,8 @@ std::vector<float> Ppo::log_probs(const float* obs, const float* actions, int64_
   // Non-const: LibTorch 2.x's const ModuleHolder gives only const access, and forward() is not.
   Impl& s = *impl_;
   auto mean = s.actor->forward(s.normalize(obs, n));
-  auto lp = Impl::log_prob(mean, s.clamped_log_std(), from_floats(actions, n, s.act_dim).to(s.device)).cpu().contiguous();
+  auto lp =
+      Impl::log_prob(mean, s.clamped_log_std(), from_floats(actions, n, s.act_dim).to(s.device)).cpu().contiguous();
   return {lp.data_ptr<float>(), lp.data_ptr<float>() + n};
 }
 
@@ -159,7 +165,8 @@ PpoStats Ppo::fit(const PpoSamples& d) {
     old_ls = s.clamped_log_std().clone();
     const auto recomputed = Impl::log_prob(old_mean, old_ls, A);
     const auto behaviour = from_floats(d.behaviour_log_prob.data(), n, 1).reshape({n}).to(s.device);
-    const auto cur = torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(s.device).to(torch::kBool);
+    const auto cur =
+        torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(s.device).to(torch::kBool);
     old_lp = torch::where(cur, recomputed, behaviour);
   }
   auto adv = from_floats(d.advantages.data(), n, 1).reshape({n}).to(s.device);
@@ -199,7 +206,9 @@ PpoStats Ppo::fit(const PpoSamples& d) {
         torch::NoGradGuard g;
         const auto om = old_mean.index_select(0, idx);
         const auto kl = (ls - old_ls + (torch::exp(2 * old_ls) + (om - mean).pow(2)) / (2 * torch::exp(2 * ls)) - 0.5)
-                            .sum(-1).mean().item<double>();
+                            .sum(-1)
+                            .mean()
+                            .item<double>();
         s.set_lr(adapt_learning_rate(s.lr, kl, s.cfg));
       }
       if (last_epoch) {
@@ -223,7 +232,9 @@ PpoStats Ppo::fit(const PpoSamples& d) {
     const auto mean = s.actor->forward(X);
     const auto ls = s.clamped_log_std();
     st.kl = (ls - old_ls + (torch::exp(2 * old_ls) + (old_mean - mean).pow(2)) / (2 * torch::exp(2 * ls)) - 0.5)
-                .sum(-1).mean().item<double>();
+                .sum(-1)
+                .mean()
+                .item<double>();
     st.entropy = (ls + 0.5 + kHalfLog2Pi).sum().item<double>();
   }
   st.learning_rate = s.lr;

@@ -29,8 +29,8 @@ std::vector<int> ppo_hidden(const config::PpoConfig& cfg);  // default [64, 64]
 // One fit's data, flattened: row i is one step.
 struct PpoSamples {
   int64_t n = 0;
-  std::vector<float> obs;            // [n x obs_dim], raw (the fit normalizes)
-  std::vector<float> actions;        // [n x act_dim], as the env ran them (in [-1, 1])
+  std::vector<float> obs;                 // [n x obs_dim], raw (the fit normalizes)
+  std::vector<float> actions;             // [n x act_dim], as the env ran them (in [-1, 1])
   std::vector<float> behaviour_log_prob;  // [n], sent by the worker
   // [n]: 1 where the step was made by the version being fitted: its ratio denominator is
   // recomputed (the same policy); 0 for older data (carried over, or lag >= 1): the ratio is
@@ -40,13 +40,13 @@ struct PpoSamples {
 };
 
 struct PpoStats {
-  double kl = 0;              // mean KL(old || new) over the fit's data, after the fit
-  double learning_rate = 0;   // after the fit (the KL-adaptive rate moves it)
-  double clip_fraction = 0;   // share of samples whose ratio left [1 - eps, 1 + eps], last epoch
-  double value_loss = 0;      // mean over the last epoch's mini-batches
+  double kl = 0;             // mean KL(old || new) over the fit's data, after the fit
+  double learning_rate = 0;  // after the fit (the KL-adaptive rate moves it)
+  double clip_fraction = 0;  // share of samples whose ratio left [1 - eps, 1 + eps], last epoch
+  double value_loss = 0;     // mean over the last epoch's mini-batches
   double policy_loss = 0;
-  double entropy = 0;         // of the Gaussian, per step, after the fit
-  double grad_norm = 0;       // mean before clipping, last epoch
+  double entropy = 0;    // of the Gaussian, per step, after the fit
+  double grad_norm = 0;  // mean before clipping, last epoch
   int64_t samples = 0;
   int64_t minibatches = 0;
 };

@@ -163,7 +163,6 @@ class PpoAlgorithm final : public Algorithm {
   }
 
  public:
-
   bool take(const Batch& b) override {
     const Transitions& rows = *b.rows;
     if (rows.n == 0) return false;  // end of stream
@@ -190,8 +189,9 @@ class PpoAlgorithm final : public Algorithm {
     const double t = now_seconds();
     const FitScheduler::Fit f = sched_.take_fit();
     PpoSamples samples;
-    storage_.take(f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(),
-                  pc_.gae_lambda(), version_, samples);
+    storage_.take(
+        f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(), pc_.gae_lambda(),
+        version_, samples);
     const PpoStats st = ppo_.fit(samples);
     require_finite_update("ppo", ppo_.fits(),
                           {{"value loss", st.value_loss}, {"policy loss", st.policy_loss}, {"kl", st.kl}});
@@ -202,32 +202,35 @@ class PpoAlgorithm final : public Algorithm {
     const uint64_t fitted = version_;
     ++version_;
     quota_ = batches_for_next_fit(farm);
-    if (!sched_.run_done()) publish_weights(farm);
-    else policy_ = ppo_.export_policy(version_);
+    if (!sched_.run_done())
+      publish_weights(farm);
+    else
+      policy_ = ppo_.export_policy(version_);
     const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0;
     if (eval_now) evaluate(farm, cfg_.eval().episodes(), elapsed, "eval");
     const FarmFigures c = farm.figures();
     const double mean_ret = c.mean_return;
     std::ostringstream o;
     o << "fit " << ppo_.fits() << " | v" << fitted << " -> v" << version_ << " | steps used " << f.steps_used
-      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | kl " << fmt("%.4f", st.kl)
-      << " lr " << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction) << " | value loss "
+      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | kl " << fmt("%.4f", st.kl) << " lr "
+      << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction) << " | value loss "
       << fmt("%.4g", st.value_loss) << " entropy " << fmt("%.3f", st.entropy) << " | return " << fmt("%.1f", mean_ret)
       << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps
       << " env steps, " << fmt("%.1f", elapsed) << " s";
     farm.log(o.str());
     std::ostringstream csv;
     csv << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
-         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
-         << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
-         << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ','
-         << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "")
-         << ',' << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ','
-         << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "") << ',' << c.ok << ',' << c.lost << ','
-         << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ',' << c.workers << ',' << fit_episodes_;
+        << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
+        << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
+        << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ','
+        << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "") << ','
+        << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ',' << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "")
+        << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ','
+        << c.workers << ',' << fit_episodes_;
     const size_t nm = spec_.metric_names.size();
     for (size_t i = 0; i < nm; ++i)
-      csv << ',' << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_) : "");
+      csv << ','
+          << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_) : "");
     for (size_t i = 0; i < nm; ++i)
       csv << ',' << (eval_now && i < last_eval_.metrics.size() ? fmt("%.5g", last_eval_.metrics[i]) : "");
     farm.csv_row(csv.str());
@@ -240,11 +243,12 @@ class PpoAlgorithm final : public Algorithm {
     const EvalReport r = farm.evaluate(policy_, episodes);
     last_eval_ = r;
     std::string metrics;
-    for (size_t i = 0; i < r.metrics.size(); ++i) metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
-    farm.log(label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " + fmt("%.1f", r.max) +
-        ") over " + std::to_string(r.episodes) + " deterministic episodes, length " + fmt("%.1f", r.mean_length) +
-        metrics + " (policy v" + std::to_string(policy_.version) + ", " + std::to_string(ppo_.fits()) + " fits, " +
-        fmt("%.1f", elapsed) + " s)");
+    for (size_t i = 0; i < r.metrics.size(); ++i)
+      metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " +
+             fmt("%.1f", r.max) + ") over " + std::to_string(r.episodes) + " deterministic episodes, length " +
+             fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(policy_.version) + ", " +
+             std::to_string(ppo_.fits()) + " fits, " + fmt("%.1f", elapsed) + " s)");
     farm.record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
     return r;
   }
@@ -312,8 +316,8 @@ class PpoAlgorithm final : public Algorithm {
   Ppo ppo_;
   RolloutStorage storage_;
   FitScheduler sched_;
-  uint64_t fit_episodes_ = 0;              // episodes finished since the last fit
-  std::vector<double> fit_metric_sums_;    // their task metrics, summed
+  uint64_t fit_episodes_ = 0;                  // episodes finished since the last fit
+  std::vector<double> fit_metric_sums_;        // their task metrics, summed
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
   PolicyParams policy_;
   PpoStats last_stats_{};

@@ -42,8 +42,8 @@ std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg, 
     std::string known;
     for (const auto& r : algorithms())
       if (r.make_off_policy) known += std::string(known.empty() ? "" : ", ") + "\"" + r.name + "\"";
-    throw std::invalid_argument("algorithm \"" + cfg.algorithm() + "\" is not an off-policy algorithm (known: " +
-                                known + ")");
+    throw std::invalid_argument("algorithm \"" + cfg.algorithm() +
+                                "\" is not an off-policy algorithm (known: " + known + ")");
   }
   return a.make_off_policy(cfg, spec);
 }

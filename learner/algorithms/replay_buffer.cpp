@@ -21,8 +21,8 @@ struct FileHeader {
 };
 
 std::string describe_dims(int64_t capacity, int obs_dim, int act_dim) {
-  return "capacity " + std::to_string(capacity) + ", obs_dim " + std::to_string(obs_dim) +
-         ", act_dim " + std::to_string(act_dim);
+  return "capacity " + std::to_string(capacity) + ", obs_dim " + std::to_string(obs_dim) + ", act_dim " +
+         std::to_string(act_dim);
 }
 
 }  // namespace
@@ -47,17 +47,15 @@ ReplayBuffer::ReplayBuffer(int64_t capacity, int obs_dim, int act_dim)
   horizon_p_ = horizon_.data_ptr<float>();
 }
 
-void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs,
-                             const float* actions, const float* rewards,
-                             const uint8_t* terminated, const float* next_obs,
+void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs, const float* actions,
+                             const float* rewards, const uint8_t* terminated, const float* next_obs,
                              const float* horizon) {
   assert(dst + n <= capacity_);
   std::memcpy(obs_p_ + dst * obs_dim_, obs + src * obs_dim_, sizeof(float) * n * obs_dim_);
   std::memcpy(actions_p_ + dst * act_dim_, actions + src * act_dim_, sizeof(float) * n * act_dim_);
   std::memcpy(rewards_p_ + dst, rewards + src, sizeof(float) * n);
   for (int64_t i = 0; i < n; ++i) terminated_p_[dst + i] = terminated[src + i] ? 1.f : 0.f;
-  std::memcpy(next_obs_p_ + dst * obs_dim_, next_obs + src * obs_dim_,
-              sizeof(float) * n * obs_dim_);
+  std::memcpy(next_obs_p_ + dst * obs_dim_, next_obs + src * obs_dim_, sizeof(float) * n * obs_dim_);
   if (horizon) {
     std::memcpy(horizon_p_ + dst, horizon + src, sizeof(float) * n);
   } else {
@@ -65,8 +63,7 @@ void ReplayBuffer::copy_rows(int64_t dst, int64_t src, int64_t n, const float* o
   }
 }
 
-void ReplayBuffer::add(const float* obs, const float* action, float reward, bool terminated,
-                       const float* next_obs) {
+void ReplayBuffer::add(const float* obs, const float* action, float reward, bool terminated, const float* next_obs) {
   const uint8_t t = terminated ? 1 : 0;
   copy_rows(next_, 0, 1, obs, action, &reward, &t, next_obs, nullptr);
   next_ = (next_ + 1) % capacity_;
@@ -75,8 +72,7 @@ void ReplayBuffer::add(const float* obs, const float* action, float reward, bool
 }
 
 void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
-                         const uint8_t* terminated, const float* next_obs,
-                         const float* horizon) {
+                         const uint8_t* terminated, const float* next_obs, const float* horizon) {
   if (n <= 0) return;
   total_added_ += n;
   // Rows that would be overwritten within this same call are never copied.
@@ -88,8 +84,7 @@ void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, cons
   }
   const int64_t first = std::min(n, capacity_ - next_);
   copy_rows(next_, src, first, obs, actions, rewards, terminated, next_obs, horizon);
-  if (n > first)
-    copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs, horizon);
+  if (n > first) copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs, horizon);
   next_ = (next_ + n) % capacity_;
   size_ = std::min(capacity_, size_ + n);
 }
@@ -171,20 +166,17 @@ void ReplayBuffer::load(const std::string& file) {
   if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0)
     throw std::runtime_error("replay buffer " + file + ": not a replay buffer file (bad magic)");
   if (h.obs_dim != obs_dim_ || h.act_dim != act_dim_ || h.capacity != capacity_)
-    throw std::runtime_error("replay buffer " + file + ": file has " +
-                             describe_dims(h.capacity, h.obs_dim, h.act_dim) + ", expected " +
-                             describe_dims(capacity_, obs_dim_, act_dim_));
-  if (h.size < 0 || h.size > h.capacity || h.next < 0 || h.next >= h.capacity ||
-      h.total_added < h.size || (h.size < h.capacity && h.next != h.size))
-    throw std::runtime_error("replay buffer " + file + ": inconsistent header (size " +
-                             std::to_string(h.size) + ", next " + std::to_string(h.next) +
-                             ", total_added " + std::to_string(h.total_added) + ")");
-  const int64_t expected = int64_t(sizeof h) + int64_t(sizeof(float)) * h.size *
-                                                   (2 * int64_t(obs_dim_) + act_dim_ + 3);
+    throw std::runtime_error("replay buffer " + file + ": file has " + describe_dims(h.capacity, h.obs_dim, h.act_dim) +
+                             ", expected " + describe_dims(capacity_, obs_dim_, act_dim_));
+  if (h.size < 0 || h.size > h.capacity || h.next < 0 || h.next >= h.capacity || h.total_added < h.size ||
+      (h.size < h.capacity && h.next != h.size))
+    throw std::runtime_error("replay buffer " + file + ": inconsistent header (size " + std::to_string(h.size) +
+                             ", next " + std::to_string(h.next) + ", total_added " + std::to_string(h.total_added) +
+                             ")");
+  const int64_t expected = int64_t(sizeof h) + int64_t(sizeof(float)) * h.size * (2 * int64_t(obs_dim_) + act_dim_ + 3);
   if (file_bytes != expected)
-    throw std::runtime_error("replay buffer " + file + ": " + std::to_string(file_bytes) +
-                             " bytes, expected " + std::to_string(expected) + " for " +
-                             std::to_string(h.size) + " rows");
+    throw std::runtime_error("replay buffer " + file + ": " + std::to_string(file_bytes) + " bytes, expected " +
+                             std::to_string(expected) + " for " + std::to_string(h.size) + " rows");
   auto get = [&](float* p, int64_t cols) {
     in.read(reinterpret_cast<char*>(p), std::streamsize(sizeof(float) * h.size * cols));
   };

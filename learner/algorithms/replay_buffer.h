@@ -24,13 +24,12 @@ class ReplayBuffer {
   // fills.
   ReplayBuffer(int64_t capacity, int obs_dim, int act_dim);
 
-  void add(const float* obs, const float* action, float reward, bool terminated,
-           const float* next_obs);
+  void add(const float* obs, const float* action, float reward, bool terminated, const float* next_obs);
   // n rows, each array row-major: obs/next_obs [n x obs_dim], actions [n x act_dim], rewards,
   // terminated and horizon [n] (horizon nullptr: every row spans 1 step). When n exceeds the
   // capacity only the last `capacity` rows are kept.
-  void add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
-             const uint8_t* terminated, const float* next_obs, const float* horizon = nullptr);
+  void add_n(int64_t n, const float* obs, const float* actions, const float* rewards, const uint8_t* terminated,
+             const float* next_obs, const float* horizon = nullptr);
 
   int64_t size() const { return size_; }
   int64_t capacity() const { return capacity_; }
@@ -49,9 +48,8 @@ class ReplayBuffer {
   void load(const std::string& file);
 
  private:
-  void copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs, const float* actions,
-                 const float* rewards, const uint8_t* terminated, const float* next_obs,
-                 const float* horizon);
+  void copy_rows(int64_t dst, int64_t src, int64_t n, const float* obs, const float* actions, const float* rewards,
+                 const uint8_t* terminated, const float* next_obs, const float* horizon);
 
   int64_t capacity_;
   int obs_dim_, act_dim_;

@@ -42,8 +42,8 @@ void RolloutStorage::clear() {
   steps_ = 0;
 }
 
-void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, double lambda,
-                          uint64_t current_version, PpoSamples& out) {
+void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version,
+                          PpoSamples& out) {
   if (steps < 0 || steps > steps_)
     throw std::invalid_argument("RolloutStorage::take: " + std::to_string(steps) + " steps asked, " +
                                 std::to_string(steps_) + " stored");
@@ -76,8 +76,8 @@ void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, dou
     ret.resize(tr.len);
     // The last step bootstraps on its next observation unless it terminated: compute_gae treats
     // every step's next value that way, and cuts the chain only at episode ends.
-    compute_gae(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), tr.len,
-                gamma, lambda, adv.data(), ret.data());
+    compute_gae(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), tr.len, gamma, lambda, adv.data(),
+                ret.data());
     const int64_t k = std::min(left, tr.len);
     out.obs.insert(out.obs.end(), tr.obs.begin(), tr.obs.begin() + k * od);
     out.actions.insert(out.actions.end(), tr.actions.begin(), tr.actions.begin() + k * ad);

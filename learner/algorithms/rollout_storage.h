@@ -19,9 +19,8 @@ class RolloutStorage {
   // One batch, T steps x N envs, arrays [t][n][...] row-major as on the wire; next_obs is the
   // observation after each step ([T x N x obs_dim]; the true final observation where an episode
   // ended). Kept as N trajectories of T steps, made by policy `version`.
-  void add(int T, int N, const float* obs, const float* actions, const float* rewards,
-           const uint8_t* terminated, const uint8_t* truncated, const float* log_probs,
-           const float* next_obs, uint64_t version);
+  void add(int T, int N, const float* obs, const float* actions, const float* rewards, const uint8_t* terminated,
+           const uint8_t* truncated, const float* log_probs, const float* next_obs, uint64_t version);
 
   int64_t steps() const { return steps_; }
   void clear();
@@ -31,8 +30,8 @@ class RolloutStorage {
   // the observation after its last step unless that step terminated), then moves the first
   // `steps` steps (oldest first) into `out`; the rest stays for the next fit. current[] marks the
   // steps made by `current_version`.
-  void take(int64_t steps, const ValueFn& value, double gamma, double lambda,
-            uint64_t current_version, PpoSamples& out);
+  void take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version,
+            PpoSamples& out);
 
  private:
   struct Trajectory {

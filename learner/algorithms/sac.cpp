@@ -1,7 +1,7 @@
 #include "sac.h"
-#include "sac_impl.h"
 #include "archive_io.h"
 #include "compute.h"
+#include "sac_impl.h"
 
 #include <array>
 #include <cmath>
@@ -37,8 +37,7 @@ std::string sizes_str(const std::vector<int64_t>& v) {
 
 // Parameters are stored by name so a file from a network of other sizes is caught by name and
 // shape instead of being silently reinterpreted.
-void write_params(torch::serialize::OutputArchive& root, const std::string& key,
-                  const torch::nn::Module& m) {
+void write_params(torch::serialize::OutputArchive& root, const std::string& key, const torch::nn::Module& m) {
   torch::serialize::OutputArchive a;
   for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
   root.write(key, a);
@@ -48,17 +47,15 @@ void write_params(torch::serialize::OutputArchive& root, const std::string& key,
 std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
                                        const torch::nn::Module& m, const std::string& file) {
   torch::serialize::InputArchive a;
-  if (!root.try_read(key, a))
-    throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "'");
+  if (!root.try_read(key, a)) throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "'");
   std::vector<torch::Tensor> out;
   for (const auto& p : m.named_parameters()) {
     torch::Tensor t;
     if (!a.try_read(p.key(), t))
       throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "." + p.key() + "'");
     if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
-      throw std::runtime_error("sac checkpoint " + file + ": '" + key + "." + p.key() +
-                               "' has shape " + shape_str(t.sizes()) + ", expected " +
-                               shape_str(p.value().sizes()));
+      throw std::runtime_error("sac checkpoint " + file + ": '" + key + "." + p.key() + "' has shape " +
+                               shape_str(t.sizes()) + ", expected " + shape_str(p.value().sizes()));
     out.push_back(t);
   }
   return out;
@@ -112,9 +109,8 @@ SacStats Sac::update(const SampledBatch& host_batch) {
   if (s.device.is_cpu()) {
     batch = host_batch;
   } else {
-    batch = {host_batch.obs.to(s.device), host_batch.actions.to(s.device),
-             host_batch.rewards.to(s.device), host_batch.terminated.to(s.device),
-             host_batch.next_obs.to(s.device)};
+    batch = {host_batch.obs.to(s.device), host_batch.actions.to(s.device), host_batch.rewards.to(s.device),
+             host_batch.terminated.to(s.device), host_batch.next_obs.to(s.device)};
   }
   auto [pi_action, log_prob] = s.sample(batch.obs);
 
@@ -128,8 +124,8 @@ SacStats Sac::update(const SampledBatch& host_batch) {
     torch::NoGradGuard no_grad;
     auto [next_action, next_log_prob] = s.sample(batch.next_obs);
     const auto next_q = s.critic_target->forward(batch.next_obs, next_action);
-    target = sac_critic_target(batch.rewards, batch.terminated, next_q[0], next_q[1],
-                               next_log_prob, alpha, s.cfg.gamma());
+    target =
+        sac_critic_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_log_prob, alpha, s.cfg.gamma());
   }
   const auto q = s.critic->forward(batch.obs, batch.actions);
   // Mean over both critics' rows = sb3's 0.5 * (mse(q1) + mse(q2)).
@@ -145,8 +141,8 @@ SacStats Sac::update(const SampledBatch& host_batch) {
     // target + tau * (online - target) = (1 - tau) * target + tau * online, in one op.
     s.target_p.flat.lerp_(s.critic_p.flat, s.cfg.tau());
     // One read-back for all five figures: on a GPU each item() is a synchronization.
-    const auto figures = torch::stack({critic_loss.reshape({}), actor_loss.reshape({}),
-                                       alpha_loss.reshape({}), -log_prob.mean(), q.mean()})
+    const auto figures = torch::stack({critic_loss.reshape({}), actor_loss.reshape({}), alpha_loss.reshape({}),
+                                       -log_prob.mean(), q.mean()})
                              .to(torch::kCPU, torch::kDouble);
     const double* f = figures.data_ptr<double>();
     st.critic_loss = f[0];
@@ -210,9 +206,7 @@ void Sac::save(const std::string& dir) const {
     write_params(root, "critic", *s.critic);
     write_params(root, "critic_target", *s.critic_target);
     const std::pair<const char*, torch::optim::Optimizer*> opts[] = {
-        {"actor_optim", s.actor_opt.get()},
-        {"critic_optim", s.critic_opt.get()},
-        {"alpha_optim", s.alpha_opt.get()}};
+        {"actor_optim", s.actor_opt.get()}, {"critic_optim", s.critic_opt.get()}, {"alpha_optim", s.alpha_opt.get()}};
     for (const auto& [key, opt] : opts) {
       torch::serialize::OutputArchive a;
       opt->save(a);
@@ -231,9 +225,7 @@ void Sac::save(const std::string& dir) const {
 void Sac::load(const std::string& dir) {
   Impl& s = *impl_;
   const std::string file = dir + "/sac.pt";
-  auto fail = [&](const std::string& what) {
-    return std::runtime_error("sac checkpoint " + file + ": " + what);
-  };
+  auto fail = [&](const std::string& what) { return std::runtime_error("sac checkpoint " + file + ": " + what); };
   try {
     torch::serialize::InputArchive root;
     root.load_from(file);
@@ -244,9 +236,7 @@ void Sac::load(const std::string& dir) {
     want.insert(want.end(), s.hidden.begin(), s.hidden.end());
     const int64_t* m = meta.data_ptr<int64_t>();
     const std::vector<int64_t> got(m, m + meta.numel());
-    if (got != want)
-      throw fail("networks are obs,act,hidden = " + sizes_str(got) + ", expected " +
-                 sizes_str(want));
+    if (got != want) throw fail("networks are obs,act,hidden = " + sizes_str(got) + ", expected " + sizes_str(want));
 
     const auto actor = read_params(root, "actor", *s.actor, file);
     const auto critic = read_params(root, "critic", *s.critic, file);
@@ -254,8 +244,7 @@ void Sac::load(const std::string& dir) {
     torch::Tensor log_alpha, updates;
     if (!root.try_read("log_alpha", log_alpha) || log_alpha.sizes() != s.log_alpha.sizes())
       throw fail("missing or misshapen 'log_alpha'");
-    if (!root.try_read("updates", updates) || updates.numel() != 1)
-      throw fail("missing or misshapen 'updates'");
+    if (!root.try_read("updates", updates) || updates.numel() != 1) throw fail("missing or misshapen 'updates'");
     torch::serialize::InputArchive actor_opt, critic_opt, alpha_opt;
     if (!root.try_read("actor_optim", actor_opt) || !root.try_read("critic_optim", critic_opt) ||
         !root.try_read("alpha_optim", alpha_opt))

@@ -53,8 +53,8 @@ struct GraphAdam {
   // does that off its critical path).
   void step(const torch::Tensor& grad) {
     torch::NoGradGuard no_grad;
-    at::_fused_adam_({param}, {grad}, {state->exp_avg()}, {state->exp_avg_sq()}, {}, {step_count}, lr,
-                     beta1, beta2, /*weight_decay=*/0.0, eps, /*amsgrad=*/false, /*maximize=*/false);
+    at::_fused_adam_({param}, {grad}, {state->exp_avg()}, {state->exp_avg_sq()}, {}, {step_count}, lr, beta1, beta2,
+                     /*weight_decay=*/0.0, eps, /*amsgrad=*/false, /*maximize=*/false);
   }
   torch::Tensor param, step_count;
   torch::optim::AdamParamState* state;
@@ -82,8 +82,10 @@ struct Sac::Impl::CudaGraph {
   static constexpr int kWarmupUpdates = 3;
 
   CudaGraph(Impl& s, int64_t batch)
-      : batch(batch), device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
-        actor_adam(*s.actor_opt, s.actor_p.flat), critic_adam(*s.critic_opt, s.critic_p.flat),
+      : batch(batch),
+        device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
+        actor_adam(*s.actor_opt, s.actor_p.flat),
+        critic_adam(*s.critic_opt, s.critic_p.flat),
         alpha_adam(*s.alpha_opt, s.log_alpha),
         capture_stream(c10::cuda::getStreamFromPool(false, device_index)),
         target_stream(c10::cuda::getStreamFromPool(false, device_index)),
@@ -236,9 +238,8 @@ SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
   for (size_t i = 0; i < fields.size(); ++i) {
     const torch::Tensor t = fields[i]->to(torch::kCPU, torch::kFloat).contiguous();
     if (t.numel() != b * g.widths[i])
-      throw std::invalid_argument("sac update: batch field " + std::to_string(i) + " has " +
-                                  std::to_string(t.numel()) + " values, expected " +
-                                  std::to_string(b * g.widths[i]));
+      throw std::invalid_argument("sac update: batch field " + std::to_string(i) + " has " + std::to_string(t.numel()) +
+                                  " values, expected " + std::to_string(b * g.widths[i]));
     std::memcpy(dst, t.data_ptr<float>(), sizeof(float) * t.numel());
     dst += t.numel();
   }

@@ -30,8 +30,7 @@ inline void linear_init_(torch::Tensor t, int64_t fan_in) {
 struct ActorImpl : torch::nn::Module {
   ActorImpl(const std::vector<int64_t>& sizes, bool tanh_hidden) : tanh_hidden(tanh_hidden) {
     for (size_t i = 0; i + 1 < sizes.size(); ++i)
-      layers.push_back(register_module("l" + std::to_string(i),
-                                       torch::nn::Linear(sizes[i], sizes[i + 1])));
+      layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
   }
   torch::Tensor forward(torch::Tensor x) {
     for (size_t i = 0; i < layers.size(); ++i) {
@@ -115,8 +114,7 @@ inline void step(torch::optim::Optimizer& opt, const torch::Tensor& param, const
 // SacConfig.activation: "tanh" or "relu" (anything else is refused by config validation).
 inline bool tanh_hidden(const config::SacConfig& c) {
   if (c.activation() != "relu" && c.activation() != "tanh")
-    throw std::invalid_argument("sac.activation must be \"relu\" or \"tanh\", got \"" +
-                                c.activation() + "\"");
+    throw std::invalid_argument("sac.activation must be \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
   return c.activation() == "tanh";
 }
 
@@ -135,28 +133,33 @@ struct Sac::Impl {
   using FlatParams = sac_detail::FlatParams;
 
   Impl(const config::SacConfig& c, int obs, int act)
-      : cfg(c), obs_dim(obs), act_dim(act), hidden(sac_hidden(c)),
+      : cfg(c),
+        obs_dim(obs),
+        act_dim(act),
+        hidden(sac_hidden(c)),
         critic_hidden(sac_critic_hidden(c)),
         target_entropy(std::isnan(c.target_entropy()) ? -double(act) : c.target_entropy()),
         device(learner_device(c.device(), "sac.device")),
         actor(layer_sizes(obs, hidden, 2 * act), sac_detail::tanh_hidden(c)),
         critic(layer_sizes(obs + act, critic_hidden, 1), sac_detail::tanh_hidden(c)),
-        critic_target(layer_sizes(obs + act, critic_hidden, 1), sac_detail::tanh_hidden(c)), actor_p(*sac_detail::placed(actor, device)),
-        critic_p(*sac_detail::placed(critic, device)), target_p(*sac_detail::placed(critic_target, device)) {
+        critic_target(layer_sizes(obs + act, critic_hidden, 1), sac_detail::tanh_hidden(c)),
+        actor_p(*sac_detail::placed(actor, device)),
+        critic_p(*sac_detail::placed(critic, device)),
+        target_p(*sac_detail::placed(critic_target, device)) {
     {
       torch::NoGradGuard no_grad;
       target_p.flat.copy_(critic_p.flat);
       for (auto& t : target_p.params) t.requires_grad_(false);
     }
-    log_alpha = torch::full({1}, std::log(cfg.initial_alpha()),
-                            torch::TensorOptions().device(device).requires_grad(true));
+    log_alpha =
+        torch::full({1}, std::log(cfg.initial_alpha()), torch::TensorOptions().device(device).requires_grad(true));
     // Each optimizer owns one flat buffer; its .grad is the concatenated parameter gradients.
-    actor_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{actor_p.flat}, torch::optim::AdamOptions(cfg.actor_lr()));
-    critic_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{critic_p.flat}, torch::optim::AdamOptions(cfg.critic_lr()));
-    alpha_opt = std::make_unique<torch::optim::Adam>(
-        std::vector<torch::Tensor>{log_alpha}, torch::optim::AdamOptions(cfg.alpha_lr()));
+    actor_opt = std::make_unique<torch::optim::Adam>(std::vector<torch::Tensor>{actor_p.flat},
+                                                     torch::optim::AdamOptions(cfg.actor_lr()));
+    critic_opt = std::make_unique<torch::optim::Adam>(std::vector<torch::Tensor>{critic_p.flat},
+                                                      torch::optim::AdamOptions(cfg.critic_lr()));
+    alpha_opt = std::make_unique<torch::optim::Adam>(std::vector<torch::Tensor>{log_alpha},
+                                                     torch::optim::AdamOptions(cfg.alpha_lr()));
   }
 
   static std::vector<int64_t> layer_sizes(int in, const std::vector<int>& hidden, int out) {
@@ -170,8 +173,7 @@ struct Sac::Impl {
   std::pair<torch::Tensor, torch::Tensor> sample(const torch::Tensor& obs) {
     const auto out = actor->forward(obs);
     const auto mean = out.narrow(1, 0, act_dim);
-    const auto log_std =
-        out.narrow(1, act_dim, act_dim).clamp(cfg.log_std_min(), cfg.log_std_max());
+    const auto log_std = out.narrow(1, act_dim, act_dim).clamp(cfg.log_std_min(), cfg.log_std_max());
     const auto pre_tanh = torch::addcmul(mean, torch::exp(log_std), torch::randn_like(mean));
     return {torch::tanh(pre_tanh), squashed_gaussian_log_prob(mean, log_std, pre_tanh)};
   }

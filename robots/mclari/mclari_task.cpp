@@ -28,8 +28,7 @@ static_assert(mclari::kNumGroups == kMclariPhaseGroups);
 static_assert(mclari::kNumTerrains == kMclariTerrains);
 
 void replace_all(std::string& s, const std::string& from, const std::string& to) {
-  for (size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size()))
-    s.replace(p, from.size(), to);
+  for (size_t p = s.find(from); p != std::string::npos; p = s.find(from, p + to.size())) s.replace(p, from.size(), to);
 }
 
 struct VfsDeleter {
@@ -104,8 +103,7 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   if (terrains_.empty())
     for (int t = 0; t < mclari::kNumTerrains; ++t) terrains_.push_back(t);
 
-  hfield_ = mclari::rough_height_field(cfg.hfield_size(), cfg.hfield_sigma(), cfg.hfield_filter(),
-                                       cfg.hfield_seed());
+  hfield_ = mclari::rough_height_field(cfg.hfield_size(), cfg.hfield_sigma(), cfg.hfield_filter(), cfg.hfield_seed());
   if (cfg.has_hfield_png()) mclari::write_height_png(cfg.hfield_png(), hfield_, cfg.hfield_size());
 
   mjModel* base = load_model(cfg);
@@ -282,10 +280,9 @@ StepResult McLariTask::step(TaskState& base, const float* action, float* obs) co
     s.frequency = cfg_.fixed_frequency();
     group = cfg_.fixed_group();
   } else {
-    s.frequency = frequencies_.empty()
-                      ? next_frequency(s.frequency, action[0], cfg_.frequency_step(),
-                                       cfg_.min_frequency(), cfg_.max_frequency())
-                      : frequencies_[group_index_from_action(action[0], int(frequencies_.size()))];
+    s.frequency = frequencies_.empty() ? next_frequency(s.frequency, action[0], cfg_.frequency_step(),
+                                                        cfg_.min_frequency(), cfg_.max_frequency())
+                                       : frequencies_[group_index_from_action(action[0], int(frequencies_.size()))];
     s.group_index = group_index_from_action(action[1], int(groups_.size()));
     group = groups_[s.group_index];
   }
@@ -345,10 +342,8 @@ StepResult McLariTask::step(TaskState& base, const float* action, float* obs) co
   const double up_z = d->xmat[9 * body_ + 8];
   const double ground = ground_height(x[0], x[1], s.terrain);
   const double edge = cfg_.ground_half_size() - 10.0;
-  const bool fell = unstable || !(up_z >= cfg_.fall_min_up()) ||
-                    x[2] - ground < cfg_.fall_min_body_height() ||
-                    x[2] - ground > cfg_.leave_max_height() || std::abs(x[0]) > edge ||
-                    std::abs(x[1]) > edge;
+  const bool fell = unstable || !(up_z >= cfg_.fall_min_up()) || x[2] - ground < cfg_.fall_min_body_height() ||
+                    x[2] - ground > cfg_.leave_max_height() || std::abs(x[0]) > edge || std::abs(x[1]) > edge;
   StepResult r;
   s.step += 1;
   if (fell) {

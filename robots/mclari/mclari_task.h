@@ -19,14 +19,14 @@ namespace farm::robots {
 // What one agent step measured (SI units unless named otherwise).
 struct McLariStepFigures {
   int frequency = 0;
-  int group = 0;                      // of all 27
+  int group = 0;                           // of all 27
   std::array<double, 8> mean_abs_power{};  // W, per actuator
-  double power = 0;                   // W, sum of mean |P_i|
-  double speed_mm_s = 0;              // |delta com_xy| / step time
-  double efficiency = 0;              // eta of seed 001 eq. 5.1
+  double power = 0;                        // W, sum of mean |P_i|
+  double speed_mm_s = 0;                   // |delta com_xy| / step time
+  double efficiency = 0;                   // eta of seed 001 eq. 5.1
   int physics_steps = 0;
   int power_samples = 0;
-  bool unstable = false;              // the simulation produced a non-finite state or a warning
+  bool unstable = false;  // the simulation produced a non-finite state or a warning
 };
 
 struct McLariState : TaskState {
@@ -39,7 +39,7 @@ struct McLariState : TaskState {
   double target[2] = {0, 0};  // mm
   McLariStepFigures last;
   double efficiency_sum = 0, frequency_sum = 0;
-  int measured_steps = 0;     // steps that ended without a fall
+  int measured_steps = 0;  // steps that ended without a fall
   bool fell = false, reached = false;
 };
 
@@ -88,11 +88,11 @@ class McLariTask final : public Task {
   TaskSpec spec_;
   std::vector<mjModel_*> terrain_models_;  // owned, one per terrain
   std::vector<float> hfield_;
-  std::vector<int> groups_;                // active set, of all 27
-  std::vector<int> frequencies_;           // a0 picks one of these when set (Hz)
-  std::vector<int> terrains_;              // drawn at reset
-  int body_ = 1;                           // the robot's root body
-  int act_dof_[8] = {};                    // dof driven by actuator k
+  std::vector<int> groups_;       // active set, of all 27
+  std::vector<int> frequencies_;  // a0 picks one of these when set (Hz)
+  std::vector<int> terrains_;     // drawn at reset
+  int body_ = 1;                  // the robot's root body
+  int act_dof_[8] = {};           // dof driven by actuator k
   double mass_g_ = 0;
 };
 

@@ -59,8 +59,8 @@ std::vector<float> rough_height_field(int n, double sigma, int k, uint64_t seed)
   // The loader checks the config's hfield_* fields; these are the function's own arguments.
   farm::require(n >= 2, "rough_height_field: n (hfield_size) must be >= 2, got " + std::to_string(n));
   farm::require(sigma > 0, "rough_height_field: sigma (hfield_sigma) must be > 0, got " + std::to_string(sigma));
-  farm::require(k >= 1 && k % 2 == 1, "rough_height_field: k (hfield_filter) must be odd and >= 1, got " +
-                                          std::to_string(k));
+  farm::require(k >= 1 && k % 2 == 1,
+                "rough_height_field: k (hfield_filter) must be odd and >= 1, got " + std::to_string(k));
   auto v = gaussian_field(n, sigma, seed);
   normalize_min_max(v);
   return mean_filter(v, n, k);
@@ -109,8 +109,7 @@ void write_height_png(const std::string& path, const std::vector<float>& v, int 
   FILE* f = std::fopen(path.c_str(), "wb");
   if (!f) throw std::runtime_error("height field PNG " + path + ": cannot open for writing");
   const bool ok = std::fwrite(png.data(), 1, png.size(), f) == png.size();
-  if (std::fclose(f) != 0 || !ok)
-    throw std::runtime_error("height field PNG " + path + ": write failed");
+  if (std::fclose(f) != 0 || !ok) throw std::runtime_error("height field PNG " + path + ": write failed");
 }
 
 }  // namespace farm::robots::mclari

@@ -13,10 +13,8 @@ struct DiffWheelSpeeds {
 
 // Seed 002 §3.3: W_R = (2V + W R) / (2r), W_L = (2V - W R) / (2r), with V the forward speed, W the
 // yaw rate, R the distance between the wheels and r the wheel radius.
-inline DiffWheelSpeeds differential_wheel_speeds(double v, double w, double wheel_radius,
-                                                 double wheel_spacing) {
-  return {(2 * v - w * wheel_spacing) / (2 * wheel_radius),
-          (2 * v + w * wheel_spacing) / (2 * wheel_radius)};
+inline DiffWheelSpeeds differential_wheel_speeds(double v, double w, double wheel_radius, double wheel_spacing) {
+  return {(2 * v - w * wheel_spacing) / (2 * wheel_radius), (2 * v + w * wheel_spacing) / (2 * wheel_radius)};
 }
 
 struct OmniWheelSpeeds {
@@ -27,8 +25,7 @@ struct OmniWheelSpeeds {
 // W_A = (-Vx + W L) / r, W_B = (Vx - sqrt(3) Vy + 2 W L) / (2r), W_C = (Vx + sqrt(3) Vy + 2 W L) / (2r).
 // Each wheel's rim speed is the base velocity at the wheel along its drive direction
 // (-sin t, cos t): the seed's V_i = d_i . (Vx, Vy) + W L.
-inline OmniWheelSpeeds holonomic_wheel_speeds(double vx, double vy, double w, double wheel_radius,
-                                              double base_radius) {
+inline OmniWheelSpeeds holonomic_wheel_speeds(double vx, double vy, double w, double wheel_radius, double base_radius) {
   const double s3 = std::sqrt(3.0), wl = w * base_radius;
   return {(-vx + wl) / wheel_radius, (vx - s3 * vy + 2 * wl) / (2 * wheel_radius),
           (vx + s3 * vy + 2 * wl) / (2 * wheel_radius)};

@@ -6,8 +6,7 @@
 
 namespace farm::robots::mobile {
 
-Lidar::Lidar(const mjModel* m, const char* site, int rays, double range, double fov_deg,
-             int geom_group)
+Lidar::Lidar(const mjModel* m, const char* site, int rays, double range, double fov_deg, int geom_group)
     : range_(range) {
   site_ = mj_name2id(m, mjOBJ_SITE, site);
   if (site_ < 0) throw std::invalid_argument(std::string("lidar: the model has no site '") + site + "'");

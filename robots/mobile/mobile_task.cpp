@@ -17,7 +17,7 @@ namespace farm::robots::mobile {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-constexpr int kWorldGroup = 1;       // walls and obstacles: what the lidar sees
+constexpr int kWorldGroup = 1;  // walls and obstacles: what the lidar sees
 constexpr double kWallHalfThickness = 0.05;
 constexpr double kObstacleLift = 1e-3;  // obstacles float 1 mm up: no contacts with the floor
 
@@ -62,20 +62,19 @@ std::string scene_xml(const config::MobileSceneConfig& c, const std::vector<Obst
   x.precision(9);
   const double h = c.arena_half_size(), t = kWallHalfThickness, hz = c.wall_height() / 2;
   const char* attrs = R"( contype="1" conaffinity="2" group="1" rgba="0.5 0.4 0.3 1"/>)";
-  x << "<geom name=\"wall_east\" type=\"box\" pos=\"" << h + t << " 0 " << hz << "\" size=\"" << t
-    << ' ' << h + 2 * t << ' ' << hz << '"' << attrs << '\n';
-  x << "<geom name=\"wall_west\" type=\"box\" pos=\"" << -(h + t) << " 0 " << hz << "\" size=\""
-    << t << ' ' << h + 2 * t << ' ' << hz << '"' << attrs << '\n';
-  x << "<geom name=\"wall_north\" type=\"box\" pos=\"0 " << h + t << ' ' << hz << "\" size=\""
-    << h + 2 * t << ' ' << t << ' ' << hz << '"' << attrs << '\n';
-  x << "<geom name=\"wall_south\" type=\"box\" pos=\"0 " << -(h + t) << ' ' << hz << "\" size=\""
-    << h + 2 * t << ' ' << t << ' ' << hz << '"' << attrs << '\n';
+  x << "<geom name=\"wall_east\" type=\"box\" pos=\"" << h + t << " 0 " << hz << "\" size=\"" << t << ' ' << h + 2 * t
+    << ' ' << hz << '"' << attrs << '\n';
+  x << "<geom name=\"wall_west\" type=\"box\" pos=\"" << -(h + t) << " 0 " << hz << "\" size=\"" << t << ' '
+    << h + 2 * t << ' ' << hz << '"' << attrs << '\n';
+  x << "<geom name=\"wall_north\" type=\"box\" pos=\"0 " << h + t << ' ' << hz << "\" size=\"" << h + 2 * t << ' ' << t
+    << ' ' << hz << '"' << attrs << '\n';
+  x << "<geom name=\"wall_south\" type=\"box\" pos=\"0 " << -(h + t) << ' ' << hz << "\" size=\"" << h + 2 * t << ' '
+    << t << ' ' << hz << '"' << attrs << '\n';
   for (size_t i = 0; i < slots.size(); ++i) {
-    x << "<body name=\"obstacle_" << i << "\" mocap=\"true\" pos=\"" << 3 * h + 2 + 2.0 * i << ' '
-      << 3 * h + 2 << ' ' << hz + kObstacleLift << "\">";
+    x << "<body name=\"obstacle_" << i << "\" mocap=\"true\" pos=\"" << 3 * h + 2 + 2.0 * i << ' ' << 3 * h + 2 << ' '
+      << hz + kObstacleLift << "\">";
     if (slots[i].box) {
-      x << "<geom type=\"box\" size=\"" << slots[i].half_size << ' ' << slots[i].half_size << ' '
-        << hz << '"';
+      x << "<geom type=\"box\" size=\"" << slots[i].half_size << ' ' << slots[i].half_size << ' ' << hz << '"';
     } else {
       x << "<geom type=\"cylinder\" size=\"" << slots[i].half_size << ' ' << hz << '"';
     }
@@ -105,17 +104,16 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   m->opt.timestep = c.physics_dt();
 
   const bool diff = robot.base == BaseKind::kDifferential;
-  const std::vector<std::string> wheels =
-      diff ? std::vector<std::string>{"left_wheel", "right_wheel"}
-           : std::vector<std::string>{"wheel_a", "wheel_b", "wheel_c"};
+  const std::vector<std::string> wheels = diff ? std::vector<std::string>{"left_wheel", "right_wheel"}
+                                               : std::vector<std::string>{"wheel_a", "wheel_b", "wheel_c"};
   for (size_t i = 0; i < wheels.size(); ++i) {
     const int j = joint_id(m, wheels[i], robot.mjcf);
     wheel_joints_.push_back(j);
     wheel_qvel_.push_back(m->jnt_dofadr[j]);
     const int a = mj_name2id(m, mjOBJ_ACTUATOR, wheels[i].c_str());
     if (a != int(i)) {
-      throw std::runtime_error(robot.mjcf + ": actuator " + std::to_string(i) + " must be the '" +
-                               wheels[i] + "' velocity servo");
+      throw std::runtime_error(robot.mjcf + ": actuator " + std::to_string(i) + " must be the '" + wheels[i] +
+                               "' velocity servo");
     }
     m->actuator_gainprm[a * mjNGAIN + 0] = robot.wheel_kv;
     m->actuator_biasprm[a * mjNBIAS + 2] = -robot.wheel_kv;
@@ -157,14 +155,13 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   mj_forward(m, d);
   for (int g = 0; g < m->ngeom; ++g) {
     if (!robot_geom_[g]) continue;
-    const double r = std::hypot(d->geom_xpos[3 * g] - d->xpos[3 * base_body],
-                                d->geom_xpos[3 * g + 1] - d->xpos[3 * base_body + 1]);
+    const double r =
+        std::hypot(d->geom_xpos[3 * g] - d->xpos[3 * base_body], d->geom_xpos[3 * g + 1] - d->xpos[3 * base_body + 1]);
     robot_radius_ = std::max(robot_radius_, r + m->geom_rbound[g]);
   }
   mj_deleteData(d);
 
-  lidar_ = std::make_unique<Lidar>(m, "lidar", c.lidar_rays(), c.lidar_range(), c.lidar_fov_deg(),
-                                   kWorldGroup);
+  lidar_ = std::make_unique<Lidar>(m, "lidar", c.lidar_rays(), c.lidar_range(), c.lidar_fov_deg(), kWorldGroup);
   maps_ = std::make_unique<MapGenerator>(c, robot_radius_);
 
   const double v = robot.max_linear_speed, w = robot.max_angular_speed;
@@ -172,8 +169,8 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
     // Straight ahead, gentle arcs (radius 0.6 m at the defaults), tight arcs, and turns in place.
     // With only full-rate turns (0.2 rad and 7.5 cm radius per 0.1 s step) DQN did not learn to
     // line up with a goal 0.1 m wide; SAC with continuous commands did (docs/MOBILE.md).
-    commands_ = {{v, 0, 0},          {v, 0, w / 4},     {v, 0, -w / 4}, {v / 2, 0, w / 2},
-                 {v / 2, 0, -w / 2}, {0, 0, w / 2},     {0, 0, -w / 2}};
+    commands_ = {{v, 0, 0},          {v, 0, w / 4}, {v, 0, -w / 4}, {v / 2, 0, w / 2},
+                 {v / 2, 0, -w / 2}, {0, 0, w / 2}, {0, 0, -w / 2}};
   } else {
     for (int k = 0; k < 8; ++k) commands_.push_back({v * std::cos(k * kPi / 4), v * std::sin(k * kPi / 4), 0});
     commands_.push_back({0, 0, w});
@@ -200,9 +197,7 @@ MobileTask::~MobileTask() {
   if (model_) mj_deleteModel(model_);
 }
 
-double MobileTask::control_dt() const {
-  return robot_.scene.physics_dt() * robot_.scene.control_substeps();
-}
+double MobileTask::control_dt() const { return robot_.scene.physics_dt() * robot_.scene.control_substeps(); }
 
 std::unique_ptr<TaskState> MobileTask::make_state() const {
   auto s = std::make_unique<MobileState>();
@@ -217,9 +212,8 @@ std::array<double, 3> MobileTask::base_command(const float* action) const {
     const float a = action[0];
     const long k = std::isfinite(a) ? std::lround(a) : -1;
     if (k < 0 || k >= long(commands_.size()) || std::abs(a - float(k)) > 1e-3f) {
-      throw std::invalid_argument(spec_.name + ": discrete action " + std::to_string(a) +
-                                  " is not an index in [0, " + std::to_string(commands_.size()) +
-                                  ")");
+      throw std::invalid_argument(spec_.name + ": discrete action " + std::to_string(a) + " is not an index in [0, " +
+                                  std::to_string(commands_.size()) + ")");
     }
     return commands_[k];
   }
@@ -256,9 +250,7 @@ void MobileTask::base_velocity(const TaskState& s, double* vx, double* vy, doubl
   *w = v[5];
 }
 
-double MobileTask::wheel_speed(const TaskState& s, int i) const {
-  return s.data->qvel[wheel_qvel_[i]];
-}
+double MobileTask::wheel_speed(const TaskState& s, int i) const { return s.data->qvel[wheel_qvel_[i]]; }
 
 void MobileTask::write_obs(MobileState& s, float* obs) const {
   const auto& c = robot_.scene;
@@ -301,8 +293,7 @@ void MobileTask::reset_to(TaskState& ts, const MobileMap& map, float* obs) const
   // mj_resetData parked every obstacle slot outside the walls (its body_pos); place the map's.
   for (const auto& o : map.obstacles) {
     if (o.slot < 0 || o.slot >= int(obstacle_mocap_.size())) {
-      throw std::invalid_argument(spec_.name + ": obstacle slot " + std::to_string(o.slot) +
-                                  " out of range");
+      throw std::invalid_argument(spec_.name + ": obstacle slot " + std::to_string(o.slot) + " out of range");
     }
     mjtNum* p = d->mocap_pos + 3 * obstacle_mocap_[o.slot];
     mjtNum* q = d->mocap_quat + 4 * obstacle_mocap_[o.slot];

@@ -22,17 +22,17 @@ enum class BaseKind { kDifferential, kHolonomic };
 
 struct MobileState : TaskState {
   MobileMap map;
-  double path_length = 0;   // m driven this episode
-  double last_distance = 0; // to the goal, after the last step
+  double path_length = 0;    // m driven this episode
+  double last_distance = 0;  // to the goal, after the last step
   bool collided = false, reached = false;
-  bool record_trajectory = false;   // tools: keep (x, y) after reset and every step
-  std::vector<float> trajectory;    // x0, y0, x1, y1, ...
-  std::vector<double> scan;         // lidar scratch
+  bool record_trajectory = false;  // tools: keep (x, y) after reset and every step
+  std::vector<float> trajectory;   // x0, y0, x1, y1, ...
+  std::vector<double> scan;        // lidar scratch
 };
 
 struct MobileRobotSpec {
-  std::string name;        // task name
-  std::string mjcf;        // embedded file, e.g. "mobile/jetbot.xml"
+  std::string name;  // task name
+  std::string mjcf;  // embedded file, e.g. "mobile/jetbot.xml"
   BaseKind base = BaseKind::kDifferential;
   double max_linear_speed = 0.3, max_angular_speed = 2.0, wheel_kv = 0.05;
   double wheel_max_torque = 0.1;  // N m, the wheel motors' torque limit

@@ -22,8 +22,8 @@ std::vector<ObstacleSlot> obstacle_slots(const config::MobileSceneConfig& cfg) {
   for (int i = 0; i < k; ++i) {
     const double f = k > 1 ? double(i) / (k - 1) : 0.0;
     slots[i].box = i % 2 == 0;
-    slots[i].half_size = cfg.obstacle_min_half_size() +
-                         f * (cfg.obstacle_max_half_size() - cfg.obstacle_min_half_size());
+    slots[i].half_size =
+        cfg.obstacle_min_half_size() + f * (cfg.obstacle_max_half_size() - cfg.obstacle_min_half_size());
   }
   return slots;
 }
@@ -99,16 +99,14 @@ MobileMap MapGenerator::draw(std::mt19937_64& rng) const {
       map.goal_x = pos(rng);
       map.goal_y = pos(rng);
       if (!is_free(map, map.goal_x, map.goal_y)) continue;
-      if (std::hypot(map.goal_x - map.start_x, map.goal_y - map.start_y) <
-          cfg_.min_start_goal_distance()) {
+      if (std::hypot(map.goal_x - map.start_x, map.goal_y - map.start_y) < cfg_.min_start_goal_distance()) {
         continue;
       }
       map.start_yaw = yaw(rng);
       return map;
     }
   }
-  throw std::runtime_error("mobile scene: no free start and goal found in " +
-                           std::to_string(cfg_.max_reset_tries()) +
+  throw std::runtime_error("mobile scene: no free start and goal found in " + std::to_string(cfg_.max_reset_tries()) +
                            " obstacle maps; lower max_obstacles, obstacle sizes, clearance or "
                            "min_start_goal_distance, or enlarge arena_half_size");
 }

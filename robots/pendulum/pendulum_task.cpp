@@ -26,9 +26,7 @@ double angle_normalize(double x) {
 }
 
 PendulumState& as_pendulum(TaskState& s) { return static_cast<PendulumState&>(s); }
-const PendulumState& as_pendulum(const TaskState& s) {
-  return static_cast<const PendulumState&>(s);
-}
+const PendulumState& as_pendulum(const TaskState& s) { return static_cast<const PendulumState&>(s); }
 
 }  // namespace
 
@@ -123,8 +121,7 @@ StepResult PendulumTask::step(TaskState& s, const float* action, float* obs) con
   const double u = a * cfg_.max_torque();
   const double th = d->qpos[0], thdot = d->qvel[0];
   const double th_n = angle_normalize(th);
-  const double cost =
-      th_n * th_n + cfg_.velocity_cost() * thdot * thdot + cfg_.torque_cost() * u * u;
+  const double cost = th_n * th_n + cfg_.velocity_cost() * thdot * thdot + cfg_.torque_cost() * u * u;
 
   d->ctrl[0] = u;
   mj_step(model_, d);

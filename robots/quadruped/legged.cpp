@@ -196,7 +196,9 @@ CollisionGroup make_group(const mjModel* m, const std::string& name, const std::
 }
 
 namespace {
-bool member(const CollisionGroup& g, int geom) { return std::find(g.geoms.begin(), g.geoms.end(), geom) != g.geoms.end(); }
+bool member(const CollisionGroup& g, int geom) {
+  return std::find(g.geoms.begin(), g.geoms.end(), geom) != g.geoms.end();
+}
 }  // namespace
 
 bool touching(const mjModel*, const mjData* d, const CollisionGroup& a, const CollisionGroup& b) {

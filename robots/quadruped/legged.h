@@ -29,15 +29,15 @@ enum class Property {
 int property_size(Property p);
 
 struct ObsItem {
-  std::string label;           // "base_lin_vel", "dof_pos", ...
+  std::string label;  // "base_lin_vel", "dof_pos", ...
   Property property = Property::kCustom;
-  std::vector<int> ids;        // body or joint ids (one block of property_size each); empty for custom
-  int size = 0;                // floats in the observation
-  double scale = 1.0;          // multiplied in after subtracting offset
-  std::vector<double> offset;  // per float (e.g. the default joint pose); empty = 0
-  double noise = 0.0;          // uniform in +-noise * scale (times the noise level)
+  std::vector<int> ids;           // body or joint ids (one block of property_size each); empty for custom
+  int size = 0;                   // floats in the observation
+  double scale = 1.0;             // multiplied in after subtracting offset
+  std::vector<double> offset;     // per float (e.g. the default joint pose); empty = 0
+  double noise = 0.0;             // uniform in +-noise * scale (times the noise level)
   double low = -1.0, high = 1.0;  // custom slots only: the range mapped to [-1, 1]
-  int start = 0;               // offset in the observation, set by ObsSpec::add
+  int start = 0;                  // offset in the observation, set by ObsSpec::add
 };
 
 class ObsSpec {

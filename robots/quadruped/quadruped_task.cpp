@@ -3,8 +3,8 @@
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
-#include <limits>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "config.h"
@@ -29,9 +29,12 @@ struct RobotInfo {
 
 RobotInfo info(Robot r) {
   switch (r) {
-    case Robot::kA1: return {"a1", "quadruped/a1.xml", false, false};
-    case Robot::kHoneyBadger: return {"honey_badger", "quadruped/honey_badger.xml", false, true};
-    case Robot::kSilverBadger: return {"silver_badger", "quadruped/silver_badger.xml", true, true};
+    case Robot::kA1:
+      return {"a1", "quadruped/a1.xml", false, false};
+    case Robot::kHoneyBadger:
+      return {"honey_badger", "quadruped/honey_badger.xml", false, true};
+    case Robot::kSilverBadger:
+      return {"silver_badger", "quadruped/silver_badger.xml", true, true};
   }
   throw std::invalid_argument("unknown robot");
 }
@@ -39,12 +42,12 @@ RobotInfo info(Robot r) {
 // The Badger values of LeggedConfig (seed 000 §3.4), applied where the config leaves a field unset.
 config::LeggedConfig with_robot_defaults(Robot r, config::LeggedConfig c) {
   if (!info(r).badger) return c;
-  if (!c.has_heading_command()) c.set_heading_command(false);        // seed 000 §3.4: yaw rate drawn directly
-  if (!c.has_randomize_dynamics()) c.set_randomize_dynamics(true);   // seed 000 §3.4
+  if (!c.has_heading_command()) c.set_heading_command(false);       // seed 000 §3.4: yaw rate drawn directly
+  if (!c.has_randomize_dynamics()) c.set_randomize_dynamics(true);  // seed 000 §3.4
   if (!c.has_kp()) c.set_kp(40.0);  // at 20 the heavier robot sags 7 cm (tests/unit/test_quadruped.cpp stands it)
   if (!c.has_kd()) c.set_kd(1.0);
   auto* w = c.mutable_reward();
-  if (!w->has_base_height()) w->set_base_height(-10.0);              // seed 000 §3.4: goal height 0.3
+  if (!w->has_base_height()) w->set_base_height(-10.0);                   // seed 000 §3.4: goal height 0.3
   if (!w->has_feet_pair_off_ground()) w->set_feet_pair_off_ground(-0.5);  // seed 000 §3.4
   return c;
 }
@@ -77,7 +80,9 @@ QuadrupedTask::QuadrupedTask(Robot robot, const config::LeggedConfig& cfg)
     int act = -1;
     for (int a = 0; a < model_->nu; ++a)
       if (model_->actuator_trnid[2 * a] == j) act = a;
-    if (act < 0) throw std::runtime_error(std::string(ri.mjcf) + ": joint " + mj_id2name(model_, mjOBJ_JOINT, j) + " has no actuator");
+    if (act < 0)
+      throw std::runtime_error(std::string(ri.mjcf) + ": joint " + mj_id2name(model_, mjOBJ_JOINT, j) +
+                               " has no actuator");
     actuators_.push_back(act);
     nominal_torque_limit_.push_back(model_->actuator_ctrlrange[2 * act + 1]);
     const double lo = model_->jnt_range[2 * j], hi = model_->jnt_range[2 * j + 1];
@@ -107,13 +112,17 @@ QuadrupedTask::QuadrupedTask(Robot robot, const config::LeggedConfig& cfg)
   foot_geoms_ = feet_.geoms;
 
   const int n = num_joints();
-  obs_spec_.add({"base_lin_vel", Property::kBodyLinVelLocal, {trunk_body_}, 0, cfg_.obs_lin_vel(), {}, cfg_.noise_lin_vel()});
-  obs_spec_.add({"base_ang_vel", Property::kBodyAngVelLocal, {trunk_body_}, 0, cfg_.obs_ang_vel(), {}, cfg_.noise_ang_vel()});
+  obs_spec_.add(
+      {"base_lin_vel", Property::kBodyLinVelLocal, {trunk_body_}, 0, cfg_.obs_lin_vel(), {}, cfg_.noise_lin_vel()});
+  obs_spec_.add(
+      {"base_ang_vel", Property::kBodyAngVelLocal, {trunk_body_}, 0, cfg_.obs_ang_vel(), {}, cfg_.noise_ang_vel()});
   obs_spec_.add({"projected_gravity", Property::kProjectedGravity, {trunk_body_}, 0, 1.0, {}, cfg_.noise_gravity()});
   // Commands are scaled as legged_gym's (lin_vel, lin_vel, ang_vel scales), without noise: a custom
   // slot over [-1/scale, 1/scale] maps x to x * scale.
-  obs_spec_.add({"command_lin", Property::kCustom, {}, 2, 1.0, {}, 0.0, -1.0 / cfg_.obs_lin_vel(), 1.0 / cfg_.obs_lin_vel()});
-  obs_spec_.add({"command_yaw", Property::kCustom, {}, 1, 1.0, {}, 0.0, -1.0 / cfg_.obs_ang_vel(), 1.0 / cfg_.obs_ang_vel()});
+  obs_spec_.add(
+      {"command_lin", Property::kCustom, {}, 2, 1.0, {}, 0.0, -1.0 / cfg_.obs_lin_vel(), 1.0 / cfg_.obs_lin_vel()});
+  obs_spec_.add(
+      {"command_yaw", Property::kCustom, {}, 1, 1.0, {}, 0.0, -1.0 / cfg_.obs_ang_vel(), 1.0 / cfg_.obs_ang_vel()});
   obs_spec_.add({"dof_pos", Property::kJointPos, joints_, 0, cfg_.obs_dof_pos(), default_pose_, cfg_.noise_dof_pos()});
   obs_spec_.add({"dof_vel", Property::kJointVel, joints_, 0, cfg_.obs_dof_vel(), {}, cfg_.noise_dof_vel()});
   obs_spec_.add({"last_action", Property::kCustom, {}, n, 1.0, {}, 0.0, -1.0, 1.0});
@@ -182,8 +191,7 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
   p.fill(0.0);
   // Foot friction (seed 000 §3.3, every robot).
   p[0] = u(s.rng);
-  const double friction =
-      cfg_.friction_min() + 0.5 * (p[0] + 1) * (cfg_.friction_max() - cfg_.friction_min());
+  const double friction = cfg_.friction_min() + 0.5 * (p[0] + 1) * (cfg_.friction_max() - cfg_.friction_min());
   for (int g : foot_geoms_) m->geom_friction[3 * g] = friction;
   s.kp = cfg_.kp();
   s.kd = cfg_.kd();
@@ -204,7 +212,8 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
       m->body_ipos[3 * body + a] = b->body_ipos[3 * body + a] + cfg_.com_shift() * p[2 + a];
     }
   }
-  for (size_t j = 0; j < joints_.size(); ++j) s.torque_limit[j] = nominal_torque_limit_[j] * (1 + cfg_.torque_limit_rel() * p[5]);
+  for (size_t j = 0; j < joints_.size(); ++j)
+    s.torque_limit[j] = nominal_torque_limit_[j] * (1 + cfg_.torque_limit_rel() * p[5]);
   s.velocity_limit = cfg_.velocity_limit() * (1 + cfg_.velocity_limit_rel() * p[6]);
   for (int g : foot_geoms_) {
     m->geom_size[3 * g] = b->geom_size[3 * g] * (1 + cfg_.foot_size_rel() * p[7]);
@@ -256,7 +265,8 @@ void QuadrupedTask::reset(TaskState& base, uint64_t seed, float* obs) const {
   std::fill(s.torques.begin(), s.torques.end(), 0.0);
   s.feet_air_time.fill(0.0);
   s.last_contact.fill(false);
-  s.push_every_steps = cfg_.push_interval_s() > 0 ? std::max(1, int(std::lround(cfg_.push_interval_s() / policy_dt()))) : 0;
+  s.push_every_steps =
+      cfg_.push_interval_s() > 0 ? std::max(1, int(std::lround(cfg_.push_interval_s() / policy_dt()))) : 0;
   s.sum_tracking_lin = s.sum_tracking_ang = s.sum_lin_error = 0;
   s.fell = false;
   sample_command(s);

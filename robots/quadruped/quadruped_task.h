@@ -28,7 +28,7 @@ enum class Robot { kA1, kHoneyBadger, kSilverBadger };
 constexpr int kNumDynamicsParams = 16;
 
 struct QuadrupedState : TaskState {
-  mjModel_* model = nullptr;       // owned: this episode's randomized copy of the task's model
+  mjModel_* model = nullptr;        // owned: this episode's randomized copy of the task's model
   std::array<double, 3> command{};  // vx, vy (m/s, base frame), yaw rate (rad/s)
   double heading_target = 0;
   std::vector<double> last_action, last_dof_vel, targets, torques;
@@ -52,9 +52,9 @@ struct QuadrupedState : TaskState {
 // One reward term per field of LeggedRewardScales, before scaling (tests compare them with hand
 // computations).
 struct RewardTerms {
-  double tracking_lin_vel = 0, tracking_ang_vel = 0, lin_vel_z = 0, ang_vel_xy = 0, collision = 0,
-         dof_pos_limits = 0, torques = 0, dof_acc = 0, action_rate = 0, feet_air_time = 0, base_height = 0,
-         feet_pair_off_ground = 0, orientation = 0;
+  double tracking_lin_vel = 0, tracking_ang_vel = 0, lin_vel_z = 0, ang_vel_xy = 0, collision = 0, dof_pos_limits = 0,
+         torques = 0, dof_acc = 0, action_rate = 0, feet_air_time = 0, base_height = 0, feet_pair_off_ground = 0,
+         orientation = 0;
 };
 
 class QuadrupedTask final : public Task {
@@ -97,8 +97,7 @@ class QuadrupedTask final : public Task {
   // first_contact: the feet touching down on this step; contact_filt: the feet counted as down
   // (legged_gym's one-step filter: touching on this step or the one before), both as step() has them.
   RewardTerms reward_terms(const QuadrupedState& s, const std::vector<double>& action_legged_gym,
-                           const std::array<bool, 4>& first_contact,
-                           const std::array<bool, 4>& contact_filt) const;
+                           const std::array<bool, 4>& first_contact, const std::array<bool, 4>& contact_filt) const;
   // The step reward from terms: sum of scale * term * policy dt, clipped at 0 if only_positive.
   double total_reward(const RewardTerms& t) const;
   double policy_dt() const { return cfg_.decimation() * cfg_.physics_dt(); }

@@ -23,8 +23,8 @@ int main(int argc, char** argv) {
   const double min_seconds = argc > 1 ? std::atof(argv[1]) : 3.0;
   const int terrain = argc > 2 ? std::atoi(argv[2]) : 0;
   std::printf("mCLARI, terrain %d, one thread; steps per period 500 (seed 001)\n", terrain);
-  std::printf("%6s %14s %16s %16s %8s %22s\n", "f [Hz]", "RL steps/s", "mj_step/s (task)", "mj_step/s (raw)",
-              "ratio", "seed 001 at 150 Hz");
+  std::printf("%6s %14s %16s %16s %8s %22s\n", "f [Hz]", "RL steps/s", "mj_step/s (task)", "mj_step/s (raw)", "ratio",
+              "seed 001 at 150 Hz");
   for (int f : {1, 20, 150}) {
     farm::config::MclariConfig cfg;
     cfg.set_fixed_frequency(f);

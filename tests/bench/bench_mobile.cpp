@@ -21,9 +21,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using farm::robots::mobile::MobileTask;
 
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 // Physics steps/s of the task's model driving straight on its first map, reset to the start
 // every 200 steps so it stays on the floor inside the arena.
@@ -81,10 +79,14 @@ int main(int argc, char** argv) {
   int rays = 12, substeps = 0;
   double dt = 0;
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--rays") && i + 1 < argc) rays = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--dt") && i + 1 < argc) dt = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc) substeps = std::atoi(argv[++i]);
+    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
+      seconds = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--rays") && i + 1 < argc)
+      rays = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--dt") && i + 1 < argc)
+      dt = std::atof(argv[++i]);
+    else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc)
+      substeps = std::atoi(argv[++i]);
     else {
       std::fprintf(stderr, "usage: bench_mobile [--seconds S] [--rays N] [--dt DT --substeps K]\n");
       return 2;
@@ -92,13 +94,13 @@ int main(int argc, char** argv) {
   }
   std::printf("one core; lidar %d rays; figures are per core; physics dt %s\n", rays,
               dt > 0 ? std::to_string(dt).c_str() : "default");
-  std::printf("%-7s %8s %14s %16s %14s %7s %9s\n", "robot", "substeps", "raw mj_step/s",
-              "raw env-equiv/s", "env steps/s", "ratio", "episodes");
+  std::printf("%-7s %8s %14s %16s %14s %7s %9s\n", "robot", "substeps", "raw mj_step/s", "raw env-equiv/s",
+              "env steps/s", "ratio", "episodes");
   for (const char* name : {"jetbot", "kaya"}) {
     farm::config::TaskConfig c;
     c.set_name(name);
-    auto* scene = std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene()
-                                                : c.mutable_kaya()->mutable_scene();
+    auto* scene =
+        std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene() : c.mutable_kaya()->mutable_scene();
     scene->set_lidar_rays(rays);
     scene->set_max_episode_steps(400);
     if (dt > 0) scene->set_physics_dt(dt);
@@ -110,8 +112,8 @@ int main(int argc, char** argv) {
     uint64_t episodes = 0;
     const double env = env_steps_per_second(task, seconds, &episodes);
     const double limit = raw / sub;  // env steps/s if an env step cost only its physics
-    std::printf("%-7s %8d %14.0f %16.0f %14.0f %6.1f%% %9llu\n", name, sub, raw, limit, env,
-                100.0 * env / limit, (unsigned long long)episodes);
+    std::printf("%-7s %8d %14.0f %16.0f %14.0f %6.1f%% %9llu\n", name, sub, raw, limit, env, 100.0 * env / limit,
+                (unsigned long long)episodes);
   }
   return 0;
 }

@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
+#include "compute.h"
 #include "ppo.h"
 #include "rollout_storage.h"
-#include "compute.h"
 
 namespace {
 
@@ -35,16 +35,21 @@ int main(int argc, char** argv) {
   std::vector<int> hidden{512, 256, 128};
   for (int i = 1; i < argc; ++i) {
     const bool v = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--device") && v) device = argv[++i];
-    else if (!std::strcmp(argv[i], "--threads") && v) threads = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--fits") && v) fits = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--steps") && v) steps = std::atoll(argv[++i]);
+    if (!std::strcmp(argv[i], "--device") && v)
+      device = argv[++i];
+    else if (!std::strcmp(argv[i], "--threads") && v)
+      threads = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--fits") && v)
+      fits = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--steps") && v)
+      steps = std::atoll(argv[++i]);
     else if (!std::strcmp(argv[i], "--hidden") && v) {
       hidden.clear();
       std::stringstream list(argv[++i]);
       for (std::string h; std::getline(list, h, ',');) hidden.push_back(std::atoi(h.c_str()));
     } else {
-      std::fprintf(stderr, "usage: %s [--device cpu|cuda[:N]] [--threads N] [--fits K] [--steps S] [--hidden a,b,c]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--device cpu|cuda[:N]] [--threads N] [--fits K] [--steps S] [--hidden a,b,c]\n",
+                   argv[0]);
       return 2;
     }
   }
@@ -75,10 +80,12 @@ int main(int argc, char** argv) {
     farm::RolloutStorage storage(kObs, kAct);
     double prep_total = 0, fit_total = 0;
     for (int f = 0; f <= fits; ++f) {  // fit 0 warms up (allocations, Adam state, CUDA context)
-      storage.add(kT, int(envs), obs.data(), act.data(), rew.data(), term.data(), trunc.data(), lp.data(), next.data(), f);
+      storage.add(kT, int(envs), obs.data(), act.data(), rew.data(), term.data(), trunc.data(), lp.data(), next.data(),
+                  f);
       const auto t0 = Clock::now();
       farm::PpoSamples s;
-      storage.take(steps, [&](const float* o, int64_t n) { return ppo.values(o, n); }, c.gamma(), c.gae_lambda(), f, s);
+      storage.take(
+          steps, [&](const float* o, int64_t n) { return ppo.values(o, n); }, c.gamma(), c.gae_lambda(), f, s);
       const double prep = seconds_since(t0);
       const auto t1 = Clock::now();
       const farm::PpoStats st = ppo.fit(s);
@@ -87,13 +94,20 @@ int main(int argc, char** argv) {
       prep_total += prep;
       fit_total += fit;
       if (f == fits)
-        std::printf("ppo fit (%d-[%s]-%d, %lld steps, mini-batch %d, %d epochs, %lld grad steps, %s, %d thread%s): "
-                    "%.2f s per fit (preparing %.2f s = %.1f%%, gradient steps %.2f s), %.0f samples/s, kl %.4f\n",
-                    kObs, [&] { std::string h; for (size_t i = 0; i < hidden.size(); ++i) h += (i ? "," : "") + std::to_string(hidden[i]); return h; }().c_str(),
-                    kAct, (long long)steps, mb, c.epochs(), (long long)st.minibatches, device.c_str(), threads,
-                    threads == 1 ? "" : "s", (prep_total + fit_total) / fits, prep_total / fits,
-                    100.0 * prep_total / (prep_total + fit_total), fit_total / fits,
-                    double(steps) * c.epochs() * fits / fit_total, st.kl);
+        std::printf(
+            "ppo fit (%d-[%s]-%d, %lld steps, mini-batch %d, %d epochs, %lld grad steps, %s, %d thread%s): "
+            "%.2f s per fit (preparing %.2f s = %.1f%%, gradient steps %.2f s), %.0f samples/s, kl %.4f\n",
+            kObs,
+            [&] {
+              std::string h;
+              for (size_t i = 0; i < hidden.size(); ++i) h += (i ? "," : "") + std::to_string(hidden[i]);
+              return h;
+            }()
+                .c_str(),
+            kAct, (long long)steps, mb, c.epochs(), (long long)st.minibatches, device.c_str(), threads,
+            threads == 1 ? "" : "s", (prep_total + fit_total) / fits, prep_total / fits,
+            100.0 * prep_total / (prep_total + fit_total), fit_total / fits,
+            double(steps) * c.epochs() * fits / fit_total, st.kl);
     }
     std::fflush(stdout);
   }

@@ -41,7 +41,8 @@ double raw_physics_steps_per_second(const QuadrupedTask& task, double seconds) {
     for (int i = 0; i < 1000; ++i) {
       for (int a = 0; a < m->nu; ++a) {
         const int j = m->actuator_trnid[2 * a];
-        d->ctrl[a] = c.kp() * (start->qpos[m->jnt_qposadr[j]] - d->qpos[m->jnt_qposadr[j]]) - c.kd() * d->qvel[m->jnt_dofadr[j]];
+        d->ctrl[a] =
+            c.kp() * (start->qpos[m->jnt_qposadr[j]] - d->qpos[m->jnt_qposadr[j]]) - c.kd() * d->qvel[m->jnt_dofadr[j]];
       }
       mj_step(m, d);
     }
@@ -83,7 +84,8 @@ double env_steps_per_second(const QuadrupedTask& task, double seconds, uint64_t*
 int main(int argc, char** argv) {
   double seconds = 3.0;
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc) seconds = std::atof(argv[++i]);
+    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
+      seconds = std::atof(argv[++i]);
     else {
       std::fprintf(stderr, "usage: bench_quadruped [--seconds S]\n");
       return 2;

@@ -20,17 +20,15 @@
 #include <string>
 #include <vector>
 
-#include "replay_buffer.h"
 #include "compute.h"
+#include "replay_buffer.h"
 #include "sac.h"
 
 namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 void fill(farm::ReplayBuffer& buf, int64_t n, std::mt19937_64& rng) {
   std::normal_distribution<float> g;
@@ -75,10 +73,11 @@ Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds,
 
 void print_rate(const char* what, const std::string& net, int batch, const std::string& device, int n_threads,
                 const Rate& r) {
-  std::printf("sac update (%s, batch %d, %s%s, %d thread%s): %.0f updates/s "
-              "(%.1f us/update, of which sampling %.1f us = %.1f%% waiting for data)\n",
-              net.c_str(), batch, device.c_str(), what, n_threads, n_threads == 1 ? "" : "s", r.n / r.elapsed,
-              1e6 * r.elapsed / r.n, 1e6 * r.sample_s / r.n, 100.0 * r.sample_s / r.elapsed);
+  std::printf(
+      "sac update (%s, batch %d, %s%s, %d thread%s): %.0f updates/s "
+      "(%.1f us/update, of which sampling %.1f us = %.1f%% waiting for data)\n",
+      net.c_str(), batch, device.c_str(), what, n_threads, n_threads == 1 ? "" : "s", r.n / r.elapsed,
+      1e6 * r.elapsed / r.n, 1e6 * r.sample_s / r.n, 100.0 * r.sample_s / r.elapsed);
   std::fflush(stdout);
 }
 
@@ -92,10 +91,12 @@ double rel_diff(const std::vector<torch::Tensor>& a, const std::vector<torch::Te
 }
 
 double figure_diff(const farm::SacStats& g, const farm::SacStats& e, const char** which) {
-  const std::pair<const char*, std::pair<double, double>> figs[] = {
-      {"critic_loss", {g.critic_loss, e.critic_loss}}, {"actor_loss", {g.actor_loss, e.actor_loss}},
-      {"alpha_loss", {g.alpha_loss, e.alpha_loss}},    {"alpha", {g.alpha, e.alpha}},
-      {"entropy", {g.entropy, e.entropy}},             {"q_mean", {g.q_mean, e.q_mean}}};
+  const std::pair<const char*, std::pair<double, double>> figs[] = {{"critic_loss", {g.critic_loss, e.critic_loss}},
+                                                                    {"actor_loss", {g.actor_loss, e.actor_loss}},
+                                                                    {"alpha_loss", {g.alpha_loss, e.alpha_loss}},
+                                                                    {"alpha", {g.alpha, e.alpha}},
+                                                                    {"entropy", {g.entropy, e.entropy}},
+                                                                    {"q_mean", {g.q_mean, e.q_mean}}};
   double worst = 0;
   for (const auto& [name, v] : figs) {
     const double d = std::abs(v.first - v.second) / std::max(1.0, std::abs(v.second));
@@ -150,11 +151,12 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   const double actor = rel_diff(graph.actor_parameters(), eager.actor_parameters());
   const double critic = rel_diff(graph.critic_parameters(), eager.critic_parameters());
   const bool ok = early <= 1e-4 && drift <= 1e-2 && updates >= kEarly;
-  std::printf("graph vs eager check (%s, batch %d, %s, one seed, same batches): figures of updates 1-%d differ "
-              "by at most %.1e (%s); over %d updates by %.1e (%s, update %d); parameters after them by %.1e "
-              "actor, %.1e critics (relative norm): %s\n",
-              describe(kObs, hidden, kAct).c_str(), batch, device.c_str(), kEarly, early, early_name, updates,
-              drift, drift_name, drift_at, actor, critic, ok ? "PASS" : "FAIL");
+  std::printf(
+      "graph vs eager check (%s, batch %d, %s, one seed, same batches): figures of updates 1-%d differ "
+      "by at most %.1e (%s); over %d updates by %.1e (%s, update %d); parameters after them by %.1e "
+      "actor, %.1e critics (relative norm): %s\n",
+      describe(kObs, hidden, kAct).c_str(), batch, device.c_str(), kEarly, early, early_name, updates, drift,
+      drift_name, drift_at, actor, critic, ok ? "PASS" : "FAIL");
   std::fflush(stdout);
   return ok;
 }
@@ -229,8 +231,8 @@ int main(int argc, char** argv) {
       }
       graph = measure(sac, buf, batch, seconds, rng);
       print_rate(" cuda graph", net, batch, device, n_threads, graph);
-      std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx\n", net.c_str(), batch,
-                  device.c_str(), (graph.n / graph.elapsed) / (eager.n / eager.elapsed));
+      std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx\n", net.c_str(), batch, device.c_str(),
+                  (graph.n / graph.elapsed) / (eager.n / eager.elapsed));
       std::fflush(stdout);
     }
   }

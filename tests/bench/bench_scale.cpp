@@ -15,9 +15,9 @@
 
 #include <cerrno>
 #include <chrono>
-#include <cstring>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <random>
 #include <sstream>
@@ -65,18 +65,26 @@ Options parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--workers") o.workers = parse_list(value(), a);
-    else if (a == "--envs") o.envs = parse_list(value(), a).at(0);
-    else if (a == "--steps") o.steps = parse_list(value(), a).at(0);
-    else if (a == "--seconds") o.seconds = std::atof(value().c_str());
-    else if (a == "--warmup") o.warmup = std::atof(value().c_str());
-    else if (a == "--worker-bin") o.worker_bin = value();
-    else if (a == "--log-dir") o.log_dir = value();
-    else throw std::invalid_argument("unknown option '" + a + "'");
+    if (a == "--workers")
+      o.workers = parse_list(value(), a);
+    else if (a == "--envs")
+      o.envs = parse_list(value(), a).at(0);
+    else if (a == "--steps")
+      o.steps = parse_list(value(), a).at(0);
+    else if (a == "--seconds")
+      o.seconds = std::atof(value().c_str());
+    else if (a == "--warmup")
+      o.warmup = std::atof(value().c_str());
+    else if (a == "--worker-bin")
+      o.worker_bin = value();
+    else if (a == "--log-dir")
+      o.log_dir = value();
+    else
+      throw std::invalid_argument("unknown option '" + a + "'");
   }
   if (!(o.seconds > 0) || o.warmup < 0) throw std::invalid_argument("--seconds must be > 0, --warmup >= 0");
-  o.worker_bin = farm::find_companion("farm-worker", o.worker_bin, "../worker/farm-worker", FARM_WORKER_BIN,
-                                      "--worker-bin");
+  o.worker_bin =
+      farm::find_companion("farm-worker", o.worker_bin, "../worker/farm-worker", FARM_WORKER_BIN, "--worker-bin");
   return o;
 }
 
@@ -112,9 +120,8 @@ class Sink {
     publish(id, false);
     std::vector<pid_t> pids;
     for (int k = 0; k < n; ++k) {
-      pids.push_back(spawn({o_.worker_bin, "--envs", std::to_string(o_.envs), "--threads", "1",
-                            "--id", "w" + std::to_string(k), "--domain",
-                            std::to_string(o_.bus.domain), "--log-every", "1"},
+      pids.push_back(spawn({o_.worker_bin, "--envs", std::to_string(o_.envs), "--threads", "1", "--id",
+                            "w" + std::to_string(k), "--domain", std::to_string(o_.bus.domain), "--log-every", "1"},
                            o_.log_dir + "/" + id + "_w" + std::to_string(k) + ".log"));
     }
     farm::Transitions tr;
@@ -156,8 +163,8 @@ class Sink {
           steps0 = ingest.counters().env_steps;
           t0 = Clock::now();
         } else if (since(t_start) > 60) {
-          std::fprintf(stderr, "only %d of %d workers delivered within 60 s (logs in %s)\n", active,
-                       n, o_.log_dir.c_str());
+          std::fprintf(stderr, "only %d of %d workers delivered within 60 s (logs in %s)\n", active, n,
+                       o_.log_dir.c_str());
           break;
         }
       } else if (since(t0) >= o_.seconds) {
@@ -241,15 +248,15 @@ int main(int argc, char** argv) {
     const Options o = parse(argc, argv);
     std::filesystem::create_directories(o.log_dir);
     // The workers read the same profiles through the standard variable.
-    if (!o.bus.profiles_file.empty())
-      setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
+    if (!o.bus.profiles_file.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
     Sink sink(o);
     std::printf("bench_scale: workers %s\n", o.worker_bin.c_str());
-    std::printf("bench_scale: pendulum, %d envs x %d steps per batch per worker, 1 thread each, "
-                "%.0f s measured after %.0f s warm-up; %u cores\n",
-                o.envs, o.steps, o.seconds, o.warmup, std::thread::hardware_concurrency());
-    std::printf("%8s %14s %16s %14s %7s %6s %8s\n", "workers", "env steps/s", "per worker", "limit",
-                "ratio", "lost", "refused");
+    std::printf(
+        "bench_scale: pendulum, %d envs x %d steps per batch per worker, 1 thread each, "
+        "%.0f s measured after %.0f s warm-up; %u cores\n",
+        o.envs, o.steps, o.seconds, o.warmup, std::thread::hardware_concurrency());
+    std::printf("%8s %14s %16s %14s %7s %6s %8s\n", "workers", "env steps/s", "per worker", "limit", "ratio", "lost",
+                "refused");
     double one = 0;
     bool ok = true;
     for (int n : o.workers) {
@@ -260,9 +267,8 @@ int main(int argc, char** argv) {
       }
       if (one == 0) one = n == 1 ? r : 0;
       const double limit = one * n;
-      std::printf("%8d %14.0f %16.0f %14.0f %7.3f %6llu %8llu\n", n, r, r / n, limit,
-                  limit > 0 ? r / limit : 0.0, (unsigned long long)sink.lost(),
-                  (unsigned long long)sink.invalid());
+      std::printf("%8d %14.0f %16.0f %14.0f %7.3f %6llu %8llu\n", n, r, r / n, limit, limit > 0 ? r / limit : 0.0,
+                  (unsigned long long)sink.lost(), (unsigned long long)sink.invalid());
       std::fflush(stdout);
       ok = ok && sink.lost() == 0 && sink.invalid() == 0;
     }

@@ -76,13 +76,20 @@ Options parse(int argc, char** argv) {
       return argv[++i];
     };
     if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--sizes") o.sizes = parse_sizes(value());
-    else if (a == "--seconds") o.seconds = std::atof(value().c_str());
-    else if (a == "--role") o.role = value();
-    else if (a == "--writer-prefix") o.writer_prefix = value();
-    else if (a == "--tcp-limit") o.tcp_limit_host = value();
-    else if (a == "--connect") o.connect = value();
-    else throw std::invalid_argument("unknown option '" + a + "'");
+    if (a == "--sizes")
+      o.sizes = parse_sizes(value());
+    else if (a == "--seconds")
+      o.seconds = std::atof(value().c_str());
+    else if (a == "--role")
+      o.role = value();
+    else if (a == "--writer-prefix")
+      o.writer_prefix = value();
+    else if (a == "--tcp-limit")
+      o.tcp_limit_host = value();
+    else if (a == "--connect")
+      o.connect = value();
+    else
+      throw std::invalid_argument("unknown option '" + a + "'");
   }
   if (!(o.seconds > 0)) throw std::invalid_argument("--seconds must be > 0");
   return o;
@@ -113,8 +120,8 @@ void make_batch(size_t bytes, TransitionBatch& b) {
 }
 
 size_t payload_bytes(const TransitionBatch& b) {
-  return 4 * (b.observations().size() + b.actions().size() + b.rewards().size() +
-              b.log_probs().size() + b.next_observations().size()) +
+  return 4 * (b.observations().size() + b.actions().size() + b.rewards().size() + b.log_probs().size() +
+              b.next_observations().size()) +
          b.terminated().size() + b.truncated().size();
 }
 
@@ -325,14 +332,14 @@ double tcp_bytes_per_second(const Options& o, size_t bytes) {
 int run_reader(const Options& o) {
   farm::dds::Bus bus(o.bus, "bench_transport reader");
   BatchReader in(bus, farm::dds::kBatchTopic, "batch_reader");
-  std::printf("bench_transport: profiles %s, %.1f s per size%s\n", bus.profiles_file().c_str(),
-              o.seconds, o.writer_prefix.empty() ? "" : (", writer under: " + o.writer_prefix).c_str());
-  std::printf("%10s %12s %10s %8s %6s %12s %12s %7s\n", "batch", "payload MB/s", "batches/s",
-              "batches", "lost", "limit", "limit MB/s", "ratio");
+  std::printf("bench_transport: profiles %s, %.1f s per size%s\n", bus.profiles_file().c_str(), o.seconds,
+              o.writer_prefix.empty() ? "" : (", writer under: " + o.writer_prefix).c_str());
+  std::printf("%10s %12s %10s %8s %6s %12s %12s %7s\n", "batch", "payload MB/s", "batches/s", "batches", "lost",
+              "limit", "limit MB/s", "ratio");
   bool ok = true;
   for (size_t size : o.sizes) {
-    std::vector<std::string> args{"--role", "writer", "--sizes", std::to_string(size), "--seconds",
-                                  std::to_string(o.seconds)};
+    std::vector<std::string> args{
+        "--role", "writer", "--sizes", std::to_string(size), "--seconds", std::to_string(o.seconds)};
     const auto bus_a = bus_args(o);
     args.insert(args.end(), bus_a.begin(), bus_a.end());
     const pid_t w = spawn_self(o, args);
@@ -350,9 +357,8 @@ int run_reader(const Options& o) {
     }
     const bool good = r.complete && r.lost == 0 && r.duplicates == 0 && status == 0;
     ok = ok && good;
-    std::printf("%10zu %12.1f %10.1f %8llu %6llu %12s %12.1f %7.3f%s\n", size, mbps, bps,
-                (unsigned long long)r.batches, (unsigned long long)r.lost, limit_name, limit,
-                limit > 0 ? mbps / limit : 0.0,
+    std::printf("%10zu %12.1f %10.1f %8llu %6llu %12s %12.1f %7.3f%s\n", size, mbps, bps, (unsigned long long)r.batches,
+                (unsigned long long)r.lost, limit_name, limit, limit > 0 ? mbps / limit : 0.0,
                 good ? "" : (r.complete ? "  DUPLICATES OR WRITER ERROR" : "  INCOMPLETE"));
     std::fflush(stdout);
   }

@@ -24,9 +24,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 // A state of the task after a few env steps with zero actions, and the physics steps the task
 // runs per env step there.
@@ -68,8 +66,7 @@ double raw_steps_per_second(const mjModel* m, const mjData* start, double second
 
 // The same loop on `threads` threads at once: what the hardware gives in parallel (shared
 // cores, turbo limits), so the worker's scaling can be told apart from the machine's.
-double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads,
-                                     double seconds) {
+double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads, double seconds) {
   std::vector<double> rates(threads);
   std::vector<std::thread> pool;
   for (int k = 0; k < threads; ++k) {
@@ -81,9 +78,8 @@ double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int 
   return total;
 }
 
-double worker_steps_per_second(std::shared_ptr<const farm::robots::Task> task,
-                               const farm::PolicyParams& policy, int envs, int threads, int T,
-                               double seconds) {
+double worker_steps_per_second(std::shared_ptr<const farm::robots::Task> task, const farm::PolicyParams& policy,
+                               int envs, int threads, int T, double seconds) {
   farm::Rollout rollout(std::move(task), envs, threads, 1);
   rollout.set_policy(policy);
   farm::RolloutBatch batch;
@@ -133,8 +129,7 @@ int main(int argc, char** argv) {
     } else if (i + 1 < argc && a == "--seconds") {
       seconds = std::atof(argv[++i]);
     } else {
-      std::fprintf(stderr, "usage: %s [--task NAME] [--envs N] [--threads K] [--seconds S]\n",
-                   argv[0]);
+      std::fprintf(stderr, "usage: %s [--task NAME] [--envs N] [--threads K] [--seconds S]\n", argv[0]);
       return 2;
     }
   }
@@ -166,13 +161,12 @@ int main(int argc, char** argv) {
   std::normal_distribution<float> normal(0.f, 0.2f);
   for (auto& v : policy.params) v = normal(rng);
 
-  std::printf("task %s, policy %s, %d envs, T=%d, %.1f s per measurement\n",
-              task->spec().name.c_str(), policy.layout.describe().c_str(), envs, T, seconds);
+  std::printf("task %s, policy %s, %d envs, T=%d, %.1f s per measurement\n", task->spec().name.c_str(),
+              policy.layout.describe().c_str(), envs, T, seconds);
   const RawStart start = raw_start(*task);
   const double per = start.physics_per_env_step;
   const double raw = raw_steps_per_second(task->model(), start.data, seconds) / per;
-  std::printf("raw mj_step: %.0f steps/s, %.2f per env step: limit %.0f env steps/s\n", raw * per,
-              per, raw);
+  std::printf("raw mj_step: %.0f steps/s, %.2f per env step: limit %.0f env steps/s\n", raw * per, per, raw);
   const double infer = policy_rows_per_second(policy, envs, seconds);
   std::printf("policy inference (%d rows per call): %.0f rows/s\n", envs, infer);
 

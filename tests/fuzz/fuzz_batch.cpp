@@ -75,10 +75,14 @@ void run(const farm::msg::TransitionBatch& b, uint64_t version) {
 
 float value(FuzzedDataProvider& p) {
   switch (p.ConsumeIntegralInRange<int>(0, 7)) {
-    case 0: return std::nanf("");
-    case 1: return INFINITY;
-    case 2: return p.ConsumeFloatingPoint<float>();
-    default: return p.ConsumeFloatingPointInRange<float>(-2.f, 2.f);
+    case 0:
+      return std::nanf("");
+    case 1:
+      return INFINITY;
+    case 2:
+      return p.ConsumeFloatingPoint<float>();
+    default:
+      return p.ConsumeFloatingPointInRange<float>(-2.f, 2.f);
   }
 }
 

@@ -38,16 +38,26 @@ int main(int argc, char** argv) {
       if (farm::dds::parse_bus_flag(argc, argv, i, bus_opts)) continue;
       if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
       std::string v = argv[++i];
-      if (a == "--experiment") experiment = v;
-      else if (a == "--id") id = v;
-      else if (a == "--obs") obs = std::stoul(v);
-      else if (a == "--act") act = std::stoul(v);
-      else if (a == "--seconds") seconds = std::stod(v);
-      else if (a == "--hostile") hostile = v == "1";
-      else if (a == "--oversize") oversize = v == "1";
-      else if (a == "--spec-config") spec_config = v;
-      else if (a == "--spec-steps") spec_steps = std::stoul(v);
-      else throw std::invalid_argument("unknown flag " + a);
+      if (a == "--experiment")
+        experiment = v;
+      else if (a == "--id")
+        id = v;
+      else if (a == "--obs")
+        obs = std::stoul(v);
+      else if (a == "--act")
+        act = std::stoul(v);
+      else if (a == "--seconds")
+        seconds = std::stod(v);
+      else if (a == "--hostile")
+        hostile = v == "1";
+      else if (a == "--oversize")
+        oversize = v == "1";
+      else if (a == "--spec-config")
+        spec_config = v;
+      else if (a == "--spec-steps")
+        spec_steps = std::stoul(v);
+      else
+        throw std::invalid_argument("unknown flag " + a);
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm_intruder: %s\n", e.what());
@@ -55,12 +65,12 @@ int main(int argc, char** argv) {
   }
   try {
     farm::dds::Bus bus(bus_opts, id);
-    farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(
-        bus, farm::dds::kBatchTopic, "batch_writer");
+    farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
+                                                                                            "batch_writer");
     farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights(
         bus, farm::dds::kWeightsTopic, "latest_reader");
-    farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(
-        bus, farm::dds::kSpecTopic, "latest_reader");
+    farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(bus, farm::dds::kSpecTopic,
+                                                                                           "latest_reader");
     // Only when asked: a worker's certificate may not even create a spec writer (access control).
     using SpecWriter = farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType>;
     std::unique_ptr<SpecWriter> spec_out;

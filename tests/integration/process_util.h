@@ -86,13 +86,15 @@ bool poll_log(const std::string& path, Found found, double timeout_s) {
 
 // Polls a log file until it contains `needle`; false after timeout_s.
 inline bool wait_for_text(const std::string& path, const std::string& needle, double timeout_s) {
-  return poll_log(path, [&](const std::string& t) { return t.find(needle) != std::string::npos; }, timeout_s);
+  return poll_log(
+      path, [&](const std::string& t) { return t.find(needle) != std::string::npos; }, timeout_s);
 }
 
 // Polls a log file until a line of it matches `pattern`; false after timeout_s.
 inline bool wait_for_match(const std::string& path, const std::string& pattern, double timeout_s) {
   const std::regex re(pattern);
-  return poll_log(path, [&](const std::string& t) { return std::regex_search(t, re); }, timeout_s);
+  return poll_log(
+      path, [&](const std::string& t) { return std::regex_search(t, re); }, timeout_s);
 }
 
 // What is wrong with the best policy a learner kept in <run>/best, given the run's summary: the
@@ -101,7 +103,8 @@ inline bool wait_for_match(const std::string& path, const std::string& pattern, 
 inline std::string best_policy_problem(const std::string& run, const std::string& summary, const std::string& algo) {
   namespace fs = std::filesystem;
   const fs::path best = fs::path(run) / "best";
-  if (!fs::is_directory(best / algo) || fs::is_empty(best / algo)) return (best / algo).string() + " is missing or empty";
+  if (!fs::is_directory(best / algo) || fs::is_empty(best / algo))
+    return (best / algo).string() + " is missing or empty";
   if (fs::exists(best / "replay.pt")) return best.string() + " holds the replay buffer; it should hold networks only";
   std::smatch s, m;
   if (!std::regex_search(summary, s, std::regex(R"(best eval return\s+(-?[0-9.]+))")))
@@ -138,8 +141,10 @@ class ProcessSet {
   }
   void cleanup(bool keep) {
     kill_all();
-    if (!keep && !std::getenv("FARM_KEEP_LOGS")) std::filesystem::remove_all(dir_);
-    else std::cerr << "logs kept in " << dir_ << "\n";
+    if (!keep && !std::getenv("FARM_KEEP_LOGS"))
+      std::filesystem::remove_all(dir_);
+    else
+      std::cerr << "logs kept in " << dir_ << "\n";
   }
   Proc& start(const std::vector<std::string>& argv, const std::string& name) {
     procs_.push_back(spawn(argv, dir_ + "/" + name + ".log"));

@@ -60,7 +60,8 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
   write_file(cfg, kConfig);
   // Workers first: they must wait for the learner and say so.
-  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-a", "--inject-nan-batch", "5", "--log-every", "2"}, "worker-a");
+  start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-a", "--inject-nan-batch", "5", "--log-every", "2"},
+        "worker-a");
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-b", "--log-every", "2"}, "worker-b");
   std::this_thread::sleep_for(std::chrono::seconds(3));
   for (auto w : {"worker-a", "worker-b"})
@@ -92,7 +93,8 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const std::string summary = slurp(run + "/summary.txt");
   ASSERT_FALSE(summary.empty()) << learner_log;
   std::smatch m;
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
       << summary;
   EXPECT_GT(std::stoll(m[1]), 0);
   EXPECT_EQ(m[2], "0") << summary;
@@ -100,16 +102,21 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   EXPECT_EQ(m[4], "1") << summary;
 
   // Every sequence number each worker says it sent reached the learner exactly once.
-  struct Expect { const char* id; const char* log; int invalid; };
+  struct Expect {
+    const char* id;
+    const char* log;
+    int invalid;
+  };
   for (Expect e : {Expect{"it-a", "worker-a", 1}, Expect{"it-b", "worker-b", 0}}) {
     const std::string wlog = slurp(dir_ + "/" + e.log + ".log");
     std::smatch sent;
-    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent \(sequence 0\.\.(\d+)\))"))) << wlog;
+    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent \(sequence 0\.\.(\d+)\))")))
+        << wlog;
     const long long n = std::stoll(sent[1]);
     ASSERT_GT(n, 6) << e.id;
     std::smatch got;
-    std::regex line(std::string(e.id) +
-                    R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+), duplicate (\d+), invalid (\d+), stream closed)");
+    std::regex line(std::string(e.id) + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+),)"
+                                        R"( duplicate (\d+), invalid (\d+), stream closed)");
     ASSERT_TRUE(std::regex_search(summary, got, line)) << e.id << "\n" << summary;
     EXPECT_EQ(std::stoll(got[1]) + std::stoll(got[5]), n) << e.id;
     EXPECT_EQ(std::stoll(got[2]), n - 1) << e.id;
@@ -150,7 +157,8 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   std::string text = kConfig;
   // A run that stops on its update budget, then a resumed run with a larger budget.
   text.replace(text.find("stop {"), std::string("stop {").size(), "stop { max_updates: 1500");
-  text.replace(text.find("target_eval_return: -250"), std::string("target_eval_return: -250").size(), "target_eval_return: 1000");
+  text.replace(text.find("target_eval_return: -250"), std::string("target_eval_return: -250").size(),
+               "target_eval_return: 1000");
   write_file(cfg, text);
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r"}, "worker");
   Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
@@ -162,7 +170,8 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   more.replace(more.find("max_updates: 1500"), std::string("max_updates: 1500").size(), "max_updates: 2500");
   write_file(cfg, more);
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r2"}, "worker-2");
-  Proc& second = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
+  Proc& second =
+      start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
   ASSERT_EQ(wait_for(second, 300), 0) << slurp(dir_ + "/learner-2.log");
   const std::string log2 = slurp(dir_ + "/learner-2.log");
   EXPECT_NE(log2.find("resumed"), std::string::npos) << log2;
@@ -187,10 +196,12 @@ TEST_F(FarmProcesses, CleanStopAndResumeLoseNothing) {
   Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
   Proc& wa = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sa"}, "worker-a");
   Proc& wb = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sb"}, "worker-b");
-  ASSERT_TRUE(wait_for_match(dir_ + "/learner-1.log", R"(upd/s \([1-9][0-9]{3,})", 120)) << slurp(dir_ + "/learner-1.log");
+  ASSERT_TRUE(wait_for_match(dir_ + "/learner-1.log", R"(upd/s \([1-9][0-9]{3,})", 120))
+      << slurp(dir_ + "/learner-1.log");
   kill(first.pid, SIGINT);
   ASSERT_EQ(wait_for(first, 60), 130) << slurp(dir_ + "/learner-1.log");
-  Proc& second = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
+  Proc& second =
+      start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
   ASSERT_EQ(wait_for(second, 120), 0) << slurp(dir_ + "/learner-2.log");
   EXPECT_EQ(wait_for(wa, 60), 0) << slurp(dir_ + "/worker-a.log");
   EXPECT_EQ(wait_for(wb, 60), 0) << slurp(dir_ + "/worker-b.log");
@@ -199,9 +210,13 @@ TEST_F(FarmProcesses, CleanStopAndResumeLoseNothing) {
     const std::string wlog = slurp(dir_ + "/worker-" + std::string(id).substr(4) + ".log");
     std::smatch sent, got;
     ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
-    ASSERT_TRUE(std::regex_search(summary, got, std::regex(std::string(id) +
-        R"( session \d+: received (\d+) of sequence 0\.\.\d+, lost (\d+), duplicate 0, invalid 0, stream closed)")))
-        << id << "\n" << summary;
+    ASSERT_TRUE(std::regex_search(
+        summary, got,
+        std::regex(
+            std::string(id) +
+            R"( session \d+: received (\d+) of sequence 0\.\.\d+, lost (\d+), duplicate 0, invalid 0, stream closed)")))
+        << id << "\n"
+        << summary;
     EXPECT_EQ(got[2], "0") << id << "\n" << summary << "\n" << slurp(dir_ + "/learner-1.log");
     EXPECT_EQ(got[1], sent[1]) << id << "\n" << summary;
   }

@@ -17,12 +17,14 @@ std::string config(const std::string& id, const std::string& stop) {
   return "experiment_id: \"" + id + R"("
 seed: 11
 task { name: "pendulum" }
-sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3 learning_starts: 1000 publish_every_updates: 25 }
+sac { hidden: 64 hidden: 64 actor_lr: 1e-3 critic_lr: 1e-3 alpha_lr: 1e-3
+      learning_starts: 1000 publish_every_updates: 25 }
 worker { envs_per_worker: 8 steps_per_batch: 25 max_batches_per_version: 2 }
 eval { episodes: 5 every_seconds: 10 final_episodes: 10 }
 checkpoint_every_seconds: 3
 log_every_seconds: 1
-stop { )" + stop + " }\n";
+stop { )" +
+         stop + " }\n";
 }
 
 // The `updates` column of the last row of learner.csv.
@@ -57,7 +59,8 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(41)), run = d + "/run";
   write_file(d + "/cfg.txtpb", config("it_worker_fault", "max_seconds: 35"));
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  Proc& learner =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
   Proc& b = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
   ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker it-b on", 30)) << set.log("learner");
@@ -91,7 +94,8 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   EXPECT_EQ(m[4], "0") << summary;
   // Two sessions of it-b: the killed one (stream left open) and the restarted one.
   std::smatch s;
-  std::regex session(R"(it-b session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream (\w+))");
+  std::regex session(
+      R"(it-b session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream (\w+))");
   std::vector<std::pair<long long, std::string>> sessions;
   for (auto it = std::sregex_iterator(summary.begin(), summary.end(), session); it != std::sregex_iterator(); ++it)
     sessions.push_back({std::stoll((*it)[1]), (*it)[2]});
@@ -112,7 +116,7 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   const std::string d = set.dir(), domain = std::to_string(private_domain(53)), run = d + "/run";
   write_file(d + "/cfg.txtpb", config("it_learner_fault", "max_updates: 9000"));
   const std::vector<std::string> learner_argv = {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run,
-                                                 "--domain", domain};
+                                                 "--domain",       domain};
   Proc& first = set.start(learner_argv, "learner-1");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
@@ -131,7 +135,13 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   ASSERT_LT(updates_at_checkpoint, 9000) << "the first learner finished before it was killed";
 
   std::this_thread::sleep_for(std::chrono::seconds(2));
-  Proc& second = set.start([&] { auto a = learner_argv; a.push_back("--resume"); return a; }(), "learner-2");
+  Proc& second = set.start(
+      [&] {
+        auto a = learner_argv;
+        a.push_back("--resume");
+        return a;
+      }(),
+      "learner-2");
   ASSERT_EQ(wait_for(second, 180), 0) << set.log("learner-2");
   EXPECT_EQ(wait_for(set.procs()[1], 30), 0) << set.log("worker-a");
   EXPECT_EQ(wait_for(set.procs()[2], 30), 0) << set.log("worker-b");
@@ -148,7 +158,9 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   EXPECT_EQ(m[4], "0") << summary;
   // One session per worker: they never restarted, the resumed learner carried their accounting on.
   for (const char* id : {"it-a", "it-b"}) {
-    std::regex line(std::string(id) + R"( session \d+: received \d+ of sequence 0\.\.\d+, lost \d+, duplicate 0, invalid 0, stream closed)");
+    std::regex line(
+        std::string(id) +
+        R"( session \d+: received \d+ of sequence 0\.\.\d+, lost \d+, duplicate 0, invalid 0, stream closed)");
     auto n = std::distance(std::sregex_iterator(summary.begin(), summary.end(), line), std::sregex_iterator());
     EXPECT_EQ(n, 1) << id << "\n" << summary;
   }

@@ -75,21 +75,29 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(91));
   write_file(d + "/cfg.txtpb", kConfig);
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain},
-                            "learner");
+  Proc& learner = set.start(
+      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
   const std::string csv = d + "/run/learner.csv";
   // Training settled: updates for a few seconds before the attack.
   double first_update = -1;
-  ASSERT_TRUE(poll_log(csv, [&](const std::string&) {
-    const auto rows = read_csv(csv);
-    for (const auto& r : rows)
-      if (r.updates > 0) { first_update = r.elapsed; break; }
-    return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
-  }, 60)) << set.log("learner");
+  ASSERT_TRUE(poll_log(
+      csv,
+      [&](const std::string&) {
+        const auto rows = read_csv(csv);
+        for (const auto& r : rows)
+          if (r.updates > 0) {
+            first_update = r.elapsed;
+            break;
+          }
+        return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
+      },
+      60))
+      << set.log("learner");
   const double attack_start = read_csv(csv).back().elapsed;
   Proc& hostile = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_hostile", "--id", "hostile",
-                             "--seconds", "12", "--hostile", "1"}, "hostile");
+                             "--seconds", "12", "--hostile", "1"},
+                            "hostile");
   ASSERT_EQ(wait_for(hostile, 60), 0) << set.log("hostile");
   const double attack_end = read_csv(csv).back().elapsed;
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
@@ -103,7 +111,8 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
   EXPECT_GE(std::stoi(m[2]), 1) << h;
 
   const std::string summary = slurp(d + "/run/summary.txt");
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
       << summary;
   EXPECT_GT(std::stoll(m[1]), 50) << summary;
   EXPECT_EQ(m[2], "0") << summary;
@@ -114,7 +123,10 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
   std::smatch ws;
   ASSERT_TRUE(std::regex_search(wlog, ws, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
   EXPECT_NE(summary.find("worker            hw session"), std::string::npos) << summary;
-  EXPECT_TRUE(std::regex_search(summary, m, std::regex(R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
+  EXPECT_TRUE(std::regex_search(
+      summary, m,
+      std::regex(
+          R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
       << summary;
   EXPECT_EQ(m[1], ws[1]) << summary;
   EXPECT_EQ(summary.find(" hostile session"), std::string::npos) << summary;
@@ -145,21 +157,29 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   std::string cfg = kConfig;
   cfg.replace(cfg.find("it_hostile"), 10, "it_oversize");
   write_file(d + "/cfg.txtpb", cfg);
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain},
-                            "learner");
+  Proc& learner = set.start(
+      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
   const std::string csv = d + "/run/learner.csv";
   double first_update = -1;
-  ASSERT_TRUE(poll_log(csv, [&](const std::string&) {
-    const auto rows = read_csv(csv);
-    for (const auto& r : rows)
-      if (r.updates > 0) { first_update = r.elapsed; break; }
-    return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
-  }, 60)) << set.log("learner");
+  ASSERT_TRUE(poll_log(
+      csv,
+      [&](const std::string&) {
+        const auto rows = read_csv(csv);
+        for (const auto& r : rows)
+          if (r.updates > 0) {
+            first_update = r.elapsed;
+            break;
+          }
+        return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
+      },
+      60))
+      << set.log("learner");
   const double rss_before = peak_rss_mib(learner.pid);
   const double attack_start = read_csv(csv).back().elapsed;
   Proc& intruder = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_oversize", "--id", "oversize",
-                              "--seconds", "12", "--oversize", "1"}, "oversize");
+                              "--seconds", "12", "--oversize", "1"},
+                             "oversize");
   // VmHWM is the peak: followed while the attack lasts and a little after, while batches drain.
   double rss_peak = rss_before;
   const auto follow = [&](double seconds) {
@@ -186,7 +206,8 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   EXPECT_GE(std::stoi(m[2]), 1) << h;
 
   const std::string summary = slurp(d + "/run/summary.txt");
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
       << summary;
   EXPECT_GT(std::stoll(m[1]), 50) << summary;
   EXPECT_EQ(m[2], "0") << summary;
@@ -197,7 +218,10 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   const std::string wlog = set.log("worker");
   std::smatch ws;
   ASSERT_TRUE(std::regex_search(wlog, ws, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
-  EXPECT_TRUE(std::regex_search(summary, m, std::regex(R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
+  EXPECT_TRUE(std::regex_search(
+      summary, m,
+      std::regex(
+          R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
       << summary;
   EXPECT_EQ(m[1], ws[1]) << summary;
   EXPECT_EQ(summary.find(" oversize session"), std::string::npos) << summary;
@@ -205,10 +229,10 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   const auto rows = read_csv(csv);
   const double before = mean_rate(rows, first_update + 2, attack_start);
   const double during = mean_rate(rows, attack_start + 1, attack_end);
-  std::printf("updates/s before the attack %.0f, during it %.0f (ratio %.2f); %lld oversized batches of %.1f MiB sent; "
-              "learner peak RSS %.0f MiB before, %.0f MiB after (bound %.0f MiB)\n",
-              before, during, before > 0 ? during / before : 0.0, sent, sample_mib, rss_before, rss_peak,
-              kOversizeRssBoundMiB);
+  std::printf(
+      "updates/s before the attack %.0f, during it %.0f (ratio %.2f); %lld oversized batches of %.1f MiB sent; "
+      "learner peak RSS %.0f MiB before, %.0f MiB after (bound %.0f MiB)\n",
+      before, during, before > 0 ? during / before : 0.0, sent, sample_mib, rss_before, rss_peak, kOversizeRssBoundMiB);
   ASSERT_GT(before, 0);
   EXPECT_GE(during, 0.5 * before);
   ASSERT_GT(rss_before, 0);

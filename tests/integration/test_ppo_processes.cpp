@@ -40,7 +40,8 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(61)), run = d + "/run";
   write_file(d + "/cfg.txtpb", config("it_cartpole_ppo", "target_eval_return: 150 max_seconds: 480"));
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  Proc& learner =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a", "--log-every", "5"}, "worker-a");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b", "--log-every", "5"}, "worker-b");
   const int rc = wait_for(learner, 560);
@@ -55,7 +56,7 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   std::smatch m;
   ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(final eval return\s+(-?[0-9.]+))"))) << summary;
   EXPECT_GE(std::stod(m[1]), kTargetReturn - 30.0) << summary;  // the final, larger evaluation
-  EXPECT_EQ(best_policy_problem(run, summary, "ppo"), "");  // the best evaluation's networks, kept
+  EXPECT_EQ(best_policy_problem(run, summary, "ppo"), "");      // the best evaluation's networks, kept
   ASSERT_TRUE(std::regex_search(
       summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+), stale (\d+))")))
       << summary;
@@ -65,7 +66,9 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   EXPECT_EQ(m[4], "0") << summary;
   // Each worker's stream: every number it sent arrived once.
   for (const char* id : {"ppo-a", "ppo-b"}) {
-    std::regex line(std::string(id) + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)");
+    std::regex line(
+        std::string(id) +
+        R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)");
     ASSERT_TRUE(std::regex_search(summary, m, line)) << id << "\n" << summary;
     EXPECT_EQ(std::stoll(m[1]), std::stoll(m[2]) + 1) << id;
   }
@@ -73,7 +76,8 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   // Every fit's line carries version, steps used and carried, stale drops, KL, rate, clip
   // fraction, value loss, entropy and mean return; steps used is the configured steps per fit.
   const std::regex fit_line(
-      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \| kl [-0-9.e]+ lr [-0-9.e]+ clip [0-9.]+ \| value loss [-0-9.e+]+ entropy [-0-9.]+ \| return [-0-9.na]+)");
+      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \|)"
+      R"( kl [-0-9.e]+ lr [-0-9.e]+ clip [0-9.]+ \| value loss [-0-9.e+]+ entropy [-0-9.]+ \| return [-0-9.na]+)");
   const int fits = count(log, fit_line);
   EXPECT_GE(fits, 2) << log;
   for (auto it = std::sregex_iterator(log.begin(), log.end(), fit_line); it != std::sregex_iterator(); ++it)
@@ -91,7 +95,8 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(67)), run = d + "/run";
   write_file(d + "/cfg.txtpb", config("it_ppo_fault", "max_seconds: 70"));
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  Proc& learner =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a"}, "worker-a");
   Proc& victim = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b"}, "worker-b");
   ASSERT_TRUE(wait_for_text(d + "/learner.log", "fit 2 |", 120)) << slurp(d + "/learner.log");
@@ -107,7 +112,8 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   EXPECT_GE(count(log, fit_line), fits_at_kill + 2) << log;
   const std::string summary = slurp(run + "/summary.txt");
   std::smatch m;
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
       << summary;
   EXPECT_EQ(m[2], "0") << summary;
   EXPECT_EQ(m[4], "0") << summary;
@@ -127,8 +133,8 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
   text.replace(text.find("checkpoint_every_seconds: 30"), std::string("checkpoint_every_seconds: 30").size(),
                "checkpoint_every_seconds: 4");
   write_file(d + "/cfg.txtpb", text);
-  Proc& first = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain},
-                          "learner-1");
+  Proc& first =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner-1");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-r", "--log-every", "1"}, "worker");
   // A fit after the latest checkpoint: the killed learner published a version the checkpoint lacks.
   auto fit_after_checkpoint = [](const std::string& log) {
@@ -145,9 +151,10 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
     published = std::max<uint64_t>(published, std::stoull((*it)[2]));
   ASSERT_GT(published, 0u) << log1;
 
-  Proc& second = set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain,
-                            "--resume"}, "learner-2");
-  ASSERT_TRUE(poll_log(d + "/learner-2.log", [&](const std::string& t) { return count(t, fit_line) >= 2; }, 180))
+  Proc& second = set.start(
+      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain, "--resume"}, "learner-2");
+  ASSERT_TRUE(poll_log(
+      d + "/learner-2.log", [&](const std::string& t) { return count(t, fit_line) >= 2; }, 180))
       << slurp(d + "/learner-2.log");
   kill(second.pid, SIGINT);
   EXPECT_EQ(wait_for(second, 60), 130) << slurp(d + "/learner-2.log");

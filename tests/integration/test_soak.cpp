@@ -38,7 +38,8 @@ TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(97)), run = d + "/run";
   write_file(d + "/soak.txtpb", kConfig);
-  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/soak.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  Proc& learner =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/soak.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   const std::vector<std::string> ids = {"soak-a", "soak-b", "soak-c"};
   for (auto& id : ids) set.start({FARM_WORKER_BIN, "--domain", domain, "--id", id}, id);
 
@@ -51,7 +52,9 @@ TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   const std::string summary = slurp(run + "/summary.txt");
   std::smatch m;
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))"))) << summary;
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
   EXPECT_EQ(m[2], "0") << summary;
   EXPECT_EQ(m[3], "0") << summary;
   EXPECT_EQ(m[4], "0") << summary;
@@ -60,7 +63,11 @@ TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
     const std::string wlog = set.log(ids[i]);
     std::smatch sent, got;
     ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
-    ASSERT_TRUE(std::regex_search(summary, got, std::regex(ids[i] + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)")))
+    ASSERT_TRUE(std::regex_search(
+        summary, got,
+        std::regex(
+            ids[i] +
+            R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)")))
         << summary;
     EXPECT_EQ(got[1], sent[1]) << ids[i];
     EXPECT_GT(std::stoll(sent[1]), 500) << ids[i];
@@ -70,8 +77,8 @@ TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
   // Bounds (see docs/RELIABILITY.md): replay buffer 200,000 x (3+1+3+2) floats is 7 MiB; the DDS
   // queues hold at most 256 batches of 16x25 steps at the learner and 64 per worker; LibTorch and
   // Fast DDS themselves take a few hundred MiB.
-  std::printf("peak RSS: learner %.0f MiB, workers %.0f / %.0f / %.0f MiB\n", learner_mib, worker_mib[0],
-              worker_mib[1], worker_mib[2]);
+  std::printf("peak RSS: learner %.0f MiB, workers %.0f / %.0f / %.0f MiB\n", learner_mib, worker_mib[0], worker_mib[1],
+              worker_mib[2]);
   EXPECT_GT(learner_mib, 0);
   EXPECT_LT(learner_mib, 1024);
   for (double w : worker_mib) EXPECT_LT(w, 256);

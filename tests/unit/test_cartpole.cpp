@@ -18,9 +18,7 @@
 namespace farm::robots {
 namespace {
 
-std::unique_ptr<CartpoleTask> make(const config::CartpoleConfig& c = {}) {
-  return std::make_unique<CartpoleTask>(c);
-}
+std::unique_ptr<CartpoleTask> make(const config::CartpoleConfig& c = {}) { return std::make_unique<CartpoleTask>(c); }
 
 // Puts the cart and the pole where a test wants them, at rest.
 void place(const CartpoleTask& task, TaskState& s, double x, double th, float* obs) {
@@ -113,8 +111,7 @@ TEST(Cartpole, RewardIsDmControlSwingUp) {
   for (float a : {0.3f, -1.f, 2.5f, 0.f, -0.8f}) {
     const StepResult r = task->step(*s, &a, obs);
     const double u = std::clamp(double(a), -1.0, 1.0);
-    EXPECT_NEAR(r.reward, CartpoleTask::reward(s->data->qpos[0], std::cos(s->data->qpos[1]), s->data->qvel[1], u),
-                1e-6)
+    EXPECT_NEAR(r.reward, CartpoleTask::reward(s->data->qpos[0], std::cos(s->data->qpos[1]), s->data->qvel[1], u), 1e-6)
         << "action " << a;
     EXPECT_GE(r.reward, 0.f);
     EXPECT_LE(r.reward, 1.f);

@@ -135,8 +135,7 @@ TEST(Config, WorkerSizesAreBounded) {
 
 // A config from the bus may not name a file for the receiving host to write.
 TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
-  const std::string text =
-      "experiment_id: \"m\"\ntask { name: \"mclari\" mclari { hfield_png: \"/etc/cron.d/x\" } }\n";
+  const std::string text = "experiment_id: \"m\"\ntask { name: \"mclari\" mclari { hfield_png: \"/etc/cron.d/x\" } }\n";
   auto cfg = farm::parse_config_text(text, "learner.txtpb");  // the learner's own file may
   ASSERT_EQ(farm::output_path_fields(cfg), std::vector<std::string>{"task.mclari.hfield_png"});
   try {
@@ -144,7 +143,8 @@ TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
     ADD_FAILURE() << "accepted";
   } catch (const farm::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("ExperimentSpec(m): field 'task.mclari.hfield_png' names a file"),
-              std::string::npos) << e.what();
+              std::string::npos)
+        << e.what();
   }
   farm::clear_output_paths(&cfg);
   EXPECT_TRUE(farm::output_path_fields(cfg).empty());
@@ -161,9 +161,7 @@ TEST(Config, TextRoundTrip) {
 
 TEST(Config, LearnerDeviceDefaultsToCpuAndIsChecked) {
   EXPECT_EQ(parse_config_text("experiment_id: \"a\"\n", "exp.txtpb").sac().device(), "cpu");
-  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\nsac { device: \"cuda:1\" }\n", "exp.txtpb")
-                .sac()
-                .device(),
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\nsac { device: \"cuda:1\" }\n", "exp.txtpb").sac().device(),
             "cuda:1");
   std::string e = error_of("experiment_id: \"a\"\nsac {\n  device: \"gpu\"\n}\n");
   EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;

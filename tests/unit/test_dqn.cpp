@@ -3,8 +3,8 @@
 // checkpoints.
 #include <gtest/gtest.h>
 
-#include "config.h"
 #include <torch/torch.h>
+#include "config.h"
 
 #include <cmath>
 #include <filesystem>
@@ -112,8 +112,8 @@ TEST(DqnUpdate, TargetNetworkIsCopiedEveryKUpdates) {
   c.set_target_update_updates(3);
   c.set_learning_rate(1e-2);
   Dqn dqn(c, 3, 2, 1);
-  SampledBatch b{torch::randn({8, 3}), torch::randint(0, 2, {8, 1}).to(torch::kFloat),
-                 torch::randn({8}), torch::zeros({8}), torch::randn({8, 3})};
+  SampledBatch b{torch::randn({8, 3}), torch::randint(0, 2, {8, 1}).to(torch::kFloat), torch::randn({8}),
+                 torch::zeros({8}), torch::randn({8, 3})};
   auto same = [&] {
     auto o = dqn.online_parameters(), t = dqn.target_parameters();
     for (size_t i = 0; i < o.size(); ++i)
@@ -160,8 +160,8 @@ TEST(DqnCheckpoint, SaveLoadRoundTripAndSizeMismatch) {
   config::DqnConfig c;
   Dqn a(c, 4, 3, 1);
   a.set_env_steps(1234);
-  SampledBatch b{torch::randn({8, 4}), torch::randint(0, 3, {8, 1}).to(torch::kFloat),
-                 torch::randn({8}), torch::zeros({8}), torch::randn({8, 4})};
+  SampledBatch b{torch::randn({8, 4}), torch::randint(0, 3, {8, 1}).to(torch::kFloat), torch::randn({8}),
+                 torch::zeros({8}), torch::randn({8, 4})};
   for (int i = 0; i < 5; ++i) a.update(b);
   a.save(dir.string());
   Dqn c2(c, 4, 3, 99);

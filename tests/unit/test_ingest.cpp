@@ -7,9 +7,9 @@
 #include "config.h"
 #include "ingest.h"
 
+using farm::FinishedEpisode;
 using farm::Ingest;
 using farm::Transitions;
-using farm::FinishedEpisode;
 
 namespace {
 
@@ -30,7 +30,10 @@ farm::msg::TransitionBatch make_batch(uint64_t seq, const std::string& exp = "ex
   b.act_dim(kAct);
   std::vector<float> obs;
   for (int t = 0; t < T; ++t)
-    for (int n = 0; n < N; ++n) { obs.push_back(10.f * t + n); obs.push_back(-(10.f * t + n)); }
+    for (int n = 0; n < N; ++n) {
+      obs.push_back(10.f * t + n);
+      obs.push_back(-(10.f * t + n));
+    }
   b.observations(obs);
   b.actions({0.1f, -0.2f, 0.3f, -0.4f, 0.5f, -0.6f});
   b.rewards({1, 2, 3, 4, 5, 6});

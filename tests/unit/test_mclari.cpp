@@ -42,8 +42,8 @@ McLariState& st(farm::robots::TaskState& s) { return static_cast<McLariState&>(s
 TEST(McLari, ModelHasTheSeedConstants) {
   McLariTask task(farm::config::MclariConfig{});
   const mjModel* m = task.model();
-  EXPECT_NEAR(task.robot_mass(), 0.96, 1e-9);        // seed 001 §1.2
-  EXPECT_DOUBLE_EQ(m->opt.gravity[2], -9810.0);      // mm/s^2
+  EXPECT_NEAR(task.robot_mass(), 0.96, 1e-9);    // seed 001 §1.2
+  EXPECT_DOUBLE_EQ(m->opt.gravity[2], -9810.0);  // mm/s^2
   EXPECT_EQ(m->nu, 8);
   EXPECT_EQ(m->ntendon, 2);
   EXPECT_EQ(m->neq, 2);
@@ -107,7 +107,9 @@ TEST(McLari, StableSixtySecondsOnEveryTerrain) {
         if (st(*s).last.unstable || r.terminated || !finite)
           failures[i] = std::string(mclari::terrain_name(c.terrain)) + " at " + std::to_string(c.f) + " Hz, " +
                         std::to_string(c.spp) + " steps/period: " +
-                        (st(*s).last.unstable ? "unstable" : r.terminated ? "fell" : "non-finite") +
+                        (st(*s).last.unstable ? "unstable"
+                         : r.terminated       ? "fell"
+                                              : "non-finite") +
                         " in second " + std::to_string(k);
       }
       physics_steps[i] = st(*s).last.physics_steps;
@@ -139,8 +141,8 @@ TEST(McLari, TwentySevenDistinctGroupsCoverThePhaseCube) {
   }
   EXPECT_EQ(seen.size(), 27u);  // distinct, and 27 of the 27 points of {0, pi/2, pi}^3
   EXPECT_EQ(mclari::group_name(0), "(0, 0, 0)");
-  EXPECT_EQ(mclari::group_name(1), "(0, 0, pi/2)");   // seed figure 15 (II)
-  EXPECT_EQ(mclari::group_name(24), "(pi, pi, 0)");   // seed figure 15 (XXV)
+  EXPECT_EQ(mclari::group_name(1), "(0, 0, pi/2)");  // seed figure 15 (II)
+  EXPECT_EQ(mclari::group_name(24), "(pi, pi, 0)");  // seed figure 15 (XXV)
   EXPECT_THROW(mclari::group_phases(27), std::out_of_range);
   const auto& reduced = mclari::reduced_groups();
   EXPECT_EQ(reduced.size(), 8u);

@@ -62,8 +62,7 @@ TEST(McLari, ActionScaling) {
   McLariTask picked(fs);
   auto u = picked.make_state();
   picked.reset_on(*u, 1, 0, obs);
-  for (const auto& [a0, f] : {std::pair{1.f, 60}, {-1.f, 1}, {0.f, 150}, {-0.3f, 150}, {-0.34f, 1},
-                              {0.34f, 60}}) {
+  for (const auto& [a0, f] : {std::pair{1.f, 60}, {-1.f, 1}, {0.f, 150}, {-0.3f, 150}, {-0.34f, 1}, {0.34f, 60}}) {
     act[0] = a0;
     picked.step(*u, act, obs);
     EXPECT_EQ(st(*u).frequency, f) << "a0 = " << a0;
@@ -87,10 +86,10 @@ TEST(McLari, ObservedGait) {
   task.reset_on(*s, 1, 0, obs);
   EXPECT_FLOAT_EQ(obs[4], 1.f / 150.f);  // the initial gait: 1 Hz, group index 3 of 27
   EXPECT_FLOAT_EQ(obs[5], 3.f / 26.f);
-  task.step(*s, act, obs);                // f = 1 + 149 = 150, the last group
+  task.step(*s, act, obs);  // f = 1 + 149 = 150, the last group
   EXPECT_FLOAT_EQ(obs[4], 1.f);
   EXPECT_FLOAT_EQ(obs[5], 1.f);
-  act[0] = -0.5f;                         // 150 - 74.5 rounds to 76 (75.5 away from zero)
+  act[0] = -0.5f;  // 150 - 74.5 rounds to 76 (75.5 away from zero)
   act[1] = -1.f;
   task.step(*s, act, obs);
   EXPECT_FLOAT_EQ(obs[4], 76.f / 150.f);

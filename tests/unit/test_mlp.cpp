@@ -93,9 +93,9 @@ PolicyParams small_policy(float log_std_bias) {
   PolicyParams p;
   p.version = 7;
   p.layout = {{2, 2, 2}, Activation::kRelu};
-  p.params = {0.5f, -0.25f, 0.2f, 0.4f, 0.1f, 0.0f,  // W1, b1
-              0.6f, -0.3f, 0.05f, 0.1f,              // W2
-              0.05f, log_std_bias};                  // b2
+  p.params = {0.5f,  -0.25f,      0.2f,  0.4f, 0.1f, 0.0f,  // W1, b1
+              0.6f,  -0.3f,       0.05f, 0.1f,              // W2
+              0.05f, log_std_bias};                         // b2
   return p;
 }
 
@@ -209,8 +209,7 @@ TEST(Policy, PerRowNoiseDoesNotDependOnBatch) {
   std::vector<float> act_a(rows), lp_a(rows), act_b(rows), lp_b(rows);
   policy.act_per_row(obs.data(), rows, rngs_a.data(), false, act_a.data(), lp_a.data());
   policy.act_per_row(obs.data(), 2, rngs_b.data(), false, act_b.data(), lp_b.data());
-  policy.act_per_row(obs.data() + 4, rows - 2, rngs_b.data() + 2, false, act_b.data() + 2,
-                     lp_b.data() + 2);
+  policy.act_per_row(obs.data() + 4, rows - 2, rngs_b.data() + 2, false, act_b.data() + 2, lp_b.data() + 2);
   for (int r = 0; r < rows; ++r) {
     EXPECT_EQ(act_a[r], act_b[r]);
     EXPECT_EQ(lp_a[r], lp_b[r]);

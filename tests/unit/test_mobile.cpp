@@ -162,10 +162,10 @@ TEST(MobileLidar, DistancesMatchKnownGeometry) {
   t->reset_to(*s, m, obs.data());
   std::vector<double> d(12);
   t->lidar().scan(t->model(), s->data, d.data());
-  EXPECT_NEAR(d[0], 0.4, 1e-6);   // ahead: the cylinder
-  EXPECT_NEAR(d[3], 2.0, 1e-6);   // left (+y): the north wall
-  EXPECT_NEAR(d[6], 2.0, 1e-6);   // behind: the west wall
-  EXPECT_NEAR(d[9], 0.4, 1e-6);   // right (-y): the box
+  EXPECT_NEAR(d[0], 0.4, 1e-6);  // ahead: the cylinder
+  EXPECT_NEAR(d[3], 2.0, 1e-6);  // left (+y): the north wall
+  EXPECT_NEAR(d[6], 2.0, 1e-6);  // behind: the west wall
+  EXPECT_NEAR(d[9], 0.4, 1e-6);  // right (-y): the box
   // 30 degrees: the cylinder is missed (its edge is at atan(0.2 / 0.6) = 18 degrees); the wall
   // x = 2 lies at 2 / cos 30.
   EXPECT_NEAR(d[1], 2.0 / std::cos(M_PI / 6), 1e-6);
@@ -189,8 +189,8 @@ TEST(MobileLidar, DistancesMatchKnownGeometry) {
 TEST(MobileMaps, StartAndGoalNeverOverlapObstacles) {
   for (const char* name : {"jetbot", "kaya"}) {
     config::TaskConfig c = task_config(name);
-    auto* scene = std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene()
-                                                : c.mutable_kaya()->mutable_scene();
+    auto* scene =
+        std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene() : c.mutable_kaya()->mutable_scene();
     scene->set_min_obstacles(8);
     scene->set_max_obstacles(12);
     auto t = make(c);
@@ -232,7 +232,8 @@ TEST(MobileMaps, StartsWithoutContactAndStaticMapKeepsObstacles) {
     for (size_t i = 0; i < m.obstacles.size(); ++i) EXPECT_EQ(m.obstacles[i].x, first.obstacles[i].x);
     // The robot starts clear of every obstacle: no contact with the world.
     for (int k = 0; k < s->data->ncon; ++k) {
-      EXPECT_LT(t->model()->geom_group[s->data->contact[k].geom1] + t->model()->geom_group[s->data->contact[k].geom2], 3)
+      EXPECT_LT(t->model()->geom_group[s->data->contact[k].geom1] + t->model()->geom_group[s->data->contact[k].geom2],
+                3)
           << "seed " << seed;
     }
   }
@@ -374,8 +375,8 @@ TEST(MobileSimulation, BasesStayUprightUnderRandomCommands) {
   for (const char* name : {"jetbot", "kaya"}) {
     for (double dt : {0.005, 0.01}) {
       auto c = task_config(name);
-      auto* scene = std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene()
-                                                   : c.mutable_kaya()->mutable_scene();
+      auto* scene =
+          std::string(name) == "jetbot" ? c.mutable_jetbot()->mutable_scene() : c.mutable_kaya()->mutable_scene();
       scene->set_physics_dt(dt);
       scene->set_control_substeps(int(std::lround(0.1 / dt)));
       auto t = make(c);

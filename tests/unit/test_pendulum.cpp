@@ -34,9 +34,7 @@ struct Reference {
   }
 };
 
-std::unique_ptr<PendulumTask> make(const config::PendulumConfig& c = {}) {
-  return std::make_unique<PendulumTask>(c);
-}
+std::unique_ptr<PendulumTask> make(const config::PendulumConfig& c = {}) { return std::make_unique<PendulumTask>(c); }
 
 TEST(Pendulum, SpecAndRegistry) {
   config::TaskConfig cfg;
@@ -59,8 +57,9 @@ TEST(Pendulum, UnknownTaskListsKnownTasks) {
     make_task(cfg);
     FAIL() << "expected std::invalid_argument";
   } catch (const std::invalid_argument& e) {
-    EXPECT_STREQ(e.what(),
-                 "unknown task 'nope'; known tasks: pendulum, cartpole, jetbot, kaya, mclari, a1, honey_badger, silver_badger");
+    EXPECT_STREQ(
+        e.what(),
+        "unknown task 'nope'; known tasks: pendulum, cartpole, jetbot, kaya, mclari, a1, honey_badger, silver_badger");
   }
 }
 
@@ -85,8 +84,7 @@ TEST(Pendulum, EmbeddedModel) {
 }
 
 // Runs one step of `task` and of the reference from (th, thdot, action) and compares.
-void expect_one_step_matches(const PendulumTask& task, Reference ref, double th, double thdot,
-                             float action) {
+void expect_one_step_matches(const PendulumTask& task, Reference ref, double th, double thdot, float action) {
   auto s = task.make_state();
   float obs[3];
   task.reset(*s, 1, obs);
@@ -95,8 +93,7 @@ void expect_one_step_matches(const PendulumTask& task, Reference ref, double th,
   ref.thdot = thdot;
   const StepResult r = task.step(*s, &action, obs);
   const double ref_reward = ref.step(action);
-  SCOPED_TRACE("th " + std::to_string(th) + " thdot " + std::to_string(thdot) + " a " +
-               std::to_string(action));
+  SCOPED_TRACE("th " + std::to_string(th) + " thdot " + std::to_string(thdot) + " a " + std::to_string(action));
   EXPECT_NEAR(obs[0], std::cos(ref.th), 1e-5);
   EXPECT_NEAR(obs[1], std::sin(ref.th), 1e-5);
   EXPECT_NEAR(obs[2], ref.thdot, 1e-5);

@@ -105,8 +105,7 @@ TEST_P(PolicyExport, SampledLogProbMatchesTorchDensity) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Shapes, PolicyExport,
-                         ::testing::Values(Shape{3, 1, {64, 64}}, Shape{5, 2, {32, 16, 8}},
-                                           Shape{3, 1, {}}));
+                         ::testing::Values(Shape{3, 1, {64, 64}}, Shape{5, 2, {32, 16, 8}}, Shape{3, 1, {}}));
 
 }  // namespace
 }  // namespace farm

@@ -59,9 +59,9 @@ TEST(KlAdaptiveRate, LowersAboveTheBandRaisesBelowKeepsInside) {
   EXPECT_EQ(adapt_learning_rate(1e-3, 0.01, c), 1e-3);
   EXPECT_EQ(adapt_learning_rate(1e-3, 0.0199, c), 1e-3);
   EXPECT_EQ(adapt_learning_rate(1e-3, 0.0051, c), 1e-3);
-  EXPECT_EQ(adapt_learning_rate(1.2e-5, 1.0, c), 1e-5);   // floor
-  EXPECT_EQ(adapt_learning_rate(9e-3, 0.0, c), 1e-2);     // ceiling
-  EXPECT_EQ(adapt_learning_rate(1e-3, NAN, c), 1e-3);     // no measurement, no change
+  EXPECT_EQ(adapt_learning_rate(1.2e-5, 1.0, c), 1e-5);  // floor
+  EXPECT_EQ(adapt_learning_rate(9e-3, 0.0, c), 1e-2);    // ceiling
+  EXPECT_EQ(adapt_learning_rate(1e-3, NAN, c), 1e-3);    // no measurement, no change
 }
 
 namespace {
@@ -83,7 +83,10 @@ SimResult simulate(const FitPlan& plan, int num_envs, int horizon, int max_steps
     if (active == 0) break;
     int64_t ended = 0;
     for (int i = 0; i < active; ++i)
-      if (++t[i] == horizon) { t[i] = 0; ++ended; }
+      if (++t[i] == horizon) {
+        t[i] = 0;
+        ++ended;
+      }
     s.on_data(active, ended);
     out.max_held = std::max(out.max_held, s.fit_steps());
     while (s.fit_due()) out.fits.push_back(s.take_fit());
@@ -229,7 +232,7 @@ TEST(ObsNormalizer, RunningMomentsMatchTheWholeDataAndShipSafeStd) {
   EXPECT_NEAR(whole.mean()[0], 3.0, 0.15);
   EXPECT_NEAR(whole.std()[0], 2.0, 0.1);
   EXPECT_NEAR(whole.std()[1], 0.5, 0.03);
-  EXPECT_GT(whole.std()[2], 0.f);  // floored, not 0
+  EXPECT_GT(whole.std()[2], 0.f);             // floored, not 0
   EXPECT_EQ(ObsNormalizer(2).std()[0], 1.f);  // nothing seen: identity
 }
 

@@ -10,9 +10,9 @@
 #include <string>
 #include <vector>
 
+#include "config.h"
 #include "quadruped/legged.h"
 #include "quadruped/quadruped_task.h"
-#include "config.h"
 #include "quadruped_testing.h"
 #include "task.h"
 
@@ -174,10 +174,11 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
   EXPECT_EQ(task->reward_terms(qs, a, first, {true, true, false, true}).feet_pair_off_ground, 0.0);
   EXPECT_NEAR(t.orientation, 0.0, 1e-12);
   const auto& w8 = task->config().reward();
-  const double expected = (w8.tracking_lin_vel() * t.tracking_lin_vel + w8.tracking_ang_vel() * t.tracking_ang_vel +
-                           w8.lin_vel_z() * 0.04 + w8.ang_vel_xy() * 0.25 + w8.collision() * t.collision +
-                           w8.dof_pos_limits() * t.dof_pos_limits + w8.torques() * 48 + w8.dof_acc() * 300 +
-                           w8.action_rate() * 12 + w8.feet_air_time() * 0.0) * 0.02;
+  const double expected =
+      (w8.tracking_lin_vel() * t.tracking_lin_vel + w8.tracking_ang_vel() * t.tracking_ang_vel + w8.lin_vel_z() * 0.04 +
+       w8.ang_vel_xy() * 0.25 + w8.collision() * t.collision + w8.dof_pos_limits() * t.dof_pos_limits +
+       w8.torques() * 48 + w8.dof_acc() * 300 + w8.action_rate() * 12 + w8.feet_air_time() * 0.0) *
+      0.02;
   EXPECT_NEAR(task->total_reward(t), std::max(0.0, expected), 1e-9);
   // A1: no base-height or feet-pair terms; Badgers: both (seed 000 §3.4).
   EXPECT_EQ(w8.base_height(), 0.0);
@@ -259,7 +260,8 @@ TEST(Quadruped, CommandsAreResampledAtTheConfiguredRate) {
   for (int k = 0; k < 1200; ++k) {
     const auto before = qs.command;
     const StepResult r = task.step(*s, zero.data(), obs.data());
-    if (r.terminated || r.truncated) task.reset(*s, 100 + k, obs.data());
+    if (r.terminated || r.truncated)
+      task.reset(*s, 100 + k, obs.data());
     else {
       ++steps;
       changes += before[2] != qs.command[2];
@@ -293,14 +295,17 @@ TEST(Quadruped, RandomizationStaysWithinItsRanges) {
       if (c.randomize_dynamics()) {
         ASSERT_GE(m, m0 * (1 - c.trunk_mass_rel()) - 1e-12);
         ASSERT_LE(m, m0 * (1 + c.trunk_mass_rel()) + 1e-12);
-        for (int a = 0; a < 3; ++a) ASSERT_LE(std::abs(qs.model->body_ipos[3 * trunk + a] - nominal->body_ipos[3 * trunk + a]), c.com_shift() + 1e-12);
+        for (int a = 0; a < 3; ++a)
+          ASSERT_LE(std::abs(qs.model->body_ipos[3 * trunk + a] - nominal->body_ipos[3 * trunk + a]),
+                    c.com_shift() + 1e-12);
         ASSERT_GE(qs.kp, c.kp() * (1 - c.kp_rel()) - 1e-12);
         ASSERT_LE(qs.kp, c.kp() * (1 + c.kp_rel()) + 1e-12);
         ASSERT_LE(std::abs(qs.kd / c.kd() - 1), c.kd_rel() + 1e-12);
         ASSERT_LE(std::abs(qs.action_scale / c.action_scale() - 1), c.action_scale_rel() + 1e-12);
         ASSERT_LE(std::abs(qs.torque_multiplier - 1), c.torque_multiplier_rel() + 1e-12);
         ASSERT_LE(std::abs(qs.velocity_limit / c.velocity_limit() - 1), c.velocity_limit_rel() + 1e-12);
-        ASSERT_LE(std::abs(qs.model->geom_size[3 * foot] / nominal->geom_size[3 * foot] - 1), c.foot_size_rel() + 1e-12);
+        ASSERT_LE(std::abs(qs.model->geom_size[3 * foot] / nominal->geom_size[3 * foot] - 1),
+                  c.foot_size_rel() + 1e-12);
         for (int j = 0; j < nominal->njnt; ++j) {
           if (nominal->jnt_type[j] != mjJNT_HINGE) continue;
           const int dof = nominal->jnt_dofadr[j];

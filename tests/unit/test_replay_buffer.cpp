@@ -59,8 +59,7 @@ std::multiset<int> check_rows(const SampledBatch& s) {
   EXPECT_EQ(s.rewards.sizes(), (std::vector<int64_t>{n}));
   EXPECT_EQ(s.terminated.sizes(), (std::vector<int64_t>{n}));
   EXPECT_EQ(s.next_obs.sizes(), (std::vector<int64_t>{n, kObs}));
-  auto o = s.obs.accessor<float, 2>(), a = s.actions.accessor<float, 2>(),
-       no = s.next_obs.accessor<float, 2>();
+  auto o = s.obs.accessor<float, 2>(), a = s.actions.accessor<float, 2>(), no = s.next_obs.accessor<float, 2>();
   auto r = s.rewards.accessor<float, 1>(), t = s.terminated.accessor<float, 1>();
   for (int64_t i = 0; i < n; ++i) {
     const int k = int(o[i][0]);
@@ -77,8 +76,7 @@ std::multiset<int> check_rows(const SampledBatch& s) {
 }
 
 std::string temp_file(const std::string& name) {
-  return (std::filesystem::temp_directory_path() /
-          (name + "_" + std::to_string(::getpid()) + ".bin")).string();
+  return (std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()) + ".bin")).string();
 }
 
 TEST(ReplayBuffer, CountsBeforeAndAfterWrap) {
@@ -186,8 +184,7 @@ TEST(ReplayBuffer, LoadRejectsMismatchNamingFile) {
     }
     EXPECT_EQ(other.size(), 0);
   };
-  ReplayBuffer wrong_obs(16, kObs + 1, kAct), wrong_act(16, kObs, kAct + 1),
-      wrong_cap(17, kObs, kAct);
+  ReplayBuffer wrong_obs(16, kObs + 1, kAct), wrong_act(16, kObs, kAct + 1), wrong_cap(17, kObs, kAct);
   expect_error(wrong_obs, "obs_dim 3");
   expect_error(wrong_act, "act_dim 2");
   expect_error(wrong_cap, "capacity 16");
@@ -201,7 +198,6 @@ TEST(ReplayBuffer, LoadRejectsMismatchNamingFile) {
   ReplayBuffer missing(16, kObs, kAct);
   EXPECT_THROW(missing.load(file), std::runtime_error);
 }
-
 
 // Multi-step rows keep their horizon through sampling and a save/load; one-step adds read as 1.
 TEST(ReplayBuffer, HorizonIsStoredSampledAndSaved) {

@@ -90,8 +90,8 @@ void expect_no_allocation(int envs, int threads) {
   const size_t episodes = collect_for(rollout, batch, T, 3 * limit);
   const uint64_t allocations = g_allocations.load() - before;
   EXPECT_GT(episodes, 0u) << "the measured batches must include episode ends";
-  EXPECT_EQ(allocations, 0u) << allocations << " heap allocations in " << 3 * limit * envs
-                             << " env steps (" << envs << " envs, " << threads << " threads)";
+  EXPECT_EQ(allocations, 0u) << allocations << " heap allocations in " << 3 * limit * envs << " env steps (" << envs
+                             << " envs, " << threads << " threads)";
 }
 
 TEST(RolloutAllocation, CountingAllocatorSeesNewAndMalloc) {

@@ -1,6 +1,6 @@
-#include "sac.h"
 #include "divergence.h"
 #include "rng_state.h"
+#include "sac.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -161,9 +161,7 @@ TEST(Sac, ActorLearnsContextualBandit) {
   auto best = [](const torch::Tensor& obs) { return 0.6 * obs.select(1, 0); };
   torch::manual_seed(32);
   const auto probe = torch::rand({64, 1}) * 2 - 1;
-  auto error = [&] {
-    return (sac.deterministic_action(probe).select(1, 0) - best(probe)).abs().mean().item<double>();
-  };
+  auto error = [&] { return (sac.deterministic_action(probe).select(1, 0) - best(probe)).abs().mean().item<double>(); };
   const double before = error();
   for (int i = 0; i < 3000; ++i) {
     SampledBatch b;

@@ -109,8 +109,8 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
   // Checks the sentinel-padded buffer a call wrote `n` floats into, returns those n.
   std::vector<float> checked(const std::vector<float>& buf, int n, const char* what) const {
     const auto bad = std::find_if(buf.begin(), buf.begin() + n, [](float x) { return !std::isfinite(x); });
-    EXPECT_EQ(bad, buf.begin() + n) << what << " entry " << (bad - buf.begin()) << " of " << n << " is not finite: "
-                                    << describe(std::vector<float>(buf.begin(), buf.begin() + n));
+    EXPECT_EQ(bad, buf.begin() + n) << what << " entry " << (bad - buf.begin()) << " of " << n
+                                    << " is not finite: " << describe(std::vector<float>(buf.begin(), buf.begin() + n));
     const std::vector<float> tail(buf.begin() + n, buf.end());
     EXPECT_TRUE(same_bits(tail, std::vector<float>(kPad, sentinel())))
         << what << ": written past its " << n << " entries: " << describe(tail);
@@ -309,8 +309,8 @@ TEST_P(TaskConformance, DiscreteIndicesOutOfRangeAreRefused) {
   auto s = task_->make_state(), ref = task_->make_state();
   ASSERT_TRUE(same_bits(reset(*s, 8), reset(*ref, 8)));
   std::vector<float> obs(spec_.obs_dim + kPad);
-  for (float bad : {-1.f, float(spec_.num_actions), float(spec_.num_actions) + 0.5f, 0.5f, 1e9f, -1e9f, NAN,
-                    INFINITY}) {
+  for (float bad :
+       {-1.f, float(spec_.num_actions), float(spec_.num_actions) + 0.5f, 0.5f, 1e9f, -1e9f, NAN, INFINITY}) {
     EXPECT_THROW(task_->step(*s, &bad, obs.data()), std::invalid_argument) << "index " << bad;
   }
   EXPECT_EQ(s->step, 0);

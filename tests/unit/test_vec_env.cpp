@@ -20,8 +20,7 @@ std::shared_ptr<const robots::Task> pendulum(int max_episode_steps = 200) {
   return robots::make_task(cfg);
 }
 
-PolicyParams random_policy(uint64_t seed, uint64_t version = 1,
-                           Activation activation = Activation::kRelu) {
+PolicyParams random_policy(uint64_t seed, uint64_t version = 1, Activation activation = Activation::kRelu) {
   PolicyParams p;
   p.version = version;
   p.layout = {{3, 64, 37, 2}, activation};
@@ -48,8 +47,7 @@ TEST(VecEnv, AutoResetRecordsFinalObservation) {
   EpisodeEnds ends, ends_l;
   for (int t = 1; t <= L; ++t) {
     env.step_range(0, N, actions.data(), rewards.data(), term.data(), trunc.data(), ends);
-    longer.step_range(0, N, actions.data(), rewards_l.data(), term_l.data(), trunc_l.data(),
-                      ends_l);
+    longer.step_range(0, N, actions.data(), rewards_l.data(), term_l.data(), trunc_l.data(), ends_l);
     for (int i = 0; i < N; ++i) {
       returns[i] += rewards[i];
       EXPECT_EQ(rewards[i], rewards_l[i]);
@@ -203,8 +201,7 @@ TEST(Rollout, BatchShapesAndEpisodeBookkeeping) {
   }
   // obs[t][n] are unit-circle observations the envs actually visited.
   for (int k = 0; k < T * N; ++k) {
-    EXPECT_NEAR(out.obs[k * 3] * out.obs[k * 3] + out.obs[k * 3 + 1] * out.obs[k * 3 + 1], 1.f,
-                1e-5);
+    EXPECT_NEAR(out.obs[k * 3] * out.obs[k * 3] + out.obs[k * 3 + 1] * out.obs[k * 3 + 1], 1.f, 1e-5);
   }
 
   // next_obs is the env state after the last step, and the next batch starts from it.

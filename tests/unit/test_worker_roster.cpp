@@ -81,8 +81,9 @@ TEST(WorkerRoster, OnlyWorkersOfItsExperimentCount) {
   farm::msg::WorkerStatus unbound = status(0, "waiting_for_learner");
   EXPECT_FALSE(roster.heard(unbound, 2.0));
   ASSERT_EQ(l.lines.size(), 1u) << "the other experiment is noted once";
-  EXPECT_EQ(l.lines[0], "heartbeats of another experiment, 'exp_b' (worker local-2), are ignored: only workers of "
-                        "'exp_a' count");
+  EXPECT_EQ(l.lines[0],
+            "heartbeats of another experiment, 'exp_b' (worker local-2), are ignored: only workers of "
+            "'exp_a' count");
   EXPECT_EQ(roster.live_count(2.0), 0);
   EXPECT_TRUE(roster.views().empty());
   roster.check(20.0);
