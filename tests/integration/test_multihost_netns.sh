@@ -86,8 +86,9 @@ setsid env -u ROS_DISCOVERY_SERVER ip netns exec $A fastdds discovery -i 0 -l 10
   >"$dir/discovery-0.log" 2>&1 & ds0=$!; groups+=($ds0)
 setsid env -u ROS_DISCOVERY_SERVER ip netns exec $A fastdds discovery -i 1 -l 10.77.0.1 -p 11812 \
   >"$dir/discovery-1.log" 2>&1 & groups+=($!)
-sleep 1
+# Up to 10 s each: on a loaded 2-core machine the tool has taken more than the 1 s once allowed.
 for i in 0 1; do
+  for _ in $(seq 50); do grep -q "Server is running" "$dir/discovery-$i.log" && break; sleep 0.2; done
   grep -q "Server is running" "$dir/discovery-$i.log" || fail "discovery server $i did not start: $(cat "$dir/discovery-$i.log")"
 done
 
