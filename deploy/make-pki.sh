@@ -11,6 +11,9 @@
 #   monitor*  reads every farm topic, publishes nothing
 #   anything else is a worker: publishes TransitionBatch, WorkerStatus; reads ExperimentSpec, PolicyWeights
 # Running it again with the same OUTDIR keeps the CA and adds or renews the named participants.
+# Every certificate, like the permissions, is valid from one day before it is made
+# (FARM_PKI_BACKDATE_DAYS), so a host whose clock is behind the one that made the PKI still joins:
+# Fast DDS refuses a certificate that is not yet valid by the local clock.
 set -euo pipefail
 
 if [ $# -lt 2 ]; then
@@ -21,15 +24,54 @@ command -v openssl >/dev/null || { echo "make-pki: openssl is not installed (apt
 
 OUT="$1"; shift
 DAYS="${FARM_PKI_DAYS:-3650}"
+BACKDATE_DAYS="${FARM_PKI_BACKDATE_DAYS:-1}"
 ORG="rollout-farm"
 mkdir -p "$OUT/ca"
 CA_KEY="$OUT/ca/ca.key.pem"
 CA_CERT="$OUT/ca/ca.cert.pem"
+START="$(date -u -d "-$BACKDATE_DAYS days" +%Y%m%d%H%M%SZ)"
+END="$(date -u -d "+$DAYS days" +%Y%m%d%H%M%SZ)"
+
+# Signed with `openssl ca`: in OpenSSL 3.0 it alone takes a start date in the past (`openssl x509
+# -req -days N` starts a certificate at the moment it is made).
+mkdir -p "$OUT/ca/issued"
+touch "$OUT/ca/index.txt"
+[ -f "$OUT/ca/serial" ] || openssl rand -hex 16 > "$OUT/ca/serial"
+cat > "$OUT/ca/openssl.cnf" <<EOF
+[ ca ]
+default_ca = farm_ca
+[ farm_ca ]
+database = $OUT/ca/index.txt
+new_certs_dir = $OUT/ca/issued
+serial = $OUT/ca/serial
+default_md = sha256
+policy = farm_policy
+unique_subject = no
+[ farm_policy ]
+organizationName = supplied
+commonName = supplied
+[ farm_ca_ext ]
+basicConstraints = critical,CA:true
+subjectKeyIdentifier = hash
+[ farm_participant_ext ]
+basicConstraints = CA:false
+subjectKeyIdentifier = hash
+authorityKeyIdentifier = keyid
+EOF
+sign_csr() {  # sign_csr CSR OUT EXTENSIONS [openssl ca flags]
+  local csr=$1 out=$2 ext=$3
+  shift 3
+  openssl ca -batch -notext -preserveDN -config "$OUT/ca/openssl.cnf" -startdate "$START" -enddate "$END" \
+    -extensions "$ext" -in "$csr" -out "$out" "$@" 2>"$OUT/ca/openssl.log" ||
+    { cat "$OUT/ca/openssl.log" >&2; echo "make-pki: signing $out failed" >&2; exit 1; }
+}
 
 if [ ! -f "$CA_KEY" ]; then
   openssl ecparam -name prime256v1 -genkey -noout -out "$CA_KEY"
   chmod 600 "$CA_KEY"
-  openssl req -x509 -new -key "$CA_KEY" -sha256 -days "$DAYS" -subj "/O=$ORG/CN=farm CA" -out "$CA_CERT"
+  openssl req -new -key "$CA_KEY" -subj "/O=$ORG/CN=farm CA" -out "$OUT/ca/ca.csr"
+  sign_csr "$OUT/ca/ca.csr" "$CA_CERT" farm_ca_ext -selfsign -keyfile "$CA_KEY"
+  rm -f "$OUT/ca/ca.csr"
   echo "make-pki: new CA in $OUT/ca (keep ca.key.pem off the farm hosts)"
 fi
 
@@ -78,7 +120,7 @@ for name in "$@"; do
   touch "$OUT/ca/participants"
   grep -qxF "$name" "$OUT/ca/participants" || echo "$name" >> "$OUT/ca/participants"
 done
-NOT_BEFORE="$(date -u -d '-1 day' +%Y-%m-%dT%H:%M:%S)"
+NOT_BEFORE="$(date -u -d "-$BACKDATE_DAYS days" +%Y-%m-%dT%H:%M:%S)"
 NOT_AFTER="$(date -u -d "+$DAYS days" +%Y-%m-%dT%H:%M:%S)"
 {
   echo '<?xml version="1.0" encoding="utf-8"?>'
@@ -112,8 +154,7 @@ while read -r name; do
     openssl ecparam -name prime256v1 -genkey -noout -out "$dir/key.pem"
     chmod 600 "$dir/key.pem"
     openssl req -new -key "$dir/key.pem" -subj "/O=$ORG/CN=$name" -out "$dir/cert.csr"
-    openssl x509 -req -in "$dir/cert.csr" -CA "$CA_CERT" -CAkey "$CA_KEY" -CAcreateserial \
-      -days "$DAYS" -sha256 -out "$dir/cert.pem" 2>/dev/null
+    sign_csr "$dir/cert.csr" "$dir/cert.pem" farm_participant_ext -cert "$CA_CERT" -keyfile "$CA_KEY"
     rm -f "$dir/cert.csr"
   fi
   cp "$CA_CERT" "$dir/ca.cert.pem"

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Starts farm workers on a list of hosts over ssh.
-#   deploy/start-workers.sh [--dry-run] [--domain D] [--dds-profiles FILE] [--discovery "IP:PORT;IP:PORT"] HOSTS_FILE
+#   deploy/start-workers.sh [--dry-run] [--domain D] [--dds-profiles FILE] [--discovery "IP:PORT;IP:PORT"]
+#                           [--security DIR | --insecure] HOSTS_FILE
 # HOSTS_FILE: one line per host, "HOST ENVS THREADS" (blank lines and # comments skipped), e.g.
 #   10.77.0.2 8 1
 #   gpu-box-3 64 8
@@ -8,11 +9,15 @@
 # <HOST>-1, its output in /var/log/farm/worker-<HOST>.log there (FARM_LOG_DIR). Defaults come from
 # the environment: FARM_DOMAIN (0), FARM_DDS_PROFILES (/opt/farm/share/farm/discovery/client_udp.xml),
 # ROS_DISCOVERY_SERVER (the Discovery Servers; unset: multicast discovery), SSH ("ssh -o BatchMode=yes").
+# DDS Security is on by default: each worker runs with --security DIR, a folder on that host
+# (FARM_SECURITY_DIR, default /etc/farm/pki) holding what `deploy/make-pki.sh pki <HOST>-1` made in
+# pki/<HOST>-1; a host without it refuses to start the worker and says how to make it. --insecure
+# starts the workers without security, for a network where every host is trusted.
 # --dry-run prints the ssh commands instead of running them. Hosts with systemd can use
 # deploy/systemd/farm-worker@.service instead.
 set -euo pipefail
 
-usage() { sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; }
 
 dry_run=0
 domain=${FARM_DOMAIN:-0}
@@ -20,6 +25,8 @@ profiles=${FARM_DDS_PROFILES:-/opt/farm/share/farm/discovery/client_udp.xml}
 discovery=${ROS_DISCOVERY_SERVER:-}
 bin=${FARM_BIN:-/opt/farm/bin}
 log_dir=${FARM_LOG_DIR:-/var/log/farm}
+security=${FARM_SECURITY_DIR:-/etc/farm/pki}
+insecure=0
 ssh_cmd=${SSH:-ssh -o BatchMode=yes}
 hosts_file=""
 
@@ -30,6 +37,8 @@ while [ $# -gt 0 ]; do
     --domain) [ $# -ge 2 ] || die "--domain needs a value"; domain=$2; shift ;;
     --dds-profiles) [ $# -ge 2 ] || die "--dds-profiles needs a value"; profiles=$2; shift ;;
     --discovery) [ $# -ge 2 ] || die "--discovery needs a value"; discovery=$2; shift ;;
+    --security) [ $# -ge 2 ] || die "--security needs a value"; security=$2; shift ;;
+    --insecure) insecure=1 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option '$1' (see --help)" ;;
     *) [ -z "$hosts_file" ] || die "one HOSTS_FILE only (got '$hosts_file' and '$1')"; hosts_file=$1 ;;
@@ -51,9 +60,18 @@ while read -r host envs threads extra || [ -n "${host:-}" ]; do
   is_count "${threads:-}" || die "$hosts_file:$lineno: THREADS must be a positive integer, got '${threads:-}'"
   id="$host-1"
   remote="mkdir -p $(printf %q "$log_dir") || exit 1; "
+  if [ $insecure = 0 ]; then
+    # Checked on the host, where the folder must be: a clear refusal instead of a worker that fails
+    # in its log file.
+    sec=$(printf %q "$security")
+    remote+="[ -r $sec/cert.pem ] && [ -r $sec/key.pem ] || { echo \"$host: no DDS Security folder $sec"
+    remote+=" (make it with deploy/make-pki.sh pki $id, copy pki/$id to $host:$sec; or --insecure on a trusted"
+    remote+=" network)\" >&2; exit 1; }; "
+  fi
   [ -z "$discovery" ] || remote+="ROS_DISCOVERY_SERVER=$(printf %q "$discovery") "
   remote+="nohup $(printf %q "$bin/farm-worker") --id $(printf %q "$id") --envs $envs --threads $threads"
   remote+=" --domain $domain --dds-profiles $(printf %q "$profiles")"
+  [ $insecure = 1 ] || remote+=" --security $(printf %q "$security")"
   remote+=" >>$(printf %q "$log_dir/worker-$host.log") 2>&1 </dev/null & echo \"started $id: pid \$!\""
   n=$((n + 1))
   if [ $dry_run = 1 ]; then

@@ -2,7 +2,7 @@
 // weights. Used by the security test: with DDS Security on, a participant without a valid
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
-//                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]]
+//                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]] [--try-writers 1]
 // --spec-config FILE: also publish an ExperimentSpec for the experiment whose config text is FILE's
 // (a learner's impostor: what a worker does with a spec it did not ask for).
 // --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
@@ -12,6 +12,10 @@
 // transitions, tens of MB serialized) of a stream of its own, consistent in every field: each
 // dimension within its bound (kMaxStepsPerBatch, kMaxEnvsPerWorker, kMaxBatchTransitions), but far
 // larger than any batch an experiment of a few steps per batch sends. Prints the serialized size.
+// --try-writers 1: instead of a stream, try to create a writer on each of the five farm topics and
+// print which ones DDS Security's access control let it create (`writers created [...], refused
+// [...]`), then exit 0. A writer the permissions deny is refused by Fast DDS at creation, so no
+// sample of it can reach anyone; the security test runs it with worker and monitor certificates.
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -24,12 +28,49 @@
 #include "dds.h"
 #include "meter.h"
 
+namespace {
+
+// Tries one writer of type T on topic; true if Fast DDS created it.
+template <class T, class PubSubType>
+bool writer_created(farm::dds::Bus& bus, const char* topic, const char* profile) {
+  try {
+    farm::dds::Writer<T, PubSubType> w(bus, topic, profile);
+    return true;
+  } catch (const std::runtime_error&) {
+    return false;
+  }
+}
+
+int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
+  using namespace farm::msg;
+  namespace d = farm::dds;
+  const std::pair<const char*, bool> tries[] = {
+      {d::kSpecTopic, writer_created<ExperimentSpec, ExperimentSpecPubSubType>(bus, d::kSpecTopic, "latest_writer")},
+      {d::kWeightsTopic,
+       writer_created<PolicyWeights, PolicyWeightsPubSubType>(bus, d::kWeightsTopic, "latest_writer")},
+      {d::kLearnerStatsTopic,
+       writer_created<LearnerStats, LearnerStatsPubSubType>(bus, d::kLearnerStatsTopic, "status_writer")},
+      {d::kBatchTopic, writer_created<TransitionBatch, TransitionBatchPubSubType>(bus, d::kBatchTopic, "batch_writer")},
+      {d::kWorkerStatusTopic,
+       writer_created<WorkerStatus, WorkerStatusPubSubType>(bus, d::kWorkerStatusTopic, "status_writer")},
+  };
+  std::string created, refused;
+  for (const auto& [topic, ok] : tries) {
+    std::string& list = ok ? created : refused;
+    list += (list.empty() ? "" : " ") + std::string(topic);
+  }
+  std::printf("%s: writers created [%s], refused [%s]\n", id.c_str(), created.c_str(), refused.c_str());
+  return 0;
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   farm::dds::BusOptions bus_opts;
   std::string experiment = "pendulum_sac", id = "intruder";
   unsigned obs = 3, act = 1;
   double seconds = 10;
-  bool hostile = false, oversize = false;
+  bool hostile = false, oversize = false, try_writers = false;
   std::string spec_config;
   unsigned spec_steps = 4;
   try {
@@ -56,6 +97,8 @@ int main(int argc, char** argv) {
         spec_config = v;
       else if (a == "--spec-steps")
         spec_steps = std::stoul(v);
+      else if (a == "--try-writers")
+        try_writers = v == "1";
       else
         throw std::invalid_argument("unknown flag " + a);
     }
@@ -65,6 +108,13 @@ int main(int argc, char** argv) {
   }
   try {
     farm::dds::Bus bus(bus_opts, id);
+    // Said once the participant exists, so a test can tell a participant that ran and got nothing
+    // from one that never started (a missing certificate file also ends in `refused:` below).
+    const std::string how =
+        bus.security_dir().empty() ? "without security" : "with security from " + bus.security_dir();
+    std::printf("%s: joined domain %d %s\n", id.c_str(), bus.domain(), how.c_str());
+    std::fflush(stdout);
+    if (try_writers) return try_every_writer(bus, id);
     farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
                                                                                             "batch_writer");
     farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights(
