@@ -1,6 +1,6 @@
 // SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
 // the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
-//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N]
+//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32]
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
 // On CUDA each size is measured twice in the same run, eager (sac.cuda_graph false) and as CUDA
@@ -179,6 +179,11 @@ int main(int argc, char** argv) {
       check_updates = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--batch") && has_value) {
       batch = std::atoi(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--tf32")) {
+      // TF32 matrix products on CUDA for both paths (10-bit mantissa: results change by about 1e-3
+      // relative); a measurement of what they would give, not what the learner runs.
+      at::globalContext().setAllowTF32CuBLAS(true);
+      std::printf("TF32 matrix products on (cuBLAS), eager and graph alike\n");
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
       threads.clear();
       std::stringstream list(argv[++i]);
@@ -186,7 +191,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]] [--check N]\n",
+                   "[--device cpu|cuda[:N]] [--check N] [--tf32]\n",
                    argv[0]);
       return 2;
     }
