@@ -50,6 +50,12 @@ if not any(g >= 4 for g in long_evals):
     print("FAIL: no evaluation kept the loop away for 2 heartbeat timeouts (4 s); the test proves nothing")
     sys.exit(1)
 PY
-grep "marked dead" "$dir/learner.log" | head -3 | sed 's/^/FAIL: /'
-grep -q "marked dead" "$dir/learner.log" && failed=1
+# From the moment every worker is present: before it, 40 workers starting at once on 2 cores can
+# starve one of them past the timeout (its own silence, not the learner's), which is not what this
+# test is about.
+all_in=$(grep -n "worker hb-[0-9]* on .* joined" "$dir/learner.log" | sed -n "${n}p" | cut -d: -f1)
+starting=$(head -n "${all_in:-0}" "$dir/learner.log" | grep -c "marked dead")
+[ "$starting" = 0 ] || echo "note: $starting marked dead while the $n workers were still starting"
+tail -n +"${all_in:-1}" "$dir/learner.log" | grep "marked dead" | head -3 | sed 's/^/FAIL: /'
+tail -n +"${all_in:-1}" "$dir/learner.log" | grep -q "marked dead" && failed=1
 farm_test_end "$n workers, none marked dead"

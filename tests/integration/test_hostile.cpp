@@ -71,6 +71,23 @@ double peak_rss_mib(pid_t pid) {
   return -1;
 }
 
+// Training settled: the learner's CSV shows updates for 6 s, so an attack meets a steady update
+// rate; *first_update: when the first row with updates was written (60 s at most).
+bool training_settled(const std::string& csv, double* first_update) {
+  return poll_log(
+      csv,
+      [&](const std::string&) {
+        const auto rows = read_csv(csv);
+        for (const auto& r : rows)
+          if (r.updates > 0) {
+            *first_update = r.elapsed;
+            break;
+          }
+        return *first_update >= 0 && !rows.empty() && rows.back().elapsed >= *first_update + 6;
+      },
+      60);
+}
+
 TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(91));
@@ -79,21 +96,8 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
       {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
   const std::string csv = d + "/run/learner.csv";
-  // Training settled: updates for a few seconds before the attack.
   double first_update = -1;
-  ASSERT_TRUE(poll_log(
-      csv,
-      [&](const std::string&) {
-        const auto rows = read_csv(csv);
-        for (const auto& r : rows)
-          if (r.updates > 0) {
-            first_update = r.elapsed;
-            break;
-          }
-        return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
-      },
-      60))
-      << set.log("learner");
+  ASSERT_TRUE(training_settled(csv, &first_update)) << set.log("learner");
   const double attack_start = read_csv(csv).back().elapsed;
   Proc& hostile = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_hostile", "--id", "hostile",
                              "--seconds", "12", "--hostile", "1"},
@@ -162,19 +166,7 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
   const std::string csv = d + "/run/learner.csv";
   double first_update = -1;
-  ASSERT_TRUE(poll_log(
-      csv,
-      [&](const std::string&) {
-        const auto rows = read_csv(csv);
-        for (const auto& r : rows)
-          if (r.updates > 0) {
-            first_update = r.elapsed;
-            break;
-          }
-        return first_update >= 0 && !rows.empty() && rows.back().elapsed >= first_update + 6;
-      },
-      60))
-      << set.log("learner");
+  ASSERT_TRUE(training_settled(csv, &first_update)) << set.log("learner");
   const double rss_before = peak_rss_mib(learner.pid);
   const double attack_start = read_csv(csv).back().elapsed;
   Proc& intruder = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_oversize", "--id", "oversize",
