@@ -44,6 +44,7 @@ class FarmService final : public Farm {
   std::vector<LiveWorker> live_workers() const override;
   double first_worker_heard() const override { return first_heard_; }
   FarmFigures figures() const override;
+  uint64_t env_steps() const override { return ingest_.counters().env_steps; }
   double elapsed() const override;
   EvalReport evaluate(const PolicyParams& policy, int episodes) override;
   void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) override;

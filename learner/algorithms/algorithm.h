@@ -66,6 +66,8 @@ class Farm {
   // When the first worker was heard (now_seconds() clock); 0 while none has been.
   virtual double first_worker_heard() const = 0;
   virtual FarmFigures figures() const = 0;
+  // Env steps taken so far: figures().env_steps without the rest (read on every update).
+  virtual uint64_t env_steps() const = 0;
   // Seconds of training so far (a resumed run counts on from its checkpoint).
   virtual double elapsed() const = 0;
   // `episodes` deterministic episodes of `policy` on the experiment's task.

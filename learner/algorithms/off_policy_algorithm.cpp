@@ -150,7 +150,7 @@ class OffPolicyAlgorithm final : public Algorithm {
 
  private:
   void publish_weights(Farm& farm) {
-    algo_->set_env_steps(int64_t(farm.figures().env_steps));  // DQN's exploration schedule
+    algo_->set_env_steps(int64_t(farm.env_steps()));  // DQN's exploration schedule
     farm.publish(algo_->export_policy(version_), 0);
     ++version_;
     updates_since_publish_ = 0;
@@ -160,7 +160,7 @@ class OffPolicyAlgorithm final : public Algorithm {
   bool can_update(const Farm& farm) const {
     if (replay_.size() < std::max<int64_t>(algo_->learning_starts(), algo_->batch_size())) return false;
     if (cfg_.stop().max_updates() > 0 && algo_->updates() >= cfg_.stop().max_updates()) return false;
-    return double(algo_->updates()) < algo_->max_updates_per_step() * double(farm.figures().env_steps) + 1;
+    return double(algo_->updates()) < algo_->max_updates_per_step() * double(farm.env_steps()) + 1;
   }
 
   void train_step() {
