@@ -227,7 +227,7 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.positive("max_updates_per_step", c.max_updates_per_step());
   s.positive("publish_every_updates", c.publish_every_updates());
   s.check(valid_device_name(c.device()), "device",
-          "expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + c.device() + "\"");
+          "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",
           "expected \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
 }
@@ -272,7 +272,7 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
   s.check(c.lr_min() > 0 && c.lr_min() <= c.lr_max(), "lr_min",
           "expected 0 < lr_min <= lr_max (" + num(c.lr_max()) + "), got " + num(c.lr_min()));
   s.check(valid_device_name(c.device()), "device",
-          "expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + c.device() + "\"");
+          "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.non_negative("value_loss_coef", c.value_loss_coef());
   s.layer_sizes("hidden", c.hidden());
   s.check(c.activation() == "tanh" || c.activation() == "relu", "activation",

@@ -48,7 +48,8 @@ config::ExperimentConfig parse_config_from_bus(const std::string& text, const st
 // The experiment config as text (what the learner sends to the workers in the ExperimentSpec).
 std::string config_to_text(const config::ExperimentConfig& cfg);
 
-// "cpu", "cuda" or "cuda:N" (N a device index): the learner devices a config may name.
+// "cpu", "cuda", "cuda:N" (N a device index) or "auto" (the first GPU where the learner's LibTorch
+// sees one, else the CPU): the learner devices a config may name.
 bool valid_device_name(const std::string& name);
 
 // The loader's range checks of one section, for a task or an algorithm built from a config that

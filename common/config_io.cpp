@@ -82,7 +82,7 @@ std::string config_to_text(const config::ExperimentConfig& cfg) {
 }
 
 bool valid_device_name(const std::string& name) {
-  if (name == "cpu" || name == "cuda") return true;
+  if (name == "cpu" || name == "cuda" || name == "auto") return true;
   const std::string prefix = "cuda:";
   if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
   for (size_t i = prefix.size(); i < name.size(); ++i)

@@ -5,7 +5,9 @@
 #include <malloc.h>
 #endif
 
+#include <cstdio>
 #include <stdexcept>
+#include <string>
 
 #include "config.h"
 
@@ -27,7 +29,16 @@ void configure_compute(int threads) {
 // The device a config names, checked against what this LibTorch build and machine offer.
 torch::Device learner_device(const std::string& name, const std::string& field) {
   if (!valid_device_name(name))
-    throw std::invalid_argument(field + ": expected \"cpu\", \"cuda\" or \"cuda:N\", got \"" + name + "\"");
+    throw std::invalid_argument(field + ": expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + name + "\"");
+  if (name == "auto") {
+    // Said once per network set, so a run's log tells where it trained.
+    const bool gpu = torch::cuda::is_available();
+    std::printf("[learner] %s \"auto\": %s\n", field.c_str(),
+                gpu ? ("cuda (" + std::to_string(torch::cuda::device_count()) + " GPU(s) visible, using GPU 0)").c_str()
+                    : "cpu (this learner's LibTorch has no CUDA or sees no GPU)");
+    std::fflush(stdout);
+    return gpu ? torch::Device(torch::kCUDA, 0) : torch::Device(torch::kCPU);
+  }
   torch::Device d(name);
   if (d.is_cuda()) {
     if (!torch::cuda::is_available())

@@ -19,8 +19,9 @@ namespace farm {
 // starve OpenBLAS's threads, measured 3-10x slower than one thread.
 void configure_compute(int threads);
 
-// The device a config's `field` names ("cpu", "cuda", "cuda:N"), checked against what this
-// LibTorch build and machine offer; the errors name the field.
+// The device a config's `field` names ("cpu", "cuda", "cuda:N", or "auto": GPU 0 where one is seen,
+// else the CPU, printed), checked against what this LibTorch build and machine offer; the errors
+// name the field.
 torch::Device learner_device(const std::string& name, const std::string& field);
 
 }  // namespace farm

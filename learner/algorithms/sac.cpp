@@ -14,6 +14,8 @@
 
 #include "config.h"
 
+#include <ATen/Context.h>
+
 // FARM_CUDA_GRAPHS: defined by learner/algorithms/CMakeLists.txt when LibTorch has CUDA. Without
 // it (CPU LibTorch) every update runs eagerly, on whatever device the config names.
 
@@ -95,7 +97,10 @@ static const config::SacConfig& seeded(const config::SacConfig& cfg, uint64_t se
 }
 
 Sac::Sac(const config::SacConfig& cfg, int obs_dim, int act_dim, uint64_t seed)
-    : impl_(std::make_unique<Impl>(seeded(cfg, seed), obs_dim, act_dim)) {}
+    : impl_(std::make_unique<Impl>(seeded(cfg, seed), obs_dim, act_dim)) {
+  // A process-wide switch in LibTorch: set by each SAC on CUDA, before its first update (and capture).
+  if (impl_->device.is_cuda()) at::globalContext().setAllowTF32CuBLAS(cfg.cuda_tf32());
+}
 Sac::~Sac() = default;
 Sac::Sac(Sac&&) noexcept = default;
 Sac& Sac::operator=(Sac&&) noexcept = default;

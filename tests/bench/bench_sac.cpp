@@ -1,6 +1,6 @@
 // SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
 // the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
-//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32]
+//   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
 // On CUDA each size is measured twice in the same run, eager (sac.cuda_graph false) and as CUDA
@@ -27,6 +27,9 @@
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// sac.cuda_tf32 for every SAC of the run (--tf32 / --no-tf32; default: the config's default).
+bool g_tf32 = farm::config::SacConfig().cuda_tf32();
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -119,6 +122,7 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   std::vector<farm::SampledBatch> batches;
   for (int i = 0; i < updates; ++i) batches.push_back(buf.sample(batch, rng));
   farm::config::SacConfig cfg;
+  cfg.set_cuda_tf32(g_tf32);
   for (int h : hidden) cfg.add_hidden(h);
   cfg.set_device(device);
   cfg.set_cuda_graph(false);
@@ -179,11 +183,9 @@ int main(int argc, char** argv) {
       check_updates = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--batch") && has_value) {
       batch = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--tf32")) {
-      // TF32 matrix products on CUDA for both paths (10-bit mantissa: results change by about 1e-3
-      // relative); a measurement of what they would give, not what the learner runs.
-      at::globalContext().setAllowTF32CuBLAS(true);
-      std::printf("TF32 matrix products on (cuBLAS), eager and graph alike\n");
+    } else if (!std::strcmp(argv[i], "--tf32") || !std::strcmp(argv[i], "--no-tf32")) {
+      // sac.cuda_tf32 for every SAC of the run, eager and graph alike (default: the config's).
+      g_tf32 = !std::strcmp(argv[i], "--tf32");
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
       threads.clear();
       std::stringstream list(argv[++i]);
@@ -191,7 +193,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]] [--check N] [--tf32]\n",
+                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]\n",
                    argv[0]);
       return 2;
     }
@@ -203,6 +205,9 @@ int main(int argc, char** argv) {
   fill(buf, buf.capacity(), rng);
   const bool cuda = device.rfind("cuda", 0) == 0;
   bool ok = true;
+  if (cuda)
+    std::printf("sac.cuda_tf32 %s: matrix products in %s, eager and graph alike\n", g_tf32 ? "true" : "false",
+                g_tf32 ? "TF32 (cuBLAS)" : "full FP32");
   if (cuda && check_updates > 0) {
     farm::configure_compute(threads.empty() ? 1 : threads[0]);
     ok = check_graph({256, 256}, batch, device, check_updates, buf, rng);
@@ -212,6 +217,8 @@ int main(int argc, char** argv) {
     for (int n_threads : threads) {
       farm::configure_compute(n_threads);
       farm::config::SacConfig cfg;
+      cfg.set_cuda_tf32(g_tf32);
+      cfg.set_cuda_tf32(g_tf32);
       for (int h : hidden) cfg.add_hidden(h);
       cfg.set_device(device);
       const std::string net = describe(kObs, hidden, kAct);

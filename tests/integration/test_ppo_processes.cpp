@@ -99,6 +99,9 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
       set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a"}, "worker-a");
   Proc& victim = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b"}, "worker-b");
+  // The victim must have joined before it is killed: on a loaded host the learner fits with the
+  // first worker alone, and a worker that never joined is never marked dead.
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker ppo-b on", 120)) << slurp(d + "/learner.log");
   ASSERT_TRUE(wait_for_text(d + "/learner.log", "fit 2 |", 120)) << slurp(d + "/learner.log");
   kill(victim.pid, SIGKILL);
   wait_for(victim, 10);

@@ -167,6 +167,11 @@ TEST(Config, LearnerDeviceDefaultsToCpuAndIsChecked) {
   EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
   EXPECT_NE(e.find("sac.device"), std::string::npos) << e;
   EXPECT_NE(e.find("\"gpu\""), std::string::npos) << e;
+  // "auto": the GPU where the learner sees one, else the CPU (a shipped config runs on either).
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\nppo { device: \"auto\" }\n", "exp.txtpb").ppo().device(), "auto");
+  e = error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  device: \"automatic\"\n}\n");
+  EXPECT_NE(e.find("ppo.device"), std::string::npos) << e;
+  EXPECT_NE(e.find("\"auto\""), std::string::npos) << e;
 }
 
 // Every task section is range-checked where the config is read, so the error names the file, the

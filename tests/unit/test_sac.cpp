@@ -1,3 +1,4 @@
+#include "compute.h"
 #include "divergence.h"
 #include "rng_state.h"
 #include "sac.h"
@@ -104,6 +105,17 @@ TEST(Sac, ConfigDefaultsAreUsed) {
   Sac other(cfg, 3, 2, 1);
   EXPECT_DOUBLE_EQ(other.target_entropy(), -0.5);
   EXPECT_NEAR(other.alpha(), 0.2, 1e-6);
+}
+
+// device "auto" trains where a GPU is seen, else on the CPU; TF32 follows sac.cuda_tf32 on CUDA.
+TEST(Sac, AutoDeviceTakesTheGpuWhereThereIsOne) {
+  EXPECT_EQ(learner_device("auto", "sac.device").is_cuda(), torch::cuda::is_available());
+  EXPECT_THROW(learner_device("gpu", "sac.device"), std::invalid_argument);
+  config::SacConfig cfg;
+  cfg.set_device("auto");
+  cfg.set_cuda_tf32(false);
+  Sac sac(cfg, 3, 1, 1);
+  if (torch::cuda::is_available()) EXPECT_FALSE(at::globalContext().allowTF32CuBLAS());
 }
 
 TEST(Sac, TargetsStartEqualAndMoveByTau) {
