@@ -14,6 +14,9 @@ PACKAGES=(
   clang libclang-rt-14-dev openssl                  # fuzz targets (libFuzzer); DDS Security PKI
   iproute2                                          # the several-hosts test: network namespaces, veth
   clang-format                                      # the format check (deploy/format.sh --check)
+  libosmesa6-dev ffmpeg                             # farm-play: headless MuJoCo rendering, MP4/GIF
+  libonnx-dev python3-onnx python3-opencv           # farm-export: ONNX schema/checker; OpenCV DNN cross-check
+  libcivetweb-dev prometheus                        # farm-monitor --prometheus and its scrape test
 )
 
 missing=()
