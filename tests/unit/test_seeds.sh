@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# tools/seeds.py --report-only on hand-made runs: the per-seed table (time to goal, kept best,
+# final, final/best), the spread over seeds, the exit status, and the errors.
+# usage: test_seeds.sh SOURCE_DIR
+set -euo pipefail
+SRC=$1
+T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+seeds() { /usr/bin/python3 "$SRC/tools/seeds.py" "$@"; }
+
+# A return task: seed 1 reaches -200 at 20 s and falls back to -450 (final/best 2.25 below 0.9 is
+# flagged as -137 %); seed 2 reaches it at 30 s and holds; seed 3 never does.
+cp "$SRC/deploy/configs/pendulum_sac.txtpb" "$T/pendulum.txtpb"
+H=elapsed_s,env_steps,updates,mean_return,eval_return
+mkdir -p "$T/p/seed1" "$T/p/seed2" "$T/p/seed3"
+printf '%s\n10,1000,5,-900,-800\n20,2000,9,-500,-190\n25,2500,12,-400,nan\n30,3000,15,-300,-450\n' "$H" > "$T/p/seed1/learner.csv"
+printf '%s\n10,1000,5,-900,-700\n30,3000,9,-300,-180\n40,4000,15,-200,-170\n' "$H" > "$T/p/seed2/learner.csv"
+printf '%s\n10,1000,5,-900,-900\n50,5000,9,-800,-600\n' "$H" > "$T/p/seed3/learner.csv"
+if out=$(seeds "$T/pendulum.txtpb" --report-only --out "$T/p" 2>&1); then fail "a seed missed the goal, exit 0"; fi
+echo "$out"
+grep -q "^| 1 | 30 | 3000 | 20 | -190 | -450 | -137 | yes | no |$" <<< "$out" || fail "seed 1 row"
+grep -q "^| 2 | 40 | 4000 | 30 | -170 | -170 | +0 | yes | yes |$" <<< "$out" || fail "seed 2 row"
+grep -q "^| 3 | 50 | 5000 | - | -600 | -600 | +0 | no | no |$" <<< "$out" || fail "seed 3 row"
+grep -q "^- kept best: median -190, IQM -320 " <<< "$out" || fail "kept best spread"
+grep -q "^- goal met by the kept best in 2 of 3 seeds, by the final policy in 1 of 3$" <<< "$out" || fail "goal count"
+grep -q "^- final more than 10 % below kept best: seed 1$" <<< "$out" || fail "seed 1's drop not flagged"
+grep -q "^- time to goal \[s\]: median 25, IQM 25 .* over 2 of 3 seeds$" <<< "$out" || fail "time to goal over the seeds that met it"
+[ -s "$T/p/seeds.md" ] && [ -s "$T/p/seeds.csv" ] && [ -s "$T/p/seeds.png" ] || fail "seeds.md/csv/png not written"
+[ "$(wc -l < "$T/p/seeds.csv")" = 4 ] || fail "seeds.csv: expected a header and 3 rows"
+
+# A walking task: the crossing needs both conditions in one evaluation.
+cp "$SRC/deploy/configs/a1_ppo.txtpb" "$T/a1.txtpb"
+H=elapsed_s,env_steps,eval_return,eval_tracking_lin,eval_fell
+mkdir -p "$T/w/seed1"
+printf '%s\n10,1000,1,0.7,0.25\n20,2000,2,0.62,0.0\n30,3000,3,0.5,0.0\n' "$H" > "$T/w/seed1/learner.csv"
+# The kept best walks (20 s), the final does not (0.5, 19 % below): exit 0, the drop flagged.
+out=$(seeds "$T/a1.txtpb" --seeds 1 --report-only --out "$T/w" 2>&1) || fail "the kept best walks, exit non-zero: $out"
+grep -q "^| 1 | 30 | 3000 | 20 | 0.62 | 0.5 | -19 | yes | no |$" <<< "$out" || fail "walking row: $out"
+grep -q "^- final more than 10 % below kept best: seed 1$" <<< "$out" || fail "walking drop not flagged"
+
+# Errors name what is wrong.
+err=$(seeds "$T/pendulum.txtpb" --seeds 1,x --report-only --out "$T/p" 2>&1) && fail "bad --seeds accepted"
+grep -q "seeds: --seeds: expected a comma-separated list of integers, got '1,x'" <<< "$err" || fail "bad --seeds: $err"
+grep -v '^seed:' "$T/pendulum.txtpb" > "$T/noseed.txtpb"
+err=$(seeds "$T/noseed.txtpb" --report-only --out "$T/p" 2>&1) && fail "config without seed accepted"
+grep -q "no top-level \`seed: N\` line" <<< "$err" || fail "no seed line: $err"
+grep -v 'target_eval_return' "$T/pendulum.txtpb" > "$T/notarget.txtpb"
+err=$(seeds "$T/notarget.txtpb" --report-only --out "$T/p" 2>&1) && fail "return task without target accepted"
+grep -q "stop.target_eval_return, which the config does not set" <<< "$err" || fail "no target: $err"
+echo "seeds.py report: ok"

@@ -1,0 +1,374 @@
+#!/usr/bin/python3
+"""Trains one shipped config over several seeds and reports every seed, with the spread.
+
+  tools/seeds.py CONFIG [--seeds 1,2,3] [--workers W] [--parallel P] [--out DIR] [--domain D]
+                 [--build DIR] [--learner-bin PATH] [--eval-episodes N] [--report-only]
+
+For each seed the config is copied with only its `seed:` line changed, a learner and W workers run
+it on this host (shared memory only, deploy/discovery/local.xml, DDS domain D + seed), P runs side
+by side. Then each run's final policy (RUN/checkpoint) and kept best (RUN/best) are measured on the
+task's own goal:
+  pendulum, cart-pole   evaluation return (learner.csv) against stop.target_eval_return
+  a1, honey_badger,     the walking threshold of docs/QUADRUPEDS.md: eval_tracking_lin >= 0.6 and
+  silver_badger         eval_fell < 0.1 (learner.csv; measure: eval_tracking_lin)
+  jetbot, kaya          success over --eval-episodes (default 100) fresh maps, farm-mobile-eval
+  mclari                farm-mclari-eval on the six terrains against docs/data/mclari_best_180s.csv:
+                        the worst terrain's share of the best fixed point, and falls
+Writes DIR/seeds.md (per-seed table, then median and interquartile mean with a 95 % bootstrap
+interval over the seeds, as in Agarwal et al. 2021), DIR/seeds.csv and DIR/seeds.png (each seed's
+evaluation curve against wall time and the goal). --report-only measures and reports runs already in
+DIR. Exit status 0 when every seed's kept best meets the goal, 1 otherwise. Runs with
+/usr/bin/python3 (Debian's matplotlib)."""
+import argparse
+import csv
+import math
+import os
+import random
+import re
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WALKING_LIN, WALKING_FELL = 0.6, 0.1
+MOBILE_GOAL, MCLARI_GOAL, MCLARI_FALLS = 95.0, 90.0, 0.1
+
+
+def fail(msg):
+    sys.exit("seeds: " + msg)
+
+
+def number(s):
+    try:
+        return float(s)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+# ---- the config: task name, target, seed line --------------------------------------------------
+
+def read_config(path):
+    try:
+        text = open(path).read()
+    except OSError as e:
+        fail(f"cannot read config {path}: {e.strerror}")
+    task = re.search(r'task\s*\{[^}]*?name:\s*"([^"]+)"', text, re.S)
+    if not task:
+        fail(f"{path}: no task {{ name: ... }} found")
+    target = re.search(r"target_eval_return:\s*([-0-9.eE+]+)", text)
+    if not re.search(r"^seed:\s*\d+\s*$", text, re.M):
+        fail(f"{path}: no top-level `seed: N` line to change (add `seed: 1`)")
+    return text, task.group(1), float(target.group(1)) if target else math.nan
+
+
+def goal_kind(task):
+    if task in ("pendulum", "cartpole"):
+        return "return"
+    if task in ("a1", "honey_badger", "silver_badger"):
+        return "walking"
+    if task in ("jetbot", "kaya"):
+        return "mobile"
+    if task == "mclari":
+        return "mclari"
+    fail(f"no goal known for task '{task}' (known: pendulum, cartpole, a1, honey_badger, silver_badger, "
+         "jetbot, kaya, mclari)")
+
+
+# ---- learner.csv --------------------------------------------------------------------------------
+
+def read_rows(run):
+    path = os.path.join(run, "learner.csv")
+    try:
+        with open(path) as f:
+            return list(csv.DictReader(f))
+    except OSError:
+        return []
+
+
+def eval_rows(rows, column):
+    return [r for r in rows if not math.isnan(number(r.get(column)))]
+
+
+def first_time(rows, ok):
+    for r in rows:
+        if ok(r):
+            return number(r["elapsed_s"])
+    return math.nan
+
+
+def walking(r):
+    return number(r.get("eval_tracking_lin")) >= WALKING_LIN and number(r.get("eval_fell")) < WALKING_FELL
+
+
+# ---- the measures -------------------------------------------------------------------------------
+
+def measure_curve(run, kind, target):
+    """(time to goal, best measure, final measure, final meets goal, best meets goal) from learner.csv."""
+    rows = read_rows(run)
+    if kind == "return":
+        ev = eval_rows(rows, "eval_return")
+        if not ev:
+            return None
+        vals = [number(r["eval_return"]) for r in ev]
+        best, final = max(vals), vals[-1]
+        return dict(time=first_time(ev, lambda r: number(r["eval_return"]) >= target), best=best, final=final,
+                    best_ok=best >= target, final_ok=final >= target)
+    ev = eval_rows(rows, "eval_tracking_lin")
+    if not ev:
+        return None
+    upright = [r for r in ev if number(r["eval_fell"]) < WALKING_FELL] or ev
+    best_row = max(upright, key=lambda r: number(r["eval_tracking_lin"]))
+    return dict(time=first_time(ev, walking), best=number(best_row["eval_tracking_lin"]),
+                final=number(ev[-1]["eval_tracking_lin"]), best_ok=walking(best_row), final_ok=walking(ev[-1]))
+
+
+def run_tool(cmd, log):
+    with open(log, "w") as f:
+        f.write("$ " + " ".join(cmd) + "\n")
+        f.flush()
+        p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        f.write(p.stdout)
+    if p.returncode != 0:
+        print(f"seeds: {' '.join(cmd)} exited {p.returncode}; see {log}", file=sys.stderr)
+        return None
+    return p.stdout
+
+
+def measure_mobile(run, build, episodes, which):
+    cmd = [os.path.join(build, "tools", "farm-mobile-eval"), "--run-dir", run, "--episodes", str(episodes)]
+    if which == "best":
+        cmd.append("--best")
+    out = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"))
+    m = re.search(r"success rate\s+([0-9.]+) %", out or "")
+    return float(m.group(1)) if m else math.nan
+
+
+def measure_mclari(run, build, config, episodes, which):
+    ckpt = os.path.join(run, "checkpoint" if which == "final" else "best")
+    cmd = [os.path.join(build, "tools", "farm-mclari-eval"), "--config", config, "--checkpoint", ckpt,
+           "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"), "--episodes", str(episodes)]
+    out = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"))
+    ratios, falls = [], []
+    for m in re.finditer(r"^\| [a-z-]+ \| (\d+) \| [0-9.]+ \| (\d+) / (\d+) \|.*\| (\d+) % \|$", out or "", re.M):
+        ratios.append(float(m.group(4)))
+        falls.append(int(m.group(2)) / max(1, int(m.group(3))))
+    if len(ratios) != 6:
+        return math.nan, math.nan
+    return min(ratios), max(falls)
+
+
+# ---- statistics over seeds ----------------------------------------------------------------------
+
+def iqm(xs):
+    """Interquartile mean: the mean after dropping int(n/4) runs at each end (scipy's trim_mean(0.25),
+    which rliable uses); with 3 seeds nothing is dropped and it is the mean."""
+    xs = sorted(x for x in xs if not math.isnan(x))
+    if not xs:
+        return math.nan
+    k = len(xs) // 4
+    kept = xs[k:len(xs) - k]
+    return sum(kept) / len(kept)
+
+
+def median(xs):
+    xs = sorted(x for x in xs if not math.isnan(x))
+    if not xs:
+        return math.nan
+    n = len(xs)
+    return xs[n // 2] if n % 2 else 0.5 * (xs[n // 2 - 1] + xs[n // 2])
+
+
+def bootstrap_ci(xs, stat=iqm, reps=2000, seed=0):
+    """95 % percentile bootstrap interval of stat over runs (resampling runs with replacement)."""
+    xs = [x for x in xs if not math.isnan(x)]
+    if len(xs) < 2:
+        return math.nan, math.nan
+    rng = random.Random(seed)
+    vals = sorted(stat([rng.choice(xs) for _ in xs]) for _ in range(reps))
+    return vals[int(0.025 * reps)], vals[int(0.975 * reps) - 1]
+
+
+# ---- training -----------------------------------------------------------------------------------
+
+def train(args, text, seeds):
+    learner = args.learner_bin or os.path.join(args.build, "learner", "farm-learner")
+    worker = os.path.join(args.build, "worker", "farm-worker")
+    for b in (learner, worker):
+        if not os.access(b, os.X_OK):
+            fail(f"{b} not found: build first (deploy/build.sh) or give --build")
+    profiles = os.path.join(ROOT, "deploy", "discovery", "local.xml")
+    pending, running = list(seeds), []
+    t0 = time.time()
+    while pending or running:
+        while pending and len(running) < args.parallel:
+            s = pending.pop(0)
+            run = os.path.join(args.out, f"seed{s}")
+            os.makedirs(run, exist_ok=True)
+            cfg = os.path.join(args.out, f"seed{s}.txtpb")
+            with open(cfg, "w") as f:
+                f.write(re.sub(r"^seed:\s*\d+\s*$", f"seed: {s}", text, count=1, flags=re.M))
+            domain = str(args.domain + s)
+            common = ["--domain", domain, "--dds-profiles", profiles]
+            procs = [subprocess.Popen([learner, "--config", cfg, "--run-dir", run] + common,
+                                      stdout=open(os.path.join(run, "learner.log"), "w"), stderr=subprocess.STDOUT)]
+            for w in range(args.workers):
+                procs.append(subprocess.Popen([worker, "--id", f"s{s}w{w + 1}"] + common,
+                                              stdout=open(os.path.join(run, f"worker{w + 1}.log"), "w"),
+                                              stderr=subprocess.STDOUT))
+            print(f"seeds: seed {s} started (domain {domain}, {args.workers} workers, run {run})", flush=True)
+            running.append((s, procs))
+        time.sleep(2)
+        for s, procs in list(running):
+            rc = procs[0].poll()
+            if rc is None:
+                continue
+            for p in procs[1:]:
+                try:
+                    p.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    p.terminate()
+                    p.wait()
+            running.remove((s, procs))
+            print(f"seeds: seed {s} ended (learner exit {rc}) at {time.time() - t0:.0f} s", flush=True)
+            if rc != 0:
+                print(f"seeds: seed {s}: the learner failed; its log: "
+                      f"{os.path.join(args.out, f'seed{s}', 'learner.log')}", file=sys.stderr)
+
+
+# ---- report -------------------------------------------------------------------------------------
+
+def fmt(x, spec=".3g"):
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+def report(args, task, kind, target, seeds):
+    results = []
+    for s in seeds:
+        run = os.path.join(args.out, f"seed{s}")
+        rows = read_rows(run)
+        if not rows:
+            print(f"seeds: seed {s}: no learner.csv in {run}; reported as missing", file=sys.stderr)
+        last = rows[-1] if rows else {}
+        r = dict(seed=s, wall=number(last.get("elapsed_s")), steps=number(last.get("env_steps")))
+        curve = measure_curve(run, "walking" if kind == "walking" else "return", target) if rows else None
+        r["time"] = curve["time"] if curve else math.nan
+        if kind in ("return", "walking"):
+            r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,
+                     best_ok=bool(curve and curve["best_ok"]), final_ok=bool(curve and curve["final_ok"]))
+        elif kind == "mobile":
+            r["best"] = measure_mobile(run, args.build, args.eval_episodes, "best")
+            r["final"] = measure_mobile(run, args.build, args.eval_episodes, "final")
+            r["best_ok"], r["final_ok"] = r["best"] >= MOBILE_GOAL, r["final"] >= MOBILE_GOAL
+        else:
+            r["best"], r["best_falls"] = measure_mclari(run, args.build, args.config, 10, "best")
+            r["final"], r["final_falls"] = measure_mclari(run, args.build, args.config, 10, "final")
+            r["best_ok"] = r["best"] >= MCLARI_GOAL and r["best_falls"] < MCLARI_FALLS
+            r["final_ok"] = r["final"] >= MCLARI_GOAL and r["final_falls"] < MCLARI_FALLS
+        # How far the final policy ends below the kept best, in % of the best's magnitude (returns
+        # may be negative, so not a ratio): -10 or lower is flagged.
+        r["drop"] = 100.0 * (r["final"] - r["best"]) / abs(r["best"]) if r["best"] else math.nan
+        results.append(r)
+
+    goal, unit = {
+        "return": (f"evaluation return >= {target:g}", "eval return"),
+        "walking": (f"eval_tracking_lin >= {WALKING_LIN} and eval_fell < {WALKING_FELL}", "eval_tracking_lin"),
+        "mobile": (f"success >= {MOBILE_GOAL:g} % over {args.eval_episodes} fresh maps", "success %"),
+        "mclari": (f"every terrain >= {MCLARI_GOAL:g} % of the best fixed point, < 1 fall in 10", "worst terrain %"),
+    }[kind]
+    lines = [f"# {os.path.basename(args.config)}: {len(seeds)} seeds", "",
+             f"Task `{task}`; goal: {goal}. Command: `tools/seeds.py {args.config} --seeds "
+             f"{','.join(map(str, seeds))} --workers {args.workers} --parallel {args.parallel}`", "",
+             f"| seed | wall time [s] | env steps | goal first met at [s] | kept best ({unit}) | final ({unit}) "
+             "| final - best [% of best] | best meets goal | final meets goal |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        lines.append(f"| {r['seed']} | {fmt(r['wall'], '.0f')} | {fmt(r['steps'], '.0f')} | {fmt(r['time'], '.0f')} | "
+                     f"{fmt(r['best'])} | {fmt(r['final'])} | {fmt(r['drop'], '+.0f')} | "
+                     f"{'yes' if r['best_ok'] else 'no'} | {'yes' if r['final_ok'] else 'no'} |")
+    lines.append("")
+    for name, key in (("kept best", "best"), ("final", "final"), ("time to goal [s]", "time")):
+        xs = [r[key] for r in results]
+        lo, hi = bootstrap_ci(xs)
+        lines.append(f"- {name}: median {fmt(median(xs))}, IQM {fmt(iqm(xs))} (95 % bootstrap CI "
+                     f"{fmt(lo)} .. {fmt(hi)}) over {sum(not math.isnan(x) for x in xs)} of {len(xs)} seeds")
+    met = sum(r["best_ok"] for r in results)
+    lines.append(f"- goal met by the kept best in {met} of {len(results)} seeds, by the final policy in "
+                 f"{sum(r['final_ok'] for r in results)} of {len(results)}")
+    low = [r["seed"] for r in results if not math.isnan(r["drop"]) and r["drop"] <= -10]
+    lines.append("- final more than 10 % below kept best: " + (", ".join(f"seed {s}" for s in low) or "none"))
+    text = "\n".join(lines) + "\n"
+    open(os.path.join(args.out, "seeds.md"), "w").write(text)
+    with open(os.path.join(args.out, "seeds.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["seed", "wall_s", "env_steps", "goal_time_s", "best", "final", "final_minus_best_pct", "best_ok",
+                    "final_ok"])
+        for r in results:
+            w.writerow([r["seed"], r["wall"], r["steps"], r["time"], r["best"], r["final"], r["drop"],
+                        int(r["best_ok"]), int(r["final_ok"])])
+    print(text, end="")
+    plot(args, kind, target, seeds)
+    return met
+
+
+def plot(args, kind, target, seeds):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("seeds: no matplotlib (apt-get install python3-matplotlib); no plot", file=sys.stderr)
+        return
+    column = "eval_tracking_lin" if kind == "walking" else "eval_return"
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for s in seeds:
+        ev = eval_rows(read_rows(os.path.join(args.out, f"seed{s}")), column)
+        if ev:
+            ax.plot([number(r["elapsed_s"]) for r in ev], [number(r[column]) for r in ev], label=f"seed {s}")
+    goal = WALKING_LIN if kind == "walking" else target
+    if not math.isnan(goal):
+        ax.axhline(goal, color="k", ls="--", lw=1, label="goal")
+    ax.set_xlabel("wall time [s]")
+    ax.set_ylabel(column + (" (learner's evaluation)" if kind in ("mobile", "mclari") else ""))
+    ax.set_title(os.path.basename(args.config))
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(os.path.join(args.out, "seeds.png"), dpi=100)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("config")
+    ap.add_argument("--seeds", default="1,2,3")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--parallel", type=int, default=3)
+    ap.add_argument("--out")
+    ap.add_argument("--domain", type=int, default=150, help="seed N runs on DDS domain D + N")
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
+    ap.add_argument("--learner-bin", help="another farm-learner (e.g. a GPU build)")
+    ap.add_argument("--eval-episodes", type=int, default=100)
+    ap.add_argument("--report-only", action="store_true")
+    args = ap.parse_args()
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+    except ValueError:
+        fail(f"--seeds: expected a comma-separated list of integers, got '{args.seeds}'")
+    if len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        fail(f"--seeds: expected distinct non-negative integers, got '{args.seeds}'")
+    if args.workers < 1 or args.parallel < 1 or args.eval_episodes < 1:
+        fail("--workers, --parallel and --eval-episodes must be >= 1")
+    if not 0 <= args.domain + max(seeds) <= 232:
+        fail(f"--domain {args.domain} + seed {max(seeds)} is outside the DDS domain ids 0..232")
+    text, task, target = read_config(args.config)
+    kind = goal_kind(task)
+    if kind == "return" and math.isnan(target):
+        fail(f"{args.config}: task '{task}' is judged on stop.target_eval_return, which the config does not set")
+    args.out = args.out or os.path.join("runs", "seeds", os.path.splitext(os.path.basename(args.config))[0])
+    os.makedirs(args.out, exist_ok=True)
+    if not args.report_only:
+        train(args, text, seeds)
+    met = report(args, task, kind, target, seeds)
+    sys.exit(0 if met == len(seeds) else 1)
+
+
+if __name__ == "__main__":
+    main()
