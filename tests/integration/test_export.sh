@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# farm-export: a SAC (pendulum, tests/data/checkpoint_v1), a PPO (cart-pole, the same fixtures,
+# observation normalizer on) and DQN policies (Jetbot, from runs of a learner and a worker here:
+# the initial network, and one trained for 10 s, with its best) exported as ONNX; onnx.checker
+# accepts each model and OpenCV's DNN module computes from 1,000 observations of real episodes the
+# actions the worker's Eigen policy took there (within 1e-5; DQN: the same argmax, Q values within
+# 1e-5). Bad input gets an error naming what was wrong.
+#   tests/integration/test_export.sh EXPORT LEARNER WORKER SOURCE_DIR
+set -uo pipefail
+export_bin=$(readlink -f "$1") learner=$(readlink -f "$2") worker=$(readlink -f "$3") src=$(readlink -f "$4")
+data=$src/tests/data/checkpoint_v1
+check=$src/tests/integration/check_onnx_export.py
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init export 181
+# Debian's python3 holds python3-onnx and python3-opencv (another python3 may come first on PATH).
+py=python3
+[ -x /usr/bin/python3 ] && py=/usr/bin/python3
+"$py" -c "import cv2, onnx" 2>/dev/null || { echo "SKIP: $py lacks cv2 or onnx (python3-opencv, python3-onnx)"; exit 77; }
+
+# dqn_run NAME DQN_FIELDS STOP: a Jetbot DQN run, learner and one worker, in the background ($lp).
+dqn_run() {
+  cat >"$dir/$1.txtpb" <<CFG
+experiment_id: "it_export_$1"
+algorithm: "dqn"
+task { name: "jetbot" jetbot { scene { discrete_actions: true physics_dt: 0.01 control_substeps: 10 max_episode_steps: 100 } } }
+dqn { hidden: 32 hidden: 32 buffer_size: 20000 batch_size: 32 publish_every_updates: 5 schedule_env_steps: 4000 $2 }
+worker { envs_per_worker: 4 steps_per_batch: 25 max_batches_per_version: 4 }
+eval { episodes: 2 every_seconds: 3 final_episodes: 2 }
+checkpoint_every_seconds: 600
+log_every_seconds: 1
+stop { $3 }
+CFG
+  "$learner" --config "$dir/$1.txtpb" --run-dir "$dir/$1" --domain $domain >"$dir/$1.log" 2>&1 & lp=$!
+  pids+=($lp)
+  "$worker" --domain $domain --experiment it_export_$1 --id export-$1 >"$dir/$1-worker.log" 2>&1 & pids+=($!)
+}
+# The initial network (no update: learning_starts beyond the run; torch seeded by the config's
+# seed, so the same weights on every machine), whose greedy actions vary over the observations
+# (4 of the 7 in 1,000 steps): the argmax head is compared where it picks different actions.
+dqn_run dqn_initial "learning_starts: 20000" "max_env_steps: 1000 max_seconds: 60"
+wait $lp || fail "dqn_initial learner exited $?: $(tail -5 "$dir/dqn_initial.log")"
+# A policy trained for 10 s (some thousand updates): it may keep to one or two actions.
+dqn_run dqn "learning_starts: 200" "max_seconds: 10"
+mkdir -p "$dir/sac" "$dir/ppo"
+cp -r "$data/sac/checkpoint" "$dir/sac/checkpoint"
+cp -r "$data/ppo/checkpoint" "$dir/ppo/checkpoint"
+
+# export NAME ALGORITHM MIN_DISTINCT [--best]: the model and 1,000 recorded steps, then the
+# comparison (DQN: at least MIN_DISTINCT different actions among the 1,000).
+export_and_check() {
+  local name=$1 algorithm=$2 min_distinct=$3
+  shift 3
+  "$export_bin" --run-dir "$dir/$name" "$@" --out "$dir/$name.onnx" --record 1000 "$dir/$name.csv" --seed 11 \
+    >"$dir/$name-export.log" 2>&1 || { fail "$name: farm-export exited $?: $(cat "$dir/$name-export.log")"; return; }
+  cat "$dir/$name-export.log"
+  "$py" "$check" "$dir/$name.onnx" "$dir/$name.csv" "$algorithm" 1e-5 "$min_distinct" ||
+    fail "$name: the ONNX model does not act as the worker"
+}
+export_and_check sac sac 0
+export_and_check ppo ppo 0
+
+wait $lp || fail "dqn learner exited $?: $(tail -5 "$dir/dqn.log")"
+export_and_check dqn_initial dqn 2
+export_and_check dqn dqn 1
+if [ -f "$dir/dqn/best/manifest.txtpb" ]; then
+  mkdir -p "$dir/dqnbest" && cp -r "$dir/dqn/best" "$dir/dqnbest/best"
+  export_and_check dqnbest dqn 1 --best
+else
+  fail "the dqn run kept no best policy: $(grep -i best "$dir/dqn.log" | tail -3)"
+fi
+
+# expect_error WHAT TEXT ARGS...: farm-export exits 1 and its error holds TEXT.
+expect_error() {
+  local what=$1 text=$2
+  shift 2
+  local out rc
+  out=$("$export_bin" "$@" 2>&1); rc=$?
+  echo "$what: $out"
+  [ $rc = 1 ] || fail "$what: exit code $rc, expected 1"
+  grep -qF -- "$text" <<<"$out" || fail "$what: the error does not say '$text'"
+}
+mkdir -p "$dir/empty"
+expect_error "folder without a policy" "holds no policy: $dir/empty/checkpoint/manifest.txtpb does not exist" \
+  --run-dir "$dir/empty" --out "$dir/x.onnx"
+expect_error "no such folder" "run folder $dir/nowhere does not exist" --run-dir "$dir/nowhere" --out "$dir/x.onnx"
+expect_error "best of a run without one" "leave out --best" --run-dir "$dir/sac" --best --out "$dir/x.onnx"
+# An algorithm no learner knows, in the manifest's experiment config.
+mkdir -p "$dir/unknown" && cp -r "$data/sac/checkpoint" "$dir/unknown/checkpoint"
+sed -i 's/^config_text: "/config_text: "algorithm: \\"a2c\\"\\n/' "$dir/unknown/checkpoint/manifest.txtpb"
+expect_error "unknown algorithm" 'expected one of: sac, dqn, ppo; got "a2c"' --run-dir "$dir/unknown" --out "$dir/x.onnx"
+# The manifest without the networks it names.
+mkdir -p "$dir/nonet" && cp -r "$data/sac/checkpoint" "$dir/nonet/checkpoint" && rm "$dir/nonet/checkpoint/sac/sac.pt"
+expect_error "missing network file" "$dir/nonet/checkpoint/sac/sac.pt does not exist" --run-dir "$dir/nonet" --out "$dir/x.onnx"
+# A manifest that is not one: text that does not parse, and a file far bigger than any manifest.
+mkdir -p "$dir/garbled/checkpoint" && echo 'policy_version: "x" {' >"$dir/garbled/checkpoint/manifest.txtpb"
+expect_error "garbled manifest" "manifest.txtpb:1:17: Expected integer, got: \"x\" (not a checkpoint manifest)" --run-dir "$dir/garbled" --out "$dir/x.onnx"
+mkdir -p "$dir/huge/checkpoint" && truncate -s 20M "$dir/huge/checkpoint/manifest.txtpb"
+expect_error "oversized manifest" "bytes, more than a manifest's 16777216" --run-dir "$dir/huge" --out "$dir/x.onnx"
+expect_error "bad --record" "--record expects a whole number" --run-dir "$dir/sac" --out "$dir/x.onnx" --record -5 "$dir/r.csv"
+[ -e "$dir/x.onnx" ] && fail "a failed export left $dir/x.onnx"
+
+farm_test_end "farm-export: SAC, PPO and DQN models act as the worker under OpenCV's DNN"
