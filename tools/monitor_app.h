@@ -1,6 +1,8 @@
 // The farm-monitor service: reads the workers' WorkerStatus heartbeats and the learner's
 // LearnerStats off the bus and shows them as a table that refreshes in place (or one snapshot
-// with --once), optionally appending one JSON line per refresh to a log file. It only reads, so
+// with --once), optionally appending one JSON line per refresh to a log file and serving the same
+// figures to Prometheus at /metrics (--prometheus). Each refresh takes one MonitorSnapshot that
+// the table, the log line and the metrics page are all written from. It only reads the bus, so
 // starting or stopping it never disturbs training.
 #pragma once
 
@@ -9,12 +11,15 @@
 #include <deque>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <set>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "dds.h"
+#include "metrics_server.h"
+#include "monitor_snapshot.h"
 
 namespace farm {
 
@@ -27,12 +32,14 @@ struct MonitorOptions {
   double wait = 5.0;  // --once: longest wait for the first heartbeats
   std::string log_file;
   std::string experiment;  // empty: every experiment on the domain
+  std::string prometheus;  // ADDR:PORT to serve /metrics on; empty: no server
+  bool quiet = false;      // print no table (a service that only logs or serves metrics)
 };
 
 class MonitorApp {
  public:
-  // Joins the bus and opens the --log file (throws if it cannot be appended to). stop: set (by a
-  // signal handler) to end run().
+  // Starts the --prometheus server (throws if it cannot listen), joins the bus and opens the --log
+  // file (throws if it cannot be appended to). stop: set (by a signal handler) to end run().
   MonitorApp(const MonitorOptions& o, const std::atomic<bool>& stop);
 
   // The live table until stopped, or with --once one snapshot; returns the process exit code
@@ -53,12 +60,6 @@ class MonitorApp {
     double seen = 0;
   };
 
-  struct Totals {
-    int live = 0, dead = 0, finished = 0;
-    uint64_t envs = 0, env_steps = 0, batches = 0;
-    double steps_per_second = 0;
-  };
-
   int run_once();
   bool wanted(const std::string& experiment) const;
   void drain();
@@ -67,14 +68,15 @@ class MonitorApp {
   std::string state(const WorkerView& v, double now) const;
   bool live(const WorkerView& v, double now) const;
   double rate(const WorkerView& v, double now) const;
-  Totals totals(double now) const;
-  std::vector<const WorkerView*> sorted() const;
-  std::string render(double now) const;
-  const LearnerView* learner() const;
-  void write_log(double now);
+  // What the table, the log and /metrics show at now.
+  MonitorSnapshot snapshot(double now) const;
+  // One refresh: the table (unless quiet), the log line, the metrics page.
+  void show(double now);
+  void write_log(const MonitorSnapshot& s);
 
   MonitorOptions opt_;
   const std::atomic<bool>& stop_;
+  std::unique_ptr<MetricsServer> metrics_;  // before the bus: a bad address fails before joining
   farm::dds::Bus bus_;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
   farm::dds::Reader<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_in_;
@@ -82,7 +84,8 @@ class MonitorApp {
   std::map<std::string, WorkerView> workers_;
   std::map<std::string, LearnerView> learners_;
   std::string latest_learner_;
-  std::set<std::string> heard_;  // every worker session heard from, experiment filter or not
+  std::set<std::string> heard_;        // every worker session heard from, experiment filter or not
+  std::set<std::string> stats_heard_;  // every learner (experiment id) heard from, filter or not
   std::ofstream log_;
 };
 
