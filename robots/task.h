@@ -3,6 +3,7 @@
 // RNG, counters). A worker holds one Task and N TaskStates.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <random>
 #include <string>
@@ -22,6 +23,9 @@ struct TaskState {
   std::mt19937_64 rng;
   int step = 0;  // steps in the current episode
   double episode_return = 0.0;
+  // Called after every physics step inside Task::step when set (farm-play draws its video frames
+  // from it at the video's rate, not once per control step). Empty in workers and evaluations.
+  std::function<void()> after_physics_step;
 };
 
 struct StepResult {
@@ -35,6 +39,9 @@ class Task {
   virtual ~Task();
   virtual const TaskSpec& spec() const = 0;
   virtual const mjModel_* model() const = 0;
+  // The model `s` simulates: model(), unless the state holds its own copy (a terrain, randomized
+  // dynamics). What a renderer of that state draws with.
+  virtual const mjModel_* model_of(const TaskState&) const { return model(); }
   virtual std::unique_ptr<TaskState> make_state() const = 0;
   // Starts an episode; writes obs_dim floats.
   virtual void reset(TaskState& s, uint64_t seed, float* obs) const = 0;

@@ -95,7 +95,10 @@ StepResult CartpoleTask::step(TaskState& s, const float* action, float* obs) con
   mjData* d = cs.data;
   const double u = std::isnan(action[0]) ? 0.0 : std::clamp(double(action[0]), -1.0, 1.0);
   d->ctrl[0] = u;
-  for (int k = 0; k < cfg_.control_substeps(); ++k) mj_step(model_, d);
+  for (int k = 0; k < cfg_.control_substeps(); ++k) {
+    mj_step(model_, d);
+    if (s.after_physics_step) s.after_physics_step();
+  }
   write_obs(cs, obs);
   const double c = std::cos(d->qpos[1]);
   StepResult r;

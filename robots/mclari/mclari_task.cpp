@@ -150,6 +150,8 @@ McLariTask::~McLariTask() {
   for (auto* m : terrain_models_) mj_deleteModel(m);
 }
 
+const mjModel* McLariTask::model_of(const TaskState& s) const { return static_cast<const McLariState&>(s).model; }
+
 std::unique_ptr<TaskState> McLariTask::make_state() const {
   auto s = std::make_unique<McLariState>();
   s->model = mj_copyModel(nullptr, terrain_models_[0]);
@@ -309,6 +311,7 @@ StepResult McLariTask::step(TaskState& base, const float* action, float* obs) co
     apply_tendon_springs(m, d);
     mj_step(m, d);
     s.phase = std::fmod(s.phase + dphase, 2 * kPi);
+    if (s.after_physics_step) s.after_physics_step();
     // actuator_force and actuator_velocity come from the same state (the one this step began at).
     if ((k + 1) % sample_every == 0) {
       for (int a = 0; a < 8; ++a) abs_power[a] += std::abs(d->actuator_force[a] * d->actuator_velocity[a]);

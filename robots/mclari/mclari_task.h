@@ -53,6 +53,7 @@ class McLariTask final : public Task {
 
   const TaskSpec& spec() const override { return spec_; }
   const mjModel_* model() const override { return terrain_models_[0]; }
+  const mjModel_* model_of(const TaskState& s) const override;  // the state's copy of its terrain
   const mjModel_* terrain_model(int terrain) const { return terrain_models_.at(terrain); }
   std::unique_ptr<TaskState> make_state() const override;
   void reset(TaskState& s, uint64_t seed, float* obs) const override;

@@ -337,6 +337,7 @@ StepResult MobileTask::step(TaskState& ts, const float* action, float* obs) cons
     // Omni wheels: return the free roller to zero (see kaya.xml); the sphere is symmetric.
     for (int r : roller_qpos_) d->qpos[r] = 0;
     if (touches_obstacle(d)) s.collided = true;
+    if (s.after_physics_step) s.after_physics_step();
   }
   double x, y;
   pose(s, &x, &y, &yaw);

@@ -132,6 +132,7 @@ StepResult PendulumTask::step(TaskState& s, const float* action, float* obs) con
     d->qvel[0] = std::clamp(d->qvel[0], -max_speed, max_speed);
     d->qpos[0] = th + d->qvel[0] * model_->opt.timestep;
   }
+  if (s.after_physics_step) s.after_physics_step();
   write_obs(ps, obs);
 
   StepResult r;

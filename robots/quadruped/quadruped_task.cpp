@@ -141,6 +141,8 @@ QuadrupedTask::~QuadrupedTask() {
   if (model_) mj_deleteModel(model_);
 }
 
+const mjModel* QuadrupedTask::model_of(const TaskState& s) const { return static_cast<const QuadrupedState&>(s).model; }
+
 std::unique_ptr<TaskState> QuadrupedTask::make_state() const {
   auto s = std::make_unique<QuadrupedState>();
   s->model = mj_copyModel(nullptr, model_);
@@ -356,7 +358,10 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
     a[j] = aj * cfg_.action_range();  // legged_gym's units
     s.targets[j] = default_pose_[j] + s.action_scale * a[j];
   }
-  legged::control_steps(s.model, d, cfg_.decimation(), [&](mjData* dd) { pd_control(s, dd); });
+  legged::ControlHooks hooks;
+  if (s.after_physics_step) hooks.after = [&s](mjData*) { s.after_physics_step(); };
+  legged::control_steps(
+      s.model, d, cfg_.decimation(), [&](mjData* dd) { pd_control(s, dd); }, hooks);
   ++s.step;
   StepResult r;
   bool finite = true;

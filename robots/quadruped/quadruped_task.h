@@ -69,6 +69,7 @@ class QuadrupedTask final : public Task {
 
   const TaskSpec& spec() const override { return spec_; }
   const mjModel_* model() const override { return model_; }
+  const mjModel_* model_of(const TaskState& s) const override;  // the episode's randomized copy
   std::unique_ptr<TaskState> make_state() const override;
   void reset(TaskState& s, uint64_t seed, float* obs) const override;
   StepResult step(TaskState& s, const float* action, float* obs) const override;

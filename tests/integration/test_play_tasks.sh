@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# farm-play on every registered task, untrained (the shipped experiment's initial networks, from
+# --config): half a simulated second of each (the microbot: its first 1 s step) to an MP4 that
+# ffprobe reads with the frame count farm-play printed, with the robot in the picture of every
+# frame (--view-check: the robot's bodies cover at least 20 pixels of each).
+# Every task of robots/task.cpp's registry must have a shipped experiment in deploy/configs/.
+#   tests/integration/test_play_tasks.sh PLAY SOURCE_DIR
+set -uo pipefail
+play=$(readlink -f "$1") src=$(readlink -f "$2")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init play-tasks 0
+
+tasks=$(sed -n 's/^ *{"\([a-z_0-9]*\)", &.*make_.*_task},$/\1/p' "$src/robots/task.cpp")
+[ "$(wc -w <<<"$tasks")" -ge 8 ] || fail "could not read the task registry: '$tasks'"
+for task in $tasks; do
+  cfg=$(grep -l "^  name: \"$task\"" "$src"/deploy/configs/*.txtpb | head -1)
+  [ -n "$cfg" ] || { fail "no shipped experiment for task $task"; continue; }
+  if ! "$play" --config "$cfg" --out "$dir/$task.mp4" --max-seconds 0.5 --width 320 --height 240 --fps 10 \
+      --view-check >"$dir/$task.out" 2>"$dir/$task.err"; then
+    fail "$task ($(basename "$cfg")): $(cat "$dir/$task.err" "$dir/$task.out")"
+    continue
+  fi
+  echo "$task ($(basename "$cfg")): $(grep '^view:' "$dir/$task.out")"
+  frames=$(ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=nb_read_frames -of csv=p=0 \
+      "$dir/$task.mp4")
+  printed=$(sed -n 's/^wrote .*: \([0-9]*\) frames.*/\1/p' "$dir/$task.out")
+  [ -n "$printed" ] && [ "$frames" = "$printed" ] && [ "$frames" -ge 6 ] ||
+    fail "$task: ffprobe reads $frames frames, farm-play wrote '$printed'"
+done
+farm_test_end "farm-play on every registered task"

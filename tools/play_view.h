@@ -1,0 +1,58 @@
+// What farm-play shows of a task besides the model: a camera that follows the robot's root body
+// (its distance from the robot's size; for the mobile robots, the point between the robot and its
+// goal, far enough for both), markers for what the robot goes after (the Jetbot's and Kaya's goal,
+// the A1's and Badgers' velocity command, the microbot's target), a backdrop behind a robot that
+// has no floor (the pendulums), and the task's own figures for the overlay.
+#pragma once
+
+#include <mujoco/mujoco.h>
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "task.h"
+
+namespace farm::tools {
+
+struct CameraChoice {
+  double distance = 0;   // 0: from the robot's size (or the arena)
+  double azimuth = 90;   // degrees; 90 looks along +y, at the x-z plane the pendulums swing in
+  double elevation = 0;  // degrees below the horizon when negative; 0: the task's default
+};
+
+class PlayView {
+ public:
+  PlayView(const robots::Task& task, const CameraChoice& choice);
+
+  // After a reset, with the model the episode runs on and its first pose (kinematics done).
+  void start_episode(const robots::TaskState& s, const mjModel* m, const mjData* pose);
+  // The camera for the pose at time t: the look-at point follows the root body (the mobile
+  // robots: the point halfway to the goal), smoothed.
+  void aim(const robots::TaskState& s, const mjData* pose, mjvCamera& cam);
+  double distance() const { return distance_; }
+  // Markers for the state's task (goal, command, target) added to the scene.
+  void decorate(const robots::TaskState& s, const mjData* pose, mjvScene& scn) const;
+  // Rows for the overlay (name, value) that only this task has (terrain, command, ...).
+  std::vector<std::pair<std::string, std::string>> rows(const robots::TaskState& s) const;
+  // Bodies of the robot (the root body's tree): what the camera must keep in view.
+  bool is_robot_body(int body) const;
+  int root_body() const { return root_; }
+  std::string root_name() const { return root_name_; }
+
+ private:
+  // Where the camera looks for this pose, before smoothing.
+  void target(const robots::TaskState& s, const mjData* pose, double out[3]) const;
+
+  const robots::Task& task_;
+  CameraChoice choice_;
+  const mjModel* m_ = nullptr;
+  int root_ = 0;
+  std::string root_name_;
+  double distance_ = 1, elevation_ = -15, radius_ = 1;
+  bool has_floor_ = false;
+  double lookat_[3] = {0, 0, 0};
+  double last_time_ = 0;
+};
+
+}  // namespace farm::tools
