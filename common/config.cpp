@@ -311,7 +311,12 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   const Section e = root.nest("eval", c.eval());
   e.positive("episodes", c.eval().episodes());
   e.positive("every_seconds", c.eval().every_seconds());
+  e.check(c.eval().episodes() <= kMaxEvalEpisodes, "episodes",
+          "expected at most " + std::to_string(kMaxEvalEpisodes) + ", got " + num(c.eval().episodes()));
   e.positive("final_episodes", c.eval().final_episodes());
+  e.check(c.eval().final_episodes() <= kMaxEvalEpisodes, "final_episodes",
+          "expected at most " + std::to_string(kMaxEvalEpisodes) + ", got " + num(c.eval().final_episodes()));
+  e.finite_positive("answer_timeout_seconds", c.eval().answer_timeout_seconds());
 
   const auto& st = c.stop();
   const Section s = root.nest("stop", st);

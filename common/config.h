@@ -14,6 +14,8 @@ namespace farm {
 // Sizes a worker takes, from its flags, its config or a spec off the bus: they bound what one
 // worker's environments and one batch hold in memory.
 inline constexpr int kMaxEnvsPerWorker = 4096;
+// Episodes of one evaluation (each runs in an env of its own on the worker asked).
+inline constexpr int kMaxEvalEpisodes = 16384;
 inline constexpr int kMaxThreadsPerWorker = 256;
 inline constexpr int kMaxStepsPerBatch = 4096;
 inline constexpr long long kMaxBatchTransitions = 1 << 20;  // steps x envs of one batch

@@ -2,10 +2,16 @@
 
 #include "paths.h"
 
+#include <fastdds/rtps/builtin/data/ParticipantProxyData.h>
+#include <fastdds/rtps/participant/ParticipantDiscoveryInfo.h>
+#include <openssl/pem.h>
+#include <openssl/x509.h>
 #include <unistd.h>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/log/Log.hpp>
 
+#include <cctype>
+#include <cerrno>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -13,6 +19,8 @@
 #include <fstream>
 #include <mutex>
 #include <random>
+#include <utility>
+#include <vector>
 
 namespace farm::dds {
 
@@ -57,7 +65,198 @@ void enable_security(std::string& dir, fdds::DomainParticipantQos& pqos) {
   set("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
 }
 
+// Fast DDS 2.9.1's Discovery Server cannot carry DDS Security (deploy/discovery/peers_udp.xml says
+// what was seen): a secured participant that is a client of one would wait forever for a farm it
+// never meets, so it is refused with what to use instead.
+void refuse_discovery_server_with_security(const fdds::DomainParticipantQos& pqos) {
+  using eprosima::fastrtps::rtps::DiscoveryProtocol;
+  std::string how;
+  for (const char* var : {"ROS_DISCOVERY_SERVER", "FASTDDS_ENVIRONMENT_FILE"}) {
+    const char* v = std::getenv(var);
+    if (v && *v && how.empty()) how = std::string(var) + "=" + v + " is set";
+  }
+  const auto protocol = pqos.wire_protocol().builtin.discovery_config.discoveryProtocol;
+  if (how.empty() && protocol != DiscoveryProtocol::SIMPLE && protocol != DiscoveryProtocol::NONE)
+    how = "the profile's discovery is a Discovery Server's";
+  if (how.empty()) return;
+  throw std::runtime_error("DDS Security cannot run through a Discovery Server in Fast DDS 2.9.1 (" + how +
+                           "): a secured farm discovers by multicast (discovery/simple.xml) or by unicast to its "
+                           "hosts (discovery/peers_udp.xml), without ROS_DISCOVERY_SERVER; the Discovery Server is "
+                           "for a trusted network, without --security");
+}
+
 }  // namespace
+
+// Who the remote participants are, under DDS Security: the subject of each one's certificate, from
+// the identity token in its discovery data (dds.cert.sn), and whether authentication accepted it.
+// Once a participant is authenticated its subject is kept as it was: discovery data is not
+// protected, so a later announcement may not rename it. Entries stay after a participant leaves
+// (its last samples may still wait in a reader; under DDS Security a GUID prefix begins with a hash
+// of the certificate's subject, so a participant with another certificate does not take it over)
+// and are bounded: beyond kMaxIdentities, departed entries go first, then unauthenticated ones,
+// oldest first.
+class ParticipantIdentities : public fdds::DomainParticipantListener {
+ public:
+  static constexpr size_t kMaxIdentities = 4096;
+
+  void on_participant_discovery(fdds::DomainParticipant*,
+                                eprosima::fastrtps::rtps::ParticipantDiscoveryInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::ParticipantDiscoveryInfo;
+    const auto& prefix = info.info.m_guid.guidPrefix;
+    std::lock_guard<std::mutex> lk(mu_);
+    if (info.status == Info::REMOVED_PARTICIPANT || info.status == Info::DROPPED_PARTICIPANT) {
+      auto it = ids_.find(prefix);
+      if (it != ids_.end()) it->second.gone = true;
+      return;
+    }
+    const std::string* sn =
+        eprosima::fastrtps::rtps::DataHolderHelper::find_property_value(info.info.identity_token_, "dds.cert.sn");
+    Entry* e = entry(prefix);
+    if (e && !(e->authorized && !e->subject.empty())) e->subject = sn ? *sn : "";
+  }
+
+  void onParticipantAuthentication(fdds::DomainParticipant*,
+                                   eprosima::fastrtps::rtps::ParticipantAuthenticationInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::ParticipantAuthenticationInfo;
+    std::lock_guard<std::mutex> lk(mu_);
+    if (info.status != Info::AUTHORIZED_PARTICIPANT) {
+      ids_.erase(info.guid.guidPrefix);
+      return;
+    }
+    if (Entry* e = entry(info.guid.guidPrefix)) e->authorized = true;
+  }
+
+  std::string name_of(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix) const {
+    std::lock_guard<std::mutex> lk(mu_);
+    auto it = ids_.find(prefix);
+    if (it == ids_.end() || !it->second.authorized) return "";
+    return common_name_of_subject(it->second.subject);
+  }
+
+ private:
+  struct Entry {
+    std::string subject;
+    bool authorized = false, gone = false;
+    uint64_t order = 0;
+  };
+  // The entry of prefix, made room for if new; nullptr when every entry is a live authenticated one.
+  Entry* entry(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix) {
+    auto it = ids_.find(prefix);
+    if (it != ids_.end()) return &it->second;
+    if (ids_.size() >= kMaxIdentities) {
+      auto victim = ids_.end();
+      for (auto j = ids_.begin(); j != ids_.end(); ++j) {
+        const auto rank = [](const Entry& x) { return x.gone ? 0 : (x.authorized ? 2 : 1); };
+        if (rank(j->second) == 2) continue;
+        if (victim == ids_.end() || rank(j->second) < rank(victim->second) ||
+            (rank(j->second) == rank(victim->second) && j->second.order < victim->second.order))
+          victim = j;
+      }
+      if (victim == ids_.end()) return nullptr;
+      ids_.erase(victim);
+    }
+    Entry& e = ids_[prefix];
+    e.order = next_order_++;
+    return &e;
+  }
+
+  mutable std::mutex mu_;
+  std::map<eprosima::fastrtps::rtps::GuidPrefix_t, Entry> ids_;
+  uint64_t next_order_ = 0;
+};
+
+std::string security_dir_of(const BusOptions& opts) {
+  if (!opts.security_dir.empty()) return opts.security_dir;
+  const char* env = std::getenv("FARM_SECURITY_DIR");
+  return env ? env : "";
+}
+
+std::string certificate_name(const std::string& security_dir) {
+  const std::string path = security_dir + "/cert.pem";
+  FILE* f = std::fopen(path.c_str(), "r");
+  if (!f)
+    throw std::runtime_error("DDS Security: cannot read " + path + ": " + std::strerror(errno) +
+                             " (make the folder with deploy/make-pki.sh)");
+  X509* cert = PEM_read_X509(f, nullptr, nullptr, nullptr);
+  std::fclose(f);
+  if (!cert) throw std::runtime_error("DDS Security: " + path + " holds no PEM certificate");
+  // The subject in the form Fast DDS puts in the identity token, so both ends read the same name.
+  char* text = X509_NAME_oneline(X509_get_subject_name(cert), nullptr, 0);
+  const std::string subject = text ? text : "";
+  OPENSSL_free(text);
+  X509_free(cert);
+  const std::string name = common_name_of_subject(subject);
+  if (name.empty())
+    throw std::runtime_error("DDS Security: the subject of " + path + " (" + subject +
+                             ") has no single common name (CN); a farm certificate's CN is its participant's name");
+  return name;
+}
+
+std::string common_name_of_subject(const std::string& subject) {
+  std::vector<std::pair<std::string, std::string>> attributes;  // (type, value), in order
+  auto is_type_char = [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '.'; };
+  if (!subject.empty() && subject[0] == '/') {
+    // OpenSSL's one-line form, as Fast DDS 2.9's identity token carries it: "/O=rollout-farm/CN=w1".
+    // A '/' starts the next attribute when a type and '=' follow it.
+    for (size_t i = 0; i < subject.size(); ++i) {
+      if (subject[i] == '/') {
+        size_t j = i + 1;
+        while (j < subject.size() && is_type_char(subject[j])) ++j;
+        if (j > i + 1 && j < subject.size() && subject[j] == '=') {
+          attributes.emplace_back(subject.substr(i + 1, j - i - 1), "");
+          i = j;
+          continue;
+        }
+      }
+      if (attributes.empty()) return "";
+      attributes.back().second += subject[i];
+    }
+  } else {
+    // RFC 2253: "CN=w1,O=rollout-farm"; ',' or '+' separate attributes, a backslash escapes a character or
+    // gives two hex digits.
+    std::string type, value;
+    bool in_value = false;
+    auto end_attribute = [&] {
+      if (in_value) attributes.emplace_back(type, value);
+      type.clear();
+      value.clear();
+      in_value = false;
+    };
+    for (size_t i = 0; i < subject.size(); ++i) {
+      const char c = subject[i];
+      if (!in_value) {
+        if (c == '=')
+          in_value = true;
+        else if (c != ' ')
+          type += c;
+      } else if (c == '\\' && i + 2 < subject.size() && std::isxdigit(static_cast<unsigned char>(subject[i + 1])) &&
+                 std::isxdigit(static_cast<unsigned char>(subject[i + 2]))) {
+        value += static_cast<char>(std::stoi(subject.substr(i + 1, 2), nullptr, 16));
+        i += 2;
+      } else if (c == '\\' && i + 1 < subject.size()) {
+        value += subject[++i];
+      } else if (c == ',' || c == '+') {
+        end_attribute();
+      } else {
+        value += c;
+      }
+    }
+    end_attribute();
+  }
+  std::string cn;
+  int found = 0;
+  for (const auto& [type, value] : attributes) {
+    if (type == "CN") {
+      cn = value;
+      ++found;
+    }
+  }
+  return found == 1 ? cn : "";
+}
+
+std::string Bus::authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer) const {
+  return identities_ ? identities_->name_of(writer.guidPrefix) : "";
+}
 
 bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
   std::string a = argv[i];
@@ -129,10 +328,14 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
   }
   pqos.name(participant_name);
-  const char* sec_env = std::getenv("FARM_SECURITY_DIR");
-  security_dir_ = !opts.security_dir.empty() ? opts.security_dir : (sec_env ? sec_env : "");
-  if (!security_dir_.empty()) enable_security(security_dir_, pqos);
-  participant_ = factory->create_participant(opts.domain, pqos);
+  security_dir_ = security_dir_of(opts);
+  if (!security_dir_.empty()) {
+    refuse_discovery_server_with_security(pqos);
+    enable_security(security_dir_, pqos);
+    identities_ = std::make_unique<ParticipantIdentities>();
+  }
+  // The listener hears participant discovery and authentication only (no entity status).
+  participant_ = factory->create_participant(opts.domain, pqos, identities_.get(), fdds::StatusMask::none());
   if (!participant_) {
     throw std::runtime_error("cannot create DDS participant on domain " + std::to_string(opts.domain) +
                              (security_dir_.empty()

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/domain/DomainParticipantListener.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
@@ -40,6 +41,11 @@ inline constexpr const char* kBatchTopic = "farm/TransitionBatch";
 inline constexpr const char* kWeightsTopic = "farm/PolicyWeights";
 inline constexpr const char* kWorkerStatusTopic = "farm/WorkerStatus";
 inline constexpr const char* kLearnerStatsTopic = "farm/LearnerStats";
+// Evaluations asked of one worker and answered by it (farm.idl); both use the batch profiles.
+inline constexpr const char* kEvalRequestTopic = "farm/EvaluationRequest";
+inline constexpr const char* kEvalAnswerTopic = "farm/EvaluationAnswer";
+// The longest worker id and error text an EvaluationAnswer may carry (a worker cuts its error text).
+inline constexpr size_t kMaxEvalTextBytes = 1024;
 
 struct BusOptions {
   int domain = 0;
@@ -55,6 +61,21 @@ struct BusOptions {
 // true if consumed.
 bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts);
 
+// The DDS Security folder these options select (--security, else FARM_SECURITY_DIR), "" for none.
+std::string security_dir_of(const BusOptions& opts);
+
+// A participant's name under DDS Security is the common name (CN) of its certificate's subject:
+// deploy/make-pki.sh makes "CN=<name>,O=rollout-farm", and a worker's id is that name.
+// certificate_name reads DIR/cert.pem; it throws std::runtime_error naming the file when it is
+// missing, not a certificate, or has no single CN.
+std::string certificate_name(const std::string& security_dir);
+// The CN of a certificate subject in the text of a Fast DDS identity token (dds.cert.sn): OpenSSL's
+// one-line form in Fast DDS 2.9 ("/O=rollout-farm/CN=w1"), or RFC 2253 ("CN=w1,O=rollout-farm",
+// escapes undone). "" when it has no CN or more than one.
+std::string common_name_of_subject(const std::string& subject);
+
+class ParticipantIdentities;
+
 class Bus {
  public:
   Bus(const BusOptions& opts, const std::string& participant_name);
@@ -69,10 +90,16 @@ class Bus {
   const std::string& profiles_file() const { return profiles_file_; }
   // The DDS Security folder in use, or "" when security is off.
   const std::string& security_dir() const { return security_dir_; }
+  // With DDS Security: the certificate name (CN) of the authenticated remote participant that
+  // wrote a sample (SampleInfo::sample_identity.writer_guid()), taken from the identity token
+  // (dds.cert.sn) of its discovery data; "" when that participant is not known as authenticated.
+  // Always "" without security.
+  std::string authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer) const;
   // Registers the type once and returns the topic (one per name per participant).
   fdds::Topic* topic(const std::string& name, fdds::TypeSupport type);
 
  private:
+  std::unique_ptr<ParticipantIdentities> identities_;  // outlives participant_
   fdds::DomainParticipant* participant_ = nullptr;
   fdds::Publisher* publisher_ = nullptr;
   fdds::Subscriber* subscriber_ = nullptr;
@@ -180,10 +207,14 @@ class Reader : public fdds::DataReaderListener {
     reader_->set_listener(nullptr);
     bus_.subscriber()->delete_datareader(reader_);
   }
-  // Takes the next valid sample, if any; never blocks.
+  // Takes the next valid sample, if any; never blocks. info: its SampleInfo (the writer's GUID).
   bool take(T& out) { return take_from(reader_, out); }
+  bool take(T& out, fdds::SampleInfo& info) { return take_from(reader_, out, info); }
   static bool take_from(fdds::DataReader* reader, T& out) {
     fdds::SampleInfo info;
+    return take_from(reader, out, info);
+  }
+  static bool take_from(fdds::DataReader* reader, T& out, fdds::SampleInfo& info) {
     while (reader->take_next_sample(&out, &info) == eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
       if (info.valid_data) return true;
     }

@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include "farm_config.pb.h"
+
 namespace farm::robots {
 
 struct TaskSpec {
@@ -17,5 +19,10 @@ struct TaskSpec {
   // float. 0: continuous actions in [-1, 1].
   int num_actions = 0;
 };
+
+// The spec of the task cfg names, from the config alone (no MuJoCo): what robots::make_task(cfg)
+// builds reports the same spec() (tests/unit/test_task_conformance.cpp). Throws
+// std::invalid_argument for a task it does not know.
+TaskSpec task_spec(const config::TaskConfig& cfg);
 
 }  // namespace farm::robots

@@ -7,9 +7,14 @@
 # Each NAME gets OUTDIR/NAME/ with ca.cert.pem, cert.pem, key.pem, governance.p7s, permissions.p7s:
 # copy that folder to the host and start the process with `--security OUTDIR/NAME` (or set
 # FARM_SECURITY_DIR). A NAME's role comes from how it starts:
-#   learner*  publishes ExperimentSpec, PolicyWeights, LearnerStats; reads TransitionBatch, WorkerStatus
+#   learner*  publishes ExperimentSpec, PolicyWeights, LearnerStats, EvaluationRequest; reads TransitionBatch,
+#             WorkerStatus, EvaluationAnswer
 #   monitor*  reads every farm topic, publishes nothing
-#   anything else is a worker: publishes TransitionBatch, WorkerStatus; reads ExperimentSpec, PolicyWeights
+#   anything else is a worker: publishes TransitionBatch, WorkerStatus, EvaluationAnswer; reads ExperimentSpec,
+#             PolicyWeights, EvaluationRequest
+# A certificate's subject is CN=NAME,O=rollout-farm. A worker's id is its certificate's name:
+# farm-worker takes it by default and refuses another --id, and a learner refuses a batch whose
+# worker id is not the certificate name of the participant that wrote it.
 # Running it again with the same OUTDIR keeps the CA and adds or renews the named participants.
 # Every certificate, like the permissions, is valid from one day before it is made
 # (FARM_PKI_BACKDATE_DAYS), so a host whose clock is behind the one that made the PKI still joins:
@@ -132,9 +137,10 @@ NOT_AFTER="$(date -u -d "+$DAYS days" +%Y-%m-%dT%H:%M:%S)"
     echo "      <subject_name>CN=$name,O=$ORG</subject_name>"
     echo "      <validity><not_before>$NOT_BEFORE</not_before><not_after>$NOT_AFTER</not_after></validity>"
     case "$name" in
-      learner*) rule "ExperimentSpec PolicyWeights LearnerStats" "TransitionBatch WorkerStatus" ;;
-      monitor*) rule "" "ExperimentSpec PolicyWeights LearnerStats TransitionBatch WorkerStatus" ;;
-      *)        rule "TransitionBatch WorkerStatus" "ExperimentSpec PolicyWeights" ;;
+      learner*) rule "ExperimentSpec PolicyWeights LearnerStats EvaluationRequest" \
+                     "TransitionBatch WorkerStatus EvaluationAnswer" ;;
+      monitor*) rule "" "ExperimentSpec PolicyWeights LearnerStats TransitionBatch WorkerStatus EvaluationRequest EvaluationAnswer" ;;
+      *)        rule "TransitionBatch WorkerStatus EvaluationAnswer" "ExperimentSpec PolicyWeights EvaluationRequest" ;;
     esac
     echo "      <default>DENY</default>"
     echo "    </grant>"

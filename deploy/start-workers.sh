@@ -8,7 +8,8 @@
 # Each host runs /opt/farm/bin/farm-worker (FARM_BIN to change) in the background with id
 # <HOST>-1, its output in /var/log/farm/worker-<HOST>.log there (FARM_LOG_DIR). Defaults come from
 # the environment: FARM_DOMAIN (0), FARM_DDS_PROFILES (/opt/farm/share/farm/discovery/client_udp.xml),
-# ROS_DISCOVERY_SERVER (the Discovery Servers; unset: multicast discovery), SSH ("ssh -o BatchMode=yes").
+# ROS_DISCOVERY_SERVER (the Discovery Servers, with --insecure only; unset: multicast discovery),
+# SSH ("ssh -o BatchMode=yes").
 # DDS Security is on by default: each worker runs with --security DIR, a folder on that host
 # (FARM_SECURITY_DIR, default /etc/farm/pki) holding what `deploy/make-pki.sh pki <HOST>-1` made in
 # pki/<HOST>-1; a host without it refuses to start the worker and says how to make it. --insecure
@@ -17,7 +18,7 @@
 # deploy/systemd/farm-worker@.service instead.
 set -euo pipefail
 
-usage() { sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; }
 
 dry_run=0
 domain=${FARM_DOMAIN:-0}
@@ -48,6 +49,11 @@ done
 [ -n "$hosts_file" ] || { usage >&2; exit 2; }
 [ -r "$hosts_file" ] || die "cannot read hosts file '$hosts_file'"
 [[ "$domain" =~ ^[0-9]+$ ]] && [ "$domain" -le 232 ] || die "--domain expects an integer 0..232, got '$domain'"
+# Fast DDS 2.9.1's Discovery Server cannot carry DDS Security (discovery/peers_udp.xml says why).
+[ $insecure = 1 ] || [ -z "$discovery" ] ||
+  die "DDS Security cannot run through a Discovery Server in Fast DDS 2.9.1 (ROS_DISCOVERY_SERVER or --discovery:" \
+    "'$discovery'): with security, unset it and use --dds-profiles .../discovery/simple.xml (multicast) or" \
+    ".../discovery/peers_udp.xml (unicast to its hosts); the Discovery Server is for --insecure on a trusted network"
 
 sq() { local q="'\\''"; printf "'%s'" "${1//\'/$q}"; }  # single-quoted for the shell
 is_count() { [[ "$1" =~ ^[1-9][0-9]*$ ]]; }

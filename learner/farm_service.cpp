@@ -8,9 +8,9 @@
 
 #include "checkpoint.h"
 #include "config.h"
+#include "eval_answer.h"
 #include "meter.h"
 #include "registry.h"
-#include "rollout.h"
 
 namespace farm {
 
@@ -21,9 +21,9 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
     : opt_(o),
       cfg_(cfg),
       interrupted_(interrupted),
-      task_(robots::make_task(cfg_.task())),
-      obs_dim_(task_->spec().obs_dim),
-      act_dim_(task_->spec().act_dim),
+      task_spec_(robots::task_spec(cfg_.task())),
+      obs_dim_(task_spec_.obs_dim),
+      act_dim_(task_spec_.act_dim),
       ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
       bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
       spec_(bus_, cfg_, obs_dim_, act_dim_),
@@ -33,29 +33,49 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       // them (docs/RELIABILITY.md, "size limits before memory").
       batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader",
                   static_cast<uint32_t>(std::min<uint64_t>(
-                      Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_->spec().metric_names.size()),
+                      Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
                                               cfg_.worker().steps_per_batch()),
                       UINT32_MAX))),
       status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader",
                  [this](eprosima::fastdds::dds::DataReader* r) {
                    farm::msg::WorkerStatus s;
-                   while (decltype(status_in_)::take_from(r, s)) {
+                   eprosima::fastdds::dds::SampleInfo info;
+                   while (decltype(status_in_)::take_from(r, s, info)) {
                      std::lock_guard<std::mutex> lk(heard_mu_);
+                     // Under DDS Security, as for batches: only from the participant whose
+                     // certificate bears the worker id (no invented workers in the roster).
+                     if (!bus_.security_dir().empty()) {
+                       const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid());
+                       if (by != s.worker_id()) {
+                         ++heartbeats_refused_;
+                         heartbeat_refused_note_ = "'" + s.worker_id() + "' from '" + by + "'";
+                         continue;
+                       }
+                     }
                      if (heard_.size() >= kMaxHeard) heard_.pop_front();
                      heard_.emplace_back(s, now_seconds());
                    }
                  }),
+      eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
+      // Answers over what this experiment's evaluations can hold are refused before memory is taken.
+      eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
+               max_eval_answer_bytes(cfg_.experiment_id().size(),
+                                     std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes()),
+                                     int(task_spec_.metric_names.size()))),
       roster_(
           cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id()),
-      algo_(make_algorithm(cfg_, task_->spec())) {
+      algo_(make_algorithm(cfg_, task_spec_)) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   best_dir_ = (fs::path(run_dir_) / "best").string();
-  ingest_.set_num_actions(task_->spec().num_actions);
+  eval_dir_ = (fs::path(run_dir_) / "evaluating").string();
+  ingest_.set_num_actions(task_spec_.num_actions);
+  eval_session_ = farm::dds::random_session_id();
 }
 
 int FarmService::run() {
   prepare_run_dir();
+  drop_snapshot(eval_dir_);  // what a learner that crashed mid-evaluation left
   spec_.publish(false);
   t0_ = now_seconds() - elapsed_offset_;
   algo_->start(*this);
@@ -92,6 +112,7 @@ int FarmService::run() {
     // Workers stay and wait: a resumed learner picks them up again. What the reader already
     // acknowledged goes into the checkpoint first, or the resumed learner counts it lost.
     drain_before_interrupted_stop();
+    drop_snapshot(eval_dir_);  // evaluations still out are not waited for
     if (!try_checkpoint(elapsed)) return 1;
     log("checkpoint written; resume with --resume");
     return 130;
@@ -100,6 +121,8 @@ int FarmService::run() {
   evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
   algo_->final_evaluation(*this, elapsed);
+  wait_for_evaluations();  // on the workers, which stay until the spec says finished
+  drop_snapshot(eval_dir_);
   spec_.publish(true);
   drain_until_workers_end();
   const bool saved = try_checkpoint(elapsed);
@@ -110,6 +133,7 @@ int FarmService::run() {
 void FarmService::work() {
   const size_t got = drain_batches(256);
   drain_status();
+  poll_evaluations();
   const double wait = algo_->train(*this, got > 0);
   if (wait > 0) batches_in_.wait(wait);
 }
@@ -122,7 +146,7 @@ size_t FarmService::drain_batches(size_t max) {
           std::to_string(batches_in_.max_sample_bytes()) +
           " bytes serialized (the most this experiment's workers send) before deserialization");
   }
-  while (n < max && batches_in_.take(batch_)) {
+  while (n < max && batches_in_.take(batch_, batch_info_)) {
     ++n;
     if (!accept_batch()) continue;
     Batch b;
@@ -169,32 +193,14 @@ FarmFigures FarmService::figures() const {
   f.workers = live_count();
   f.mean_return = mean_recent_return();
   f.best_eval = best_eval_;
+  f.evals_asked = evals_asked_;
+  f.evals_answered = evals_answered_;
+  f.evals_lost = evals_lost_;
+  f.evals_invalid = evals_invalid_;
   return f;
 }
 
 double FarmService::elapsed() const { return now_seconds() - t0_; }
-
-EvalReport FarmService::evaluate(const PolicyParams& policy, int episodes) {
-  const auto recs = evaluate_policy(task_, policy, episodes, cfg_.seed() + 1000003ull * ++evals_);
-  const size_t num_metrics = task_->spec().metric_names.size();
-  EvalReport r;
-  r.episodes = int(recs.size());
-  r.metrics.assign(num_metrics, 0.0);
-  if (recs.empty()) return r;
-  double sum = 0, len = 0;
-  r.min = r.max = recs[0].episode_return;
-  for (const auto& e : recs) {
-    sum += e.episode_return;
-    len += e.length;
-    r.min = std::min<double>(r.min, e.episode_return);
-    r.max = std::max<double>(r.max, e.episode_return);
-    for (size_t i = 0; i < num_metrics && i < e.metrics.size(); ++i) r.metrics[i] += e.metrics[i];
-  }
-  r.mean = sum / recs.size();
-  r.mean_length = len / recs.size();
-  for (auto& m : r.metrics) m /= recs.size();
-  return r;
-}
 
 void FarmService::csv_row(const std::string& row) {
   csv_ << row << '\n';
@@ -273,10 +279,20 @@ void FarmService::prepare_run_dir() {
 
 void FarmService::drain_status() {
   std::deque<std::pair<farm::msg::WorkerStatus, double>> got;
+  uint64_t refused = 0;
+  std::string refused_note;
   {
     std::lock_guard<std::mutex> lk(heard_mu_);
     got.swap(heard_);
+    refused = heartbeats_refused_;
+    refused_note = heartbeat_refused_note_;
   }
+  if (refused > heartbeats_refused_logged_ && ++heartbeat_notes_ <= 20) {
+    log("ignored " + std::to_string(refused - heartbeats_refused_logged_) +
+        " heartbeat(s) whose worker id is not the certificate name of the participant that wrote them (last: " +
+        refused_note + ")");
+  }
+  heartbeats_refused_logged_ = refused;
   for (const auto& [s, when] : got) {
     // Only a worker of this experiment counts as heard (another experiment's may share the domain).
     if (roster_.heard(s, when) && first_heard_ == 0) first_heard_ = now_seconds();
@@ -290,7 +306,11 @@ bool FarmService::accept_batch() {
   pending_.clear();
   episodes_.clear();
   const uint64_t foreign = ingest_.counters().foreign;
-  const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_);
+  // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
+  std::string writer;
+  if (!bus_.security_dir().empty()) writer = bus_.authenticated_name(batch_info_.sample_identity.writer_guid());
+  const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_,
+                                         bus_.security_dir().empty() ? nullptr : &writer);
   if (why.empty()) return true;
   if (ingest_.counters().foreign > foreign) {
     // Another experiment shares the domain: said once per experiment, not once per batch.
@@ -316,8 +336,14 @@ void FarmService::record_evaluation(double mean_return, uint64_t version, int64_
   best_eval_ = mean_return;
   const double t = now_seconds();
   try {
-    write_checkpoint(best_dir_, base_manifest(version, updates, elapsed),
-                     [this](const std::string& tmp) { algo_->save_networks(tmp); });
+    // The networks as they were when this version was asked (training went on meanwhile).
+    if (!eval_snapshot_ || eval_snapshot_->empty())
+      throw std::runtime_error("the networks of policy v" + std::to_string(version) +
+                               " were not kept when it was asked");
+    const std::string snapshot = *eval_snapshot_;
+    write_checkpoint(best_dir_, base_manifest(version, updates, elapsed), [&snapshot](const std::string& tmp) {
+      fs::copy(snapshot, tmp, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
+    });
   } catch (const std::exception& e) {
     best_eval_ = previous_best;  // the folder still holds the previous best: it stays the bar
     log(std::string("best evaluation so far (") + fmt("%.1f", mean_return) + ") not kept: " + e.what() +
@@ -430,7 +456,8 @@ std::string FarmService::summary_workers() const {
 
 void FarmService::write_summary(double elapsed, const std::string& reason) {
   FarmFigures f = figures();
-  const std::string text = summary_head(elapsed, reason) + algo_->summary(f, elapsed) + summary_workers();
+  const std::string text =
+      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + eval_summary() + summary_workers();
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
   log("summary written to " + run_dir_ + "/summary.txt");

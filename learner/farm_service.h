@@ -1,6 +1,7 @@
 // The farm side of the learner: publishes the experiment, takes and accounts the workers'
 // batches (ingest), hears their heartbeats (roster), publishes the weights the algorithm hands it,
-// runs evaluations, and runs the main loop (progress lines, checkpoints, the best policy, stop
+// asks workers for evaluations and hands the answers back (farm_evaluations.cpp: the learner
+// steps no simulation and links no robot), and runs the main loop (progress lines, checkpoints, the best policy, stop
 // rules, Ctrl-C), resumes from a checkpoint, closes the workers' streams at the end and writes the
 // summary. What it trains with is an Algorithm (algorithms/algorithm.h) from the registry.
 #pragma once
@@ -22,7 +23,7 @@
 #include "farm_config.pb.h"
 #include "ingest.h"
 #include "spec_publisher.h"
-#include "task.h"
+#include "task_spec.h"
 #include "worker_roster.h"
 
 namespace farm {
@@ -46,7 +47,7 @@ class FarmService final : public Farm {
   FarmFigures figures() const override;
   uint64_t env_steps() const override { return ingest_.counters().env_steps; }
   double elapsed() const override;
-  EvalReport evaluate(const PolicyParams& policy, int episodes) override;
+  bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) override;
   void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) override;
   void log(const std::string& s) const override;
   void csv_row(const std::string& row) override;
@@ -85,10 +86,38 @@ class FarmService final : public Farm {
   // Live workers that wait on the learner (for new weights, or for room in the batch queue).
   std::string waiting_note() const;
 
+  // --- Evaluations on workers (farm_evaluations.cpp) ---
+  // One evaluation asked of one worker; a lost one is asked once more (attempt 2) under a new id.
+  struct EvalRequest {
+    uint64_t id = 0, seed = 0, worker_session = 0;
+    std::string worker_id, roster_key;  // empty while no live worker could take it
+    double asked_at = 0;
+    int attempt = 1;
+    std::string avoid;  // the worker that lost attempt 1: another one is asked where there is one
+    EvalAsk ask;
+    PolicyParams policy;
+    std::string snapshot;      // the algorithm's networks when it asked (for best/); "" if not kept
+    bool skips_noted = false;  // a training evaluation skipped while this one is out was logged
+  };
+  // Takes the answers that arrived, hands the good ones to the algorithm, counts lost the requests
+  // whose worker died or that timed out (asking them again once), and sends the waiting ones.
+  void poll_evaluations();
+  // Sends r to a live worker of the roster, in turn (another than r.avoid where possible); false
+  // when there is none.
+  bool send_evaluation(EvalRequest& r);
+  void take_answer();
+  // A request no worker answered: asked again once, else given up (the algorithm is told).
+  void evaluation_lost(EvalRequest r, const std::string& why);
+  void drop_snapshot(const std::string& dir);
+  // After the final evaluation is asked: evaluations out are answered or counted lost, within
+  // eval.answer_timeout_seconds (sooner when no worker is live for worker_timeout_seconds).
+  void wait_for_evaluations();
+  std::string eval_summary() const;
+
   LearnerRunOptions opt_;
   config::ExperimentConfig cfg_;
   const std::atomic<bool>& interrupted_;
-  std::shared_ptr<const robots::Task> task_;
+  robots::TaskSpec task_spec_;  // from the config alone: the learner builds no task
   int obs_dim_, act_dim_;
   Ingest ingest_;
   farm::dds::Bus bus_;
@@ -101,13 +130,21 @@ class FarmService final : public Farm {
   // all workers together) and live workers be marked dead; the main loop hands them to roster_.
   std::mutex heard_mu_;
   std::deque<std::pair<farm::msg::WorkerStatus, double>> heard_;  // bounded: kMaxHeard
+  // Under DDS Security, heartbeats whose worker id is not their writer's certificate name: not heard.
+  uint64_t heartbeats_refused_ = 0;     // guarded by heard_mu_
+  std::string heartbeat_refused_note_;  // the last one, "'ID' from 'NAME'"; guarded by heard_mu_
+  uint64_t heartbeats_refused_logged_ = 0;
+  int heartbeat_notes_ = 0;
   static constexpr size_t kMaxHeard = 65536;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
+  farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
   WorkerRoster roster_;
   std::unique_ptr<Algorithm> algo_;
   std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;
   farm::msg::TransitionBatch batch_;
+  eprosima::fastdds::dds::SampleInfo batch_info_;  // of batch_: its writer, named under DDS Security
   Transitions pending_;
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
@@ -115,7 +152,17 @@ class FarmService final : public Farm {
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
   int rejections_logged_ = 0;
-  std::set<std::string> foreign_noted_;  // other experiments whose batches were seen (bounded)
+  std::set<std::string> foreign_noted_;         // other experiments whose batches were seen (bounded)
+  std::deque<EvalRequest> evals_out_;           // asked, not yet answered or given up
+  std::set<uint64_t> evals_closed_;             // ids lost or given up, for answers that come late (bounded)
+  std::string eval_dir_;                        // <run dir>/evaluating: the networks of each request
+  std::string eval_last_key_;                   // the roster key asked last, for the turn
+  const std::string* eval_snapshot_ = nullptr;  // while the algorithm reports: the networks asked
+  farm::msg::EvaluationAnswer answer_;
+  uint64_t eval_session_ = 0, next_eval_id_ = 0, evals_asked_ = 0, evals_answered_ = 0, evals_lost_ = 0,
+           evals_invalid_ = 0, evals_late_ = 0;
+  int eval_rejections_logged_ = 0;
+  bool eval_waiting_noted_ = false;
 };
 
 }  // namespace farm

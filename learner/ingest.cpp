@@ -92,12 +92,23 @@ std::string Ingest::content_problem(const farm::msg::TransitionBatch& b, uint64_
 }
 
 std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
-                           std::vector<FinishedEpisode>& episodes) {
+                           std::vector<FinishedEpisode>& episodes, const std::string* writer_name) {
   if (b.experiment_id() != experiment_id_) {
     // Another experiment on the same domain (its own learner accounts it): counted apart, never
     // taken, and not invalid, which would hide a real fault among another run's normal traffic.
     ++counters_.foreign;
     return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
+  }
+  if (writer_name && *writer_name != b.worker_id()) {
+    // Under DDS Security a worker's id is its certificate's name: a batch under another id comes
+    // from a certificate used for someone else (a leaked one, or a worker started with a foreign
+    // --id). Refused before any account is looked at, so it opens and moves none.
+    ++counters_.invalid;
+    if (writer_name->empty())
+      return "worker id '" + b.worker_id() +
+             "' from a participant DDS Security has not authenticated by a certificate name";
+    return "worker id '" + b.worker_id() + "' is not '" + *writer_name +
+           "', the certificate name of the participant that wrote it";
   }
   const uint64_t seq = b.sequence_number();
   auto it = workers_.find({b.worker_id(), b.worker_session()});

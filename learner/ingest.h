@@ -44,8 +44,13 @@ class Ingest {
 
   // Checks one batch. On success appends its transitions to `out`, its finished episodes to
   // `episodes`, and returns an empty string; otherwise returns why it was refused.
+  // writer_name, with DDS Security: the certificate name of the authenticated participant that
+  // wrote the batch ("" when unknown). A worker's id is its certificate's name, so a batch of this
+  // experiment whose worker id is not that name is refused as invalid on no account: it is not the
+  // worker it claims, and must neither train nor open or move that worker's stream. nullptr: no
+  // security, no such check.
   std::string accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
-                     std::vector<FinishedEpisode>& episodes);
+                     std::vector<FinishedEpisode>& episodes, const std::string* writer_name = nullptr);
 
   const IngestCounters& counters() const { return counters_; }
   using Key = std::pair<std::string, uint64_t>;  // (worker id, session)

@@ -29,6 +29,8 @@ void usage() {
                "                   [--inject-nan-batch SEQ]   (fault injection for tests)\n"
                "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
                "the experiment's worker.envs_per_worker) on the given number of threads.\n"
+               "--id NAME: the worker's name (default HOST-PID); with --security DIR (or FARM_SECURITY_DIR)\n"
+               "it is the CN of DIR/cert.pem by default, and another --id is refused.\n"
                "--experiment ID: serve only the experiment with this experiment_id; without it, the\n"
                "worker serves the first experiment it joins on the domain. Either way it ignores any\n"
                "other experiment on the domain and ends when its experiment ends.\n";
@@ -72,6 +74,17 @@ WorkerOptions parse(int argc, char** argv) {
       std::exit(0);
     } else
       throw std::invalid_argument("unknown option '" + a + "' (see --help)");
+  }
+  // Under DDS Security a worker's id is its certificate's name (the learner refuses batches under
+  // another id), so it defaults to that name and a different --id is refused here.
+  if (const std::string sec = farm::dds::security_dir_of(o.bus); !sec.empty()) {
+    const std::string name = farm::dds::certificate_name(sec);
+    if (o.id.empty()) o.id = name;
+    if (o.id != name)
+      throw std::invalid_argument("--id '" + o.id + "' is not the name in this worker's certificate ('" + name +
+                                  "', CN of " + sec + "/cert.pem): with DDS Security a worker's id is its " +
+                                  "certificate's name and the learner refuses batches under another; drop --id " +
+                                  "or use the folder deploy/make-pki.sh made for '" + o.id + "'");
   }
   if (o.id.empty()) o.id = farm::dds::hostname() + "-" + std::to_string(getpid());
   return o;

@@ -184,7 +184,7 @@ void Rollout::merge_ends(RolloutBatch& out) {
 }
 
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
-                                           int episodes, uint64_t seed) {
+                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel) {
   if (episodes <= 0) return {};
   Policy policy(params);
   VecEnv env(std::move(task), episodes, seed);
@@ -206,6 +206,7 @@ std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> t
   // Every episode ends within max_steps (truncation); envs that finish early keep stepping
   // into a next episode, which is ignored.
   for (int step = 0; step < max_steps && remaining > 0; ++step) {
+    if (cancel && *cancel) return {};
     policy.act(env.obs(), N, unused_rng, true, actions.data(), nullptr);
     ends.clear();
     env.step_range(0, N, actions.data(), rewards.data(), terminated.data(), truncated.data(), ends);

@@ -6,6 +6,7 @@
 // the number of threads.
 #pragma once
 
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <exception>
@@ -87,8 +88,9 @@ class Rollout {
 
 // Runs `episodes` complete episodes, one per env, side by side, with the deterministic policy
 // (tanh(mean)), and returns their records ordered by env. Throws std::invalid_argument if the
-// policy does not fit the task or the task has no time limit.
+// policy does not fit the task or the task has no time limit. cancel, if given and set, ends it
+// between two steps with an empty result.
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
-                                           int episodes, uint64_t seed);
+                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel = nullptr);
 
 }  // namespace farm

@@ -1,7 +1,8 @@
 // The farm-worker service (worker_app.h): the experiment it follows, the policy it runs, the
-// batches it streams and the heartbeats it beats.
+// batches it streams, the heartbeats it beats and the evaluations it answers.
 #include "worker_app.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -86,6 +87,19 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
                   }),
       batches_out_(bus_, farm::dds::kBatchTopic, "batch_writer"),
       status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
+      // Requests are kept only when addressed to this worker (a queue of a few); the checks of
+      // their contents come on the main loop.
+      eval_in_(bus_, farm::dds::kEvalRequestTopic, "batch_reader",
+               [this](eprosima::fastdds::dds::DataReader* r) {
+                 farm::msg::EvaluationRequest q;
+                 while (decltype(eval_in_)::take_from(r, q)) {
+                   if (q.worker_id() != opt_.id) continue;
+                   std::lock_guard<std::mutex> lk(in_mu_);
+                   if (eval_in_q_.size() >= kMaxEvalQueue) eval_in_q_.pop_front();
+                   eval_in_q_.push_back(std::move(q));
+                 }
+               }),
+      eval_out_(bus_, farm::dds::kEvalAnswerTopic, "batch_writer"),
       session_(farm::dds::random_session_id()),
       experiment_(o.experiment) {}
 
@@ -97,6 +111,7 @@ int WorkerApp::run() {
   while (!stop_) {
     poll_spec();
     if (finished_) break;
+    poll_eval_requests();
     if (!rollout_) {
       state_ = "waiting_for_learner";
       if (now_seconds() - last_wait_note > 5.0) {
@@ -198,12 +213,15 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
                                std::to_string(envs) + " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) +
                                " steps and " + std::to_string(kMaxBatchTransitions) + " transitions per batch");
     std::shared_ptr<const robots::Task> task = robots::make_task(cfg.task());
+    const int eval_max = std::max(cfg.eval().episodes(), cfg.eval().final_episodes());
     if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
       throw std::runtime_error("task '" + cfg.task().name() + "' shapes differ from the spec");
     // Sequence numbers restart only with a new session, so no learner counts them duplicate.
     if (sequence_ > 0) session_ = farm::dds::random_session_id();
     uint64_t seed = s.seed() ^ fnv1a(opt_.id);
     rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
+    task_ = task;
+    eval_max_episodes_ = eval_max;
     if (experiment_.empty()) {
       std::lock_guard<std::mutex> lk(in_mu_);  // the weights listener reads experiment_
       experiment_ = s.experiment_id();
@@ -298,6 +316,7 @@ void WorkerApp::end_stream() {
 }
 
 void WorkerApp::finish() {
+  stop_eval_thread();
   end_stream();
   state_ = "finished";
   heartbeat(true);
@@ -347,6 +366,125 @@ std::string WorkerApp::time_split(double t) {
   split_at_ = now;
   split_publish_s_ = publish_s_;
   return s;
+}
+
+WorkerApp::~WorkerApp() { stop_eval_thread(); }
+
+// Requests addressed to this worker (the listener kept only those): of its experiment, sized within
+// what the experiment asks, with a policy that fits the task. Each good one becomes a job for the
+// evaluation thread; a bad one is answered with what was wrong (the learner counts it invalid).
+void WorkerApp::poll_eval_requests() {
+  std::deque<farm::msg::EvaluationRequest> got;
+  {
+    std::lock_guard<std::mutex> lk(in_mu_);
+    got.swap(eval_in_q_);
+  }
+  for (auto& q : got) {
+    if (!rollout_ || q.experiment_id() != experiment_) continue;  // not (yet) this worker's experiment
+    log("evaluation request " + std::to_string(q.request_id()) + ": " + std::to_string(q.episodes()) +
+        " episodes of policy v" + std::to_string(q.policy_version()));
+    if (q.episodes() < 1 || q.episodes() > uint32_t(eval_max_episodes_)) {
+      answer_error(q, "episodes " + std::to_string(q.episodes()) + " outside 1.." + std::to_string(eval_max_episodes_) +
+                          " (the experiment's eval.episodes / final_episodes)");
+      continue;
+    }
+    if (q.policy().experiment_id() != experiment_ || q.policy().version() != q.policy_version()) {
+      answer_error(q, "the policy carried is v" + std::to_string(q.policy().version()) + " of '" +
+                          q.policy().experiment_id().substr(0, 64) + "', not v" + std::to_string(q.policy_version()));
+      continue;
+    }
+    EvalJob job;
+    try {
+      job.policy = farm::dds::from_wire(q.policy());  // its fit to the task: evaluate_policy checks it
+    } catch (const std::exception& e) {
+      answer_error(q, std::string("bad policy: ") + e.what());
+      continue;
+    }
+    job.task = task_;
+    job.worker_session = session_;
+    {
+      std::lock_guard<std::mutex> lk(eval_mu_);
+      if (eval_jobs_.size() >= kMaxEvalQueue) {
+        answer_error(q, "busy: " + std::to_string(eval_jobs_.size()) + " evaluations waiting already");
+        continue;
+      }
+      job.request = std::move(q);
+      eval_jobs_.push_back(std::move(job));
+    }
+    if (!eval_thread_.joinable()) eval_thread_ = std::thread([this] { eval_thread_main(); });
+    eval_cv_.notify_one();
+  }
+}
+
+void WorkerApp::answer_error(const farm::msg::EvaluationRequest& q, const std::string& why) {
+  log("evaluation request " + std::to_string(q.request_id()) + " refused: " + why);
+  farm::msg::EvaluationAnswer a;
+  a.experiment_id(q.experiment_id());
+  a.learner_session(q.learner_session());
+  a.request_id(q.request_id());
+  a.worker_id(opt_.id);
+  a.worker_session(session_);
+  a.policy_version(q.policy_version());
+  a.error(why.substr(0, farm::dds::kMaxEvalTextBytes));
+  eval_out_.write(a);
+}
+
+// The evaluation thread: one job at a time, on evaluation envs made for it (evaluate_policy: one env
+// per episode, reset from the request's seed), never the training envs.
+void WorkerApp::eval_thread_main() {
+  while (true) {
+    EvalJob job;
+    {
+      std::unique_lock<std::mutex> lk(eval_mu_);
+      eval_cv_.wait(lk, [this] { return eval_stop_ || !eval_jobs_.empty(); });
+      if (eval_stop_) return;
+      job = std::move(eval_jobs_.front());
+      eval_jobs_.pop_front();
+    }
+    const auto& q = job.request;
+    farm::msg::EvaluationAnswer a;
+    a.experiment_id(q.experiment_id());
+    a.learner_session(q.learner_session());
+    a.request_id(q.request_id());
+    a.worker_id(opt_.id);
+    a.worker_session(job.worker_session);
+    a.policy_version(q.policy_version());
+    const double t0 = now_seconds();
+    try {
+      const auto recs = evaluate_policy(job.task, job.policy, int(q.episodes()), q.seed(), &eval_stop_);
+      if (eval_stop_) return;
+      std::vector<farm::msg::EvaluationEpisode> eps(recs.size());
+      for (size_t i = 0; i < recs.size(); ++i) {
+        eps[i].episode_return(recs[i].episode_return);
+        eps[i].length(uint32_t(recs[i].length));
+        eps[i].terminated(recs[i].terminated);
+        eps[i].metrics(recs[i].metrics);
+      }
+      a.episodes(std::move(eps));
+    } catch (const std::exception& e) {
+      a.error(std::string(e.what()).substr(0, farm::dds::kMaxEvalTextBytes));
+    }
+    a.seconds(now_seconds() - t0);
+    double sum = 0;
+    for (const auto& e : a.episodes()) sum += e.episode_return();
+    // A full reliable history makes write() time out: retry while the worker runs.
+    while (!eval_out_.write(a) && !eval_stop_) {
+    }
+    char figures[96];
+    std::snprintf(figures, sizeof figures, ": mean return %.1f over %zu episodes (%.1f s)",
+                  a.episodes().empty() ? 0.0 : sum / double(a.episodes().size()), a.episodes().size(), a.seconds());
+    log("evaluation " + std::to_string(q.request_id()) + " answered" +
+        (a.error().empty() ? std::string(figures) : " with an error: " + a.error()));
+  }
+}
+
+void WorkerApp::stop_eval_thread() {
+  {
+    std::lock_guard<std::mutex> lk(eval_mu_);
+    eval_stop_ = true;
+  }
+  eval_cv_.notify_all();
+  if (eval_thread_.joinable()) eval_thread_.join();
 }
 
 }  // namespace farm

@@ -1,11 +1,15 @@
 // The farm-worker service: joins the learner's experiment from the ExperimentSpec on the bus,
 // takes its PolicyWeights, collects rollouts and streams them as TransitionBatches, and beats a
 // WorkerStatus heartbeat. It can join late or restart at any time, and follows a restarted learner.
+// It answers the learner's EvaluationRequests addressed to it: deterministic episodes on evaluation
+// envs of their own (own seeds, apart from the training envs), in a thread of their own, so its
+// batches keep flowing meanwhile.
 // It is bound to one experiment (--experiment, else the first one it joins) and ignores the specs
 // and weights of any other that shares the domain; it ends with its experiment.
 #pragma once
 
 #include <atomic>
+#include <condition_variable>
 #include <cstdint>
 #include <deque>
 #include <map>
@@ -13,6 +17,7 @@
 #include <mutex>
 #include <set>
 #include <string>
+#include <thread>
 
 #include "dds.h"
 #include "meter.h"
@@ -39,6 +44,7 @@ class WorkerApp {
 
   // Runs until stopped or the learner finishes the experiment; returns the process exit code.
   int run();
+  ~WorkerApp();
 
  private:
   void log(const std::string& s);
@@ -52,6 +58,11 @@ class WorkerApp {
   void end_stream();
   void finish();
   void heartbeat(bool force = false);
+  // Evaluation requests: checked on the main loop, run by eval_thread_, answered from there.
+  void poll_eval_requests();
+  void answer_error(const farm::msg::EvaluationRequest& q, const std::string& why);
+  void eval_thread_main();
+  void stop_eval_thread();
   std::string time_split(double t);
 
   WorkerOptions opt_;
@@ -69,6 +80,24 @@ class WorkerApp {
   farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
   farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
   farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
+  std::deque<farm::msg::EvaluationRequest> eval_in_q_;  // addressed to this worker; bounded: kMaxEvalQueue
+  farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_in_;
+  farm::dds::Writer<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_out_;
+  // Jobs for the evaluation thread: requests checked, with their policy and task.
+  struct EvalJob {
+    farm::msg::EvaluationRequest request;
+    PolicyParams policy;
+    std::shared_ptr<const robots::Task> task;
+    uint64_t worker_session = 0;  // when it was asked
+  };
+  std::mutex eval_mu_;
+  std::condition_variable eval_cv_;
+  std::deque<EvalJob> eval_jobs_;  // bounded: kMaxEvalQueue
+  std::atomic<bool> eval_stop_{false};
+  std::thread eval_thread_;
+  static constexpr size_t kMaxEvalQueue = 4;
+  std::shared_ptr<const robots::Task> task_;  // of the joined experiment
+  int eval_max_episodes_ = 0;                 // the experiment's eval.episodes / final_episodes, the larger
   uint64_t session_;
   std::string experiment_;          // the bound experiment; empty until the first join (no --experiment)
   std::set<std::string> foreign_;   // other experiments already noted (bounded)

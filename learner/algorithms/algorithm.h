@@ -2,9 +2,9 @@
 //
 // The farm side (learner/farm_service.*) owns the bus: it takes the workers' batches through
 // ingest and accounts them, keeps the roster, publishes the experiment and the weights it is
-// handed, runs evaluations, writes checkpoints, the best policy, progress lines and the summary,
-// and applies the stop rules. An algorithm takes accepted data, trains, exports weights and
-// saves/loads itself; it reaches the workers only through the Farm below. SAC and DQN share one
+// handed, asks workers for evaluations and hands their answers back, writes checkpoints, the best
+// policy, progress lines and the summary, and applies the stop rules. An algorithm takes accepted data, trains, exports
+// weights and saves/loads itself; it reaches the workers only through the Farm below. SAC and DQN share one
 // replay-buffer driver (off_policy_algorithm.cpp); PPO has its own (ppo_algorithm.cpp). A new
 // algorithm implements Algorithm and adds one line to registry.cpp.
 #pragma once
@@ -23,11 +23,26 @@ namespace farm {
 // printf-style formatting of one number.
 std::string fmt(const char* f, double v);
 
+struct FarmFigures;
+// " | evals asked N answered M lost K invalid I" for a progress line.
+std::string eval_counts(const FarmFigures& f);
+
 // What an evaluation reports: returns, lengths and the task's own metrics.
 struct EvalReport {
   int episodes = 0;
   double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
   std::vector<double> metrics;  // means, in the order of TaskSpec::metric_names
+};
+
+// An evaluation an algorithm asks for (Farm::ask_evaluation); handed back with its report
+// (Algorithm::evaluated), which may come many training passes later.
+struct EvalAsk {
+  std::string label;     // the log line's first word: "eval" while training, "final" at the end
+  int episodes = 0;      // deterministic episodes asked
+  uint64_t version = 0;  // the policy version evaluated
+  int64_t updates = 0;   // the algorithm's updates when it asked
+  double elapsed = 0;    // seconds of training when it asked
+  std::string progress;  // where training was when it asked, for the log line ("120 updates", "5 fits")
 };
 
 // The farm's own figures, for an algorithm's progress line, fit line and summary.
@@ -37,6 +52,9 @@ struct FarmFigures {
   int workers = 0;           // live workers
   double mean_return = NAN;  // of the last 100 training episodes
   double best_eval = NAN;    // the best evaluation so far (kept in <run dir>/best)
+  // Evaluations asked of workers (retries included), answered, lost (unanswered in time, or the
+  // worker died) and answers refused as invalid.
+  uint64_t evals_asked = 0, evals_answered = 0, evals_lost = 0, evals_invalid = 0;
   // At a progress line only: env steps/s and mean policy lag since the last line, and the live
   // workers that wait on the learner (" (2 throttled)"; "" when none).
   double in_rate = 0, lag = 0;
@@ -70,9 +88,14 @@ class Farm {
   virtual uint64_t env_steps() const = 0;
   // Seconds of training so far (a resumed run counts on from its checkpoint).
   virtual double elapsed() const = 0;
-  // `episodes` deterministic episodes of `policy` on the experiment's task.
-  virtual EvalReport evaluate(const PolicyParams& policy, int episodes) = 0;
-  // Each evaluation's mean return goes through here: a new best is kept in <run dir>/best.
+  // Asks a live worker for ask.episodes deterministic episodes of `policy` (version ask.version)
+  // and keeps the algorithm's networks as they are now, so that a new best is saved as the version
+  // evaluated. Training goes on: the report comes through Algorithm::evaluated when the answer
+  // arrives. false (said in the log) when it is not asked: a training evaluation ("eval") is still
+  // out. A final evaluation ("final") is always asked; the farm waits for it before the summary.
+  virtual bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) = 0;
+  // Each evaluation's mean return goes through here (from Algorithm::evaluated): a new best is
+  // kept in <run dir>/best, as the networks were when that version was asked.
   virtual void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) = 0;
   virtual void log(const std::string& line) const = 0;
   // One row of <run dir>/learner.csv, without the newline (columns: Algorithm::csv_header).
@@ -106,7 +129,14 @@ class Algorithm {
   virtual void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) = 0;
   // The algorithm's own end (PPO's run length); "" while it goes on.
   virtual std::string stop_reason() const { return ""; }
+  // Asks the final evaluation (Farm::ask_evaluation, label "final").
   virtual void final_evaluation(Farm& farm, double elapsed) = 0;
+  // The report of an evaluation this algorithm asked for, when a worker's answer arrives: the log
+  // line, the CSV columns, the stop target's last_eval and Farm::record_evaluation.
+  virtual void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& report) = 0;
+  // An evaluation it asked for that no worker answered (lost twice, or still out when the run
+  // ended): nothing to report.
+  virtual void not_evaluated(Farm&, const EvalAsk&) {}
   // The summary's lines between the farm's head and its worker lines.
   virtual std::string summary(const FarmFigures& f, double elapsed) const = 0;
 

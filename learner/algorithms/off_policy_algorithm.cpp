@@ -1,6 +1,6 @@
 // The replay-buffer driver that runs every off-policy algorithm (SAC, DQN): keeps the workers'
 // transitions in a replay buffer, updates as fast as the data and the algorithm's pacing allow,
-// publishes the policy every few updates, evaluates on a timer, and checkpoints the networks with
+// publishes the policy every few updates, asks for evaluations on a timer, and checkpoints the networks with
 // the buffer.
 #include <algorithm>
 #include <cmath>
@@ -72,7 +72,7 @@ class OffPolicyAlgorithm final : public Algorithm {
       if (!got_data) wait = 0.01;
     }
     if (now_seconds() - last_eval_time_ >= cfg_.eval().every_seconds() && algo_->updates() > 0) {
-      evaluate(farm, cfg_.eval().episodes(), farm.elapsed(), "eval");
+      ask_evaluation(farm, cfg_.eval().episodes(), farm.elapsed(), "eval");  // answered later: evaluated()
       last_eval_time_ = now_seconds();
     }
     return wait;
@@ -89,7 +89,8 @@ class OffPolicyAlgorithm final : public Algorithm {
       << fmt("%.0f", upd_rate) << " upd/s (" << algo_->updates() << ", utd " << fmt("%.3f", utd) << ") | buffer "
       << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
       << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
-      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << " | workers " << f.workers << f.waiting_note;
+      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers " << f.workers
+      << f.waiting_note;
     farm.log(o.str());
     std::ostringstream row;
     row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates() << ','
@@ -108,7 +109,20 @@ class OffPolicyAlgorithm final : public Algorithm {
   }
 
   void final_evaluation(Farm& farm, double elapsed) override {
-    final_return_ = evaluate(farm, cfg_.eval().final_episodes(), elapsed, "final");
+    ask_evaluation(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& r) override {
+    const double mean = r.episodes > 0 ? r.mean : 0;
+    last_eval_ = mean;
+    if (ask.label == "final") final_return_ = mean;
+    std::string metric_txt;
+    for (size_t i = 0; i < r.metrics.size() && i < metric_names_.size() && r.episodes > 0; ++i)
+      metric_txt += ", " + metric_names_[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(ask.label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(r.episodes) +
+             " deterministic episodes" + metric_txt + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
+             ", " + fmt("%.1f", ask.elapsed) + " s)");
+    farm.record_evaluation(mean, ask.version, ask.updates, ask.elapsed);
   }
 
   std::string summary(const FarmFigures& f, double elapsed) const override {
@@ -173,19 +187,15 @@ class OffPolicyAlgorithm final : public Algorithm {
     updates_meter_.add(1);
   }
 
-  double evaluate(Farm& farm, int episodes, double elapsed, const std::string& label) {
-    const PolicyParams p = algo_->export_policy(version());
-    const EvalReport r = farm.evaluate(p, episodes);
-    const double mean = r.episodes > 0 ? r.mean : 0;
-    last_eval_ = mean;
-    std::string metric_txt;
-    for (size_t i = 0; i < r.metrics.size() && r.episodes > 0; ++i)
-      metric_txt += ", " + metric_names_[i] + " " + fmt("%.3f", r.metrics[i]);
-    farm.log(label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(r.episodes) +
-             " deterministic episodes" + metric_txt + " (policy v" + std::to_string(p.version) + ", " +
-             std::to_string(algo_->updates()) + " updates, " + fmt("%.1f", elapsed) + " s)");
-    farm.record_evaluation(mean, p.version, algo_->updates(), elapsed);
-    return mean;
+  void ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    EvalAsk ask;
+    ask.label = label;
+    ask.episodes = episodes;
+    ask.version = version();
+    ask.updates = algo_->updates();
+    ask.elapsed = elapsed;
+    ask.progress = std::to_string(ask.updates) + " updates";
+    farm.ask_evaluation(algo_->export_policy(ask.version), ask);
   }
 
   const config::ExperimentConfig cfg_;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <filesystem>
 #include <map>
 #include <sstream>
@@ -206,8 +207,9 @@ class PpoAlgorithm final : public Algorithm {
       publish_weights(farm);
     else
       policy_ = ppo_.export_policy(version_);
-    const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0;
-    if (eval_now) evaluate(farm, cfg_.eval().episodes(), elapsed, "eval");
+    // The evaluation is asked now and answered later (evaluated()); this fit's CSV row waits for it.
+    const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0 &&
+                          ask_evaluation(farm, cfg_.eval().episodes(), elapsed, "eval");
     const FarmFigures c = farm.figures();
     const double mean_ret = c.mean_return;
     std::ostringstream o;
@@ -218,41 +220,100 @@ class PpoAlgorithm final : public Algorithm {
       << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps
       << " env steps, " << fmt("%.1f", elapsed) << " s";
     farm.log(o.str());
-    std::ostringstream csv;
-    csv << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
-        << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
-        << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
-        << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ','
-        << (eval_now ? fmt("%.3f", last_eval_.mean) : "") << ',' << (eval_now ? fmt("%.3f", last_eval_.min) : "") << ','
-        << (eval_now ? fmt("%.3f", last_eval_.max) : "") << ',' << (eval_now ? fmt("%.1f", last_eval_.mean_length) : "")
-        << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ','
-        << c.workers << ',' << fit_episodes_;
+    CsvRow row;
+    std::ostringstream head, tail;
+    head << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
+         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
+         << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
+         << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ',';
+    tail << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ','
+         << c.workers << ',' << fit_episodes_;
     const size_t nm = spec_.metric_names.size();
     for (size_t i = 0; i < nm; ++i)
-      csv << ','
-          << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_) : "");
-    for (size_t i = 0; i < nm; ++i)
-      csv << ',' << (eval_now && i < last_eval_.metrics.size() ? fmt("%.5g", last_eval_.metrics[i]) : "");
-    farm.csv_row(csv.str());
+      tail << ','
+           << (fit_episodes_ > 0 && i < fit_metric_sums_.size() ? fmt("%.5g", fit_metric_sums_[i] / fit_episodes_)
+                                                                : "");
+    row.head = head.str();
+    row.tail = tail.str();
+    row.waits = eval_now;
+    row.version = policy_.version;
+    rows_.push_back(std::move(row));
+    write_rows(farm);
     fit_episodes_ = 0;
     fit_metric_sums_.assign(nm, 0.0);
     stale_fit_ = 0;
   }
 
-  EvalReport evaluate(Farm& farm, int episodes, double elapsed, const std::string& label) {
-    const EvalReport r = farm.evaluate(policy_, episodes);
-    last_eval_ = r;
-    std::string metrics;
-    for (size_t i = 0; i < r.metrics.size(); ++i)
-      metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
-    farm.log(label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " +
-             fmt("%.1f", r.max) + ") over " + std::to_string(r.episodes) + " deterministic episodes, length " +
-             fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(policy_.version) + ", " +
-             std::to_string(ppo_.fits()) + " fits, " + fmt("%.1f", elapsed) + " s)");
-    farm.record_evaluation(r.mean, policy_.version, ppo_.updates(), elapsed);
-    return r;
+  bool ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    EvalAsk ask;
+    ask.label = label;
+    ask.episodes = episodes;
+    ask.version = policy_.version;
+    ask.updates = ppo_.updates();
+    ask.elapsed = elapsed;
+    ask.progress = std::to_string(ppo_.fits()) + " fits";
+    return farm.ask_evaluation(policy_, ask);
   }
 
+ public:
+  void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& r) override {
+    last_eval_ = r;
+    if (ask.label == "final") final_eval_ = r;
+    std::string metrics;
+    for (size_t i = 0; i < r.metrics.size() && i < spec_.metric_names.size(); ++i)
+      metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(ask.label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " +
+             fmt("%.1f", r.max) + ") over " + std::to_string(r.episodes) + " deterministic episodes, length " +
+             fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
+             ", " + fmt("%.1f", ask.elapsed) + " s)");
+    farm.record_evaluation(r.mean, ask.version, ask.updates, ask.elapsed);
+    if (ask.label == "eval") settle_row(farm, ask.version, &r);
+  }
+
+  void not_evaluated(Farm& farm, const EvalAsk& ask) override {
+    if (ask.label == "eval") settle_row(farm, ask.version, nullptr);
+  }
+
+ private:
+  // A fit's CSV row: its evaluation columns (between head and tail, and the eval_* metrics at the
+  // end) are filled when the evaluation asked at that fit is answered. Rows are written in fit
+  // order, so one that waits holds back the rows after it.
+  struct CsvRow {
+    std::string head, tail;
+    bool waits = false;
+    uint64_t version = 0;
+    bool has_eval = false;
+    EvalReport eval;
+  };
+
+  void settle_row(Farm& farm, uint64_t version, const EvalReport* r) {
+    for (auto& row : rows_) {
+      if (!row.waits || row.version != version) continue;
+      row.waits = false;
+      if (r) {
+        row.has_eval = true;
+        row.eval = *r;
+      }
+      break;
+    }
+    write_rows(farm);
+  }
+
+  void write_rows(Farm& farm) {
+    while (!rows_.empty() && (!rows_.front().waits || rows_.size() > kMaxRowsHeld)) {
+      const CsvRow& row = rows_.front();
+      const bool e = row.has_eval;
+      std::ostringstream csv;
+      csv << row.head << (e ? fmt("%.3f", row.eval.mean) : "") << ',' << (e ? fmt("%.3f", row.eval.min) : "") << ','
+          << (e ? fmt("%.3f", row.eval.max) : "") << ',' << (e ? fmt("%.1f", row.eval.mean_length) : "") << row.tail;
+      for (size_t i = 0; i < spec_.metric_names.size(); ++i)
+        csv << ',' << (e && i < row.eval.metrics.size() ? fmt("%.5g", row.eval.metrics[i]) : "");
+      farm.csv_row(csv.str());
+      rows_.pop_front();
+    }
+  }
+
+ public:
   void progress(Farm& farm, const FarmFigures& c, double elapsed, AlgorithmStats* stats) override {
     stats->updates = ppo_.updates();
     stats->updates_per_second = 0;
@@ -264,7 +325,7 @@ class PpoAlgorithm final : public Algorithm {
              ") | v" + std::to_string(version_) + " collecting " + std::to_string(sched_.fit_steps()) +
              " steps, quota " + std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) +
              " lost " + std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " +
-             std::to_string(c.invalid) + " stale " + std::to_string(stale_total_) + " | workers " +
+             std::to_string(c.invalid) + " stale " + std::to_string(stale_total_) + eval_counts(c) + " | workers " +
              std::to_string(c.workers));
   }
 
@@ -288,7 +349,7 @@ class PpoAlgorithm final : public Algorithm {
   }
 
   void final_evaluation(Farm& farm, double elapsed) override {
-    final_eval_ = evaluate(farm, cfg_.eval().final_episodes(), elapsed, "final");
+    ask_evaluation(farm, cfg_.eval().final_episodes(), elapsed, "final");
   }
 
   std::string summary(const FarmFigures& c, double) const override {
@@ -322,6 +383,9 @@ class PpoAlgorithm final : public Algorithm {
   PolicyParams policy_;
   PpoStats last_stats_{};
   EvalReport last_eval_, final_eval_;
+  std::deque<CsvRow> rows_;  // fits' CSV rows not yet written (the first waits for its evaluation)
+  // Rows held back behind one evaluation at most; past this the oldest is written without it.
+  static constexpr size_t kMaxRowsHeld = 256;
   uint64_t version_ = 0;
   uint32_t quota_ = 1;
   uint64_t stale_total_ = 0, stale_fit_ = 0, top_ups_ = 0;

@@ -3,6 +3,11 @@
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
 //                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]] [--try-writers 1]
+//                 [--heartbeat 1]
+// --id NAME names the participant and the worker id of its batches; with --security DIR of another
+// participant's certificate it is a modified sender writing under an id that is not its own.
+// --heartbeat 1: also publish a WorkerStatus heartbeat (worker NAME, state running) with each batch
+// of the plain stream, as a worker would.
 // --spec-config FILE: also publish an ExperimentSpec for the experiment whose config text is FILE's
 // (a learner's impostor: what a worker does with a spec it did not ask for).
 // --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
@@ -70,7 +75,7 @@ int main(int argc, char** argv) {
   std::string experiment = "pendulum_sac", id = "intruder";
   unsigned obs = 3, act = 1;
   double seconds = 10;
-  bool hostile = false, oversize = false, try_writers = false;
+  bool hostile = false, oversize = false, try_writers = false, heartbeat = false;
   std::string spec_config;
   unsigned spec_steps = 4;
   try {
@@ -99,6 +104,8 @@ int main(int argc, char** argv) {
         spec_steps = std::stoul(v);
       else if (a == "--try-writers")
         try_writers = v == "1";
+      else if (a == "--heartbeat")
+        heartbeat = v == "1";
       else
         throw std::invalid_argument("unknown flag " + a);
     }
@@ -121,6 +128,9 @@ int main(int argc, char** argv) {
         bus, farm::dds::kWeightsTopic, "latest_reader");
     farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(bus, farm::dds::kSpecTopic,
                                                                                            "latest_reader");
+    using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
+    std::unique_ptr<StatusWriter> status_out;
+    if (heartbeat) status_out = std::make_unique<StatusWriter>(bus, farm::dds::kWorkerStatusTopic, "status_writer");
     // Only when asked: a worker's certificate may not even create a spec writer (access control).
     using SpecWriter = farm::dds::Writer<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType>;
     std::unique_ptr<SpecWriter> spec_out;
@@ -204,6 +214,18 @@ int main(int argc, char** argv) {
     while (!hostile && !oversize && farm::now_seconds() - t0 < seconds) {
       b.sequence_number(sent);
       if (out.write(b)) ++sent;
+      if (status_out) {
+        farm::msg::WorkerStatus st;
+        st.worker_id(id);
+        st.worker_session(1);
+        st.host(farm::dds::hostname());
+        st.experiment_id(experiment);
+        st.envs(N);
+        st.threads(1);
+        st.batches_sent(sent);
+        st.state("running");
+        status_out->write(st);
+      }
       max_matched = std::max(max_matched, out.matched());
       farm::msg::PolicyWeights w;
       while (weights.take(w)) ++weights_seen;

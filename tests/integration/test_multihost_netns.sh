@@ -3,23 +3,32 @@
 #   A 10.77.0.1: Discovery Servers (primary id 0 on port 11811, backup id 1 on 11812), farm-learner
 #   B 10.77.0.2: farm-worker host-b        C 10.77.0.3: farm-worker host-c
 # No multicast route anywhere (simple discovery cannot work) and no shared memory (namespaces
-# share /dev/shm, so the profile is UDPv4 only): the farm must meet through the Discovery Server.
-# A short SAC pendulum run must take batches from both workers with nothing lost, bring new
-# weights to both, and `farm-monitor --once` in A must list both with non-zero steps/s, also
-# after the primary discovery server is killed (the backup carries on).
-#   tests/integration/test_multihost_netns.sh LEARNER_BIN WORKER_BIN MONITOR_BIN SOURCE_DIR
+# share /dev/shm, so the profile is UDPv4 only). Two farms run at once, on two domains:
+# - the trusted-network farm meets through the Discovery Server pair: a short SAC pendulum run
+#   must take batches from both workers with nothing lost, bring new weights to both, and
+#   `farm-monitor --once` in A must list both with non-zero steps/s, also after the primary
+#   discovery server is killed (the backup carries on);
+# - the secured farm, the documented multi-host default: every process with a certificate from
+#   deploy/make-pki.sh, discovery by unicast to A (deploy/discovery/peers_udp.xml; Fast DDS
+#   2.9.1's Discovery Server cannot carry DDS Security, see that file). The same checks, and a
+#   participant without a certificate in C that sends batches and reads for the spec and the
+#   weights must match no learner, receive nothing, and get no batch accepted.
+#   tests/integration/test_multihost_netns.sh LEARNER_BIN WORKER_BIN MONITOR_BIN SOURCE_DIR INTRUDER_BIN
 # Needs root (ip netns); exits 77 (skipped) without it. Commands: README.md, "Several hosts".
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3") src=$(readlink -f "$4")
+intruder=$(readlink -f "$5")
 SKIP=77
 A=farm_a_$$ B=farm_b_$$ C=farm_c_$$
 BR=fbr$$ HB=fhb$$ HC=fhc$$ EB=feb$$ EC=fec$$
 dir=$(mktemp -d /tmp/farm-netns-test-XXXXXX)
-domain=$((20 + $$ % 200))
+domain=$((20 + $$ % 200)) sdomain=$((21 + $$ % 200))
 export ROS_DISCOVERY_SERVER="10.77.0.1:11811;10.77.0.1:11812"
 unset FASTRTPS_DEFAULT_PROFILES_FILE FASTDDS_ENVIRONMENT_FILE FARM_SECURITY_DIR
 client_profiles=$src/deploy/discovery/client_udp.xml
 monitor_profiles=$src/deploy/discovery/super_client_udp.xml
+peers_profiles=$src/deploy/discovery/peers_udp.xml  # the secured farm's: unicast to 10.77.0.1
+pki=$dir/pki
 pids=()
 groups=()
 failed=0
@@ -92,6 +101,9 @@ for i in 0 1; do
   grep -q "Server is running" "$dir/discovery-$i.log" || fail "discovery server $i did not start: $(cat "$dir/discovery-$i.log")"
 done
 
+bash "$src/deploy/make-pki.sh" "$pki" learner monitor host-b host-c >"$dir/pki.log" 2>&1 ||
+  { fail "deploy/make-pki.sh failed: $(cat "$dir/pki.log")"; exit 1; }
+
 cat >"$dir/cfg.txtpb" <<'EOF'
 experiment_id: "it_multihost"
 seed: 7
@@ -110,19 +122,43 @@ ip netns exec $B "$worker" --domain $domain --dds-profiles "$client_profiles" --
 ip netns exec $C "$worker" --domain $domain --dds-profiles "$client_profiles" --id host-c --envs 8 --threads 1 \
   --log-every 2 >"$dir/worker-c.log" 2>&1 & wc=$!; pids+=($wc)
 
+# The secured farm: no Discovery Server (ROS_DISCOVERY_SERVER would make its participants clients).
+sed 's/it_multihost/it_multihost_secure/; s/max_seconds: 40/max_seconds: 34/' "$dir/cfg.txtpb" >"$dir/cfg-secure.txtpb"
+secure() {  # NAMESPACE PROGRAM ARGS...: a process of the secured farm
+  local ns=$1; shift
+  env -u ROS_DISCOVERY_SERVER ip netns exec $ns "$@" --domain $sdomain --dds-profiles "$peers_profiles"
+}
+secure $A "$learner" --config "$dir/cfg-secure.txtpb" --run-dir "$dir/run-secure" --security "$pki/learner" \
+  >"$dir/learner-secure.log" 2>&1 & slearner_pid=$!; pids+=($slearner_pid)
+secure $B "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-b" >"$dir/worker-sb.log" 2>&1 &
+swb=$!; pids+=($swb)
+secure $C "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-c" >"$dir/worker-sc.log" 2>&1 &
+swc=$!; pids+=($swc)
+# No certificate, in C: well-formed batches of the experiment, and reads for its spec and weights.
+secure $C "$intruder" --experiment it_multihost_secure --id intruder-c --seconds 16 >"$dir/intruder.log" 2>&1 &
+wi=$!; pids+=($wi)
+
 wait_text() {  # FILE REGEX SECONDS
   for _ in $(seq $(($3 * 5))); do grep -qE "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
 }
 for w in b c; do
   wait_text "$dir/worker-$w.log" "^\[worker host-$w\] running" 40 ||
     fail "worker host-$w is not running over the discovery server: $(tail -3 "$dir/worker-$w.log")"
+  wait_text "$dir/worker-s$w.log" "^\[worker host-$w\] running" 40 ||
+    fail "secured worker host-$w is not running: $(tail -3 "$dir/worker-s$w.log")"
 done
 sleep 2
 
 # The monitor as a SUPER_CLIENT of both servers (addresses from its XML): both workers, non-zero steps/s.
-check_snapshot() {  # NAME
-  ip netns exec $A "$monitor" --dds-profiles "$monitor_profiles" --domain $domain --once --wait 8 \
-    >"$dir/$1.txt" 2>&1
+check_snapshot() {  # NAME [secure]
+  if [ "${2:-}" = secure ]; then
+    # Up to 20 s: it must first authenticate with the learner and each worker (a handshake each),
+    # which on a loaded 2-core machine was seen to take more than 8 s.
+    secure $A "$monitor" --security "$pki/monitor" --once --wait 20 >"$dir/$1.txt" 2>&1
+  else
+    ip netns exec $A "$monitor" --dds-profiles "$monitor_profiles" --domain $domain --once --wait 8 \
+      >"$dir/$1.txt" 2>&1
+  fi
   local rc=$?
   echo "--- farm-monitor --once ($1), exit $rc:"; cat "$dir/$1.txt"
   [ $rc = 0 ] || fail "$1: farm-monitor --once exited $rc"
@@ -133,6 +169,7 @@ check_snapshot() {  # NAME
   done
 }
 check_snapshot monitor-1
+check_snapshot monitor-secure secure
 
 # Without the discovery server (simple discovery, multicast) nothing is found: the test network
 # really has no multicast, so what worked above went through the servers.
@@ -155,19 +192,40 @@ for p in $wb $wc; do
   for _ in $(seq 150); do kill -0 $p 2>/dev/null || break; sleep 0.2; done
 done
 
-summary=$(cat "$dir/run/summary.txt" 2>/dev/null)
-echo "--- summary.txt:"; echo "$summary"
-grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" || fail "batch totals: $(grep ^batches <<<"$summary")"
-for w in b c; do
-  line=$(grep -E "^worker +host-$w session" <<<"$summary")
-  [[ "$line" =~ received\ ([0-9]+)\ of\ sequence.*lost\ 0,\ duplicate\ 0,\ invalid\ 0 ]] && [ "${BASH_REMATCH[1]}" -gt 0 ] ||
-    fail "worker host-$w in summary: '$line'"
-  # New weights reached the worker: its throughput lines name the policy version it runs.
-  v=$(grep -oE "policy v[0-9]+" "$dir/worker-$w.log" | tail -1 | tr -dc 0-9)
-  echo "worker host-$w: last policy version v${v:-none}; $(grep -E 'finished: [0-9]+ batches sent' "$dir/worker-$w.log" | sed 's/^\[worker [^]]*\] //')"
-  [ "${v:-0}" -gt 0 ] || fail "worker host-$w never ran a policy version > 0"
+check_run() {  # RUN_DIR WORKER_LOG_PREFIX: both workers' batches arrived, nothing lost, new weights reached them
+  local summary line v
+  summary=$(cat "$1/summary.txt" 2>/dev/null)
+  echo "--- $1/summary.txt:"; echo "$summary"
+  grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" ||
+    fail "$1: batch totals: $(grep ^batches <<<"$summary")"
+  grep -q "intruder" <<<"$summary" && fail "$1: the learner accounted the intruder: $(grep intruder <<<"$summary")"
+  for w in b c; do
+    line=$(grep -E "^worker +host-$w session" <<<"$summary")
+    [[ "$line" =~ received\ ([0-9]+)\ of\ sequence.*lost\ 0,\ duplicate\ 0,\ invalid\ 0 ]] && [ "${BASH_REMATCH[1]}" -gt 0 ] ||
+      fail "$1: worker host-$w in summary: '$line'"
+    # New weights reached the worker: its throughput lines name the policy version it runs.
+    v=$(grep -oE "policy v[0-9]+" "$2$w.log" | tail -1 | tr -dc 0-9)
+    echo "worker host-$w: last policy version v${v:-none}; $(grep -E 'finished: [0-9]+ batches sent' "$2$w.log" | sed 's/^\[worker [^]]*\] //')"
+    [ "${v:-0}" -gt 0 ] || fail "$2$w.log: worker host-$w never ran a policy version > 0"
+  done
+}
+check_run "$dir/run" "$dir/worker-"
+
+wait $slearner_pid; rc=$?
+[ $rc = 0 ] || fail "secured farm-learner exited $rc: $(tail -5 "$dir/learner-secure.log")"
+grep -q "DDS Security from $pki/learner" "$dir/learner-secure.log" || fail "the secured learner ran without DDS Security"
+for p in $swb $swc; do
+  for _ in $(seq 150); do kill -0 $p 2>/dev/null || break; sleep 0.2; done
 done
+check_run "$dir/run-secure" "$dir/worker-s"
+# The intruder ran (its participant was created) and got nothing either way.
+wait $wi; rc=$?
+echo "--- intruder: $(cat "$dir/intruder.log")"
+[ $rc = 0 ] && grep -q "intruder-c: joined domain $sdomain without security" "$dir/intruder.log" ||
+  fail "the intruder did not run (exit $rc)"
+grep -q "batch readers matched 0, weights received 0, specs received 0" "$dir/intruder.log" ||
+  fail "the intruder got through: $(tail -1 "$dir/intruder.log")"
 
 if [ "$failed" = 0 ]; then echo "PASS"; exit 0; fi
-echo "--- learner log tail:"; tail -5 "$dir/learner.log"
+echo "--- learner log tails:"; tail -n 5 "$dir/learner.log" "$dir/learner-secure.log"
 exit 1

@@ -3,7 +3,8 @@
 // read the spec and weights: one without security, one with a certificate from another CA, and one
 // with a valid worker certificate as the control that shows the outsider program does work. Then
 // access control in the dangerous direction (a worker or monitor certificate may not publish the
-// spec or the weights), and certificates valid from before their making (clock skew).
+// spec or the weights), a worker's id bound to its certificate's name, and certificates valid from
+// before their making (clock skew).
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -103,6 +104,102 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
       std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
   EXPECT_GT(std::stoll(m[1]), 100);
   EXPECT_EQ(m[4], "0") << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// A worker's id is its certificate's name. A worker started with a valid certificate for w1 and
+// `--id w2` is refused at start; a modified sender with w1's certificate that writes batches and
+// heartbeats as w2 (farm_intruder: its --id is their worker id) gets every batch that reaches the
+// learner refused as invalid, on no account, and its heartbeats unheard. The real w1 worker, whose id defaults to its
+// certificate's name, trains alongside as the control.
+TEST(Security, WorkerIdIsBoundToItsCertificateName) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(79));
+  const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner w1 > " + d + "/pki.log 2>&1").c_str()), 0)
+      << slurp(d + "/pki.log");
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 28");
+  write_file(d + "/bound.txtpb", cfg);
+
+  Proc& renamed =
+      set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "w2", "--security", d + "/pki/w1"}, "worker-as-w2");
+  EXPECT_EQ(wait_for(renamed, 20), 2) << set.log("worker-as-w2");
+  EXPECT_NE(set.log("worker-as-w2").find("--id 'w2' is not the name in this worker's certificate ('w1'"),
+            std::string::npos)
+      << set.log("worker-as-w2");
+
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/bound.txtpb", "--run-dir", d + "/run", "--domain",
+                             domain, "--security", d + "/pki/learner"},
+                            "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "worker");
+  Proc& forger = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", "w2",
+                            "--security", d + "/pki/w1", "--seconds", "22", "--heartbeat", "1"},
+                           "forger");
+  EXPECT_EQ(wait_for(forger, 60), 0) << set.log("forger");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+  EXPECT_NE(set.log("worker").find("[worker w1] started"), std::string::npos) << set.log("worker");
+
+  // The forger was authenticated and matched by the learner (its certificate is a worker's), so
+  // its batches reached the learner: they were refused there, not lost on the way.
+  std::smatch m;
+  const std::string forged = set.log("forger");
+  ASSERT_TRUE(std::regex_search(forged, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << forged;
+  EXPECT_GT(std::stoi(m[1]), 0) << forged;
+  EXPECT_GE(std::stoi(m[2]), 1) << forged;
+  const std::string log = set.log("learner");
+  EXPECT_NE(log.find("from w2: worker id 'w2' is not 'w1', the certificate name of the participant that wrote it"),
+            std::string::npos)
+      << log;
+  // Its heartbeats as w2 were not heard either: no w2 in the roster.
+  EXPECT_NE(log.find("heartbeat(s) whose worker id is not the certificate name of the participant that wrote them "
+                     "(last: 'w2' from 'w1')"),
+            std::string::npos)
+      << log;
+  EXPECT_EQ(log.find("worker w2 on"), std::string::npos) << log;
+
+  // Nothing of w2 was trained on or accounted; w1's own stream is exactly what it sent.
+  const std::string summary = slurp(d + "/run/summary.txt");
+  EXPECT_EQ(summary.find("w2 session"), std::string::npos) << summary;
+  ASSERT_TRUE(std::regex_search(
+      summary, m,
+      std::regex(R"(worker\s+w1 session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0)")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 10) << summary;
+  const long long w1_received = std::stoll(m[1]);
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
+  EXPECT_EQ(std::stoll(m[1]), w1_received) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_GE(std::stoll(m[4]), 1) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// Fast DDS 2.9.1's Discovery Server cannot carry DDS Security (deploy/discovery/peers_udp.xml): a
+// secured process that would be a client of one, by ROS_DISCOVERY_SERVER or by its profile, stops
+// at once with what to use instead, rather than waiting for a farm it never meets.
+TEST(Security, DiscoveryServerWithSecurityIsRefusedAtStart) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(80));
+  const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki w1 > " + d + "/pki.log 2>&1").c_str()), 0)
+      << slurp(d + "/pki.log");
+  setenv("ROS_DISCOVERY_SERVER", "127.0.0.1:11811", 1);
+  Proc& client = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "client");
+  unsetenv("ROS_DISCOVERY_SERVER");
+  Proc& super_client =
+      set.start({FARM_INTRUDER_BIN, "--domain", domain, "--id", "w1", "--security", d + "/pki/w1", "--dds-profiles",
+                 std::string(FARM_SOURCE_DIR) + "/deploy/discovery/super_client_udp.xml"},
+                "super-client");
+  EXPECT_EQ(wait_for(client, 20), 1) << set.log("client");
+  EXPECT_EQ(wait_for(super_client, 20), 3) << set.log("super-client");
+  EXPECT_NE(set.log("client").find("DDS Security cannot run through a Discovery Server in Fast DDS 2.9.1 "
+                                   "(ROS_DISCOVERY_SERVER=127.0.0.1:11811 is set)"),
+            std::string::npos)
+      << set.log("client");
+  EXPECT_NE(set.log("super-client").find("(the profile's discovery is a Discovery Server's)"), std::string::npos)
+      << set.log("super-client");
   set.cleanup(::testing::Test::HasFailure());
 }
 

@@ -198,6 +198,39 @@ TEST_F(Fixture, InventedSessionsAreBounded) {
   EXPECT_EQ(ingest.workers().at({"w1", 7}).received, 2u);
 }
 
+// DDS Security: a worker's id is its certificate's name. A batch whose worker id differs from the
+// authenticated name of the participant that wrote it (a w1 certificate sending as w2), or that
+// comes from a participant with no authenticated name, is refused as invalid: nothing trained on,
+// no account opened for the id it claims, the writer's own stream untouched.
+TEST_F(Fixture, BatchUnderAnotherIdThanItsWritersCertificateIsRefused) {
+  const std::string w1 = "w1", w2 = "w2", unknown;
+  EXPECT_EQ(ingest.accept(make_batch(0), 5, 0.0, out, eps, &w1), "");
+  auto b = make_batch(0);
+  b.worker_id("w2");
+  b.worker_session(8);
+  const std::string why = ingest.accept(b, 5, 0.0, out, eps, &w1);
+  EXPECT_NE(why.find("worker id 'w2' is not 'w1'"), std::string::npos) << why;
+  b.worker_id("w1");  // the right id, from a participant whose name is w2
+  EXPECT_NE(ingest.accept(b, 5, 0.0, out, eps, &w2), "");
+  EXPECT_NE(ingest.accept(make_batch(1), 5, 0.0, out, eps, &unknown).find("not authenticated"), std::string::npos);
+  EXPECT_EQ(out.n, 6);  // the first batch only
+  EXPECT_EQ(ingest.counters().ok, 1u);
+  EXPECT_EQ(ingest.counters().invalid, 3u);
+  ASSERT_EQ(ingest.workers().size(), 1u);
+  const auto& a = ingest.workers().begin()->second;
+  EXPECT_EQ(a.worker_id, "w1");
+  EXPECT_EQ(a.next_sequence, 1u);
+  EXPECT_EQ(a.invalid, 0u);
+  // Another experiment's batch stays "other experiments", whoever sent it.
+  auto foreign = make_batch(0, "other");
+  foreign.worker_id("w2");
+  ingest.accept(foreign, 5, 0.0, out, eps, &w1);
+  EXPECT_EQ(ingest.counters().foreign, 1u);
+  EXPECT_EQ(ingest.counters().invalid, 3u);
+  // Without security (no name given) the id is taken as it is.
+  EXPECT_EQ(ingest.accept(make_batch(1), 5, 0.0, out, eps), "");
+}
+
 TEST_F(Fixture, DoneFlagsMustMatchFinalIndex) {
   auto b = make_batch(0);
   b.truncated({0, 0, 0, 0, 0, 0});

@@ -167,6 +167,49 @@ TEST_P(TaskConformance, SpecIsWellFormed) {
   }
 }
 
+bool same_spec(const TaskSpec& a, const TaskSpec& b) {
+  return a.name == b.name && a.obs_dim == b.obs_dim && a.act_dim == b.act_dim &&
+         a.max_episode_steps == b.max_episode_steps && a.metric_names == b.metric_names &&
+         a.num_actions == b.num_actions;
+}
+
+std::string describe(const TaskSpec& s) {
+  std::string m;
+  for (const auto& n : s.metric_names) m += (m.empty() ? "" : ",") + n;
+  return s.name + " obs " + std::to_string(s.obs_dim) + " act " + std::to_string(s.act_dim) + " actions " +
+         std::to_string(s.num_actions) + " steps " + std::to_string(s.max_episode_steps) + " metrics " + m;
+}
+
+// The learner links no MuJoCo: it sizes everything from task_spec(config), which must say what the
+// built task says.
+TEST_P(TaskConformance, SpecFromTheConfigAloneIsTheTasks) {
+  const TaskSpec from_config = task_spec(GetParam().config);
+  EXPECT_TRUE(same_spec(from_config, spec_))
+      << "task_spec: " << describe(from_config) << "\ntask:      " << describe(spec_);
+}
+
+// Options that change only the observation size or the time limit.
+TEST(TaskSpecFromConfig, FollowsTheOptionsThatSizeTheTask) {
+  std::vector<config::TaskConfig> configs(4);
+  configs[0].set_name("mclari");
+  configs[0].mutable_mclari()->set_observe_gait(true);
+  configs[0].mutable_mclari()->set_max_episode_steps(7);
+  configs[1].set_name("mclari");
+  configs[1].mutable_mclari()->set_observe_terrain(true);
+  configs[2].set_name("jetbot");
+  configs[2].mutable_jetbot()->mutable_scene()->set_lidar_rays(20);
+  configs[3].set_name("a1");
+  configs[3].mutable_a1()->set_max_episode_steps(50);
+  for (const auto& c : configs) {
+    const TaskSpec built = make_task(c)->spec(), from_config = task_spec(c);
+    EXPECT_TRUE(same_spec(from_config, built))
+        << "task_spec: " << describe(from_config) << "\ntask:      " << describe(built);
+  }
+  config::TaskConfig unknown;
+  unknown.set_name("no_such_task");
+  EXPECT_THROW(task_spec(unknown), std::invalid_argument);
+}
+
 // Three states, two of one Task and one of another, reset with one seed and fed one action
 // sequence in turn: a Task that kept episode data of its own, or read uninitialized memory, would
 // make them diverge. After an episode, a reused state and a fresh one must agree again.

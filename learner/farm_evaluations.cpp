@@ -1,0 +1,261 @@
+// The learner's evaluations, run on its workers (FarmService, farm_service.h): each one goes to a
+// live worker of the roster in turn with the policy to evaluate, the networks of that moment kept
+// aside for <run dir>/best; the answer is checked (eval_answer.h) and handed to the algorithm. A
+// request whose worker is marked dead or that is not answered in eval.answer_timeout_seconds is
+// counted lost and asked once more of another worker. Training never waits for an answer; only
+// the final evaluation is waited for, within the same timeout.
+#include <algorithm>
+#include <filesystem>
+#include <sstream>
+
+#include "eval_answer.h"
+#include "farm_service.h"
+#include "meter.h"
+
+namespace farm {
+
+namespace fs = std::filesystem;
+
+namespace {
+constexpr size_t kMaxClosedIds = 1024;  // lost or given-up request ids remembered for late answers
+constexpr int kMaxEvalRejectionsLogged = 20;
+}  // namespace
+
+bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) {
+  if (ask.label != "final") {
+    for (auto& r : evals_out_) {
+      if (r.ask.label == ask.label) {
+        if (r.skips_noted) return false;
+        r.skips_noted = true;
+        log("evaluation of policy v" + std::to_string(ask.version) + " not asked: the one of v" +
+            std::to_string(r.ask.version) + " is still out, nor any other until it is answered" +
+            (r.worker_id.empty()
+                 ? " (no live worker yet)"
+                 : " (asked of " + r.worker_id + " " + fmt("%.0f", now_seconds() - r.asked_at) + " s ago)"));
+        return false;
+      }
+    }
+  }
+  EvalRequest r;
+  r.id = ++next_eval_id_;
+  r.seed = cfg_.seed() + 1000003ull * ++evals_;
+  r.ask = ask;
+  r.policy = policy;
+  r.snapshot = (fs::path(eval_dir_) / std::to_string(r.id)).string();
+  try {
+    fs::create_directories(r.snapshot);
+    algo_->save_networks(r.snapshot);
+  } catch (const std::exception& e) {
+    log("the networks of policy v" + std::to_string(ask.version) + " could not be kept for best/ (" + e.what() +
+        "); the evaluation goes on");
+    drop_snapshot(r.snapshot);
+    r.snapshot.clear();
+  }
+  if (!send_evaluation(r) && !eval_waiting_noted_) {
+    log(ask.label + " evaluation of policy v" + std::to_string(ask.version) +
+        " waits for a live worker (none now); training goes on");
+    eval_waiting_noted_ = true;
+  }
+  evals_out_.push_back(std::move(r));
+  return true;
+}
+
+bool FarmService::send_evaluation(EvalRequest& r) {
+  const double now = now_seconds();
+  // Live workers that have built their environments, in roster order; the turn goes on from the
+  // one asked last, and a retry goes to another worker than the one that lost it where it can.
+  std::vector<std::pair<std::string, const WorkerRoster::View*>> ready;
+  for (const auto& [key, v] : roster_.views())
+    if (roster_.live(v, now) && v.last.envs() > 0 && v.last.state() != "error") ready.emplace_back(key, &v);
+  if (ready.empty()) return false;
+  std::vector<std::pair<std::string, const WorkerRoster::View*>> others;
+  for (const auto& c : ready)
+    if (c.second->last.worker_id() != r.avoid) others.push_back(c);
+  const auto& pool = others.empty() ? ready : others;
+  auto next = std::find_if(pool.begin(), pool.end(), [this](const auto& c) { return c.first > eval_last_key_; });
+  if (next == pool.end()) next = pool.begin();
+  eval_last_key_ = next->first;
+  r.roster_key = next->first;
+  r.worker_id = next->second->last.worker_id();
+  r.worker_session = next->second->last.worker_session();
+  r.asked_at = now;
+
+  farm::msg::EvaluationRequest m;
+  m.experiment_id(cfg_.experiment_id());
+  m.learner_session(eval_session_);
+  m.request_id(r.id);
+  m.worker_id(r.worker_id);
+  m.policy_version(r.ask.version);
+  m.episodes(uint32_t(r.ask.episodes));
+  m.seed(r.seed);
+  farm::dds::to_wire(r.policy, cfg_.experiment_id(), m.policy());
+  if (!eval_out_.write(m)) {
+    // The reliable history is full (a reader that does not acknowledge): counted as asked, and
+    // lost when its time is up.
+    log("evaluation request " + std::to_string(r.id) + " to " + r.worker_id + " could not be written now");
+  }
+  ++evals_asked_;
+  eval_waiting_noted_ = false;
+  log("evaluation " + std::to_string(r.id) + " (" + r.ask.label + ", policy v" + std::to_string(r.ask.version) + ", " +
+      std::to_string(r.ask.episodes) + " episodes" + (r.attempt > 1 ? ", second try" : "") + ") asked of worker " +
+      r.worker_id);
+  return true;
+}
+
+void FarmService::poll_evaluations() {
+  if (evals_out_.empty() && !eval_in_.matched()) return;
+  while (eval_in_.take(answer_)) take_answer();
+  const double now = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
+  for (size_t i = 0; i < evals_out_.size();) {
+    EvalRequest& r = evals_out_[i];
+    if (r.worker_id.empty()) {
+      send_evaluation(r);
+      ++i;
+      continue;
+    }
+    const auto v = roster_.views().find(r.roster_key);
+    const bool dead = v == roster_.views().end() || !roster_.live(v->second, now);
+    if (!dead && now - r.asked_at < timeout) {
+      ++i;
+      continue;
+    }
+    EvalRequest lost = std::move(r);
+    evals_out_.erase(evals_out_.begin() + long(i));
+    evaluation_lost(std::move(lost),
+                    dead ? "its worker is no longer live"
+                         : "not answered within " + fmt("%.0f", timeout) + " s (eval.answer_timeout_seconds)");
+  }
+}
+
+void FarmService::take_answer() {
+  const auto it = std::find_if(evals_out_.begin(), evals_out_.end(),
+                               [this](const EvalRequest& r) { return r.id == answer_.request_id(); });
+  if (it == evals_out_.end() || it->worker_id.empty()) {
+    // Another learner's, on this domain (another experiment, or one before this on this one).
+    if (answer_.experiment_id() != cfg_.experiment_id() || answer_.learner_session() != eval_session_) return;
+    if (evals_closed_.count(answer_.request_id())) {
+      ++evals_late_;
+      log("evaluation " + std::to_string(answer_.request_id()) + " answered by " + answer_.worker_id().substr(0, 64) +
+          " after it was counted lost: not used");
+      return;
+    }
+    ++evals_invalid_;
+    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
+      log("refused an evaluation answer from " + answer_.worker_id().substr(0, 64) + ": request " +
+          std::to_string(answer_.request_id()) + " was not asked");
+    return;
+  }
+  EvalExpected e;
+  e.experiment_id = cfg_.experiment_id();
+  e.learner_session = eval_session_;
+  e.worker_id = it->worker_id;
+  e.request_id = it->id;
+  e.worker_session = it->worker_session;
+  e.policy_version = it->ask.version;
+  e.episodes = it->ask.episodes;
+  e.num_metrics = int(task_spec_.metric_names.size());
+  e.max_episode_steps = task_spec_.max_episode_steps;
+  if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
+    // Not used; the request stays out, so it is answered again or counted lost in its time.
+    ++evals_invalid_;
+    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
+      log("refused the answer to evaluation " + std::to_string(e.request_id) + ": " + why);
+    return;
+  }
+  EvalRequest r = std::move(*it);
+  evals_out_.erase(it);
+  ++evals_answered_;
+  EvalReport rep;
+  rep.episodes = int(answer_.episodes().size());
+  rep.metrics.assign(e.num_metrics, 0.0);
+  double sum = 0, len = 0;
+  for (const auto& ep : answer_.episodes()) {
+    sum += ep.episode_return();
+    len += ep.length();
+    rep.min = std::isnan(rep.min) ? ep.episode_return() : std::min<double>(rep.min, ep.episode_return());
+    rep.max = std::isnan(rep.max) ? ep.episode_return() : std::max<double>(rep.max, ep.episode_return());
+    for (int k = 0; k < e.num_metrics; ++k) rep.metrics[k] += ep.metrics()[k];
+  }
+  if (rep.episodes > 0) {
+    rep.mean = sum / rep.episodes;
+    rep.mean_length = len / rep.episodes;
+    for (auto& m : rep.metrics) m /= rep.episodes;
+  }
+  log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
+      " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
+  eval_snapshot_ = &r.snapshot;
+  algo_->evaluated(*this, r.ask, rep);
+  eval_snapshot_ = nullptr;
+  drop_snapshot(r.snapshot);
+}
+
+void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
+  ++evals_lost_;
+  if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
+  evals_closed_.insert(r.id);
+  if (r.attempt == 1) {
+    log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
+        r.worker_id + " lost: " + why + "; asked again");
+    r.avoid = r.worker_id;
+    r.worker_id.clear();
+    r.roster_key.clear();
+    r.attempt = 2;
+    r.id = ++next_eval_id_;
+    if (!send_evaluation(r))
+      log(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " waits for a live worker");
+    evals_out_.push_back(std::move(r));
+    return;
+  }
+  log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
+      r.worker_id + " lost: " + why + "; given up after a second try");
+  algo_->not_evaluated(*this, r.ask);
+  drop_snapshot(r.snapshot);
+}
+
+void FarmService::drop_snapshot(const std::string& dir) {
+  if (dir.empty()) return;
+  std::error_code ec;
+  fs::remove_all(dir, ec);  // a leftover costs only space; the next run's start removes it
+}
+
+void FarmService::wait_for_evaluations() {
+  if (evals_out_.empty()) return;
+  const double t0 = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
+  double last_live = t0;
+  log("waiting for " + std::to_string(evals_out_.size()) + " evaluation(s) on the workers (at most " +
+      fmt("%.0f", timeout) + " s)");
+  while (!evals_out_.empty() && !interrupted_) {
+    const double now = now_seconds();
+    if (live_count() > 0) last_live = now;
+    if (now - t0 >= timeout) break;
+    if (now - last_live >= cfg_.worker_timeout_seconds()) {
+      log("no live worker for " + fmt("%.0f", now - last_live) + " s: the evaluations out are not waited for");
+      break;
+    }
+    drain_batches(256);
+    drain_status();
+    poll_evaluations();
+    eval_in_.wait(0.05);
+  }
+  while (!evals_out_.empty()) {
+    EvalRequest r = std::move(evals_out_.front());
+    evals_out_.pop_front();
+    if (!r.worker_id.empty()) ++evals_lost_;  // one never asked is not counted
+    log(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
+        (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
+        fmt("%.0f", now_seconds() - t0) + " s: not reported");
+    algo_->not_evaluated(*this, r.ask);
+    drop_snapshot(r.snapshot);
+  }
+}
+
+std::string FarmService::eval_summary() const {
+  std::ostringstream o;
+  o << "evaluations       asked " << evals_asked_ << ", answered " << evals_answered_ << ", lost " << evals_lost_
+    << ", invalid " << evals_invalid_;
+  if (evals_late_ > 0) o << ", late " << evals_late_;
+  o << " (on the workers)\n";
+  return o.str();
+}
+
+}  // namespace farm

@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# Evaluations run on the workers, asked for and answered over the bus.
+#   1. A learner alone: its final evaluation finds no worker, says so and the learner ends.
+#   2. A learner and two workers: evaluations are asked of both in turn and answered (asked ==
+#      answered, lost 0, invalid 0); then the worker holding a request is SIGKILLed: the request is
+#      counted lost, asked again of the other worker and answered there, and the run finishes.
+#   tests/integration/test_worker_evaluations.sh LEARNER WORKER
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init worker-evals 181
+
+# config NAME EPISODES MAX_SECONDS
+config() {
+  cat >"$dir/$1.txtpb" <<CFG
+experiment_id: "it_worker_evals_$1"
+task { name: "pendulum" }
+sac { hidden: 32 hidden: 32 learning_starts: 100 batch_size: 64 publish_every_updates: 5 }
+worker { envs_per_worker: 4 steps_per_batch: 25 max_batches_per_version: 4 }
+# Evaluations of 1,500 episodes take the worker asked a few seconds: long enough to kill it while it
+# holds one.
+eval { episodes: $2 every_seconds: 2 final_episodes: 20 answer_timeout_seconds: 60 }
+worker_timeout_seconds: 2
+checkpoint_every_seconds: 600
+log_every_seconds: 1
+stop { max_seconds: $3 }
+CFG
+}
+
+# 1. No worker at all: the final evaluation is not waited for beyond the worker timeout.
+config alone 10 2
+timeout 120 "$learner" --config "$dir/alone.txtpb" --run-dir "$dir/alone" --domain $domain >"$dir/alone.log" 2>&1
+rc=$?
+[ $rc = 0 ] || fail "alone: learner exited $rc: $(tail -5 "$dir/alone.log")"
+# It gave up after worker_timeout_seconds (2 s) without a worker, far below the 60 s answer timeout.
+waited=$(sed -n 's/.*final evaluation of policy v0 not answered (no live worker took it) after \([0-9]*\) s.*/\1/p' "$dir/alone.log")
+[ -n "$waited" ] && [ "$waited" -le 10 ] || fail "alone: the final evaluation was waited for '${waited:-?}' s without workers"
+grep -q "waits for a live worker (none now)" "$dir/alone.log" || fail "alone: no line saying the evaluation waits"
+grep -q "^evaluations       asked 0, answered 0, lost 0, invalid 0" "$dir/alone/summary.txt" ||
+  fail "alone: summary: $(grep evaluations "$dir/alone/summary.txt")"
+
+# 2. Two workers, one killed while it evaluates.
+config two 1500 25
+"$learner" --config "$dir/two.txtpb" --run-dir "$dir/two" --domain $domain >"$dir/two.log" 2>&1 & lp=$!
+pids+=($lp)
+"$worker" --domain $domain --id ev-1 >"$dir/ev-1.log" 2>&1 & w1=$!
+"$worker" --domain $domain --id ev-2 >"$dir/ev-2.log" 2>&1 & w2=$!
+pids+=($w1 $w2)
+# Both workers answer before the kill.
+for w in ev-1 ev-2; do
+  wait_text "$dir/two.log" "answered by $w " 60 || fail "no evaluation answered by $w within 60 s"
+done
+# The next request: its worker is killed as soon as it says it has it.
+asked=$(grep -c "asked of worker" "$dir/two.log")
+for _ in $(seq 150); do [ "$(grep -c "asked of worker" "$dir/two.log")" -gt "$asked" ] && break; sleep 0.1; done
+line=$(grep "asked of worker" "$dir/two.log" | sed -n "$((asked + 1))p")
+id=$(sed -n 's/.*evaluation \([0-9]*\) (eval.*/\1/p' <<<"$line") victim=$(sed -n 's/.*asked of worker \(ev-[12]\)$/\1/p' <<<"$line")
+[ -n "$id" ] && [ -n "$victim" ] || fail "no new evaluation request to kill a worker on: '$line'"
+if [ -n "$id" ] && [ -n "$victim" ]; then
+  wait_text "$dir/$victim.log" "evaluation request $id:" 20 || fail "$victim never said it has request $id"
+  # Before the kill every evaluation asked was answered.
+  grep -q "evals asked \([0-9]*\) answered \1 lost 0 invalid 0" "$dir/two.log" ||
+    fail "no progress line with asked == answered, lost 0, invalid 0 before the kill"
+  if [ "$victim" = ev-1 ]; then kill -9 $w1; other=ev-2; else kill -9 $w2; other=ev-1; fi
+  echo "killed $victim holding evaluation $id"
+  grep -q "evaluation $id answered" "$dir/$victim.log" && fail "$victim answered $id before the kill: the test proves nothing"
+fi
+wait $lp; rc=$?
+[ $rc = 0 ] || fail "learner exited $rc: $(tail -5 "$dir/two.log")"
+grep "evaluation\|eval:" "$dir/two.log" | tail -12
+if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
+  grep -q "evaluation $id (policy v[0-9]*) asked of $victim lost: its worker is no longer live; asked again" \
+    "$dir/two.log" || fail "request $id not counted lost when $victim died"
+  retry=$(grep -A3 "evaluation $id (policy v[0-9]*) asked of $victim lost" "$dir/two.log" |
+    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes, second try) asked of worker \(ev-[12]\)$/\1 \2/p')
+  [ "${retry#* }" = "$other" ] || fail "the lost request was not asked again of $other: '$retry'"
+  grep -q "evaluation ${retry%% *} answered by $other " "$dir/two.log" || fail "the second try was not answered"
+fi
+summary=$(grep "^evaluations" "$dir/two/summary.txt")
+echo "$summary"
+read -r a b l i <<<"$(sed -n 's/^evaluations *asked \([0-9]*\), answered \([0-9]*\), lost \([0-9]*\), invalid \([0-9]*\).*/\1 \2 \3 \4/p' <<<"$summary")"
+[ "${l:-}" = 1 ] && [ "${i:-}" = 0 ] && [ "$a" = $((b + l)) ] || fail "summary counts: $summary"
+grep -q "^final eval return  *-\?[0-9]" "$dir/two/summary.txt" || fail "no final eval return: $(cat "$dir/two/summary.txt")"
+farm_test_end "evaluations answered by workers; a killed worker's request lost and answered by the other"
