@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "checkpoint.h"
 #include "eval_answer.h"
 #include "farm_service.h"
 #include "meter.h"
@@ -214,8 +215,11 @@ void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
 
 void FarmService::drop_snapshot(const std::string& dir) {
   if (dir.empty()) return;
-  std::error_code ec;
-  fs::remove_all(dir, ec);  // a leftover costs only space; the next run's start removes it
+  try {
+    remove_tree(dir);  // not fs::remove_all: it crashes the GPU build (checkpoint.cpp)
+  } catch (const std::exception&) {
+    // a leftover costs only space; the next run's start removes it
+  }
 }
 
 void FarmService::wait_for_evaluations() {
