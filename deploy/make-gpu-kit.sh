@@ -2,7 +2,8 @@
 # Packs what a GPU host without Debian's packages needs to build the farm against its own CUDA
 # LibTorch (deploy/build-gpu.sh) and to run the Debian-built benchmarks and workers there:
 #   KIT/include, KIT/lib        headers and shared libraries of Eigen, Protobuf, MuJoCo (with
-#                               libccd, lodepng, qhull_r, tinyxml2), Fast DDS, GoogleTest
+#                               libccd, lodepng, qhull_r, tinyxml2), Fast DDS, GoogleTest,
+#                               civetweb and OpenSSL's libcrypto
 #   KIT/cmake/<pkg>             small package configs pointing into the kit
 #   KIT/bin/protoc              Debian's protoc (runs with KIT/lib on LD_LIBRARY_PATH)
 #   KIT/bin/fastddsgen          stands in for fastddsgen (Java): copies the sources generated
@@ -32,6 +33,13 @@ for pat in 'libprotobuf.so*' 'libprotoc.so*' 'libmujoco.so*' 'libccd.so*' 'liblo
   cp -a $arch/$pat "$kit/lib/" 2>/dev/null || true
 done
 cp /usr/bin/protoc "$kit/bin/protoc"
+# civetweb (farm-monitor --prometheus) and OpenSSL's libcrypto (a worker reads its certificate's
+# name): headers and libraries, found by tools/ and common/ through the kit's prefix.
+cp -a /usr/include/civetweb.h "$kit/include/"
+cp -a $arch/libcivetweb.so* "$kit/lib/"
+cp -a /usr/include/openssl "$kit/include/"
+cp -a /usr/include/x86_64-linux-gnu/openssl/* "$kit/include/openssl/" 2>/dev/null || true
+cp -a $arch/libcrypto.so* "$kit/lib/"
 
 # IDL sources generated here (the GPU host has no Java for fastddsgen).
 fastddsgen -replace -d "$kit/idl-gen" "$root/idl/farm.idl" >/dev/null
