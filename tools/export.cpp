@@ -2,26 +2,18 @@
 // (tools/onnx_policy.*) with the task's observation and action layout in its metadata, checked by
 // onnx's checker; --record steps the real task with the worker's Eigen policy and writes the
 // observations it saw and the actions it took, the reference another runtime is compared with.
-#include <google/protobuf/io/tokenizer.h>
-#include <google/protobuf/text_format.h>
-
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <memory>
 #include <random>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
 
-#include "config.h"
-#include "off_policy.h"
 #include "onnx_policy.h"
-#include "ppo.h"
-#include "registry.h"
+#include "run_policy.h"
 #include "task.h"
 
 using namespace farm;
@@ -98,81 +90,6 @@ Options parse(int argc, char** argv) {
   if (o.run_dir.empty()) throw std::invalid_argument("--run-dir RUN is required (see --help)");
   if (o.out.empty()) throw std::invalid_argument("--out POLICY.onnx is required (see --help)");
   return o;
-}
-
-// A manifest is a config and counters, kilobytes; anything far bigger is not one.
-constexpr std::uintmax_t kMaxManifestBytes = 16u << 20;
-
-std::string read_file(const fs::path& p) {
-  std::error_code ec;
-  const std::uintmax_t size = fs::file_size(p, ec);
-  if (ec) throw std::runtime_error("cannot read " + p.string() + ": " + ec.message());
-  if (size > kMaxManifestBytes)
-    throw std::runtime_error(p.string() + " is " + std::to_string(size) + " bytes, more than a manifest's " +
-                             std::to_string(kMaxManifestBytes));
-  std::ifstream in(p);
-  if (!in) throw std::runtime_error("cannot read " + p.string());
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-// The manifest of RUN/<which>; every way a folder can lack a policy is named.
-config::CheckpointManifest read_run_manifest(const Options& o, fs::path* ckpt) {
-  const fs::path run(o.run_dir);
-  if (!fs::is_directory(run)) throw std::runtime_error("run folder " + o.run_dir + " does not exist");
-  *ckpt = run / o.which;
-  const fs::path manifest = *ckpt / "manifest.txtpb";
-  if (!fs::exists(manifest)) {
-    std::string hint;
-    if (o.which == "best" && fs::exists(run / "checkpoint" / "manifest.txtpb"))
-      hint = " (it has a checkpoint: leave out --best)";
-    else if (o.which == "checkpoint" && fs::exists(run / "checkpoint.old" / "manifest.txtpb"))
-      hint = " (a learner stopped while saving left " + (run / "checkpoint.old").string() + ")";
-    throw std::runtime_error("run folder " + o.run_dir + " holds no policy: " + manifest.string() +
-                             " does not exist; a learner writes RUN/checkpoint and RUN/best" + hint);
-  }
-  // The parser's first complaint, with its line and column, goes into the error (not to the log).
-  struct FirstError : google::protobuf::io::ErrorCollector {
-    std::string text;
-    void AddError(int line, int column, const std::string& message) override {
-      if (text.empty()) text = std::to_string(line + 1) + ":" + std::to_string(column + 1) + ": " + message;
-    }
-  } first_error;
-  google::protobuf::TextFormat::Parser parser;
-  parser.RecordErrorsTo(&first_error);
-  config::CheckpointManifest m;
-  if (!parser.ParseFromString(read_file(manifest), &m))
-    throw std::runtime_error(manifest.string() + ":" + first_error.text + " (not a checkpoint manifest)");
-  if (!m.has_config_text() || m.config_text().empty())
-    throw std::runtime_error(manifest.string() + ": no config_text, so the task and the algorithm are unknown");
-  return m;
-}
-
-// The policy as the workers run it, from the algorithm's networks in ckpt/<algorithm>/.
-PolicyParams load_policy(config::ExperimentConfig cfg, const robots::TaskSpec& spec, const fs::path& ckpt,
-                         uint64_t version) {
-  const std::string algorithm = cfg.algorithm();
-  find_algorithm(algorithm);  // unknown: names the known ones
-  const fs::path file = ckpt / algorithm / (algorithm + ".pt");
-  if (!fs::exists(file))
-    throw std::runtime_error(file.string() + " does not exist (the manifest's experiment runs algorithm \"" +
-                             algorithm + "\")");
-  // The networks load on the CPU whatever device they trained on.
-  cfg.mutable_sac()->set_device("cpu");
-  cfg.mutable_ppo()->set_device("cpu");
-  if (algorithm == "ppo") {
-    Ppo ppo(cfg.ppo(), spec.obs_dim, spec.act_dim, cfg.seed());
-    ppo.load((ckpt / "ppo").string());
-    return ppo.export_policy(version);
-  }
-  if (algorithm == "sac" || algorithm == "dqn") {
-    auto algo = make_off_policy(cfg, spec);
-    algo->load((ckpt / algo->name()).string());
-    return algo->export_policy(version);
-  }
-  throw std::runtime_error("farm-export does not know how algorithm \"" + algorithm +
-                           "\" acts; it exports \"sac\", \"ppo\" and \"dqn\"");
 }
 
 struct Layout {
@@ -321,14 +238,12 @@ void record(const robots::Task& task, const PolicyParams& params, long steps, ui
 int main(int argc, char** argv) {
   try {
     const Options o = parse(argc, argv);
-    fs::path ckpt;
-    const config::CheckpointManifest m = read_run_manifest(o, &ckpt);
-    const std::string manifest_path = (ckpt / "manifest.txtpb").string();
-    config::ExperimentConfig cfg = parse_config_text(m.config_text(), manifest_path + " config_text");
-    clear_output_paths(&cfg);  // building the task writes no file
-    const std::unique_ptr<robots::Task> task = robots::make_task(cfg.task());
-    const robots::TaskSpec& spec = task->spec();
-    const PolicyParams params = load_policy(cfg, spec, ckpt, m.policy_version());
+    const tools::RunPolicy rp = tools::load_run_policy(tools::run_policy_dir(o.run_dir, o.which == "best"));
+    const config::CheckpointManifest& m = rp.manifest;
+    const config::ExperimentConfig& cfg = rp.config;
+    const robots::Task& task = *rp.task;
+    const robots::TaskSpec& spec = task.spec();
+    const PolicyParams& params = rp.policy;
 
     const std::string doc = "Policy v" + std::to_string(m.policy_version()) + " of experiment '" + cfg.experiment_id() +
                             "' (" + cfg.algorithm() + ", task " + spec.name + "): obs [N, " +
@@ -339,10 +254,10 @@ int main(int argc, char** argv) {
     std::printf("%s: %s policy v%llu (%s, %lld updates, %llu env steps) of task %s from %s\n",
                 cfg.experiment_id().c_str(), cfg.algorithm().c_str(), (unsigned long long)m.policy_version(),
                 params.layout.describe().c_str(), (long long)m.updates(), (unsigned long long)m.env_steps(),
-                spec.name.c_str(), ckpt.string().c_str());
+                spec.name.c_str(), rp.dir.c_str());
     std::printf("wrote             %s (%zu bytes, ONNX opset %d; onnx checker: accepted)\n", o.out.c_str(),
                 model.ByteSizeLong(), tools::kOnnxOpset);
-    if (o.record_steps > 0) record(*task, params, o.record_steps, o.seed, o.record_file);
+    if (o.record_steps > 0) record(task, params, o.record_steps, o.seed, o.record_file);
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-export: %s\n", e.what());

@@ -23,7 +23,7 @@
 #include "mclari/terrain.h"
 #include "mlp.h"
 #include "rollout.h"
-#include "sac.h"
+#include "run_policy.h"
 
 namespace mclari = farm::robots::mclari;
 
@@ -157,10 +157,9 @@ int main(int argc, char** argv) {
     std::map<int, Best> best;
     if (!best_path.empty()) best = read_best(best_path);
 
-    farm::robots::McLariTask probe(cfg.task().mclari());
-    farm::Sac sac(cfg.sac(), probe.spec().obs_dim, probe.spec().act_dim, cfg.seed());
-    sac.load(checkpoint + "/sac");
-    const farm::PolicyParams policy = sac.export_policy(sac.updates());
+    const farm::tools::RunPolicy rp = farm::tools::config_policy(config_path, checkpoint);
+    farm::PolicyParams policy = rp.policy;
+    policy.version = uint64_t(rp.updates);  // no manifest: the networks' update count
 
     std::vector<TerrainResult> results(mclari::kNumTerrains);
     std::atomic<int> next{0};
@@ -247,7 +246,7 @@ int main(int argc, char** argv) {
       table << "\n" << note;
       std::fprintf(stderr, "farm-mclari-eval: %s", note.c_str());
     }
-    std::cout << "policy: " << checkpoint << " (" << sac.updates() << " updates, " << policy.layout.describe() << ")\n"
+    std::cout << "policy: " << checkpoint << " (" << rp.updates << " updates, " << policy.layout.describe() << ")\n"
               << table.str();
     if (!out_path.empty()) {
       std::ofstream out(out_path);

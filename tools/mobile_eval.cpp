@@ -1,30 +1,23 @@
 // farm-mobile-eval: evaluates a trained Jetbot or Kaya policy from a run's checkpoint on fresh
 // random obstacle maps (success rate, episode time, path length) and draws sample trajectories
 // over their maps as a PNG.
-#include <google/protobuf/text_format.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <filesystem>
-#include <fstream>
 #include <iostream>
-#include <sstream>
 #include <string>
 #include <vector>
 
-#include "config.h"
 #include "mlp.h"
 #include "mobile/mobile_task.h"
-#include "off_policy.h"
 #include "png_canvas.h"
+#include "run_policy.h"
 #include "task.h"
 
 using namespace farm;
 using farm::robots::mobile::MobileState;
 using farm::robots::mobile::MobileTask;
-namespace fs = std::filesystem;
 
 namespace {
 
@@ -157,21 +150,12 @@ void describe_failure(const MobileTask& task, const MobileState& s, int episode,
 int main(int argc, char** argv) {
   try {
     const Options o = parse(argc, argv);
-    const fs::path ckpt = fs::path(o.run_dir) / o.checkpoint;
-    std::ifstream in(ckpt / "manifest.txtpb");
-    if (!in) throw std::runtime_error("no checkpoint manifest in " + ckpt.string());
-    std::stringstream ss;
-    ss << in.rdbuf();
-    config::CheckpointManifest m;
-    if (!google::protobuf::TextFormat::ParseFromString(ss.str(), &m))
-      throw std::runtime_error("cannot parse " + (ckpt / "manifest.txtpb").string());
-    const config::ExperimentConfig cfg = parse_config_text(m.config_text(), "checkpoint manifest");
-    std::shared_ptr<robots::Task> base = robots::make_task(cfg.task());
-    auto* task = dynamic_cast<MobileTask*>(base.get());
+    const tools::RunPolicy rp = tools::load_run_policy(tools::run_policy_dir(o.run_dir, o.checkpoint == "best"));
+    const config::CheckpointManifest& m = rp.manifest;
+    const config::ExperimentConfig& cfg = rp.config;
+    auto* task = dynamic_cast<MobileTask*>(rp.task.get());
     if (!task) throw std::runtime_error("task '" + cfg.task().name() + "' is not a mobile robot");
-    auto algo = make_off_policy(cfg, task->spec());
-    algo->load((ckpt / algo->name()).string());
-    Policy policy(algo->export_policy(m.policy_version()));
+    Policy policy(rp.policy);
 
     std::vector<std::unique_ptr<robots::TaskState>> states;
     std::vector<Episode> eps(o.episodes);

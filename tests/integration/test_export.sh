@@ -95,7 +95,7 @@ expect_error "missing network file" "$dir/nonet/checkpoint/sac/sac.pt does not e
 mkdir -p "$dir/garbled/checkpoint" && echo 'policy_version: "x" {' >"$dir/garbled/checkpoint/manifest.txtpb"
 expect_error "garbled manifest" "manifest.txtpb:1:17: Expected integer, got: \"x\" (not a checkpoint manifest)" --run-dir "$dir/garbled" --out "$dir/x.onnx"
 mkdir -p "$dir/huge/checkpoint" && truncate -s 20M "$dir/huge/checkpoint/manifest.txtpb"
-expect_error "oversized manifest" "bytes, more than a manifest's 16777216" --run-dir "$dir/huge" --out "$dir/x.onnx"
+expect_error "oversized manifest" "bytes, more than a manifest's limit of 16777216" --run-dir "$dir/huge" --out "$dir/x.onnx"
 expect_error "bad --record" "--record expects a whole number" --run-dir "$dir/sac" --out "$dir/x.onnx" --record -5 "$dir/r.csv"
 [ -e "$dir/x.onnx" ] && fail "a failed export left $dir/x.onnx"
 

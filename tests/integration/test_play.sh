@@ -77,7 +77,7 @@ expect_error() {  # WHAT PATTERN ARGS...
   [ $rc = 2 ] && grep -q -- "$pattern" <<<"$out" || fail "$what: rc $rc, '$out'"
 }
 mkdir -p "$dir/empty"
-expect_error "run without a policy" "no policy in $dir/empty: it has no checkpoint/" \
+expect_error "run without a policy" "run folder $dir/empty holds no policy: $dir/empty/checkpoint/manifest.txtpb does not exist" \
     "$play" --run "$dir/empty" --out "$dir/x.mp4"
 expect_error "run folder as a checkpoint" "it is a run folder: pass its checkpoint/ or best/" \
     "$play" --checkpoint "$dir/run" --out "$dir/x.mp4"
