@@ -1,0 +1,593 @@
+// The ingest ceiling of one learner: batches/s and MB/s that the learner's receive path takes before
+// it falls behind what is offered, or before it slows a SAC update loop running beside it. This
+// process plays the learner's receive side: a batch reader with the learner's QoS and size bound,
+// Ingest (checks, accounting, flattening), then the algorithm's own take (the replay buffer with
+// n-step folding for SAC/DQN, the rollout storage for PPO). Its senders are copies of this program
+// in --sender mode on the same host, each publishing well-formed TransitionBatch samples of the
+// config's task and batch shape at a fixed rate. The offered rate goes up step by step; each step
+// prints offered and taken batches/s, MB/s, lost and invalid, and with --with-updates the update
+// rate of a real SAC (1 compute thread) in this process, next to its rate with no ingest, measured
+// just before each step in the same run. The ceiling is the first step where taken < offered (by
+// more than --tolerance) or the update rate drops by more than --max-update-drop; the run stops
+// after two steps past it in a row.
+//
+//   bench_ingest [--config FILE] [--rates R1,R2,...] [--senders K] [--seconds S] [--warmup S]
+//                [--with-updates] [--tolerance F] [--max-update-drop F] [--expect-all]
+//                [--domain D] [--dds-profiles FILE]
+//   bench_ingest --sender --config FILE --experiment ID --id NAME --rate R [--domain D] [--dds-profiles FILE]
+//
+// --rates are total offered batches/s, shared evenly by the K senders. --expect-all: exit 1 unless
+// every step took what was offered with nothing lost or invalid (the ctest smoke test).
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "compute.h"
+#include "config.h"
+#include "dds.h"
+#include "ingest.h"
+#include "meter.h"
+#include "registry.h"
+#include "replay_buffer.h"
+#include "rollout_storage.h"
+#include "sac.h"
+#include "task_spec.h"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+struct Options {
+  farm::dds::BusOptions bus;
+  std::string config = FARM_DEFAULT_CONFIG;
+  std::vector<double> rates{20, 50, 100, 200, 400, 800};
+  int senders = 4;
+  double seconds = 5, warmup = 1.5;
+  bool with_updates = false, expect_all = false;
+  double tolerance = 0.03;        // taken below (1 - tolerance) x offered: not keeping up
+  double max_update_drop = 0.10;  // updates/s below (1 - this) x the baseline: ingest slows training
+  // Sender mode.
+  bool sender = false;
+  std::string experiment, id;
+  double rate = 0;
+};
+
+double positive(const std::string& flag, const std::string& v) {
+  char* end = nullptr;
+  const double d = std::strtod(v.c_str(), &end);
+  if (v.empty() || *end != '\0' || !(d > 0) || !std::isfinite(d))
+    throw std::invalid_argument(flag + ": expected a positive number, got '" + v + "'");
+  return d;
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      return argv[++i];
+    };
+    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
+    if (a == "--config") {
+      o.config = value();
+    } else if (a == "--rates") {
+      o.rates.clear();
+      std::stringstream in(value());
+      for (std::string t; std::getline(in, t, ',');) o.rates.push_back(positive(a, t));
+      if (o.rates.empty()) throw std::invalid_argument("--rates: expected a list like 20,50,100");
+    } else if (a == "--senders") {
+      const double k = positive(a, value());
+      if (k != std::floor(k) || k > 64) throw std::invalid_argument("--senders: expected a whole number 1..64");
+      o.senders = int(k);
+    } else if (a == "--seconds") {
+      o.seconds = positive(a, value());
+    } else if (a == "--warmup") {
+      o.warmup = positive(a, value());
+    } else if (a == "--tolerance") {
+      o.tolerance = positive(a, value());
+    } else if (a == "--max-update-drop") {
+      o.max_update_drop = positive(a, value());
+    } else if (a == "--with-updates") {
+      o.with_updates = true;
+    } else if (a == "--expect-all") {
+      o.expect_all = true;
+    } else if (a == "--sender") {
+      o.sender = true;
+    } else if (a == "--experiment") {
+      o.experiment = value();
+    } else if (a == "--id") {
+      o.id = value();
+    } else if (a == "--rate") {
+      o.rate = positive(a, value());
+    } else {
+      throw std::invalid_argument("unknown option '" + a + "'");
+    }
+  }
+  if (o.seconds > 600 || o.warmup > 60) throw std::invalid_argument("--seconds at most 600, --warmup at most 60");
+  if (o.tolerance >= 1 || o.max_update_drop >= 1)
+    throw std::invalid_argument("--tolerance and --max-update-drop are fractions below 1");
+  for (double r : o.rates)
+    if (r > 100000) throw std::invalid_argument("--rates: at most 100000 batches/s");
+  if (o.sender && (o.experiment.empty() || o.id.empty() || o.rate <= 0))
+    throw std::invalid_argument("--sender needs --experiment, --id and --rate");
+  return o;
+}
+
+// What a shipped config makes a worker send: the task's shape and the batch's T x N.
+struct Shape {
+  farm::config::ExperimentConfig cfg;
+  farm::robots::TaskSpec spec;
+  int steps = 0, envs = 0;
+};
+
+Shape shape_of(const std::string& config) {
+  Shape s;
+  s.cfg = farm::load_config_file(config);
+  s.spec = farm::robots::task_spec(s.cfg.task());
+  s.steps = int(s.cfg.worker().steps_per_batch());
+  s.envs = int(s.cfg.worker().envs_per_worker());
+  return s;
+}
+
+// ---- sender mode ---------------------------------------------------------------------------------
+
+std::atomic<bool> g_stop{false};
+void on_term(int) { g_stop = true; }
+
+// One well-formed batch of T steps x N envs: finite observations, actions in range, and env 0's
+// episode ending (truncated) at the last step with its final observation and summary.
+void fill_batch(const Shape& s, const std::string& experiment, const std::string& id, farm::msg::TransitionBatch& b) {
+  const size_t T = s.steps, N = s.envs, od = s.spec.obs_dim, ad = s.spec.act_dim, TN = T * N;
+  std::mt19937 rng(std::hash<std::string>()(id));
+  std::normal_distribution<float> g(0.f, 0.5f);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  b.experiment_id(experiment);
+  b.worker_id(id);
+  b.worker_session(uint64_t(getpid()) << 20 | (rng() & 0xfffff));
+  b.num_steps(uint32_t(T));
+  b.num_envs(uint32_t(N));
+  b.obs_dim(uint32_t(od));
+  b.act_dim(uint32_t(ad));
+  std::vector<float> obs(TN * od), act(TN * ad), rew(TN), lp(TN), next(N * od), fin(od);
+  for (float& v : obs) v = g(rng);
+  for (float& v : act) v = s.spec.num_actions > 0 ? float(rng() % uint32_t(s.spec.num_actions)) : u(rng);
+  for (float& v : rew) v = g(rng);
+  for (float& v : lp) v = g(rng);
+  for (float& v : next) v = g(rng);
+  for (float& v : fin) v = g(rng);
+  std::vector<uint8_t> term(TN, 0), trunc(TN, 0);
+  trunc[(T - 1) * N] = 1;
+  b.observations(obs);
+  b.actions(act);
+  b.rewards(rew);
+  b.log_probs(lp);
+  b.terminated(term);
+  b.truncated(trunc);
+  b.next_observations(next);
+  b.final_index({uint32_t((T - 1) * N)});
+  b.final_observations(fin);
+  farm::msg::EpisodeSummary e;
+  e.env(0);
+  e.episode_return(-150.f);
+  e.length(uint32_t(s.spec.max_episode_steps > 0 ? s.spec.max_episode_steps : T));
+  e.metrics(std::vector<float>(s.spec.metric_names.size(), 0.f));
+  b.episodes({e});
+  b.end_of_stream(false);
+}
+
+int run_sender(const Options& o) {
+  signal(SIGTERM, on_term);
+  signal(SIGINT, on_term);
+  const Shape s = shape_of(o.config);
+  farm::dds::Bus bus(o.bus, "bench_ingest_" + o.id);
+  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
+                                                                                          "batch_writer");
+  farm::msg::TransitionBatch b;
+  fill_batch(s, o.experiment, o.id, b);
+  const auto t_match = Clock::now();
+  while (out.matched() < 1 && !g_stop) {
+    if (since(t_match) > 30) {
+      std::fprintf(stderr, "sender %s: no learner-side reader matched within 30 s\n", o.id.c_str());
+      return 1;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  // Paced at a fixed rate; a sender blocked by the reader's flow control falls behind the schedule
+  // and does not burst to catch up by more than a quarter of a second.
+  const double period = 1.0 / o.rate;
+  auto next = Clock::now();
+  uint64_t seq = 0, retries = 0;
+  while (!g_stop) {
+    std::this_thread::sleep_until(next);
+    b.sequence_number(seq);
+    // A write given up on at SIGTERM never sent its number, so the end of stream reuses it.
+    bool written = false;
+    while (!(written = out.write(b)) && !g_stop) ++retries;
+    if (written) ++seq;
+    next += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(period));
+    const auto floor = Clock::now() - std::chrono::milliseconds(250);
+    if (next < floor) next = floor;
+  }
+  b.sequence_number(seq);
+  b.end_of_stream(true);
+  b.num_steps(0);
+  for (auto* v :
+       {&b.observations(), &b.actions(), &b.rewards(), &b.log_probs(), &b.next_observations(), &b.final_observations()})
+    v->clear();
+  b.terminated().clear();
+  b.truncated().clear();
+  b.final_index().clear();
+  b.episodes().clear();
+  for (int k = 0; k < 5 && !out.write(b); ++k) {
+  }
+  out.wait_for_acks(5);
+  std::printf("sender %s: sent %llu batches, %llu blocked writes retried\n", o.id.c_str(), (unsigned long long)seq,
+              (unsigned long long)retries);
+  return 0;
+}
+
+// ---- the learner's side --------------------------------------------------------------------------
+
+pid_t spawn(const std::vector<std::string>& argv, const std::string& log) {
+  std::fflush(stdout);
+  const pid_t pid = fork();
+  if (pid == 0) {
+    if (!freopen(log.c_str(), "w", stdout)) _exit(126);
+    dup2(fileno(stdout), 2);
+    std::vector<char*> args;
+    for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    execv(args[0], args.data());
+    std::fprintf(stderr, "cannot start %s: %s\n", args[0], std::strerror(errno));
+    _exit(127);
+  }
+  return pid;
+}
+
+// This program, for the senders: /proc/self/exe names this process's own image even when the file
+// was rebuilt or removed while it runs.
+std::string self_exe() {
+  if (access("/proc/self/exe", X_OK) != 0)
+    throw std::runtime_error(std::string("cannot run /proc/self/exe for the senders: ") + std::strerror(errno));
+  return "/proc/self/exe";
+}
+
+// A real SAC update loop on its own thread: the task's SAC settings (defaults for a PPO task), a
+// replay buffer filled with random rows, 1 compute thread.
+class UpdateLoop {
+ public:
+  UpdateLoop(const Shape& s)
+      : cfg_(s.cfg.algorithm() == "sac" ? s.cfg.sac() : farm::config::SacConfig()),
+        sac_(cfg_, s.spec.obs_dim, s.spec.act_dim, 1),
+        buf_(100000, s.spec.obs_dim, s.spec.act_dim) {
+    std::mt19937_64 rng(2);
+    std::normal_distribution<float> g;
+    const int64_t n = 50000, o = s.spec.obs_dim, a = s.spec.act_dim;
+    std::vector<float> obs(n * o), act(n * a), rew(n), next(n * o);
+    std::vector<uint8_t> term(n, 0);
+    for (auto* v : {&obs, &rew, &next})
+      for (float& x : *v) x = g(rng);
+    for (float& x : act) x = std::tanh(g(rng));
+    buf_.add_n(n, obs.data(), act.data(), rew.data(), term.data(), next.data());
+    thread_ = std::thread([this] {
+      std::mt19937_64 r(3);
+      while (!stop_) {
+        sac_.update(buf_.sample(cfg_.batch_size(), r));
+        ++updates_;
+      }
+    });
+  }
+  ~UpdateLoop() {
+    stop_ = true;
+    thread_.join();
+  }
+  uint64_t updates() const { return updates_; }
+  std::string describe() const {
+    std::string h;
+    for (int x : farm::sac_hidden(cfg_)) h += (h.empty() ? "" : "-") + std::to_string(x);
+    return "SAC " + h + ", batch " + std::to_string(cfg_.batch_size());
+  }
+
+ private:
+  farm::config::SacConfig cfg_;
+  farm::Sac sac_;
+  farm::ReplayBuffer buf_;
+  std::atomic<bool> stop_{false};
+  std::atomic<uint64_t> updates_{0};
+  std::thread thread_;
+};
+
+// The algorithm's own take of an accepted batch: the off-policy driver's (n-step fold, replay buffer)
+// through the registry, or the rollout storage, emptied at each fit's worth of steps as a fit would.
+class Path {
+ public:
+  explicit Path(const Shape& s) : s_(s), storage_(s.spec.obs_dim, s.spec.act_dim) {
+    if (s.cfg.algorithm() != "ppo") algo_ = farm::make_algorithm(s.cfg, s.spec);
+  }
+  std::string describe() const {
+    return algo_ ? "replay buffer (" + s_.cfg.algorithm() + " driver's take: n-step fold, insert)"
+                 : "rollout storage (PPO, emptied every " + std::to_string(s_.cfg.ppo().steps_per_fit()) + " steps)";
+  }
+  void take(const farm::msg::TransitionBatch& m, farm::Transitions& rows, std::vector<farm::FinishedEpisode>& eps) {
+    if (rows.n == 0) return;
+    if (algo_) {
+      farm::Batch b;
+      b.worker_id = m.worker_id();
+      b.policy_version = m.policy_version();
+      b.num_steps = int(m.num_steps());
+      b.num_envs = int(m.num_envs());
+      b.truncated = m.truncated().data();
+      b.log_probs = m.log_probs().data();
+      b.rows = &rows;
+      b.episodes = &eps;
+      algo_->take(b);
+      return;
+    }
+    storage_.add(int(m.num_steps()), int(m.num_envs()), rows.obs.data(), rows.actions.data(), rows.rewards.data(),
+                 rows.terminated.data(), m.truncated().data(), m.log_probs().data(), rows.next_obs.data(),
+                 m.policy_version());
+    if (storage_.steps() >= s_.cfg.ppo().steps_per_fit()) storage_.clear();
+  }
+
+ private:
+  const Shape& s_;
+  std::unique_ptr<farm::Algorithm> algo_;
+  farm::RolloutStorage storage_;
+};
+
+struct Step {
+  double offered = 0, taken = 0, mbps = 0, updates = -1;
+  uint64_t lost = 0, invalid = 0, duplicate = 0;
+  bool failed = false;
+};
+
+class Learner {
+ public:
+  Learner(const Options& o, const Shape& s)
+      : o_(o),
+        s_(s),
+        bus_(o.bus, "bench_ingest"),
+        batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader",
+                    uint32_t(farm::Ingest::max_batch_bytes(s.spec.obs_dim, s.spec.act_dim,
+                                                           int(s.spec.metric_names.size()), s.steps))),
+        path_(s) {}
+
+  const Path& path() const { return path_; }
+
+  Step run(int step, double rate, const UpdateLoop* updates) {
+    Step r;
+    r.offered = rate;
+    const std::string id = "bench_ingest_" + std::to_string(getpid()) + "_" + std::to_string(step);
+    farm::Ingest ingest(id, s_.spec.obs_dim, s_.spec.act_dim);
+    ingest.set_num_actions(s_.spec.num_actions);
+    std::vector<pid_t> pids;
+    const std::string exe = self_exe();
+    for (int k = 0; k < o_.senders; ++k) {
+      std::vector<std::string> argv{exe,
+                                    "--sender",
+                                    "--config",
+                                    o_.config,
+                                    "--experiment",
+                                    id,
+                                    "--id",
+                                    "s" + std::to_string(k),
+                                    "--rate",
+                                    std::to_string(rate / o_.senders),
+                                    "--domain",
+                                    std::to_string(o_.bus.domain)};
+      if (!o_.bus.profiles_file.empty()) argv.insert(argv.end(), {"--dds-profiles", o_.bus.profiles_file});
+      pids.push_back(spawn(argv, "/tmp/" + id + "_s" + std::to_string(k) + ".log"));
+    }
+    farm::Transitions rows;
+    std::vector<farm::FinishedEpisode> eps;
+    farm::msg::TransitionBatch b;
+    farm::msg::TransitionBatchPubSubType type;
+    uint64_t ok0 = 0, bytes = 0, upd0 = 0;
+    bool measuring = false;
+    const auto t_start = Clock::now();
+    Clock::time_point t_active{}, t0{};
+    auto drain = [&] {
+      while (batches_in_.take(b)) {
+        rows.clear();
+        eps.clear();
+        if (!ingest.accept(b, 0, farm::now_seconds(), rows, eps).empty()) continue;
+        path_.take(b, rows, eps);
+        if (measuring) bytes += type.getSerializedSizeProvider(&b)();
+      }
+    };
+    for (;;) {
+      batches_in_.wait(0.01);
+      drain();
+      if (t_active == Clock::time_point{}) {
+        int active = 0;
+        for (const auto& [key, acc] : ingest.workers()) active += acc.received >= 1;
+        if (active == o_.senders) {
+          t_active = Clock::now();
+        } else if (since(t_start) > 60) {
+          std::fprintf(stderr, "only %d of %d senders delivered within 60 s (logs /tmp/%s_s*.log)\n", active,
+                       o_.senders, id.c_str());
+          r.failed = true;
+          break;
+        }
+      } else if (!measuring && since(t_active) >= o_.warmup) {
+        measuring = true;
+        ok0 = ingest.counters().ok;
+        upd0 = updates ? updates->updates() : 0;
+        t0 = Clock::now();
+      } else if (measuring && since(t0) >= o_.seconds) {
+        const double dt = since(t0);
+        r.taken = double(ingest.counters().ok - ok0) / dt;
+        r.mbps = double(bytes) / 1e6 / dt;
+        if (updates) r.updates = double(updates->updates() - upd0) / dt;
+        break;
+      }
+    }
+    for (pid_t p : pids) kill(p, SIGTERM);
+    // Every stream's end is taken, so lost counts every number a sender used and never delivered.
+    const auto t_stop = Clock::now();
+    for (;;) {
+      batches_in_.wait(0.02);
+      drain();
+      bool all_ended = int(ingest.workers().size()) == o_.senders;
+      for (const auto& [key, acc] : ingest.workers()) all_ended = all_ended && acc.ended;
+      if (all_ended || since(t_stop) > 20) {
+        if (!all_ended) {
+          std::fprintf(stderr, "step %d: not every sender closed its stream within 20 s\n", step);
+          r.failed = true;
+        }
+        break;
+      }
+    }
+    for (pid_t p : pids) {
+      int status = 0;
+      const auto t = Clock::now();
+      while (waitpid(p, &status, WNOHANG) != p) {
+        if (since(t) > 10) {
+          kill(p, SIGKILL);
+          waitpid(p, &status, 0);
+          break;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+      if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+        std::fprintf(stderr, "step %d: a sender ended with status %d (logs /tmp/%s_s*.log)\n", step, status,
+                     id.c_str());
+        r.failed = true;
+      }
+    }
+    // The senders' logs are kept only when a step failed.
+    for (int k = 0; k < o_.senders && !r.failed; ++k)
+      std::remove(("/tmp/" + id + "_s" + std::to_string(k) + ".log").c_str());
+    const auto& c = ingest.counters();
+    r.lost = c.lost;
+    r.invalid = c.invalid + ingest.count_refused_samples(batches_in_.refused());
+    r.duplicate = c.duplicate;
+    return r;
+  }
+
+ private:
+  const Options& o_;
+  const Shape& s_;
+  farm::dds::Bus bus_;
+  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  Path path_;
+};
+
+double load_average() {
+  std::ifstream in("/proc/loadavg");
+  double l = -1;
+  in >> l;
+  return l;
+}
+
+int run_learner(const Options& o) {
+  const Shape s = shape_of(o.config);
+  farm::configure_compute(1);
+  std::printf("bench_ingest: nproc %u, 1-minute load average %.2f at start\n", std::thread::hardware_concurrency(),
+              load_average());
+  farm::msg::TransitionBatch probe;
+  fill_batch(s, "x", "s0", probe);
+  farm::msg::TransitionBatchPubSubType type;
+  const double batch_mb = type.getSerializedSizeProvider(&probe)() / 1e6;
+  std::printf("bench_ingest: %s (%s), obs %d act %d, batch %d steps x %d envs = %d transitions, %.4f MB serialized\n",
+              s.spec.name.c_str(), o.config.c_str(), s.spec.obs_dim, s.spec.act_dim, s.steps, s.envs, s.steps * s.envs,
+              batch_mb);
+  Learner learner(o, s);
+  std::printf("bench_ingest: path: batch reader (learner QoS and size bound) -> Ingest -> %s\n",
+              learner.path().describe().c_str());
+  std::printf("bench_ingest: %d sender processes, %.1f s measured per step after %.1f s warm-up\n", o.senders,
+              o.seconds, o.warmup);
+  std::unique_ptr<UpdateLoop> updates;
+  // The update rate with no ingest, measured over --seconds before each step (the machine's load
+  // may change between steps).
+  auto baseline_rate = [&]() {
+    const uint64_t u0 = updates->updates();
+    const auto t0 = Clock::now();
+    std::this_thread::sleep_for(std::chrono::duration<double>(o.seconds));
+    return double(updates->updates() - u0) / since(t0);
+  };
+  if (o.with_updates) {
+    updates = std::make_unique<UpdateLoop>(s);
+    std::this_thread::sleep_for(std::chrono::duration<double>(o.warmup));
+    std::printf(
+        "bench_ingest: update loop %s, 1 thread, beside ingest; 'base' is its rate with no ingest, "
+        "measured just before each step\n",
+        updates->describe().c_str());
+  }
+  std::printf("%10s %10s %10s %8s %6s %8s %8s %10s %8s  %s\n", "offered/s", "taken/s", "MB/s", "steps/s", "lost",
+              "invalid", "base/s", "updates/s", "vs base", "verdict");
+  bool all_ok = true, ceiling_found = false;
+  int past_ceiling = 0;  // steps in a row past the ceiling
+  Step last_ok;
+  bool any_ok = false;
+  for (size_t i = 0; i < o.rates.size(); ++i) {
+    const double baseline = updates ? baseline_rate() : 0.0;
+    const Step r = learner.run(int(i), o.rates[i], updates.get());
+    const bool behind = r.taken < (1 - o.tolerance) * r.offered;
+    const bool slowed = updates && r.updates < (1 - o.max_update_drop) * baseline;
+    const bool bad = r.failed || r.lost > 0 || r.invalid > 0 || r.duplicate > 0;
+    std::string verdict = r.failed ? "FAILED" : behind ? "CEILING (taken < offered)" : "keeps up";
+    if (!r.failed && slowed) verdict += behind ? ", updates slowed" : ", CEILING (updates slowed)";
+    char base[32] = "-", upd[32] = "-", vs[32] = "-";
+    if (updates) {
+      std::snprintf(base, sizeof base, "%.1f", baseline);
+      std::snprintf(upd, sizeof upd, "%.1f", r.updates);
+      std::snprintf(vs, sizeof vs, "%.3f", baseline > 0 ? r.updates / baseline : 0.0);
+    }
+    std::printf("%10.1f %10.1f %10.3f %8.0f %6llu %8llu %8s %10s %8s  %s\n", r.offered, r.taken, r.mbps,
+                r.taken * s.steps * s.envs, (unsigned long long)r.lost, (unsigned long long)(r.invalid + r.duplicate),
+                base, upd, vs, verdict.c_str());
+    std::fflush(stdout);
+    all_ok = all_ok && !bad && !behind;
+    past_ceiling = (r.failed || behind || slowed) ? past_ceiling + 1 : 0;
+    if (!r.failed && !behind && !slowed && !ceiling_found) {
+      last_ok = r;
+      any_ok = true;
+    } else if (!ceiling_found) {
+      ceiling_found = true;
+    }
+    if (past_ceiling >= 2) break;
+  }
+  if (any_ok)
+    std::printf("bench_ingest: highest step kept up: %.1f batches/s, %.3f MB/s, %.0f env steps/s%s\n", last_ok.taken,
+                last_ok.mbps, last_ok.taken * s.steps * s.envs,
+                ceiling_found ? "" : " (no ceiling within the rates tried)");
+  else
+    std::printf("bench_ingest: no step kept up\n");
+  if (o.expect_all && !all_ok) {
+    std::fprintf(stderr, "bench_ingest: --expect-all: a step did not take everything offered, or lost or refused\n");
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    const Options o = parse(argc, argv);
+    if (!o.bus.profiles_file.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
+    return o.sender ? run_sender(o) : run_learner(o);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_ingest: %s\n", e.what());
+    return 2;
+  }
+}

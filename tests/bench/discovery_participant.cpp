@@ -1,0 +1,135 @@
+// A cheap idle DDS participant for the discovery benchmark (tests/bench/bench_discovery.sh): one
+// real Fast DDS participant with the farm's profiles, one writer and one reader of the farm's small
+// status topics, publishing nothing. It prints when it started and when both its endpoints have
+// matched the expected number of remote endpoints, then idles until SIGTERM (or --max-seconds), so
+// the others can match it.
+//
+//   discovery_participant --name NAME --role mesh|worker|learner --expect K [--max-seconds S]
+//                         [--domain D] [--dds-profiles FILE]
+//
+// mesh: writes and reads farm/WorkerStatus, so every participant matches every other one;
+// worker: writes farm/WorkerStatus and reads farm/LearnerStats (a worker's side of the farm);
+// learner: reads farm/WorkerStatus and writes farm/LearnerStats. --expect counts remote endpoints:
+// N-1 for mesh and for the learner, 1 for a worker.
+// Output lines (times are Unix seconds, so a script can compare processes):
+//   started NAME T
+//   matched NAME K T          (both the writer and the reader have K remote matches)
+//   unmatched NAME W R T      (at exit, if never matched: the writer's and reader's counts)
+#include <signal.h>
+#include <time.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <stdexcept>
+#include <string>
+#include <thread>
+
+#include "dds.h"
+
+namespace {
+
+std::atomic<bool> g_stop{false};
+void on_term(int) { g_stop = true; }
+
+double unix_now() {
+  timespec ts{};
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return double(ts.tv_sec) + ts.tv_nsec * 1e-9;
+}
+
+struct Options {
+  farm::dds::BusOptions bus;
+  std::string name, role = "mesh";
+  int expect = -1;
+  double max_seconds = 600;
+};
+
+Options parse(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      return argv[++i];
+    };
+    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
+    if (a == "--name") {
+      o.name = value();
+    } else if (a == "--role") {
+      o.role = value();
+    } else if (a == "--expect") {
+      const std::string v = value();
+      char* end = nullptr;
+      const long k = std::strtol(v.c_str(), &end, 10);
+      if (v.empty() || *end || k < 1 || k > 100000)
+        throw std::invalid_argument("--expect: expected a count 1..100000, got '" + v + "'");
+      o.expect = int(k);
+    } else if (a == "--max-seconds") {
+      const std::string v = value();
+      char* end = nullptr;
+      o.max_seconds = std::strtod(v.c_str(), &end);
+      if (v.empty() || *end || !(o.max_seconds > 0) || o.max_seconds > 86400)
+        throw std::invalid_argument("--max-seconds: expected seconds in (0, 86400], got '" + v + "'");
+    } else {
+      throw std::invalid_argument("unknown option '" + a + "'");
+    }
+  }
+  if (o.name.empty() || o.expect < 0) throw std::invalid_argument("--name and --expect are required");
+  if (o.role != "mesh" && o.role != "worker" && o.role != "learner")
+    throw std::invalid_argument("--role: expected mesh, worker or learner, got '" + o.role + "'");
+  return o;
+}
+
+using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
+using StatusReader = farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
+using StatsWriter = farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>;
+using StatsReader = farm::dds::Reader<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>;
+
+// Matched counts of the participant's writer and reader, remote endpoints only.
+template <class W, class R>
+int run(const Options& o, farm::dds::Bus& bus, const char* write_topic, const char* read_topic) {
+  W writer(bus, write_topic, "status_writer");
+  R reader(bus, read_topic, "status_reader");
+  // In mesh, the participant's own writer and reader share a topic and match each other too.
+  const int own = std::string(write_topic) == read_topic ? 1 : 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  bool matched = false;
+  while (!g_stop && std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() < o.max_seconds) {
+    if (!matched && writer.matched() - own >= o.expect && reader.matched() - own >= o.expect) {
+      matched = true;
+      std::printf("matched %s %d %.6f\n", o.name.c_str(), o.expect, unix_now());
+      std::fflush(stdout);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(matched ? 100 : 10));
+  }
+  if (!matched) {
+    std::printf("unmatched %s %d %d %.6f\n", o.name.c_str(), writer.matched() - own, reader.matched() - own,
+                unix_now());
+  }
+  return matched ? 0 : 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    const Options o = parse(argc, argv);
+    signal(SIGTERM, on_term);
+    signal(SIGINT, on_term);
+    const double start = unix_now();
+    farm::dds::Bus bus(o.bus, "discovery_" + o.name);
+    std::printf("started %s %.6f\n", o.name.c_str(), start);
+    std::fflush(stdout);
+    if (o.role == "mesh")
+      return run<StatusWriter, StatusReader>(o, bus, farm::dds::kWorkerStatusTopic, farm::dds::kWorkerStatusTopic);
+    if (o.role == "worker")
+      return run<StatusWriter, StatsReader>(o, bus, farm::dds::kWorkerStatusTopic, farm::dds::kLearnerStatsTopic);
+    return run<StatsWriter, StatusReader>(o, bus, farm::dds::kLearnerStatsTopic, farm::dds::kWorkerStatusTopic);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "discovery_participant: %s\n", e.what());
+    return 2;
+  }
+}
