@@ -301,7 +301,9 @@ void Ppo::load(const std::string& dir) {
   const std::string path = (std::filesystem::path(dir) / "ppo.pt").string();
   try {
     torch::serialize::InputArchive ar;
-    ar.load_from(path);
+    // Tensors land on this learner's device whatever device wrote them: a GPU run's checkpoint is
+    // read by the CPU programs around it (farm-play, farm-export) and by a CPU learner's --resume.
+    ar.load_from(path, s.device);
     torch::serialize::InputArchive actor, critic, optim;
     ar.read("actor", actor);
     ar.read("critic", critic);

@@ -233,7 +233,7 @@ void Sac::load(const std::string& dir) {
   auto fail = [&](const std::string& what) { return std::runtime_error("sac checkpoint " + file + ": " + what); };
   try {
     torch::serialize::InputArchive root;
-    root.load_from(file);
+    root.load_from(file, s.device);  // whatever device wrote it (a GPU run read on a CPU host)
 
     torch::Tensor meta;
     if (!root.try_read("meta", meta)) throw fail("no 'meta'");
