@@ -17,6 +17,7 @@ PACKAGES=(
   libosmesa6-dev ffmpeg                             # farm-play: headless MuJoCo rendering, MP4/GIF
   libonnx-dev python3-onnx python3-opencv           # farm-export: ONNX schema/checker; OpenCV DNN cross-check
   libcivetweb-dev prometheus                        # farm-monitor --prometheus and its scrape test
+  faketime                                          # the security test's worker on a clock an hour behind
 )
 
 missing=()
