@@ -54,8 +54,12 @@ int MonitorApp::run_once() {
     // One heartbeat round (every worker beats once a second), a heartbeat from every status writer
     // discovered so far (participants are matched one by one, not all at once), and statistics from
     // every learner discovered (they come every log_every_seconds, less often than heartbeats).
+    // And at least as many workers as the learners say are live: on a loaded host the learner's
+    // statistics can arrive before the workers' status writers are matched at all.
+    size_t reported = 0;
+    for (const auto& [experiment, v] : learners_) reported += v.last.workers();
     if (first >= 0 && farm::now_seconds() - first >= 1.5 && int(heard_.size()) >= status_in_.matched() &&
-        int(stats_heard_.size()) >= stats_in_.matched())
+        int(stats_heard_.size()) >= stats_in_.matched() && workers_.size() >= reported)
       break;
     status_in_.wait(0.1);
   }
