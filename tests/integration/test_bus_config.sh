@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # A config received over the bus never names a file for a worker to write: a forged ExperimentSpec
 # whose mCLARI config names a height-field PNG is refused by the worker with the field named, and
-# no file appears; a learner whose own config names one still writes it on its host, publishes the
-# spec without it, and its worker joins. Sizes are bounded before anything is allocated: a spec
+# no file appears; a learner whose own config names one writes none (it builds no task) and says
+# so, publishes the spec without it, and its worker joins. Sizes are bounded before anything is allocated: a spec
 # asking for a million steps per batch is refused, and so are --envs and --threads beyond their
 # bounds; an experiment id that would name another folder is refused.
 #   tests/integration/test_bus_config.sh LEARNER WORKER INTRUDER SOURCE_DIR
@@ -25,14 +25,17 @@ sleep 1
 grep -q "joined experiment 'it_forged'" "$dir/worker.log" && fail "the worker joined the forged experiment"
 kill -9 $wp 2>/dev/null; wait $wp 2>/dev/null
 
-# 2. The learner's own config names one: written by the learner, not sent; its worker joins.
+# 2. The learner's own config names one: the learner builds no task, so it writes none and says so;
+#    the spec goes out without it and its worker joins.
 domain2=$((domain + 1))
 sed -e 's/experiment_id: "it_forged"/experiment_id: "it_own"/' -e "s|$dir/forged.png|$dir/own.png|" \
   -e 's/max_seconds: 1500/max_seconds: 10/' "$dir/forged.txtpb" >"$dir/own.txtpb"
 "$learner" --config "$dir/own.txtpb" --run-dir "$dir/run" --domain $domain2 >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$worker" --domain $domain2 --id ow --envs 1 >"$dir/worker2.log" 2>&1 & pids+=($!)
 wait_text "$dir/worker2.log" "joined experiment 'it_own'" 30 || fail "the learner's worker did not join: $(tail -5 "$dir/worker2.log")"
-[ -s "$dir/own.png" ] || fail "the learner did not write its own height field $dir/own.png"
+grep -q "task.mclari.hfield_png names a file that a program building the task writes" "$dir/learner.log" ||
+  fail "the learner did not say it leaves task.mclari.hfield_png to the programs that build the task"
+[ -e "$dir/own.png" ] && fail "$dir/own.png was written: the learner builds no task, and a worker must not"
 
 # 3. Sizes: a spec's steps per batch, the worker's flags.
 sed -e "s|hfield_png: \"$dir/forged.png\"||" "$dir/forged.txtpb" >"$dir/huge.txtpb"
