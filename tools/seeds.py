@@ -102,16 +102,41 @@ def walking(r):
 
 # ---- the measures -------------------------------------------------------------------------------
 
-def measure_curve(run, kind, target):
-    """(time to goal, best measure, final measure, final meets goal, best meets goal) from learner.csv."""
+def summary_value(run, label):
+    """A figure of RUN/summary.txt ("final eval return -145.2 (...)"), NaN where absent."""
+    try:
+        text = open(os.path.join(run, "summary.txt")).read()
+    except OSError:
+        return math.nan
+    m = re.search(r"^" + re.escape(label) + r"\s+(-?[0-9.]+|nan)", text, re.M)
+    return number(m.group(1)) if m else math.nan
+
+
+def log_evals(log):
+    """(elapsed s, mean return) of every evaluation the learner logged: learner.csv holds a row per
+    log interval only (SAC, DQN), and a run that stops on its target may end between two rows."""
+    try:
+        text = open(log).read()
+    except OSError:
+        return []
+    return [(float(m.group(2)), float(m.group(1)))
+            for m in re.finditer(r"\] eval: mean return (-?[0-9.]+).*?, ([0-9.]+) s\)$", text, re.M)]
+
+
+def measure_curve(run, kind, target, log=""):
+    """(time to goal, best measure, final measure, final meets goal, best meets goal): from the
+    learner's log and summary (returns) or learner.csv (walking)."""
     rows = read_rows(run)
     if kind == "return":
-        ev = eval_rows(rows, "eval_return")
+        ev = log_evals(log) or [(number(r["elapsed_s"]), number(r["eval_return"]))
+                                for r in eval_rows(rows, "eval_return")]
         if not ev:
             return None
-        vals = [number(r["eval_return"]) for r in ev]
-        best, final = max(vals), vals[-1]
-        return dict(time=first_time(ev, lambda r: number(r["eval_return"]) >= target), best=best, final=final,
+        final = summary_value(run, "final eval return")
+        if math.isnan(final):
+            final = ev[-1][1]
+        best = max([v for _, v in ev] + ([final] if not math.isnan(final) else []))
+        return dict(time=next((t for t, v in ev if v >= target), math.nan), best=best, final=final,
                     best_ok=best >= target, final_ok=final >= target)
     ev = eval_rows(rows, "eval_tracking_lin")
     if not ev:
@@ -203,17 +228,22 @@ def train(args, text, seeds):
         while pending and len(running) < args.parallel:
             s = pending.pop(0)
             run = os.path.join(args.out, f"seed{s}")
-            os.makedirs(run, exist_ok=True)
+            if os.path.exists(run):
+                fail(f"{run} exists: give another --out, or --report-only to report it")
             cfg = os.path.join(args.out, f"seed{s}.txtpb")
             with open(cfg, "w") as f:
                 f.write(re.sub(r"^seed:\s*\d+\s*$", f"seed: {s}", text, count=1, flags=re.M))
             domain = str(args.domain + s)
             common = ["--domain", domain, "--dds-profiles", profiles]
+            # Logs beside the run folder: the learner moves a non-empty run folder aside.
+            logs = os.path.join(args.out, "logs")
+            os.makedirs(logs, exist_ok=True)
             procs = [subprocess.Popen([learner, "--config", cfg, "--run-dir", run] + common,
-                                      stdout=open(os.path.join(run, "learner.log"), "w"), stderr=subprocess.STDOUT)]
+                                      stdout=open(os.path.join(logs, f"seed{s}-learner.log"), "w"),
+                                      stderr=subprocess.STDOUT)]
             for w in range(args.workers):
                 procs.append(subprocess.Popen([worker, "--id", f"s{s}w{w + 1}"] + common,
-                                              stdout=open(os.path.join(run, f"worker{w + 1}.log"), "w"),
+                                              stdout=open(os.path.join(logs, f"seed{s}-worker{w + 1}.log"), "w"),
                                               stderr=subprocess.STDOUT))
             print(f"seeds: seed {s} started (domain {domain}, {args.workers} workers, run {run})", flush=True)
             running.append((s, procs))
@@ -232,7 +262,7 @@ def train(args, text, seeds):
             print(f"seeds: seed {s} ended (learner exit {rc}) at {time.time() - t0:.0f} s", flush=True)
             if rc != 0:
                 print(f"seeds: seed {s}: the learner failed; its log: "
-                      f"{os.path.join(args.out, f'seed{s}', 'learner.log')}", file=sys.stderr)
+                      f"{os.path.join(args.out, 'logs', f'seed{s}-learner.log')}", file=sys.stderr)
 
 
 # ---- report -------------------------------------------------------------------------------------
@@ -249,8 +279,12 @@ def report(args, task, kind, target, seeds):
         if not rows:
             print(f"seeds: seed {s}: no learner.csv in {run}; reported as missing", file=sys.stderr)
         last = rows[-1] if rows else {}
-        r = dict(seed=s, wall=number(last.get("elapsed_s")), steps=number(last.get("env_steps")))
-        curve = measure_curve(run, "walking" if kind == "walking" else "return", target) if rows else None
+        # The summary's figures where the run wrote one (learner.csv's last row may be seconds older).
+        wall, steps = summary_value(run, "wall time"), summary_value(run, "env steps")
+        r = dict(seed=s, wall=number(last.get("elapsed_s")) if math.isnan(wall) else wall,
+                 steps=number(last.get("env_steps")) if math.isnan(steps) else steps)
+        log = os.path.join(args.out, "logs", f"seed{s}-learner.log")
+        curve = measure_curve(run, "walking" if kind == "walking" else "return", target, log) if rows else None
         r["time"] = curve["time"] if curve else math.nan
         if kind in ("return", "walking"):
             r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,

@@ -38,6 +38,18 @@ out=$(seeds "$T/a1.txtpb" --seeds 1 --report-only --out "$T/w" 2>&1) || fail "th
 grep -q "^| 1 | 30 | 3000 | 20 | 0.62 | 0.5 | -19 | yes | no |$" <<< "$out" || fail "walking row: $out"
 grep -q "^- final more than 10 % below kept best: seed 1$" <<< "$out" || fail "walking drop not flagged"
 
+# A run that stops on its target between two learner.csv rows (SAC logs a row per interval): the
+# evaluations come from the learner's log, the final one from summary.txt.
+mkdir -p "$T/s/seed4" "$T/s/logs"
+printf 'elapsed_s,env_steps,eval_return\n5.00,21000,nan\n10.02,42600,nan\n' > "$T/s/seed4/learner.csv"
+cat > "$T/s/logs/seed4-learner.log" <<'LOG'
+[learner] eval: mean return -900.5 over 10 deterministic episodes, upright_fraction 0.1 (policy v50, 1500 updates, 6.1 s)
+[learner] eval: mean return -159.8 over 10 deterministic episodes, upright_fraction 0.839 (policy v107, 3336 updates, 10.0 s)
+LOG
+printf 'experiment        x\nfinal eval return -145.2 (mean of 50 deterministic episodes)\n' > "$T/s/seed4/summary.txt"
+out=$(seeds "$T/pendulum.txtpb" --seeds 4 --report-only --out "$T/s" 2>&1) || fail "seed 4 met the goal, exit non-zero: $out"
+grep -q "^| 4 | 10 | 42600 | 10 | -145 | -145 | +0 | yes | yes |$" <<< "$out" || fail "log and summary row: $out"
+
 # Errors name what is wrong.
 err=$(seeds "$T/pendulum.txtpb" --seeds 1,x --report-only --out "$T/p" 2>&1) && fail "bad --seeds accepted"
 grep -q "seeds: --seeds: expected a comma-separated list of integers, got '1,x'" <<< "$err" || fail "bad --seeds: $err"
