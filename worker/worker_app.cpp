@@ -416,15 +416,20 @@ void WorkerApp::poll_eval_requests() {
   }
 }
 
-void WorkerApp::answer_error(const farm::msg::EvaluationRequest& q, const std::string& why) {
-  log("evaluation request " + std::to_string(q.request_id()) + " refused: " + why);
+farm::msg::EvaluationAnswer WorkerApp::answer_to(const farm::msg::EvaluationRequest& q, uint64_t session) const {
   farm::msg::EvaluationAnswer a;
   a.experiment_id(q.experiment_id());
   a.learner_session(q.learner_session());
   a.request_id(q.request_id());
   a.worker_id(opt_.id);
-  a.worker_session(session_);
+  a.worker_session(session);
   a.policy_version(q.policy_version());
+  return a;
+}
+
+void WorkerApp::answer_error(const farm::msg::EvaluationRequest& q, const std::string& why) {
+  log("evaluation request " + std::to_string(q.request_id()) + " refused: " + why);
+  farm::msg::EvaluationAnswer a = answer_to(q, session_);
   a.error(why.substr(0, farm::dds::kMaxEvalTextBytes));
   eval_out_.write(a);
 }
@@ -442,13 +447,7 @@ void WorkerApp::eval_thread_main() {
       eval_jobs_.pop_front();
     }
     const auto& q = job.request;
-    farm::msg::EvaluationAnswer a;
-    a.experiment_id(q.experiment_id());
-    a.learner_session(q.learner_session());
-    a.request_id(q.request_id());
-    a.worker_id(opt_.id);
-    a.worker_session(job.worker_session);
-    a.policy_version(q.policy_version());
+    farm::msg::EvaluationAnswer a = answer_to(q, job.worker_session);
     const double t0 = now_seconds();
     try {
       const auto recs = evaluate_policy(job.task, job.policy, int(q.episodes()), q.seed(), &eval_stop_);

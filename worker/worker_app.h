@@ -60,6 +60,8 @@ class WorkerApp {
   void heartbeat(bool force = false);
   // Evaluation requests: checked on the main loop, run by eval_thread_, answered from there.
   void poll_eval_requests();
+  // The answer to q from this worker's id and `session`, episodes and error still empty.
+  farm::msg::EvaluationAnswer answer_to(const farm::msg::EvaluationRequest& q, uint64_t session) const;
   void answer_error(const farm::msg::EvaluationRequest& q, const std::string& why);
   void eval_thread_main();
   void stop_eval_thread();
