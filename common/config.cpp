@@ -279,6 +279,15 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
           "expected \"tanh\" or \"relu\", got \"" + c.activation() + "\"");
   s.check(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < ppo.log_std_max");
   s.non_negative("max_policy_lag", c.max_policy_lag());
+  s.check(c.mode() == "sync" || c.mode() == "async", "mode",
+          "expected \"sync\" or \"async\", got \"" + c.mode() + "\"");
+  if (c.mode() == "async") {
+    s.check(c.max_policy_lag() >= 1, "mode",
+            "\"async\" fits data of recent versions: needs ppo.max_policy_lag >= 1, got " + num(c.max_policy_lag()));
+    s.check(c.steps_per_fit() > 0, "mode", "\"async\" fits by steps: needs ppo.steps_per_fit > 0");
+  }
+  s.positive("vtrace_rho_bar", c.vtrace_rho_bar());
+  s.positive("vtrace_c_bar", c.vtrace_c_bar());
   s.check(c.steps_per_run() >= 0, "steps_per_run", "expected >= 0 (0 = no limit)");
   s.check(c.episodes_per_run() >= 0, "episodes_per_run", "expected >= 0 (0 = no limit)");
   s.check(c.eval_every_fits() >= 0, "eval_every_fits",

@@ -62,6 +62,8 @@ void FitScheduler::on_data(int64_t steps, int64_t episodes_ended) {
   run_episodes_ += episodes_ended;
 }
 
+void FitScheduler::forget(int64_t steps) { fit_steps_ = std::max<int64_t>(0, fit_steps_ - steps); }
+
 bool FitScheduler::run_done() const {
   return (plan_.steps_per_run > 0 && run_steps_ >= plan_.steps_per_run) ||
          (plan_.episodes_per_run > 0 && run_episodes_ >= plan_.episodes_per_run);

@@ -45,6 +45,9 @@ class FitScheduler {
 
   // Accounts collected steps and the episodes that ended in them.
   void on_data(int64_t steps, int64_t episodes_ended);
+  // Steps collected toward the next fit and then dropped (made by a version too old): they no
+  // longer count toward the fit; they stay in the run's length, they were simulated.
+  void forget(int64_t steps);
   // A fit is due when the fit's steps or episodes are in, or the run ended with data left.
   bool fit_due() const;
   struct Fit {

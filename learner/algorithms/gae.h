@@ -18,4 +18,15 @@ namespace farm {
 void compute_gae(const float* rewards, const float* values, const float* next_values, const uint8_t* terminated,
                  const uint8_t* truncated, int64_t n, double gamma, double lambda, float* advantages, float* returns);
 
+// V-trace (Espeholt et al. 2018, IMPALA, eq. 1) over the same segment, for steps made by an older
+// policy: log_ratio[t] = log pi(a_t|s_t) - log mu(a_t|s_t), the current policy against the one that
+// acted. With rho_t = min(rho_bar, e^log_ratio) and c_t = lambda * min(c_bar, e^log_ratio):
+//   delta_t = rho_t * (r_t + gamma * (1 - terminated_t) * next_values_t - values_t)
+//   A_t     = delta_t + gamma * c_t * (1 - terminated_t) * (1 - truncated_t) * A_{t+1}
+// returns (the value targets v_t) = A_t + values_t, advantages = A_t. With every log_ratio 0 this
+// is compute_gae exactly (lambda as IMPALA's trace factor).
+void compute_vtrace(const float* rewards, const float* values, const float* next_values, const uint8_t* terminated,
+                    const uint8_t* truncated, const float* log_ratio, int64_t n, double gamma, double lambda,
+                    double rho_bar, double c_bar, float* advantages, float* returns);
+
 }  // namespace farm

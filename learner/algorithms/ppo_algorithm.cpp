@@ -38,11 +38,13 @@ class PpoAlgorithm final : public Algorithm {
         pc_(cfg.ppo()),
         ppo_(pc_, spec.obs_dim, spec.act_dim, cfg_.seed()),
         storage_(spec.obs_dim, spec.act_dim),
-        sched_(plan_of(pc_)) {}
+        sched_(plan_of(pc_)),
+        async_(pc_.mode() == "async") {}
 
   std::string describe() const override {
     const auto& p = pc_;
-    return "PPO (" + p.variant() + ") " + ppo_.export_policy(0).layout.describe() + " actor, " +
+    return std::string(async_ ? "asynchronous " : "") + "PPO (" + p.variant() + ") " +
+           ppo_.export_policy(0).layout.describe() + " actor, " +
            (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps"
                                   : std::to_string(p.episodes_per_fit()) + " episodes") +
            " per fit, max policy lag " + std::to_string(p.max_policy_lag());
@@ -67,6 +69,13 @@ class PpoAlgorithm final : public Algorithm {
       }
       return 0.05;
     }
+    if (sched_.fit_due() && async_) {
+      // Steps that waited in the store while versions moved on past the window: counted, not used.
+      const uint64_t lag = uint64_t(pc_.max_policy_lag());
+      const int64_t dropped = storage_.drop_older_than(version_ > lag ? version_ - lag : 0);
+      sched_.forget(dropped);
+      stale_steps_ += uint64_t(dropped);
+    }
     if (sched_.fit_due()) {
       fit(farm, farm.elapsed());
       return 0;
@@ -78,7 +87,7 @@ class PpoAlgorithm final : public Algorithm {
 
   std::string csv_header() const override {
     std::string h =
-        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,fit_seconds,"
+        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,lag_mean,lag_max,fit_seconds,"
         "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
         "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
         "batches_stale,workers,episodes";
@@ -132,6 +141,18 @@ class PpoAlgorithm final : public Algorithm {
     return uint32_t(std::max<int64_t>(1, (steps_needed + r - 1) / r));
   }
   uint32_t batches_for_next_fit(const Farm& farm) const {
+    // Asynchronous: what the lag window can still fit. This version's last step is fitted once the
+    // S steps already held, those on their way (the arrival rate times one fit: what came in while
+    // the learner fitted, which S does not hold yet) and its own Q are, (S + in flight + Q) /
+    // steps_per_fit fits from now: within max_policy_lag versions when Q <= (max_policy_lag + 1) *
+    // steps_per_fit - S - in flight. A learner that keeps up holds little, so workers run on
+    // through its fits; one that falls behind holds more, and the workers wait instead of
+    // simulating steps that would arrive too old to use.
+    if (async_) {
+      const int64_t in_flight = int64_t(arrival_rate_ * last_fit_seconds_);
+      return batches_for(
+          farm, std::max<int64_t>(1, (pc_.max_policy_lag() + 1) * pc_.steps_per_fit() - storage_.steps() - in_flight));
+    }
     int64_t need = sched_.steps_wanted();
     if (pc_.episodes_per_fit() > 0) {
       const int64_t eps = std::max<int64_t>(1, sched_.episodes_wanted());
@@ -172,9 +193,11 @@ class PpoAlgorithm final : public Algorithm {
       // Made by a policy older than the lag allows (or after the run's end): counted, not used.
       ++stale_total_;
       ++stale_fit_;
+      stale_steps_ += uint64_t(rows.n);
       return false;
     }
     if (b.policy_version == version_) delivered_[b.worker_id] += 1;
+    arrived_ += uint64_t(rows.n);
     storage_.add(b.num_steps, b.num_envs, rows.obs.data(), rows.actions.data(), rows.rewards.data(),
                  rows.terminated.data(), b.truncated, b.log_probs, rows.next_obs.data(), b.policy_version);
     sched_.on_data(rows.n, int64_t(b.episodes->size()));
@@ -190,15 +213,40 @@ class PpoAlgorithm final : public Algorithm {
     const double t = now_seconds();
     const FitScheduler::Fit f = sched_.take_fit();
     PpoSamples samples;
+    RolloutStorage::VTrace vtrace;
+    vtrace.log_prob = [this](const float* o, const float* a, int64_t n) { return ppo_.log_probs(o, a, n); };
+    vtrace.rho_bar = pc_.vtrace_rho_bar();
+    vtrace.c_bar = pc_.vtrace_c_bar();
+    std::map<uint64_t, int64_t> by_version;
     storage_.take(
         f.steps_used, [this](const float* o, int64_t n) { return ppo_.values(o, n); }, pc_.gamma(), pc_.gae_lambda(),
-        version_, samples);
+        version_, samples, async_ ? &vtrace : nullptr, &by_version);
+    // The lag of what this fit uses: versions behind the one being fitted, by steps.
+    double lag_sum = 0;
+    uint64_t lag_max = 0;
+    std::string lags;
+    for (auto it = by_version.rbegin(); it != by_version.rend(); ++it) {
+      const uint64_t lag = version_ - it->first;
+      lag_sum += double(lag) * double(it->second);
+      lag_max = std::max(lag_max, lag);
+      lag_steps_[lag] += uint64_t(it->second);
+      lags += (lags.empty() ? "" : " ") + std::to_string(lag) + ":" +
+              fmt("%.0f%%", 100.0 * double(it->second) / double(std::max<int64_t>(1, f.steps_used)));
+    }
+    const double lag_mean = lag_sum / double(std::max<int64_t>(1, f.steps_used));
+    used_steps_ += uint64_t(f.steps_used);
     const PpoStats st = ppo_.fit(samples);
     require_finite_update("ppo", ppo_.fits(),
                           {{"value loss", st.value_loss}, {"policy loss", st.policy_loss}, {"kl", st.kl}});
     // The normalizer moves between versions only, so a version is one fixed policy.
     if (pc_.normalize_observations()) ppo_.normalizer().update(samples.obs.data(), samples.n);
     const double fit_s = now_seconds() - t;
+    // Steps/s arriving over the last fit's cycle (waiting for data, then fitting).
+    if (last_fit_end_ > 0 && now_seconds() > last_fit_end_)
+      arrival_rate_ = double(arrived_) / (now_seconds() - last_fit_end_);
+    arrived_ = 0;
+    last_fit_end_ = now_seconds();
+    last_fit_seconds_ = fit_s;
     last_stats_ = st;
     const uint64_t fitted = version_;
     ++version_;
@@ -214,18 +262,19 @@ class PpoAlgorithm final : public Algorithm {
     const double mean_ret = c.mean_return;
     std::ostringstream o;
     o << "fit " << ppo_.fits() << " | v" << fitted << " -> v" << version_ << " | steps used " << f.steps_used
-      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | kl " << fmt("%.4f", st.kl) << " lr "
-      << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction) << " | value loss "
-      << fmt("%.4g", st.value_loss) << " entropy " << fmt("%.3f", st.entropy) << " | return " << fmt("%.1f", mean_ret)
-      << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps
-      << " env steps, " << fmt("%.1f", elapsed) << " s";
+      << " carried " << f.steps_carried << " | stale dropped " << stale_fit_ << " | lag " << lags << " | kl "
+      << fmt("%.4f", st.kl) << " lr " << fmt("%.3g", st.learning_rate) << " clip " << fmt("%.3f", st.clip_fraction)
+      << " | value loss " << fmt("%.4g", st.value_loss) << " entropy " << fmt("%.3f", st.entropy) << " | return "
+      << fmt("%.1f", mean_ret) << " eval " << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, "
+      << c.env_steps << " env steps, " << fmt("%.1f", elapsed) << " s";
     farm.log(o.str());
     CsvRow row;
     std::ostringstream head, tail;
     head << fmt("%.2f", elapsed) << ',' << ppo_.fits() << ',' << fitted << ',' << c.env_steps << ',' << f.steps_used
-         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ','
-         << fmt("%.6g", st.learning_rate) << ',' << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss)
-         << ',' << fmt("%.6g", st.policy_loss) << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ',';
+         << ',' << f.steps_carried << ',' << stale_fit_ << ',' << fmt("%.3f", lag_mean) << ',' << lag_max << ','
+         << fmt("%.3f", fit_s) << ',' << fmt("%.6g", st.kl) << ',' << fmt("%.6g", st.learning_rate) << ','
+         << fmt("%.4f", st.clip_fraction) << ',' << fmt("%.6g", st.value_loss) << ',' << fmt("%.6g", st.policy_loss)
+         << ',' << fmt("%.5g", st.entropy) << ',' << fmt("%.3f", mean_ret) << ',';
     tail << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << stale_total_ << ','
          << c.workers << ',' << fit_episodes_;
     const size_t nm = spec_.metric_names.size();
@@ -366,7 +415,19 @@ class PpoAlgorithm final : public Algorithm {
     o << "best eval return  " << fmt("%.1f", c.best_eval) << "\n"
       << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
       << c.invalid << ", stale " << stale_total_ << "\n"
-      << "quota top-ups     " << top_ups_ << "\n";
+      << "quota top-ups     " << top_ups_ << "\n"
+      << "mode              " << (async_ ? "async" : "sync") << ", max policy lag " << pc_.max_policy_lag() << "\n";
+    // Every simulated step the learner was sent is fitted, counted stale, or still held at the end.
+    const uint64_t held = uint64_t(storage_.steps()), unused = stale_steps_ + held;
+    const uint64_t all = used_steps_ + unused;
+    o << "steps unused      " << unused << " of " << all << " ("
+      << fmt("%.2f", all > 0 ? 100.0 * double(unused) / double(all) : 0.0) << " %): stale " << stale_steps_
+      << ", not fitted at the end " << held << "\n";
+    std::string lags;
+    for (const auto& [lag, n] : lag_steps_)
+      lags += (lags.empty() ? "" : ", ") + std::to_string(lag) + ": " +
+              fmt("%.1f %%", used_steps_ > 0 ? 100.0 * double(n) / double(used_steps_) : 0.0);
+    o << "lag of fitted     " << (lags.empty() ? "none" : lags) << " (versions behind the fitted one, by steps)\n";
     return o.str();
   }
 
@@ -389,6 +450,11 @@ class PpoAlgorithm final : public Algorithm {
   uint64_t version_ = 0;
   uint32_t quota_ = 1;
   uint64_t stale_total_ = 0, stale_fit_ = 0, top_ups_ = 0;
+  uint64_t stale_steps_ = 0, used_steps_ = 0;  // simulated steps counted stale, and fitted
+  std::map<uint64_t, uint64_t> lag_steps_;     // fitted steps by lag, over the run
+  uint64_t arrived_ = 0;                       // steps taken since the last fit ended
+  double arrival_rate_ = 0, last_fit_end_ = 0, last_fit_seconds_ = 0;
+  const bool async_;
   double last_data_ = 0;
   bool published_ = false;
   static constexpr double kJoinGraceSeconds = 1.0;

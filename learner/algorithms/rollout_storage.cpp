@@ -42,8 +42,22 @@ void RolloutStorage::clear() {
   steps_ = 0;
 }
 
+int64_t RolloutStorage::drop_older_than(uint64_t min_version) {
+  int64_t dropped = 0;
+  for (auto it = trajs_.begin(); it != trajs_.end();) {
+    if (it->version < min_version) {
+      dropped += it->len;
+      it = trajs_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  steps_ -= dropped;
+  return dropped;
+}
+
 void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version,
-                          PpoSamples& out) {
+                          PpoSamples& out, const VTrace* vtrace, std::map<uint64_t, int64_t>* steps_by_version) {
   if (steps < 0 || steps > steps_)
     throw std::invalid_argument("RolloutStorage::take: " + std::to_string(steps) + " steps asked, " +
                                 std::to_string(steps_) + " stored");
@@ -65,20 +79,39 @@ void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, dou
   for (size_t i = 0; i < touched; ++i) at = std::copy(trajs_[i].obs.begin(), trajs_[i].obs.end(), at);
   for (size_t i = 0; i < touched; ++i) at = std::copy(trajs_[i].next_obs.begin(), trajs_[i].next_obs.end(), at);
   const std::vector<float> values = rows > 0 ? value(both.data(), 2 * rows) : std::vector<float>{};
+  // V-trace: the current policy's log-probability of every touched step's action, one call too.
+  std::vector<float> log_ratio;
+  if (vtrace && rows > 0) {
+    std::vector<float> acts(size_t(rows) * ad);
+    auto a = acts.begin();
+    for (size_t i = 0; i < touched; ++i) a = std::copy(trajs_[i].actions.begin(), trajs_[i].actions.end(), a);
+    log_ratio = vtrace->log_prob(both.data(), acts.data(), rows);
+    int64_t r = 0;
+    for (size_t i = 0; i < touched; ++i)
+      for (int64_t t = 0; t < trajs_[i].len; ++t, ++r)
+        // The current version's own steps: the same policy, a ratio of exactly 1 (not float noise).
+        log_ratio[r] = trajs_[i].version == current_version ? 0.f : log_ratio[r] - trajs_[i].log_probs[t];
+  }
   std::vector<float> adv, ret;
   int64_t left = steps, offset = 0;
   while (left > 0) {
     Trajectory& tr = trajs_.front();
-    const float* v = values.data() + offset;
-    const float* nv = values.data() + rows + offset;
+    const int64_t row0 = offset;
+    const float* v = values.data() + row0;
+    const float* nv = values.data() + rows + row0;
     offset += tr.len;
     adv.resize(tr.len);
     ret.resize(tr.len);
     // The last step bootstraps on its next observation unless it terminated: compute_gae treats
     // every step's next value that way, and cuts the chain only at episode ends.
-    compute_gae(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), tr.len, gamma, lambda, adv.data(),
-                ret.data());
+    if (vtrace)
+      compute_vtrace(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), log_ratio.data() + row0,
+                     tr.len, gamma, lambda, vtrace->rho_bar, vtrace->c_bar, adv.data(), ret.data());
+    else
+      compute_gae(tr.rewards.data(), v, nv, tr.terminated.data(), tr.truncated.data(), tr.len, gamma, lambda,
+                  adv.data(), ret.data());
     const int64_t k = std::min(left, tr.len);
+    if (steps_by_version) (*steps_by_version)[tr.version] += k;
     out.obs.insert(out.obs.end(), tr.obs.begin(), tr.obs.begin() + k * od);
     out.actions.insert(out.actions.end(), tr.actions.begin(), tr.actions.begin() + k * ad);
     out.behaviour_log_prob.insert(out.behaviour_log_prob.end(), tr.log_probs.begin(), tr.log_probs.begin() + k);

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <vector>
 
 #include "ppo.h"
@@ -26,12 +27,23 @@ class RolloutStorage {
   void clear();
 
   using ValueFn = std::function<std::vector<float>(const float* obs, int64_t n)>;
+  using LogProbFn = std::function<std::vector<float>(const float* obs, const float* actions, int64_t n)>;
+  // The asynchronous mode's off-policy correction: V-trace (gae.h) with the current policy's
+  // log-probabilities of the stored actions against those the workers sent.
+  struct VTrace {
+    LogProbFn log_prob;
+    double rho_bar = 1.0, c_bar = 1.0;
+  };
   // GAE over every stored trajectory with `value` (each trajectory bootstraps on the value of
-  // the observation after its last step unless that step terminated), then moves the first
-  // `steps` steps (oldest first) into `out`; the rest stays for the next fit. current[] marks the
-  // steps made by `current_version`.
-  void take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version,
-            PpoSamples& out);
+  // the observation after its last step unless that step terminated), or V-trace where `vtrace`
+  // is given, then moves the first `steps` steps (oldest first) into `out`; the rest stays for the
+  // next fit. current[] marks the steps made by `current_version`. steps_by_version, if given,
+  // gets how many of the taken steps each policy version made.
+  void take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version, PpoSamples& out,
+            const VTrace* vtrace = nullptr, std::map<uint64_t, int64_t>* steps_by_version = nullptr);
+
+  // Drops the stored steps made by versions older than min_version; returns how many.
+  int64_t drop_older_than(uint64_t min_version);
 
  private:
   struct Trajectory {

@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <regex>
+#include <sstream>
 #include <string>
 
 #include "process_util.h"
@@ -76,7 +77,7 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   // Every fit's line carries version, steps used and carried, stale drops, KL, rate, clip
   // fraction, value loss, entropy and mean return; steps used is the configured steps per fit.
   const std::regex fit_line(
-      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \|)"
+      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \| lag [0-9:% ]+ \|)"
       R"( kl [-0-9.e]+ lr [-0-9.e]+ clip [0-9.]+ \| value loss [-0-9.e+]+ entropy [-0-9.]+ \| return [-0-9.na]+)");
   const int fits = count(log, fit_line);
   EXPECT_GE(fits, 2) << log;
@@ -85,9 +86,74 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   std::ifstream csv(run + "/learner.csv");
   std::string header;
   ASSERT_TRUE(std::getline(csv, header));
-  for (const char* col : {"steps_used", "steps_carried", "stale_dropped", "kl", "learning_rate", "clip_fraction",
-                          "value_loss", "entropy", "mean_return"})
+  for (const char* col : {"steps_used", "steps_carried", "stale_dropped", "lag_mean", "lag_max", "kl", "learning_rate",
+                          "clip_fraction", "value_loss", "entropy", "mean_return"})
     EXPECT_NE(header.find(col), std::string::npos) << col << " not in " << header;
+  // The synchronous mode fits the version it published, and only that one.
+  EXPECT_NE(summary.find("lag of fitted     0: 100.0 %"), std::string::npos) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// The asynchronous mode: workers simulate on with the weights they have while the learner fits;
+// each fit takes data of the versions within the lag window (V-trace corrects for the older ones),
+// the lag of what it used is logged, and every step sent is fitted, counted stale or said to be
+// still held at the end. The same swing-up is learned.
+TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(73)), run = d + "/run";
+  std::string text = config("it_ppo_async", "target_eval_return: 150 max_seconds: 480");
+  text = std::regex_replace(text, std::regex(R"(steps_per_run: 1000000)"),
+                            "steps_per_run: 1000000\n  mode: \"async\"\n  max_policy_lag: 2");
+  write_file(d + "/cfg.txtpb", text);
+  Proc& learner =
+      set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "async-a"}, "worker-a");
+  set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "async-b"}, "worker-b");
+  const int rc = wait_for(learner, 560);
+  const std::string log = slurp(d + "/learner.log");
+  ASSERT_EQ(rc, 0) << log;
+  const std::string summary = slurp(run + "/summary.txt");
+  EXPECT_NE(summary.find("reached the target"), std::string::npos) << summary;
+  EXPECT_NE(summary.find("mode              async, max policy lag 2"), std::string::npos) << summary;
+  std::smatch m;
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_EQ(m[4], "0") << summary;
+  // Every simulated step the learner took is fitted, stale or held: the total is the run's steps.
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(env steps\s+(\d+))"))) << summary;
+  const long long env_steps = std::stoll(m[1]);
+  ASSERT_TRUE(std::regex_search(
+      summary, m,
+      std::regex(R"(steps unused\s+(\d+) of (\d+) \([0-9.]+ %\): stale (\d+), not fitted at the end (\d+))")))
+      << summary;
+  EXPECT_EQ(std::stoll(m[2]), env_steps) << summary;
+  EXPECT_EQ(std::stoll(m[1]), std::stoll(m[3]) + std::stoll(m[4])) << summary;
+  // Each fit's CSV row: lag within the window; some fits used older versions' data (workers ran on).
+  std::ifstream csv(run + "/learner.csv");
+  std::string header, row;
+  ASSERT_TRUE(std::getline(csv, header));
+  const auto column = [&](const std::string& name) {
+    int i = 0;
+    for (size_t at = 0, next; (next = header.find(',', at)), true; at = next + 1, ++i) {
+      if (header.substr(at, next == std::string::npos ? std::string::npos : next - at) == name) return i;
+      if (next == std::string::npos) return -1;
+    }
+  };
+  const int lag_max = column("lag_max");
+  ASSERT_GE(lag_max, 0) << header;
+  int rows = 0, lagged = 0;
+  while (std::getline(csv, row)) {
+    std::stringstream fields(row);
+    std::string f;
+    for (int i = 0; i <= lag_max; ++i) std::getline(fields, f, ',');
+    EXPECT_LE(std::stoi(f), 2) << row;
+    lagged += std::stoi(f) > 0;
+    ++rows;
+  }
+  EXPECT_GE(rows, 2);
+  EXPECT_GT(lagged, 0) << "no fit used an older version's steps";
   set.cleanup(::testing::Test::HasFailure());
 }
 

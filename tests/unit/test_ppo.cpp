@@ -7,6 +7,7 @@
 #include "config.h"
 
 #include <cmath>
+#include <map>
 #include <numeric>
 #include <random>
 #include <vector>
@@ -50,6 +51,45 @@ TEST(Gae, LambdaOneGivesDiscountedReturnsLambdaZeroGivesTdErrors) {
   compute_gae(r, v, nv, no, no, 3, 0.5, 0.0, adv, ret);
   EXPECT_NEAR(adv[0], 1.0, 1e-6);
   EXPECT_NEAR(adv[2], 2.0, 1e-6);
+}
+
+TEST(VTrace, WithTheCurrentPolicysOwnStepsItIsGae) {
+  const float r[] = {1, 2, 3, 4, 5};
+  const float v[] = {0.5f, 1, 1.5f, 2, 2.5f};
+  const float nv[] = {1, 10, 2, 7, 4};
+  const uint8_t term[] = {0, 0, 0, 1, 0};
+  const uint8_t trunc[] = {0, 1, 0, 0, 0};
+  const float zero[5] = {0, 0, 0, 0, 0};
+  float adv[5], ret[5], gadv[5], gret[5];
+  compute_vtrace(r, v, nv, term, trunc, zero, 5, 0.9, 0.5, 1.0, 1.0, adv, ret);
+  compute_gae(r, v, nv, term, trunc, 5, 0.9, 0.5, gadv, gret);
+  for (int t = 0; t < 5; ++t) {
+    EXPECT_FLOAT_EQ(adv[t], gadv[t]) << "t=" << t;
+    EXPECT_FLOAT_EQ(ret[t], gret[t]) << "t=" << t;
+  }
+}
+
+TEST(VTrace, HandComputedTruncatedImportanceWeights) {
+  // gamma 0.5, lambda 1, rho_bar 1, c_bar 1. Step 0: ratio 2, truncated to 1 (rho and c); step
+  // 1: ratio 0.5 weighs its TD error and the trace back to step 0; step 2 ends the segment and
+  // bootstraps on its next value 4 with ratio 1.
+  const float r[] = {1, 1, 1};
+  const float v[] = {0, 0, 0};
+  const float nv[] = {0, 0, 4};
+  const uint8_t no[] = {0, 0, 0};
+  const float log_ratio[] = {std::log(2.f), std::log(0.5f), 0.f};
+  float adv[3], ret[3];
+  compute_vtrace(r, v, nv, no, no, log_ratio, 3, 0.5, 1.0, 1.0, 1.0, adv, ret);
+  const double a2 = 1 + 0.5 * 4;               // delta_2 = 3
+  const double a1 = 0.5 * 1 + 0.5 * 0.5 * a2;  // rho_1 = c_1 = 0.5
+  const double a0 = 1 + 0.5 * 1 * a1;          // rho_0 = c_0 = min(1, 2)
+  EXPECT_NEAR(adv[2], a2, 1e-6);
+  EXPECT_NEAR(adv[1], a1, 1e-6);
+  EXPECT_NEAR(adv[0], a0, 1e-6);
+  EXPECT_NEAR(ret[0], a0, 1e-6);  // values 0: the targets are the advantages
+  // A higher rho_bar lets step 0's weight of 2 through; c_bar 1 still truncates its trace.
+  compute_vtrace(r, v, nv, no, no, log_ratio, 3, 0.5, 1.0, 4.0, 1.0, adv, ret);
+  EXPECT_NEAR(adv[0], 2 * 1 + 0.5 * 1 * a1, 1e-6);
 }
 
 TEST(KlAdaptiveRate, LowersAboveTheBandRaisesBelowKeepsInside) {
@@ -270,6 +310,33 @@ TEST(RolloutStorage, TakesExactlyTheStepsAndCarriesTheTail) {
   EXPECT_EQ(s.current, (std::vector<uint8_t>{0, 0}));
   EXPECT_EQ(st.steps(), 0);
   EXPECT_THROW(st.take(1, zero, 1.0, 1.0, 5, s), std::invalid_argument);
+}
+
+TEST(RolloutStorage, DropsVersionsBeyondTheWindowAndCountsStepsByVersion) {
+  // Three batches of 2 steps x 1 env made by versions 3, 4, 5; then the window moves to >= 4.
+  RolloutStorage st(1, 1);
+  const float obs[] = {1, 2}, next[] = {2, 3}, act[] = {0, 0}, rew[] = {1, 1}, lp[] = {-1, -1};
+  const uint8_t no[] = {0, 0};
+  for (uint64_t v : {3, 4, 5}) st.add(2, 1, obs, act, rew, no, no, lp, next, v);
+  EXPECT_EQ(st.drop_older_than(4), 2);
+  EXPECT_EQ(st.steps(), 4);
+  auto zero = [](const float*, int64_t n) { return std::vector<float>(n, 0.f); };
+  // V-trace with a target policy twice as likely as the behaviour one on every step.
+  RolloutStorage::VTrace vt;
+  int64_t asked = 0;
+  vt.log_prob = [&](const float*, const float*, int64_t n) {
+    asked += n;
+    return std::vector<float>(n, -1.f + std::log(2.f));
+  };
+  PpoSamples s;
+  std::map<uint64_t, int64_t> by_version;
+  st.take(3, zero, 1.0, 1.0, 5, s, &vt, &by_version);
+  EXPECT_EQ(asked, 4);  // every touched step's log-probability, in one call
+  EXPECT_EQ(by_version, (std::map<uint64_t, int64_t>{{4, 2}, {5, 1}}));
+  // Version 4's steps: ratio 2 truncated to 1, so GAE's 2, 1; version 5's own step: ratio 1.
+  EXPECT_EQ(s.advantages, (std::vector<float>{2, 1, 2}));
+  EXPECT_EQ(s.current, (std::vector<uint8_t>{0, 0, 1}));
+  EXPECT_EQ(st.steps(), 1);
 }
 
 TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
