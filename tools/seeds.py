@@ -2,11 +2,15 @@
 """Trains one shipped config over several seeds and reports every seed, with the spread.
 
   tools/seeds.py CONFIG [--seeds 1,2,3] [--workers W] [--parallel P] [--out DIR] [--domain D]
-                 [--build DIR] [--learner-bin PATH] [--eval-episodes N] [--report-only]
+                 [--build DIR] [--learner-bin PATH] [--worker-bin PATH] [--eval-episodes N]
+                 [--cpus-per-run C] [--gpus 0,1,..] [--train-only | --report-only]
 
 For each seed the config is copied with only its `seed:` line changed, a learner and W workers run
 it on this host (shared memory only, deploy/discovery/local.xml, DDS domain D + seed), P runs side
-by side. Then each run's final policy (RUN/checkpoint) and kept best (RUN/best) are measured on the
+by side; with --cpus-per-run C the k-th of them (its learner and workers) is held to cores
+k*C .. (k+1)*C - 1 (taskset), with --gpus the k-th gets the k-th GPU (CUDA_VISIBLE_DEVICES): one
+host of 4 x 16 cores and 4 GPUs runs 4 seeds as 4 16-core one-GPU hosts would, apart from what
+they share (memory bandwidth, caches). Then each run's final policy (RUN/checkpoint) and kept best (RUN/best) are measured on the
 task's own goal:
   pendulum, cart-pole   evaluation return (learner.csv) against stop.target_eval_return
   a1, honey_badger,     the walking threshold of docs/QUADRUPEDS.md: eval_tracking_lin >= 0.6 and
@@ -217,16 +221,23 @@ def bootstrap_ci(xs, stat=iqm, reps=2000, seed=0):
 
 def train(args, text, seeds):
     learner = args.learner_bin or os.path.join(args.build, "learner", "farm-learner")
-    worker = os.path.join(args.build, "worker", "farm-worker")
+    worker = args.worker_bin or os.path.join(args.build, "worker", "farm-worker")
     for b in (learner, worker):
         if not os.access(b, os.X_OK):
             fail(f"{b} not found: build first (deploy/build.sh) or give --build")
     profiles = os.path.join(ROOT, "deploy", "discovery", "local.xml")
     pending, running = list(seeds), []
+    free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
     t0 = time.time()
     while pending or running:
-        while pending and len(running) < args.parallel:
+        while pending and free:
             s = pending.pop(0)
+            slot = free.pop(0)
+            pin, env = [], dict(os.environ)
+            if args.cpus_per_run:
+                pin = ["taskset", "-c", f"{slot * args.cpus_per_run}-{(slot + 1) * args.cpus_per_run - 1}"]
+            if args.gpus:
+                env["CUDA_VISIBLE_DEVICES"] = args.gpus[slot % len(args.gpus)]
             run = os.path.join(args.out, f"seed{s}")
             if os.path.exists(run):
                 fail(f"{run} exists: give another --out, or --report-only to report it")
@@ -238,17 +249,19 @@ def train(args, text, seeds):
             # Logs beside the run folder: the learner moves a non-empty run folder aside.
             logs = os.path.join(args.out, "logs")
             os.makedirs(logs, exist_ok=True)
-            procs = [subprocess.Popen([learner, "--config", cfg, "--run-dir", run] + common,
+            procs = [subprocess.Popen(pin + [learner, "--config", cfg, "--run-dir", run] + common,
                                       stdout=open(os.path.join(logs, f"seed{s}-learner.log"), "w"),
-                                      stderr=subprocess.STDOUT)]
+                                      stderr=subprocess.STDOUT, env=env)]
             for w in range(args.workers):
-                procs.append(subprocess.Popen([worker, "--id", f"s{s}w{w + 1}"] + common,
+                procs.append(subprocess.Popen(pin + [worker, "--id", f"s{s}w{w + 1}"] + common,
                                               stdout=open(os.path.join(logs, f"seed{s}-worker{w + 1}.log"), "w"),
-                                              stderr=subprocess.STDOUT))
-            print(f"seeds: seed {s} started (domain {domain}, {args.workers} workers, run {run})", flush=True)
-            running.append((s, procs))
+                                              stderr=subprocess.STDOUT, env=env))
+            where = (f", cores {pin[2]}" if pin else "") + (
+                f", GPU {env['CUDA_VISIBLE_DEVICES']}" if args.gpus else "")
+            print(f"seeds: seed {s} started (domain {domain}, {args.workers} workers{where}, run {run})", flush=True)
+            running.append((s, procs, slot))
         time.sleep(2)
-        for s, procs in list(running):
+        for s, procs, slot in list(running):
             rc = procs[0].poll()
             if rc is None:
                 continue
@@ -258,7 +271,8 @@ def train(args, text, seeds):
                 except subprocess.TimeoutExpired:
                     p.terminate()
                     p.wait()
-            running.remove((s, procs))
+            running.remove((s, procs, slot))
+            free.append(slot)
             print(f"seeds: seed {s} ended (learner exit {rc}) at {time.time() - t0:.0f} s", flush=True)
             if rc != 0:
                 print(f"seeds: seed {s}: the learner failed; its log: "
@@ -379,6 +393,12 @@ def main():
     ap.add_argument("--domain", type=int, default=150, help="seed N runs on DDS domain D + N")
     ap.add_argument("--build", default=os.path.join(ROOT, "build"))
     ap.add_argument("--learner-bin", help="another farm-learner (e.g. a GPU build)")
+    ap.add_argument("--worker-bin", help="another farm-worker")
+    ap.add_argument("--cpus-per-run", type=int, default=0, help="hold each side-by-side run to this many cores")
+    ap.add_argument("--gpus", type=lambda v: [g for g in v.split(",") if g], default=[],
+                    help="GPU ids, one per side-by-side run (CUDA_VISIBLE_DEVICES)")
+    ap.add_argument("--train-only", action="store_true", help="train, do not measure (e.g. on a host without "
+                    "the evaluation programs; --report-only measures later)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
     args = ap.parse_args()
@@ -390,6 +410,11 @@ def main():
         fail(f"--seeds: expected distinct non-negative integers, got '{args.seeds}'")
     if args.workers < 1 or args.parallel < 1 or args.eval_episodes < 1:
         fail("--workers, --parallel and --eval-episodes must be >= 1")
+    if args.cpus_per_run < 0 or args.cpus_per_run * args.parallel > (os.cpu_count() or 1):
+        fail(f"--cpus-per-run {args.cpus_per_run} x --parallel {args.parallel} is more than this host's "
+             f"{os.cpu_count()} cores")
+    if args.train_only and args.report_only:
+        fail("--train-only and --report-only exclude each other")
     if not 0 <= args.domain + max(seeds) <= 232:
         fail(f"--domain {args.domain} + seed {max(seeds)} is outside the DDS domain ids 0..232")
     text, task, target = read_config(args.config)
@@ -400,6 +425,8 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     if not args.report_only:
         train(args, text, seeds)
+    if args.train_only:
+        return
     met = report(args, task, kind, target, seeds)
     sys.exit(0 if met == len(seeds) else 1)
 
