@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
-#include <sstream>
 #include <stdexcept>
 
 #include "checkpoint.h"
@@ -418,93 +417,6 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   m.set_episodes(episodes_total_);
   accounts_to_manifest(ingest_, m);
   return m;
-}
-
-std::string FarmService::summary_head(double elapsed, const std::string& reason) const {
-  const auto& c = ingest_.counters();
-  std::ostringstream o;
-  o << "experiment        " << cfg_.experiment_id() << "\n"
-    << "stopped because   " << reason << "\n"
-    << "wall time         " << fmt("%.1f", elapsed) << " s\n"
-    << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9))
-    << " steps/s)\n";
-  if (const std::string n = untrained_stop_note(reason); !n.empty()) o << "note              " << n << "\n";
-  return o.str();
-}
-
-std::string FarmService::untrained_stop_note(const std::string& reason) const {
-  const bool step_limit = reason.rfind("env step limit", 0) == 0 || reason.rfind("update limit", 0) == 0;
-  if (!step_limit || evaluated_in_training_) return "";
-  return "the run stopped on its " + reason.substr(0, reason.find(" limit")) +
-         " limit before its first evaluation (eval.every_seconds " + fmt("%g", cfg_.eval().every_seconds()) +
-         "): its policy was never evaluated while it trained, and more workers reach a step limit sooner; "
-         "stop on time (stop.max_seconds) or on a target instead";
-}
-
-std::string FarmService::summary_workers() const {
-  std::ostringstream o;
-  if (ingest_.counters().foreign > 0)
-    o << "other experiments " << ingest_.counters().foreign
-      << " batches of other experiments on the domain, not used\n";
-  for (auto& [k, w] : ingest_.workers()) {
-    o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
-      << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
-      << w.duplicates << ", invalid " << w.invalid << (w.ended ? ", stream closed" : ", stream open") << "\n";
-  }
-  return o.str();
-}
-
-void FarmService::write_summary(double elapsed, const std::string& reason) {
-  FarmFigures f = figures();
-  const std::string text =
-      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + eval_summary() + summary_workers();
-  std::printf("\n===== summary =====\n%s===================\n", text.c_str());
-  std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
-  log("summary written to " + run_dir_ + "/summary.txt");
-}
-
-// The workers are told to hold (the current version re-sent with a quota of one batch; no new
-// version follows), so each sends at most one more batch and then waits: take batches until none
-// has come for 0.5 s and no live worker says it is running (or none for 3 s; 15 s at most).
-void FarmService::drain_before_interrupted_stop() {
-  algo_->hold_workers(*this);
-  const double t0 = now_seconds(), t_end = t0 + 15.0;
-  double last = t0;
-  size_t taken = 0;
-  while (now_seconds() < t_end) {
-    const size_t got = drain_batches(1024);
-    drain_status();
-    const double now = now_seconds();
-    if (got > 0) {
-      taken += got;
-      last = now;
-      continue;
-    }
-    bool running = false;
-    for (const auto& [k, v] : roster_.views())
-      running = running || (roster_.live(v, now) && v.last.state() == "running");
-    if (now - last >= 3.0 || (now - last >= 0.5 && !running)) break;
-    batches_in_.wait(0.05);
-  }
-  log("took the " + std::to_string(taken) + " batches in flight (" + fmt("%.1f", now_seconds() - t0) + " s)");
-}
-
-// After announcing the end, every batch still in flight is taken and accounted, so the summary
-// can say exactly what was sent and what arrived.
-void FarmService::drain_until_workers_end() {
-  const double t_end = now_seconds() + 15.0;
-  while (now_seconds() < t_end) {
-    drain_batches(1024);
-    drain_status();
-    bool all_ended = !ingest_.workers().empty();
-    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && w.ended;
-    if (all_ended) break;
-    batches_in_.wait(0.05);
-  }
-  for (auto& [k, w] : ingest_.workers())
-    if (!w.ended)
-      log("worker " + w.worker_id + " did not close its stream; batches after " + std::to_string(w.next_sequence) +
-          " are unaccounted");
 }
 
 }  // namespace farm

@@ -1,9 +1,10 @@
 // The farm side of the learner: publishes the experiment, takes and accounts the workers'
 // batches (ingest), hears their heartbeats (roster), publishes the weights the algorithm hands it,
 // asks workers for evaluations and hands the answers back (farm_evaluations.cpp: the learner
-// steps no simulation and links no robot), and runs the main loop (progress lines, checkpoints, the best policy, stop
-// rules, Ctrl-C), resumes from a checkpoint, closes the workers' streams at the end and writes the
-// summary. What it trains with is an Algorithm (algorithms/algorithm.h) from the registry.
+// steps no simulation and links no robot), and runs the main loop (progress lines, checkpoints,
+// the best policy, stop rules, Ctrl-C), resumes from a checkpoint, closes the workers' streams at
+// the end and writes the summary (farm_run_end.cpp). What it trains with is an Algorithm
+// (algorithms/algorithm.h) from the registry.
 #pragma once
 
 #include <atomic>
@@ -73,6 +74,10 @@ class FarmService final : public Farm {
   bool try_checkpoint(double elapsed);
   // The manifest fields every checkpoint carries.
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
+  // Live workers that wait on the learner (for new weights, or for room in the batch queue).
+  std::string waiting_note() const;
+
+  // --- The end of a run (farm_run_end.cpp) ---
   // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
   std::string summary_head(double elapsed, const std::string& reason) const;
   std::string summary_workers() const;
@@ -83,8 +88,6 @@ class FarmService final : public Farm {
   void drain_until_workers_end();
   // On Ctrl-C / SIGTERM, before the checkpoint: the batches already on their way.
   void drain_before_interrupted_stop();
-  // Live workers that wait on the learner (for new weights, or for room in the batch queue).
-  std::string waiting_note() const;
 
   // --- Evaluations on workers (farm_evaluations.cpp) ---
   // One evaluation asked of one worker; a lost one is asked once more (attempt 2) under a new id.

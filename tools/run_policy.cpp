@@ -11,7 +11,6 @@
 #include <stdexcept>
 
 #include "config.h"
-#include "ppo.h"
 #include "registry.h"
 
 namespace farm::tools {
@@ -77,16 +76,11 @@ PolicyParams export_policy(config::ExperimentConfig cfg, const robots::TaskSpec&
     *updates = algo->updates();
     return algo->export_policy(version);
   }
-  // PPO's learner side (an Algorithm) exports no policy: its networks are read by Ppo itself.
-  if (algorithm == "ppo") {
-    Ppo ppo(cfg.ppo(), spec.obs_dim, spec.act_dim, cfg.seed());
-    if (!dir.empty()) ppo.load(sub);
-    *updates = ppo.updates();
-    return ppo.export_policy(version);
-  }
+  // An algorithm with its own driver reads its networks itself (its registration's read_policy).
+  if (a.read_policy) return a.read_policy(cfg, spec, sub, version, updates);
   throw std::runtime_error("cannot make a policy of algorithm \"" + algorithm + "\"" +
                            (dir.empty() ? std::string() : " from " + dir) +
-                           ": the tools read the networks of the off-policy algorithms and of ppo");
+                           ": its registration (learner/algorithms/registry.cpp) has no read_policy");
 }
 
 // The config's task, built without writing any file its config names.

@@ -40,6 +40,7 @@ class DqnAlgorithm final : public OffPolicy {
   DqnAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
       : cfg_(cfg.dqn()), dqn_(cfg.dqn(), spec.obs_dim, spec.num_actions, cfg.seed()) {}
   std::string name() const override { return "dqn"; }
+  std::string alpha_name() const override { return "epsilon"; }
   OffPolicyStats update(const SampledBatch& b) override {
     const DqnStats s = dqn_.update(b);
     return {s.loss, 0.0, dqn_.epsilon()};

@@ -25,6 +25,8 @@ class OffPolicy {
   virtual ~OffPolicy() = default;
   // "sac" or "dqn", also the checkpoint sub-folder.
   virtual std::string name() const = 0;
+  // What OffPolicyStats::alpha holds, as messages name it (DQN: "epsilon").
+  virtual std::string alpha_name() const { return "alpha"; }
   virtual OffPolicyStats update(const SampledBatch& batch) = 0;
   virtual PolicyParams export_policy(uint64_t version) const = 0;
   virtual int64_t updates() const = 0;

@@ -25,6 +25,7 @@ class OffPolicyAlgorithm final : public Algorithm {
       : cfg_(cfg),
         algo_(std::move(algo)),
         algo_name_(algo_->name()),
+        alpha_name_(algo_->alpha_name()),
         metric_names_(spec.metric_names),
         replay_(algo_->buffer_size(), spec.obs_dim, spec.act_dim),
         rng_(cfg_.seed() * 7919 + 17) {}
@@ -182,7 +183,7 @@ class OffPolicyAlgorithm final : public Algorithm {
     require_finite_update(algo_name_, algo_->updates(),
                           {{"critic loss", last_stats_.critic_loss},
                            {"actor loss", last_stats_.actor_loss},
-                           {algo_name_ == "dqn" ? "epsilon" : "alpha", last_stats_.alpha}});
+                           {alpha_name_.c_str(), last_stats_.alpha}});
     ++updates_since_publish_;
     updates_meter_.add(1);
   }
@@ -200,7 +201,7 @@ class OffPolicyAlgorithm final : public Algorithm {
 
   const config::ExperimentConfig cfg_;
   std::unique_ptr<OffPolicy> algo_;
-  const std::string algo_name_;  // for the per-update divergence check
+  const std::string algo_name_, alpha_name_;  // for the per-update divergence check
   const std::vector<std::string> metric_names_;
   ReplayBuffer replay_;
   std::mt19937_64 rng_;

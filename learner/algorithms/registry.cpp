@@ -3,6 +3,7 @@
 #include <stdexcept>
 
 #include "ppo_algorithm.h"
+#include "ppo_policy.h"
 
 namespace farm {
 
@@ -11,7 +12,7 @@ const std::vector<AlgorithmRegistration>& algorithms() {
   static const std::vector<AlgorithmRegistration> kAlgorithms = {
       {"sac", nullptr, &make_sac},
       {"dqn", nullptr, &make_dqn},
-      {"ppo", &make_ppo, nullptr},
+      {"ppo", &make_ppo, nullptr, &read_ppo_policy},
   };
   return kAlgorithms;
 }

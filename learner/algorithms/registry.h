@@ -1,15 +1,17 @@
 // The learner's algorithms, one registration line each (registry.cpp), as robots/task.cpp lists
-// the tasks. The learner's dispatch, the off-policy adapters that evaluation programs load and
-// the tests read this one list; the config check reads the algorithm sections of
+// the tasks. The learner's dispatch, the programs that read a trained run (off-policy adapters, or
+// an algorithm's read_policy) and the tests read this one list; the config check reads the algorithm sections of
 // common/farm_config.proto, and a unit test holds the two together.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "algorithm.h"
 #include "farm_config.pb.h"
+#include "mlp.h"
 #include "off_policy.h"
 #include "task_spec.h"
 
@@ -21,6 +23,12 @@ struct AlgorithmRegistration {
   std::unique_ptr<Algorithm> (*make)(const config::ExperimentConfig&, const robots::TaskSpec&);
   // An off-policy algorithm: the adapter the replay-buffer driver runs; null otherwise.
   std::unique_ptr<OffPolicy> (*make_off_policy)(const config::ExperimentConfig&, const robots::TaskSpec&);
+  // An algorithm with its own driver: its policy as the workers run it, read from the networks it
+  // saved in a folder (its checkpoint sub-folder; "" for the networks as it starts), and their update
+  // count, for the programs that read a trained run (tools/run_policy.cpp). Null for an off-policy
+  // one: those programs load its adapter.
+  PolicyParams (*read_policy)(const config::ExperimentConfig&, const robots::TaskSpec&, const std::string& dir,
+                              uint64_t version, int64_t* updates);
 };
 
 const std::vector<AlgorithmRegistration>& algorithms();

@@ -17,7 +17,8 @@
 //   bench_ingest --sender --config FILE --experiment ID --id NAME --rate R [--domain D] [--dds-profiles FILE]
 //
 // --rates are total offered batches/s, shared evenly by the K senders. --expect-all: exit 1 unless
-// every step took what was offered with nothing lost or invalid (the ctest smoke test).
+// every step took what was offered with nothing lost or invalid (the ctest smoke test). This file
+// is the options and the learner's side; the sender mode is bench_ingest_sender.cpp.
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -38,6 +39,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_ingest.h"
 #include "compute.h"
 #include "config.h"
 #include "dds.h"
@@ -49,25 +51,8 @@
 #include "sac.h"
 #include "task_spec.h"
 
+namespace bench_ingest {
 namespace {
-
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
-struct Options {
-  farm::dds::BusOptions bus;
-  std::string config = FARM_DEFAULT_CONFIG;
-  std::vector<double> rates{20, 50, 100, 200, 400, 800};
-  int senders = 4;
-  double seconds = 5, warmup = 1.5;
-  bool with_updates = false, expect_all = false;
-  double tolerance = 0.03;        // taken below (1 - tolerance) x offered: not keeping up
-  double max_update_drop = 0.10;  // updates/s below (1 - this) x the baseline: ingest slows training
-  // Sender mode.
-  bool sender = false;
-  std::string experiment, id;
-  double rate = 0;
-};
 
 double positive(const std::string& flag, const std::string& v) {
   char* end = nullptr;
@@ -129,119 +114,6 @@ Options parse(int argc, char** argv) {
   if (o.sender && (o.experiment.empty() || o.id.empty() || o.rate <= 0))
     throw std::invalid_argument("--sender needs --experiment, --id and --rate");
   return o;
-}
-
-// What a shipped config makes a worker send: the task's shape and the batch's T x N.
-struct Shape {
-  farm::config::ExperimentConfig cfg;
-  farm::robots::TaskSpec spec;
-  int steps = 0, envs = 0;
-};
-
-Shape shape_of(const std::string& config) {
-  Shape s;
-  s.cfg = farm::load_config_file(config);
-  s.spec = farm::robots::task_spec(s.cfg.task());
-  s.steps = int(s.cfg.worker().steps_per_batch());
-  s.envs = int(s.cfg.worker().envs_per_worker());
-  return s;
-}
-
-// ---- sender mode ---------------------------------------------------------------------------------
-
-std::atomic<bool> g_stop{false};
-void on_term(int) { g_stop = true; }
-
-// One well-formed batch of T steps x N envs: finite observations, actions in range, and env 0's
-// episode ending (truncated) at the last step with its final observation and summary.
-void fill_batch(const Shape& s, const std::string& experiment, const std::string& id, farm::msg::TransitionBatch& b) {
-  const size_t T = s.steps, N = s.envs, od = s.spec.obs_dim, ad = s.spec.act_dim, TN = T * N;
-  std::mt19937 rng(std::hash<std::string>()(id));
-  std::normal_distribution<float> g(0.f, 0.5f);
-  std::uniform_real_distribution<float> u(-1.f, 1.f);
-  b.experiment_id(experiment);
-  b.worker_id(id);
-  b.worker_session(uint64_t(getpid()) << 20 | (rng() & 0xfffff));
-  b.num_steps(uint32_t(T));
-  b.num_envs(uint32_t(N));
-  b.obs_dim(uint32_t(od));
-  b.act_dim(uint32_t(ad));
-  std::vector<float> obs(TN * od), act(TN * ad), rew(TN), lp(TN), next(N * od), fin(od);
-  for (float& v : obs) v = g(rng);
-  for (float& v : act) v = s.spec.num_actions > 0 ? float(rng() % uint32_t(s.spec.num_actions)) : u(rng);
-  for (float& v : rew) v = g(rng);
-  for (float& v : lp) v = g(rng);
-  for (float& v : next) v = g(rng);
-  for (float& v : fin) v = g(rng);
-  std::vector<uint8_t> term(TN, 0), trunc(TN, 0);
-  trunc[(T - 1) * N] = 1;
-  b.observations(obs);
-  b.actions(act);
-  b.rewards(rew);
-  b.log_probs(lp);
-  b.terminated(term);
-  b.truncated(trunc);
-  b.next_observations(next);
-  b.final_index({uint32_t((T - 1) * N)});
-  b.final_observations(fin);
-  farm::msg::EpisodeSummary e;
-  e.env(0);
-  e.episode_return(-150.f);
-  e.length(uint32_t(s.spec.max_episode_steps > 0 ? s.spec.max_episode_steps : T));
-  e.metrics(std::vector<float>(s.spec.metric_names.size(), 0.f));
-  b.episodes({e});
-  b.end_of_stream(false);
-}
-
-int run_sender(const Options& o) {
-  signal(SIGTERM, on_term);
-  signal(SIGINT, on_term);
-  const Shape s = shape_of(o.config);
-  farm::dds::Bus bus(o.bus, "bench_ingest_" + o.id);
-  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
-                                                                                          "batch_writer");
-  farm::msg::TransitionBatch b;
-  fill_batch(s, o.experiment, o.id, b);
-  const auto t_match = Clock::now();
-  while (out.matched() < 1 && !g_stop) {
-    if (since(t_match) > 30) {
-      std::fprintf(stderr, "sender %s: no learner-side reader matched within 30 s\n", o.id.c_str());
-      return 1;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  // Paced at a fixed rate; a sender blocked by the reader's flow control falls behind the schedule
-  // and does not burst to catch up by more than a quarter of a second.
-  const double period = 1.0 / o.rate;
-  auto next = Clock::now();
-  uint64_t seq = 0, retries = 0;
-  while (!g_stop) {
-    std::this_thread::sleep_until(next);
-    b.sequence_number(seq);
-    // A write given up on at SIGTERM never sent its number, so the end of stream reuses it.
-    bool written = false;
-    while (!(written = out.write(b)) && !g_stop) ++retries;
-    if (written) ++seq;
-    next += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(period));
-    const auto floor = Clock::now() - std::chrono::milliseconds(250);
-    if (next < floor) next = floor;
-  }
-  b.sequence_number(seq);
-  b.end_of_stream(true);
-  b.num_steps(0);
-  for (auto* v :
-       {&b.observations(), &b.actions(), &b.rewards(), &b.log_probs(), &b.next_observations(), &b.final_observations()})
-    v->clear();
-  b.terminated().clear();
-  b.truncated().clear();
-  b.final_index().clear();
-  b.episodes().clear();
-  for (int k = 0; k < 5 && !out.write(b); ++k) {
-  }
-  out.wait_for_acks(5);
-  std::printf("sender %s: sent %llu batches, %llu blocked writes retried\n", o.id.c_str(), (unsigned long long)seq,
-              (unsigned long long)retries);
-  return 0;
 }
 
 // ---- the learner's side --------------------------------------------------------------------------
@@ -316,11 +188,12 @@ class UpdateLoop {
 };
 
 // The algorithm's own take of an accepted batch: the off-policy driver's (n-step fold, replay buffer)
-// through the registry, or the rollout storage, emptied at each fit's worth of steps as a fit would.
+// through the registry for an off-policy algorithm, or else PPO's rollout storage, emptied at each
+// fit's worth of steps as a fit would.
 class Path {
  public:
   explicit Path(const Shape& s) : s_(s), storage_(s.spec.obs_dim, s.spec.act_dim) {
-    if (s.cfg.algorithm() != "ppo") algo_ = farm::make_algorithm(s.cfg, s.spec);
+    if (farm::find_algorithm(s.cfg.algorithm()).make_off_policy) algo_ = farm::make_algorithm(s.cfg, s.spec);
   }
   std::string describe() const {
     return algo_ ? "replay buffer (" + s_.cfg.algorithm() + " driver's take: n-step fold, insert)"
@@ -580,12 +453,13 @@ int run_learner(const Options& o) {
 }
 
 }  // namespace
+}  // namespace bench_ingest
 
 int main(int argc, char** argv) {
   try {
-    const Options o = parse(argc, argv);
+    const bench_ingest::Options o = bench_ingest::parse(argc, argv);
     if (!o.bus.profiles_file.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
-    return o.sender ? run_sender(o) : run_learner(o);
+    return o.sender ? bench_ingest::run_sender(o) : bench_ingest::run_learner(o);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_ingest: %s\n", e.what());
     return 2;

@@ -1,6 +1,7 @@
 // The algorithm registry: every registered algorithm builds for a task that fits it, refuses one
-// that does not, saves and loads its networks in its own sub-folder, and the config's algorithm
-// sections and the registry name the same algorithms.
+// that does not, saves and loads its networks in its own sub-folder (one with its own driver also
+// reads them back as the workers' policy, for the tools), and the config's algorithm sections and
+// the registry name the same algorithms.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -51,6 +52,8 @@ TEST(AlgorithmRegistry, NamesAreUniqueAndEachHasOneWayToRun) {
     EXPECT_TRUE(seen.insert(a.name).second) << "registered twice: " << a.name;
     EXPECT_NE(a.make == nullptr, a.make_off_policy == nullptr)
         << a.name << ": exactly one of make (own driver) and make_off_policy (replay driver)";
+    EXPECT_EQ(a.make != nullptr, a.read_policy != nullptr)
+        << a.name << ": an algorithm with its own driver, and only one, reads its policy for the tools (read_policy)";
   }
 }
 
@@ -79,6 +82,16 @@ TEST(AlgorithmRegistry, EveryAlgorithmBuildsSavesAndLoads) {
     fs::create_directories(dir);
     algo->save_networks(dir.string());
     EXPECT_TRUE(fs::is_directory(dir / a.name)) << "networks go to the sub-folder named for the algorithm";
+    // What the programs that read a trained run load: the saved networks as the workers' policy.
+    if (a.read_policy) {
+      int64_t updates = -1;
+      const farm::PolicyParams p = a.read_policy(cfg, spec, (dir / a.name).string(), 7, &updates);
+      EXPECT_EQ(p.version, 7u);
+      EXPECT_EQ(updates, 0);
+      EXPECT_EQ(farm::Policy(p).obs_dim(), spec.obs_dim);
+      EXPECT_EQ(farm::Policy(p).act_dim(), spec.act_dim);
+      EXPECT_ANY_THROW(a.read_policy(cfg, spec, (dir / "no_such_folder").string(), 7, &updates));
+    }
     auto again = farm::make_algorithm(cfg, spec);
     algo->save(dir.string());
     EXPECT_NO_THROW(again->load(dir.string()));
