@@ -1,5 +1,6 @@
 #include "config.h"
 #include "config_validator.h"
+#include "task_spec.h"
 
 #include <google/protobuf/io/tokenizer.h>
 #include <google/protobuf/text_format.h>
@@ -332,6 +333,20 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   s.check(st.max_seconds() >= 0, "max_seconds", "expected >= 0 (0 = no limit), got " + num(st.max_seconds()));
   s.check(st.max_env_steps() >= 0, "max_env_steps", "expected >= 0 (0 = no limit)");
   s.check(st.max_updates() >= 0, "max_updates", "expected >= 0 (0 = no limit)");
+  if (st.eval_goal_size() > 0) {
+    const std::vector<std::string> metrics = robots::task_spec(c.task()).metric_names;
+    std::string known;
+    for (const auto& m : metrics) known += (known.empty() ? "" : ", ") + m;
+    for (int i = 0; i < st.eval_goal_size(); ++i) {
+      const auto& g = st.eval_goal(i);
+      if (std::find(metrics.begin(), metrics.end(), g.metric()) == metrics.end())
+        s.fail("eval_goal", "metric \"" + g.metric() + "\" is not one of task '" + c.task().name() + "': " + known, i);
+      if (std::isnan(g.at_least()) && std::isnan(g.below()))
+        s.fail("eval_goal", "metric \"" + g.metric() + "\": set at_least, below or both", i);
+      if (std::isinf(g.at_least()) || std::isinf(g.below()))
+        s.fail("eval_goal", "metric \"" + g.metric() + "\": bounds must be finite", i);
+    }
+  }
 
   const auto& w = c.worker();
   const Section ws = root.nest("worker", w);

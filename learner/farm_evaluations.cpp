@@ -184,6 +184,7 @@ void FarmService::take_answer() {
   }
   log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
       " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
+  if (r.ask.label == "eval" && rep.episodes > 0) note_goal(r.ask, rep);
   eval_snapshot_ = &r.snapshot;
   algo_->evaluated(*this, r.ask, rep);
   eval_snapshot_ = nullptr;
@@ -260,6 +261,28 @@ std::string FarmService::eval_summary() const {
   if (evals_late_ > 0) o << ", late " << evals_late_;
   o << " (on the workers)\n";
   return o.str();
+}
+
+// stop.eval_goal: the first training evaluation that meets every bound ends the run (should_stop).
+void FarmService::note_goal(const EvalAsk& ask, const EvalReport& rep) {
+  const auto& goals = cfg_.stop().eval_goal();
+  if (goals.empty() || !goal_reached_.empty()) return;
+  std::string met;
+  for (const auto& g : goals) {
+    const auto it = std::find(task_spec_.metric_names.begin(), task_spec_.metric_names.end(), g.metric());
+    const size_t i = size_t(it - task_spec_.metric_names.begin());
+    if (i >= rep.metrics.size()) return;
+    const double v = rep.metrics[i];
+    // Written so that NaN meets no bound.
+    if (!std::isnan(g.at_least()) && !(v >= g.at_least())) return;
+    if (!std::isnan(g.below()) && !(v < g.below())) return;
+    met += (met.empty() ? "" : ", ") + g.metric() + " " + fmt("%.3f", v) +
+           (std::isnan(g.at_least()) ? "" : " >= " + fmt("%g", g.at_least())) +
+           (std::isnan(g.below()) ? "" : " < " + fmt("%g", g.below()));
+  }
+  goal_reached_ = "evaluation goal reached: " + met + " (policy v" + std::to_string(ask.version) + ", asked at " +
+                  fmt("%.1f", ask.elapsed) + " s)";
+  log(goal_reached_);
 }
 
 }  // namespace farm

@@ -397,6 +397,7 @@ std::string FarmService::should_stop(double elapsed) const {
   const auto& s = cfg_.stop();
   const double last_eval = algo_->last_eval();
   const int64_t updates = algo_->updates();
+  if (!goal_reached_.empty()) return goal_reached_;
   if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval) && last_eval >= s.target_eval_return())
     return "evaluation return " + fmt("%.1f", last_eval) + " reached the target " + fmt("%.1f", s.target_eval_return());
   if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";

@@ -66,8 +66,11 @@ class FarmService final : public Farm {
   void record_episode(float episode_return);
   double mean_recent_return() const;
   void progress(double elapsed, double window);
-  // The stop limits of the experiment's stop block (target return, time, env steps, updates).
+  // The stop limits of the experiment's stop block (target return, evaluation goals, time, env
+  // steps, updates).
   std::string should_stop(double elapsed) const;
+  // A training evaluation's report against stop.eval_goal: goal_reached_ says so once all are met.
+  void note_goal(const EvalAsk& ask, const EvalReport& rep);
   void checkpoint(double elapsed);
   // checkpoint() that survives a failure (a full disk): logged, the last good checkpoint kept;
   // false when it failed.
@@ -154,6 +157,7 @@ class FarmService final : public Farm {
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
+  std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal
   int rejections_logged_ = 0;
   std::set<std::string> foreign_noted_;         // other experiments whose batches were seen (bounded)
   std::deque<EvalRequest> evals_out_;           // asked, not yet answered or given up

@@ -252,6 +252,17 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "exp.txtpb:4:3: field 'ppo.mode': expected \"sync\" or \"async\", got \"later\"");
 }
 
+TEST(Config, EvaluationGoalsNameTheTasksMetrics) {
+  const std::string head = "experiment_id: \"a\"\ntask { name: \"a1\" }\nstop {\n";
+  EXPECT_EQ(error_of(head + "  eval_goal { metric: \"tracking_lin\" at_least: 0.6 }\n  eval_goal { metric: "
+                            "\"walking\" below: 0.1 }\n}\n"),
+            "exp.txtpb:5:3: field 'stop.eval_goal': metric \"walking\" is not one of task 'a1': tracking_lin, "
+            "tracking_ang, lin_vel_error, fell, time_s");
+  EXPECT_EQ(error_of(head + "  eval_goal { metric: \"fell\" }\n}\n"),
+            "exp.txtpb:4:3: field 'stop.eval_goal': metric \"fell\": set at_least, below or both");
+  EXPECT_EQ(error_of(head + "  eval_goal { metric: \"fell\" below: 0.1 }\n}\n"), "");
+}
+
 // A section built in code (a unit test, a tool that changes a loaded config) gets the loader's
 // checks through check_config; with no file to name, the error names the field path.
 TEST(Config, SectionsBuiltInCodeAreCheckedAlike) {
