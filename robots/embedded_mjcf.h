@@ -20,4 +20,8 @@ const std::vector<EmbeddedFile>& embedded_mjcf();
 // model (mj_deleteModel). Throws std::runtime_error naming the file and MuJoCo's error.
 mjModel_* load_embedded_model(const std::string& path);
 
+// Compiles MJCF text given in memory, named `path` in errors (tests and benchmarks load edited
+// copies of the embedded files with it). Throws std::runtime_error as above.
+mjModel_* load_model_from_text(const std::string& path, const std::string& text);
+
 }  // namespace farm::robots
