@@ -45,6 +45,10 @@ start_run() {  # COUNT SLOT K; sets last_pid
     done
     "${pin[@]}" "$learner" --config "$config" --domain $((domain0 + k)) --run-dir "$run/learner" \
       >"$run/learner.log" 2>&1 || echo "learner exit $?" >"$run/failed"
+    # Workers end with the learner's run; one that does not (the learner failed before it
+    # published anything) is ended after 30 s.
+    for _ in $(seq 30); do [ -z "$(jobs -pr)" ] && break; sleep 1; done
+    kill $(jobs -pr) 2>/dev/null || true
     wait
   ) </dev/null >/dev/null 2>&1 &
   last_pid=$!
