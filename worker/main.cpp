@@ -26,7 +26,7 @@ void on_signal(int) { g_stop = true; }
 void usage() {
   std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D] [--experiment ID]\n"
                "                   [--dds-profiles FILE] [--security DIR] [--log-every SECONDS]\n"
-               "                   [--inject-nan-batch SEQ]   (fault injection for tests)\n"
+               "                   [--inject-nan-batch SEQ] [--inject-publish-delay MS]   (fault injection for tests)\n"
                "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
                "the experiment's worker.envs_per_worker) on the given number of threads.\n"
                "--id NAME: the worker's name (default HOST-PID); with --security DIR (or FARM_SECURITY_DIR)\n"
@@ -69,6 +69,8 @@ WorkerOptions parse(int argc, char** argv) {
       o.log_every = int_flag(a, value(), 1, 3600);
     else if (a == "--inject-nan-batch")
       o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
+    else if (a == "--inject-publish-delay")
+      o.inject_publish_delay_ms = int_flag(a, value(), 0, 60000);
     else if (a == "-h" || a == "--help") {
       usage();
       std::exit(0);

@@ -17,9 +17,23 @@
 
 namespace farm {
 
+// Why two alternating batch buffers and a sender thread. Sample Factory's double-buffered sampling
+// splits a worker's envs into two halves so that one half steps while the other half's actions are
+// computed elsewhere (its inference runs in another process, often on a GPU): the CPU never idles
+// waiting for actions. Here inference is a small MLP evaluated on the stepping thread itself, row by
+// row, with nothing to wait for, so halves would only interleave work on the same core. What a worker
+// did wait for was its own publishing: copying a finished batch into the DDS sample, the write, and
+// a write held by a full reliable history. So the halves alternate in time instead: the rollout fills
+// one RolloutBatch while the sender thread serializes and writes the other, and they swap; a batch
+// is never copied between the two threads, and the collect loop waits only when both buffers are
+// still with the sender (back-pressure from the learner). Weights still change between batches, on
+// the collect loop, so every batch is made by one policy version, which it carries.
 namespace {
 
 constexpr size_t kMaxForeignNoted = 16;
+// At shutdown (stopped, or the experiment over), a batch whose write has been refused this long by a
+// full history, or that has no learner to go to, is given up: nobody acknowledges it.
+constexpr double kShutdownSendGiveUpS = 30.0;
 
 uint64_t fnv1a(const std::string& s) {
   uint64_t h = 1469598103934665603ull;
@@ -107,6 +121,7 @@ int WorkerApp::run() {
   log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
       (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") + ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
+  sender_ = std::thread([this] { sender_main(); });
   double last_wait_note = -1e9;
   while (!stop_) {
     poll_spec();
@@ -131,23 +146,32 @@ int WorkerApp::run() {
       // No weights yet, or this version has produced its share: wait for the next one.
       state_ = have_policy_ ? "throttled" : "waiting_for_weights";
       heartbeat();
+      const double t = now_seconds();
       weights_in_.wait(0.05);
+      throttled_s_ += now_seconds() - t;
       continue;
     }
     if (batches_out_.matched() == 0) {
       // Nobody would receive the batch: hold on rather than lose it.
       state_ = "waiting_for_learner";
       heartbeat();
+      const double t = now_seconds();
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      throttled_s_ += now_seconds() - t;
+      continue;
+    }
+    const int buffer = next_free_buffer(0.05);
+    if (buffer < 0) {
+      // Both buffers still wait for the sender (a full history: the learner is behind).
+      state_ = "backpressure";
+      heartbeat();
       continue;
     }
     state_ = "running";
-    rollout_->collect(static_cast<int>(spec_.steps_per_batch()), batch_);
-    const double t_publish = now_seconds();
-    publish_batch(false);
-    publish_s_ += now_seconds() - t_publish;
-    steps_.add(static_cast<uint64_t>(batch_.T) * batch_.N);
+    rollout_->collect(static_cast<int>(spec_.steps_per_batch()), buffers_[buffer]);
+    steps_.add(static_cast<uint64_t>(buffers_[buffer].T) * buffers_[buffer].N);
     ++batches_on_version_;
+    hand_to_sender(buffer);
     heartbeat();
   }
   finish();
@@ -203,6 +227,7 @@ void WorkerApp::on_spec(const farm::msg::ExperimentSpec& s) {
 }
 
 void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
+  drain_sender(false);  // batches of an earlier join keep their session; the numbering restarts below
   try {
     config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
@@ -278,51 +303,149 @@ void WorkerApp::poll_weights() {
   }
 }
 
-void WorkerApp::publish_batch(bool end_of_stream) {
-  farm::msg::TransitionBatch b;
-  b.experiment_id(spec_.experiment_id());
+int WorkerApp::next_free_buffer(double wait) {
+  const int b = next_buffer_;
+  std::unique_lock<std::mutex> lk(send_mu_);
+  if (!buffer_with_sender_[b]) return b;
+  const double t0 = now_seconds();
+  const bool free = free_cv_.wait_for(lk, std::chrono::duration<double>(wait), [&] { return !buffer_with_sender_[b]; });
+  backpressure_s_ += now_seconds() - t0;
+  return free ? b : -1;
+}
+
+void WorkerApp::hand_to_sender(int buffer) {
+  Outgoing o;
+  o.buffer = buffer;
+  o.experiment_id = spec_.experiment_id();
+  o.session = session_;
+  {
+    std::lock_guard<std::mutex> lk(send_mu_);
+    buffer_with_sender_[buffer] = true;
+    send_q_.push_back(std::move(o));
+  }
+  send_cv_.notify_one();
+  next_buffer_ = (buffer + 1) % kBuffers;
+}
+
+void WorkerApp::drain_sender(bool stop_sender) {
+  if (!sender_.joinable()) return;
+  std::unique_lock<std::mutex> lk(send_mu_);
+  if (stop_sender) sender_stop_ = true;
+  send_cv_.notify_one();
+  while (!send_q_.empty()) {
+    free_cv_.wait_for(lk, std::chrono::milliseconds(100));
+    lk.unlock();
+    heartbeat();
+    lk.lock();
+  }
+  lk.unlock();
+  if (stop_sender) sender_.join();
+}
+
+// The sender thread: writes the batches handed over, in order, each under the next sequence number,
+// and frees its buffer once written. It ends when told to and nothing is left.
+void WorkerApp::sender_main() {
+  for (;;) {
+    Outgoing o;
+    {
+      std::unique_lock<std::mutex> lk(send_mu_);
+      send_cv_.wait(lk, [this] { return sender_stop_ || !send_q_.empty(); });
+      if (send_q_.empty()) return;
+      o = send_q_.front();
+      publishing_since_ = now_seconds();
+    }
+    publish_batch(o);
+    {
+      std::lock_guard<std::mutex> lk(send_mu_);
+      publish_s_ += now_seconds() - publishing_since_;
+      publishing_since_ = 0;
+      send_q_.pop_front();
+      if (o.buffer >= 0) buffer_with_sender_[o.buffer] = false;
+    }
+    free_cv_.notify_all();
+  }
+}
+
+bool WorkerApp::publish_batch(const Outgoing& o) {
+  const uint64_t seq = sequence_;
+  const bool end_of_stream = o.buffer < 0;
+  const std::string what = end_of_stream ? "the end of stream" : "batch " + std::to_string(seq);
+  auto give_up = [&](const std::string& why) {
+    sender_give_up_ = true;  // and every batch after it: the stream ends here
+    sender_blocked_ = false;
+    log("gave up sending " + what + " at shutdown (" + why + ")");
+    return false;
+  };
+  if (sender_give_up_) return give_up("sending has stopped");
+  // Nobody would receive the batch: hold on rather than lose it (at shutdown there is nobody to wait for).
+  while (batches_out_.matched() == 0) {
+    if (stop_ || finishing_ || sender_give_up_) return give_up("no learner matched");
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  farm::msg::TransitionBatch eos;
+  farm::msg::TransitionBatch& b = end_of_stream ? eos : wire_;
+  b.experiment_id(o.experiment_id);
   b.worker_id(opt_.id);
-  b.worker_session(session_);
-  b.sequence_number(sequence_);
+  b.worker_session(o.session);
+  b.sequence_number(seq);
   b.end_of_stream(end_of_stream);
   if (!end_of_stream) {
-    to_wire(batch_, b);
-    if (int64_t(sequence_) == opt_.inject_nan_batch && !b.observations().empty()) {
+    to_wire(buffers_[o.buffer], b);
+    if (int64_t(seq) == opt_.inject_nan_batch && !b.observations().empty()) {
       b.observations()[0] = std::nanf("");
-      log("fault injection: batch " + std::to_string(sequence_) + " carries a NaN");
+      log("fault injection: batch " + std::to_string(seq) + " carries a NaN");
     }
   } else {
-    b.obs_dim(spec_.obs_dim());
-    b.act_dim(spec_.act_dim());
-    b.policy_version(rollout_ ? rollout_->policy_version() : 0);
+    b.obs_dim(uint32_t(o.obs_dim));
+    b.act_dim(uint32_t(o.act_dim));
+    b.policy_version(o.policy_version);
+  }
+  if (opt_.inject_publish_delay_ms > 0) {  // fault injection: a slow write (the batch waits, nothing else)
+    const double until = now_seconds() + 1e-3 * opt_.inject_publish_delay_ms;
+    while (now_seconds() < until && !sender_give_up_) std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   // A full reliable history makes write() time out: retry, never drop.
-  double first_try = now_seconds();
+  const double first_try = now_seconds();
   while (!batches_out_.write(b)) {
-    if (now_seconds() - first_try > 30.0 && (stop_ || finished_)) {
-      log("gave up sending batch " + std::to_string(sequence_) + " at shutdown (no learner acknowledges)");
-      return;
-    }
-    state_ = "backpressure";
-    heartbeat();
+    if (sender_give_up_ || (now_seconds() - first_try > kShutdownSendGiveUpS && (stop_ || finishing_)))
+      return give_up("no learner acknowledges");
+    sender_blocked_ = true;
   }
+  sender_blocked_ = false;
   ++sequence_;
+  return true;
 }
 
 void WorkerApp::end_stream() {
-  if (!rollout_ || batches_out_.matched() == 0) return;
-  publish_batch(true);
+  if (!rollout_ || batches_out_.matched() == 0) {
+    drain_sender(true);
+    return;
+  }
+  // The end of stream goes through the sender's queue, after the last batch, under the next number.
+  Outgoing eos;
+  eos.experiment_id = spec_.experiment_id();
+  eos.session = session_;
+  eos.obs_dim = spec_.obs_dim();
+  eos.act_dim = spec_.act_dim();
+  eos.policy_version = rollout_->policy_version();
+  {
+    std::lock_guard<std::mutex> lk(send_mu_);
+    send_q_.push_back(std::move(eos));
+  }
+  drain_sender(true);
   if (!batches_out_.wait_for_acks(10.0)) log("learner did not acknowledge every batch within 10 s");
 }
 
 void WorkerApp::finish() {
+  finishing_ = true;
   stop_eval_thread();
   end_stream();
   state_ = "finished";
   heartbeat(true);
-  log("finished: " + std::to_string(sequence_) + " batches sent (sequence 0.." +
-      std::to_string(sequence_ ? sequence_ - 1 : 0) + "), " + std::to_string(steps_.total()) + " env steps, mean " +
-      std::to_string(int64_t(steps_.mean_rate())) + " steps/s");
+  const uint64_t sent = sequence_;
+  log("finished: " + std::to_string(sent) + " batches sent (sequence 0.." + std::to_string(sent ? sent - 1 : 0) +
+      "), " + std::to_string(steps_.total()) + " env steps, mean " + std::to_string(int64_t(steps_.mean_rate())) +
+      " steps/s");
 }
 
 void WorkerApp::heartbeat(bool force) {
@@ -330,6 +453,9 @@ void WorkerApp::heartbeat(bool force) {
   if (!force && t - last_status_ < 1.0) return;
   double rate = steps_.rate();
   last_status_ = t;
+  // A worker whose collect loop waits for its quota while the sender still retries a full history
+  // is not idle: its batches are on their way.
+  const std::string state = sender_blocked_ && state_ == "throttled" ? "backpressure" : state_;
   farm::msg::WorkerStatus s;
   s.worker_id(opt_.id);
   s.worker_session(session_);
@@ -341,34 +467,61 @@ void WorkerApp::heartbeat(bool force) {
   s.env_steps(steps_.total());
   s.batches_sent(sequence_);
   s.policy_version(rollout_ ? rollout_->policy_version() : 0);
-  s.state(state_);
+  s.state(state);
   s.last_error(last_error_);
   status_out_.write(s);
   if (t - last_log_ >= opt_.log_every && rollout_) {
-    log(state_ + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " + std::to_string(sequence_) +
-        " batches sent, policy v" + std::to_string(rollout_->policy_version()));
+    // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).
+    if (last_log_ > 0) rate = double(steps_.total() - log_steps_) / (t - last_log_);
+    const uint64_t sent = sequence_;  // then the steps: collected ahead of what was sent, never behind
+    log(state + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " + std::to_string(sent) +
+        " batches sent, " + std::to_string(steps_.total()) + " env steps, policy v" +
+        std::to_string(rollout_->policy_version()));
     last_log_ = t;
+    log_steps_ = steps_.total();
   }
 }
 
-// Where the wall time since the last log line went: simulation and policy inference (thread
-// time over the rollout's threads) and publishing batches; the rest is waiting (throttled,
-// back-pressure) and bookkeeping.
+// Where the wall time since the last log line went. The collect loop: simulation and policy
+// inference (thread time over the rollout's threads, so with one thread the share of wall time the
+// worker simulated), waiting for a free buffer (back-pressure: both with the sender) and waiting on
+// the learner (throttled: quota spent, no weights or no learner); the rest is bookkeeping. The
+// sender thread, beside it: serializing and writing batches, retries on a full history included.
 std::string WorkerApp::time_split(double t) {
   const Rollout::Timing now = rollout_->timing();
   const double wall = t - last_log_, k = rollout_->num_threads();
+  double publish_s = 0;  // the sender's time in publish_batch() so far, the write in progress included
+  {
+    std::lock_guard<std::mutex> lk(send_mu_);
+    publish_s = publish_s_ + (publishing_since_ > 0 ? t - publishing_since_ : 0.0);
+  }
   std::string s;
   if (last_log_ > 0 && wall > 0) {
     auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
-    s = " (simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
-        pct((now.infer_s - split_at_.infer_s) / k) + ", publish " + pct(publish_s_ - split_publish_s_) + ")";
+    s = " (collect: simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
+        pct((now.infer_s - split_at_.infer_s) / k) + ", backpressure " + pct(backpressure_s_ - split_backpressure_s_) +
+        ", throttled " + pct(throttled_s_ - split_throttled_s_) + "; sender: publish " +
+        pct(publish_s - split_publish_s_) + ")";
   }
   split_at_ = now;
-  split_publish_s_ = publish_s_;
+  split_publish_s_ = publish_s;
+  split_backpressure_s_ = backpressure_s_;
+  split_throttled_s_ = throttled_s_;
   return s;
 }
 
-WorkerApp::~WorkerApp() { stop_eval_thread(); }
+WorkerApp::~WorkerApp() {
+  stop_eval_thread();
+  if (sender_.joinable()) {  // run() did not finish (an exception): what is queued is dropped
+    sender_give_up_ = true;
+    {
+      std::lock_guard<std::mutex> lk(send_mu_);
+      sender_stop_ = true;
+    }
+    send_cv_.notify_all();
+    sender_.join();
+  }
+}
 
 // Requests addressed to this worker (the listener kept only those): of its experiment, sized within
 // what the experiment asks, with a policy that fits the task. Each good one becomes a job for the

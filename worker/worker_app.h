@@ -6,6 +6,9 @@
 // batches keep flowing meanwhile.
 // It is bound to one experiment (--experiment, else the first one it joins) and ignores the specs
 // and weights of any other that shares the domain; it ends with its experiment.
+// Simulation never waits for publishing: the main loop collects into one of two batch buffers while
+// a sender thread serializes and writes the other (worker_app.cpp says why this is the farm's form
+// of double-buffered sampling); the main loop waits only when both buffers wait to be sent.
 #pragma once
 
 #include <atomic>
@@ -35,6 +38,8 @@ struct WorkerOptions {
   double log_every = 5.0;
   // Fault injection for reliability tests: corrupt the batch with this sequence number (NaN).
   int64_t inject_nan_batch = -1;
+  // Fault injection: the sender waits this long before each write, as if DDS were slow to take it.
+  int inject_publish_delay_ms = 0;
 };
 
 class WorkerApp {
@@ -54,7 +59,24 @@ class WorkerApp {
   // One log line the first time an experiment other than this worker's shows up.
   void note_foreign(const std::string& experiment_id);
   void poll_weights();
-  void publish_batch(bool end_of_stream);
+  // The double buffer. Main loop: next_free_buffer() (the one to collect into, or -1 after waiting
+  // up to `wait` seconds while both are with the sender), hand_to_sender() once it is filled.
+  int next_free_buffer(double wait);
+  void hand_to_sender(int buffer);
+  // Waits until the sender has written (or, at shutdown, given up) every batch handed to it,
+  // beating heartbeats meanwhile; with stop_sender the thread ends too.
+  void drain_sender(bool stop_sender);
+  void sender_main();
+  // What the sender is handed: a filled buffer (or the end of stream) and the stream it belongs to.
+  struct Outgoing {
+    int buffer = -1;  // -1: end of stream
+    std::string experiment_id;
+    uint64_t session = 0;
+    uint64_t obs_dim = 0, act_dim = 0, policy_version = 0;  // for the end of stream
+  };
+  // On the sender thread: serializes and writes one of them under sequence number sequence_, and
+  // counts it; false when it gave up at shutdown.
+  bool publish_batch(const Outgoing& o);
   void end_stream();
   void finish();
   void heartbeat(bool force = false);
@@ -105,8 +127,22 @@ class WorkerApp {
   std::set<std::string> foreign_;   // other experiments already noted (bounded)
   farm::msg::ExperimentSpec spec_;  // of experiment_, once joined
   std::unique_ptr<Rollout> rollout_;
-  RolloutBatch batch_;
-  uint64_t sequence_ = 0;
+  // Two batch buffers: one being collected, the other with the sender (queued or being written).
+  // send_q_ holds the buffers handed over, in collection order; a buffer is free again once written.
+  static constexpr int kBuffers = 2;
+  RolloutBatch buffers_[kBuffers];
+  int next_buffer_ = 0;  // the collect loop alternates between them
+  std::mutex send_mu_;
+  std::condition_variable send_cv_, free_cv_;  // the sender: work to do; the collect loop: a buffer free
+  std::deque<Outgoing> send_q_;                // bounded by kBuffers
+  bool buffer_with_sender_[kBuffers] = {false, false};
+  bool sender_stop_ = false;                 // end once the queue is empty
+  std::atomic<bool> sender_give_up_{false};  // drop what is left (shutdown without a learner)
+  std::atomic<bool> sender_blocked_{false};  // a write is retrying on a full reliable history
+  std::atomic<bool> finishing_{false};       // finish() is draining: a write may give up after 30 s
+  std::thread sender_;
+  farm::msg::TransitionBatch wire_;    // the sender's sample, reused so its sequences keep their storage
+  std::atomic<uint64_t> sequence_{0};  // the next sequence number: the sender's (join() resets it, queue empty)
   uint32_t batches_on_version_ = 0;
   uint32_t batch_quota_ = 0;  // 0: spec_.max_batches_per_version()
   bool have_policy_ = false;
@@ -115,7 +151,13 @@ class WorkerApp {
   std::string state_ = "starting", last_error_;
   Meter steps_;
   double last_status_ = 0, last_log_ = 0;
-  double publish_s_ = 0, split_publish_s_ = 0;  // seconds in publish_batch()
+  uint64_t log_steps_ = 0;  // steps_.total() at the last log line
+  // Where the wall time went, for the throughput line. The collect loop's waits: on the sender
+  // (both buffers with it: back-pressure) and on the learner (throttled, no weights, no learner).
+  double backpressure_s_ = 0, throttled_s_ = 0, split_backpressure_s_ = 0, split_throttled_s_ = 0;
+  // The sender's time in publish_batch(): finished writes, and when the current one began (0: none);
+  // under send_mu_.
+  double publish_s_ = 0, publishing_since_ = 0, split_publish_s_ = 0;
   Rollout::Timing split_at_;
 };
 

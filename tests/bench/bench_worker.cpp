@@ -1,9 +1,12 @@
 // Worker throughput against the physics alone: how much of raw mj_step speed survives policy
 // inference, batching and threading.
-//   bench_worker [--task NAME] [--envs N] [--threads K] [--seconds S]
+//   bench_worker [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only]
 // The limit is a raw mj_step loop on the task's own model from a state one of its episodes
 // reached, with the controls the task had set there, divided by the physics steps the task runs
 // per env step (measured from the simulated time one env step advances).
+// --config takes the task (with its settings) and the envs per worker from an experiment config.
+// --raw-only measures only K raw loops at once and prints each loop's limit and their mean
+// (tests/bench/bench_worker_farm.sh sets a farm's workers against it).
 #include <mujoco/mujoco.h>
 
 #include <chrono>
@@ -16,6 +19,7 @@
 #include <thread>
 #include <vector>
 
+#include "config.h"
 #include "mlp.h"
 #include "rollout.h"
 #include "task.h"
@@ -65,16 +69,21 @@ double raw_steps_per_second(const mjModel* m, const mjData* start, double second
 }
 
 // The same loop on `threads` threads at once: what the hardware gives in parallel (shared
-// cores, turbo limits), so the worker's scaling can be told apart from the machine's.
-double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads, double seconds) {
+// cores, turbo limits), so the worker's scaling can be told apart from the machine's. Each loop's
+// steps/s.
+std::vector<double> raw_parallel_loops(const mjModel* m, const mjData* start, int threads, double seconds) {
   std::vector<double> rates(threads);
   std::vector<std::thread> pool;
   for (int k = 0; k < threads; ++k) {
     pool.emplace_back([&, k] { rates[k] = raw_steps_per_second(m, start, seconds); });
   }
   for (auto& t : pool) t.join();
+  return rates;
+}
+
+double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads, double seconds) {
   double total = 0;
-  for (double r : rates) total += r;
+  for (double r : raw_parallel_loops(m, start, threads, seconds)) total += r;
   return total;
 }
 
@@ -116,22 +125,35 @@ double policy_rows_per_second(const farm::PolicyParams& params, int rows, double
 int main(int argc, char** argv) {
   int envs = 16, threads = int(std::thread::hardware_concurrency());
   double seconds = 2.0;
-  std::string task_name = "pendulum";
+  std::string task_name = "pendulum", config_path;
+  bool raw_only = false, envs_given = false, task_given = false;
   const int T = 32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (i + 1 < argc && a == "--envs") {
       envs = std::atoi(argv[++i]);
+      envs_given = true;
     } else if (i + 1 < argc && a == "--threads") {
       threads = std::atoi(argv[++i]);
     } else if (i + 1 < argc && a == "--task") {
       task_name = argv[++i];
+      task_given = true;
+    } else if (i + 1 < argc && a == "--config") {
+      config_path = argv[++i];
     } else if (i + 1 < argc && a == "--seconds") {
       seconds = std::atof(argv[++i]);
+    } else if (a == "--raw-only") {
+      raw_only = true;
     } else {
-      std::fprintf(stderr, "usage: %s [--task NAME] [--envs N] [--threads K] [--seconds S]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only]\n",
+                   argv[0]);
       return 2;
     }
+  }
+  if (task_given && !config_path.empty()) {
+    std::fprintf(stderr, "--task and --config both name the task: give one\n");
+    return 2;
   }
   if (envs < 1 || threads < 1 || !(seconds > 0)) {
     std::fprintf(stderr, "--envs and --threads must be >= 1, --seconds > 0\n");
@@ -142,10 +164,32 @@ int main(int argc, char** argv) {
   task_cfg.set_name(task_name);
   std::shared_ptr<const farm::robots::Task> task;
   try {
+    if (!config_path.empty()) {
+      farm::config::ExperimentConfig cfg = farm::load_config_file(config_path);
+      farm::clear_output_paths(&cfg);  // as a worker does: the task is built, nothing written
+      task_cfg = cfg.task();
+      if (!envs_given) envs = cfg.worker().envs_per_worker();
+    }
     task = farm::robots::make_task(task_cfg);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_worker: %s\n", e.what());
     return 2;
+  }
+  if (raw_only) {
+    // Only the limit: K raw loops at once, each one's env steps/s (what one single-threaded worker
+    // among K on this host can reach at most) and their mean.
+    const RawStart start = raw_start(*task);
+    const double per = start.physics_per_env_step;
+    const std::vector<double> loops = raw_parallel_loops(task->model(), start.data, threads, seconds);
+    double sum = 0;
+    std::printf("task %s, %.2f physics steps per env step, %d raw mj_step loops at once, %.1f s\n",
+                task->spec().name.c_str(), per, threads, seconds);
+    for (int k = 0; k < threads; ++k) {
+      std::printf("raw loop %d: %.0f env steps/s\n", k, loops[k] / per);
+      sum += loops[k] / per;
+    }
+    std::printf("raw per loop (%d at once): %.0f env steps/s\n", threads, sum / threads);
+    return 0;
   }
   // The learner's actor shape for the task: SAC's [mean | log_std], or DQN's Q values.
   farm::PolicyParams policy;
