@@ -1,5 +1,6 @@
-// The farm-worker service (worker_app.h): the experiment it follows, the policy it runs, the
-// batches it streams, the heartbeats it beats and the evaluations it answers.
+// The farm-worker service (worker_app.h): the experiment it follows, the policy it runs and the
+// heartbeats it beats; the batches it streams are sent by worker_sender.cpp, the evaluations it
+// answers run in worker_evals.cpp.
 #include "worker_app.h"
 
 #include <algorithm>
@@ -17,23 +18,9 @@
 
 namespace farm {
 
-// Why two alternating batch buffers and a sender thread. Sample Factory's double-buffered sampling
-// splits a worker's envs into two halves so that one half steps while the other half's actions are
-// computed elsewhere (its inference runs in another process, often on a GPU): the CPU never idles
-// waiting for actions. Here inference is a small MLP evaluated on the stepping thread itself, row by
-// row, with nothing to wait for, so halves would only interleave work on the same core. What a worker
-// did wait for was its own publishing: copying a finished batch into the DDS sample, the write, and
-// a write held by a full reliable history. So the halves alternate in time instead: the rollout fills
-// one RolloutBatch while the sender thread serializes and writes the other, and they swap; a batch
-// is never copied between the two threads, and the collect loop waits only when both buffers are
-// still with the sender (back-pressure from the learner). Weights still change between batches, on
-// the collect loop, so every batch is made by one policy version, which it carries.
 namespace {
 
 constexpr size_t kMaxForeignNoted = 16;
-// At shutdown (stopped, or the experiment over), a batch whose write has been refused this long by a
-// full history, or that has no learner to go to, is given up: nobody acknowledges it.
-constexpr double kShutdownSendGiveUpS = 30.0;
 
 uint64_t fnv1a(const std::string& s) {
   uint64_t h = 1469598103934665603ull;
@@ -42,32 +29,6 @@ uint64_t fnv1a(const std::string& s) {
     h *= 1099511628211ull;
   }
   return h;
-}
-
-void to_wire(const RolloutBatch& r, farm::msg::TransitionBatch& b) {
-  b.num_steps(r.T);
-  b.num_envs(r.N);
-  b.obs_dim(r.obs_dim);
-  b.act_dim(r.act_dim);
-  b.policy_version(r.policy_version);
-  b.observations(r.obs);
-  b.actions(r.actions);
-  b.rewards(r.rewards);
-  b.terminated(r.terminated);
-  b.truncated(r.truncated);
-  b.log_probs(r.log_probs);
-  b.next_observations(r.next_obs);
-  b.final_index(r.final_index);
-  b.final_observations(r.final_obs);
-  std::vector<farm::msg::EpisodeSummary> eps(r.episodes.size());
-  for (size_t i = 0; i < eps.size(); ++i) {
-    eps[i].env(r.episodes[i].env);
-    eps[i].episode_return(r.episodes[i].episode_return);
-    eps[i].length(r.episodes[i].length);
-    eps[i].terminated(r.episodes[i].terminated);
-    eps[i].metrics(r.episodes[i].metrics);
-  }
-  b.episodes(std::move(eps));
 }
 
 }  // namespace
@@ -303,139 +264,6 @@ void WorkerApp::poll_weights() {
   }
 }
 
-int WorkerApp::next_free_buffer(double wait) {
-  const int b = next_buffer_;
-  std::unique_lock<std::mutex> lk(send_mu_);
-  if (!buffer_with_sender_[b]) return b;
-  const double t0 = now_seconds();
-  const bool free = free_cv_.wait_for(lk, std::chrono::duration<double>(wait), [&] { return !buffer_with_sender_[b]; });
-  backpressure_s_ += now_seconds() - t0;
-  return free ? b : -1;
-}
-
-void WorkerApp::hand_to_sender(int buffer) {
-  Outgoing o;
-  o.buffer = buffer;
-  o.experiment_id = spec_.experiment_id();
-  o.session = session_;
-  {
-    std::lock_guard<std::mutex> lk(send_mu_);
-    buffer_with_sender_[buffer] = true;
-    send_q_.push_back(std::move(o));
-  }
-  send_cv_.notify_one();
-  next_buffer_ = (buffer + 1) % kBuffers;
-}
-
-void WorkerApp::drain_sender(bool stop_sender) {
-  if (!sender_.joinable()) return;
-  std::unique_lock<std::mutex> lk(send_mu_);
-  if (stop_sender) sender_stop_ = true;
-  send_cv_.notify_one();
-  while (!send_q_.empty()) {
-    free_cv_.wait_for(lk, std::chrono::milliseconds(100));
-    lk.unlock();
-    heartbeat();
-    lk.lock();
-  }
-  lk.unlock();
-  if (stop_sender) sender_.join();
-}
-
-// The sender thread: writes the batches handed over, in order, each under the next sequence number,
-// and frees its buffer once written. It ends when told to and nothing is left.
-void WorkerApp::sender_main() {
-  for (;;) {
-    Outgoing o;
-    {
-      std::unique_lock<std::mutex> lk(send_mu_);
-      send_cv_.wait(lk, [this] { return sender_stop_ || !send_q_.empty(); });
-      if (send_q_.empty()) return;
-      o = send_q_.front();
-      publishing_since_ = now_seconds();
-    }
-    publish_batch(o);
-    {
-      std::lock_guard<std::mutex> lk(send_mu_);
-      publish_s_ += now_seconds() - publishing_since_;
-      publishing_since_ = 0;
-      send_q_.pop_front();
-      if (o.buffer >= 0) buffer_with_sender_[o.buffer] = false;
-    }
-    free_cv_.notify_all();
-  }
-}
-
-bool WorkerApp::publish_batch(const Outgoing& o) {
-  const uint64_t seq = sequence_;
-  const bool end_of_stream = o.buffer < 0;
-  const std::string what = end_of_stream ? "the end of stream" : "batch " + std::to_string(seq);
-  auto give_up = [&](const std::string& why) {
-    sender_give_up_ = true;  // and every batch after it: the stream ends here
-    sender_blocked_ = false;
-    log("gave up sending " + what + " at shutdown (" + why + ")");
-    return false;
-  };
-  if (sender_give_up_) return give_up("sending has stopped");
-  // Nobody would receive the batch: hold on rather than lose it (at shutdown there is nobody to wait for).
-  while (batches_out_.matched() == 0) {
-    if (stop_ || finishing_ || sender_give_up_) return give_up("no learner matched");
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
-  farm::msg::TransitionBatch eos;
-  farm::msg::TransitionBatch& b = end_of_stream ? eos : wire_;
-  b.experiment_id(o.experiment_id);
-  b.worker_id(opt_.id);
-  b.worker_session(o.session);
-  b.sequence_number(seq);
-  b.end_of_stream(end_of_stream);
-  if (!end_of_stream) {
-    to_wire(buffers_[o.buffer], b);
-    if (int64_t(seq) == opt_.inject_nan_batch && !b.observations().empty()) {
-      b.observations()[0] = std::nanf("");
-      log("fault injection: batch " + std::to_string(seq) + " carries a NaN");
-    }
-  } else {
-    b.obs_dim(uint32_t(o.obs_dim));
-    b.act_dim(uint32_t(o.act_dim));
-    b.policy_version(o.policy_version);
-  }
-  if (opt_.inject_publish_delay_ms > 0) {  // fault injection: a slow write (the batch waits, nothing else)
-    const double until = now_seconds() + 1e-3 * opt_.inject_publish_delay_ms;
-    while (now_seconds() < until && !sender_give_up_) std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  // A full reliable history makes write() time out: retry, never drop.
-  const double first_try = now_seconds();
-  while (!batches_out_.write(b)) {
-    if (sender_give_up_ || (now_seconds() - first_try > kShutdownSendGiveUpS && (stop_ || finishing_)))
-      return give_up("no learner acknowledges");
-    sender_blocked_ = true;
-  }
-  sender_blocked_ = false;
-  ++sequence_;
-  return true;
-}
-
-void WorkerApp::end_stream() {
-  if (!rollout_ || batches_out_.matched() == 0) {
-    drain_sender(true);
-    return;
-  }
-  // The end of stream goes through the sender's queue, after the last batch, under the next number.
-  Outgoing eos;
-  eos.experiment_id = spec_.experiment_id();
-  eos.session = session_;
-  eos.obs_dim = spec_.obs_dim();
-  eos.act_dim = spec_.act_dim();
-  eos.policy_version = rollout_->policy_version();
-  {
-    std::lock_guard<std::mutex> lk(send_mu_);
-    send_q_.push_back(std::move(eos));
-  }
-  drain_sender(true);
-  if (!batches_out_.wait_for_acks(10.0)) log("learner did not acknowledge every batch within 10 s");
-}
-
 void WorkerApp::finish() {
   finishing_ = true;
   stop_eval_thread();
@@ -521,122 +349,6 @@ WorkerApp::~WorkerApp() {
     send_cv_.notify_all();
     sender_.join();
   }
-}
-
-// Requests addressed to this worker (the listener kept only those): of its experiment, sized within
-// what the experiment asks, with a policy that fits the task. Each good one becomes a job for the
-// evaluation thread; a bad one is answered with what was wrong (the learner counts it invalid).
-void WorkerApp::poll_eval_requests() {
-  std::deque<farm::msg::EvaluationRequest> got;
-  {
-    std::lock_guard<std::mutex> lk(in_mu_);
-    got.swap(eval_in_q_);
-  }
-  for (auto& q : got) {
-    if (!rollout_ || q.experiment_id() != experiment_) continue;  // not (yet) this worker's experiment
-    log("evaluation request " + std::to_string(q.request_id()) + ": " + std::to_string(q.episodes()) +
-        " episodes of policy v" + std::to_string(q.policy_version()));
-    if (q.episodes() < 1 || q.episodes() > uint32_t(eval_max_episodes_)) {
-      answer_error(q, "episodes " + std::to_string(q.episodes()) + " outside 1.." + std::to_string(eval_max_episodes_) +
-                          " (the experiment's eval.episodes / final_episodes)");
-      continue;
-    }
-    if (q.policy().experiment_id() != experiment_ || q.policy().version() != q.policy_version()) {
-      answer_error(q, "the policy carried is v" + std::to_string(q.policy().version()) + " of '" +
-                          q.policy().experiment_id().substr(0, 64) + "', not v" + std::to_string(q.policy_version()));
-      continue;
-    }
-    EvalJob job;
-    try {
-      job.policy = farm::dds::from_wire(q.policy());  // its fit to the task: evaluate_policy checks it
-    } catch (const std::exception& e) {
-      answer_error(q, std::string("bad policy: ") + e.what());
-      continue;
-    }
-    job.task = task_;
-    job.worker_session = session_;
-    {
-      std::lock_guard<std::mutex> lk(eval_mu_);
-      if (eval_jobs_.size() >= kMaxEvalQueue) {
-        answer_error(q, "busy: " + std::to_string(eval_jobs_.size()) + " evaluations waiting already");
-        continue;
-      }
-      job.request = std::move(q);
-      eval_jobs_.push_back(std::move(job));
-    }
-    if (!eval_thread_.joinable()) eval_thread_ = std::thread([this] { eval_thread_main(); });
-    eval_cv_.notify_one();
-  }
-}
-
-farm::msg::EvaluationAnswer WorkerApp::answer_to(const farm::msg::EvaluationRequest& q, uint64_t session) const {
-  farm::msg::EvaluationAnswer a;
-  a.experiment_id(q.experiment_id());
-  a.learner_session(q.learner_session());
-  a.request_id(q.request_id());
-  a.worker_id(opt_.id);
-  a.worker_session(session);
-  a.policy_version(q.policy_version());
-  return a;
-}
-
-void WorkerApp::answer_error(const farm::msg::EvaluationRequest& q, const std::string& why) {
-  log("evaluation request " + std::to_string(q.request_id()) + " refused: " + why);
-  farm::msg::EvaluationAnswer a = answer_to(q, session_);
-  a.error(why.substr(0, farm::dds::kMaxEvalTextBytes));
-  eval_out_.write(a);
-}
-
-// The evaluation thread: one job at a time, on evaluation envs made for it (evaluate_policy: one env
-// per episode, reset from the request's seed), never the training envs.
-void WorkerApp::eval_thread_main() {
-  while (true) {
-    EvalJob job;
-    {
-      std::unique_lock<std::mutex> lk(eval_mu_);
-      eval_cv_.wait(lk, [this] { return eval_stop_ || !eval_jobs_.empty(); });
-      if (eval_stop_) return;
-      job = std::move(eval_jobs_.front());
-      eval_jobs_.pop_front();
-    }
-    const auto& q = job.request;
-    farm::msg::EvaluationAnswer a = answer_to(q, job.worker_session);
-    const double t0 = now_seconds();
-    try {
-      const auto recs = evaluate_policy(job.task, job.policy, int(q.episodes()), q.seed(), &eval_stop_);
-      if (eval_stop_) return;
-      std::vector<farm::msg::EvaluationEpisode> eps(recs.size());
-      for (size_t i = 0; i < recs.size(); ++i) {
-        eps[i].episode_return(recs[i].episode_return);
-        eps[i].length(uint32_t(recs[i].length));
-        eps[i].terminated(recs[i].terminated);
-        eps[i].metrics(recs[i].metrics);
-      }
-      a.episodes(std::move(eps));
-    } catch (const std::exception& e) {
-      a.error(std::string(e.what()).substr(0, farm::dds::kMaxEvalTextBytes));
-    }
-    a.seconds(now_seconds() - t0);
-    double sum = 0;
-    for (const auto& e : a.episodes()) sum += e.episode_return();
-    // A full reliable history makes write() time out: retry while the worker runs.
-    while (!eval_out_.write(a) && !eval_stop_) {
-    }
-    char figures[96];
-    std::snprintf(figures, sizeof figures, ": mean return %.1f over %zu episodes (%.1f s)",
-                  a.episodes().empty() ? 0.0 : sum / double(a.episodes().size()), a.episodes().size(), a.seconds());
-    log("evaluation " + std::to_string(q.request_id()) + " answered" +
-        (a.error().empty() ? std::string(figures) : " with an error: " + a.error()));
-  }
-}
-
-void WorkerApp::stop_eval_thread() {
-  {
-    std::lock_guard<std::mutex> lk(eval_mu_);
-    eval_stop_ = true;
-  }
-  eval_cv_.notify_all();
-  if (eval_thread_.joinable()) eval_thread_.join();
 }
 
 }  // namespace farm
