@@ -1,6 +1,9 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -85,6 +88,77 @@ TEST(EigenMlp, RowResultsDoNotDependOnBatch) {
   for (int r = 0; r < rows; ++r) {
     net.forward(in.data() + r * 5, 1, one.data());
     for (int j = 0; j < 6; ++j) ASSERT_EQ(one[j], all[r * 6 + j]) << "row " << r;
+  }
+}
+
+// The network in double precision, straight from the flat parameters (torch's layout).
+std::vector<double> reference_forward(const MlpLayout& layout, const std::vector<float>& params, const float* in) {
+  std::vector<double> x(in, in + layout.sizes.front());
+  const float* p = params.data();
+  for (size_t l = 0; l + 1 < layout.sizes.size(); ++l) {
+    const int n_in = layout.sizes[l], n_out = layout.sizes[l + 1];
+    const float* w = p;
+    const float* b = p + size_t(n_out) * n_in;
+    std::vector<double> y(n_out);
+    for (int j = 0; j < n_out; ++j) {
+      double s = b[j];
+      for (int k = 0; k < n_in; ++k) s += double(w[size_t(j) * n_in + k]) * x[k];
+      const bool hidden = l + 2 < layout.sizes.size();
+      y[j] = !hidden ? s : layout.activation == Activation::kRelu ? std::max(s, 0.0) : std::tanh(s);
+    }
+    p = b + n_out;
+    x = std::move(y);
+  }
+  return x;
+}
+
+// Rows go through the network in blocks; a row's bits must not depend on how many rows share the
+// call or where it sits in it (37 rows: full blocks and a padded last one), and must match a
+// double-precision evaluation. The A1 actor's shape, a relu one, and widths that are not a
+// multiple of any vector or panel width.
+TEST(EigenMlp, BlockedRowsAreBitIdenticalAndAccurate) {
+  const std::vector<MlpLayout> layouts = {{{48, 512, 256, 128, 12}, Activation::kTanh},
+                                          {{48, 64, 64, 24}, Activation::kRelu},
+                                          {{7, 37, 19, 5}, Activation::kRelu},
+                                          {{3, 9, 1}, Activation::kTanh}};
+  std::mt19937 g(17);
+  std::normal_distribution<float> n;
+  for (const MlpLayout& layout : layouts) {
+    SCOPED_TRACE(layout.describe());
+    // Weights scaled by 1 / sqrt(fan-in), as the learners' initialization does, so the hidden
+    // units are neither all saturated nor all near zero.
+    std::vector<float> params;
+    for (size_t l = 0; l + 1 < layout.sizes.size(); ++l) {
+      const float scale = 1.5f / std::sqrt(float(layout.sizes[l]));
+      for (int i = 0; i < layout.sizes[l + 1] * (layout.sizes[l] + 1); ++i) params.push_back(scale * n(g));
+    }
+    ASSERT_EQ(params.size(), layout.num_params());
+    EigenMlp net(layout, params);
+    const int rows = 37, in_dim = layout.sizes.front(), out_dim = layout.sizes.back();
+    std::vector<float> in(size_t(rows) * in_dim);
+    for (auto& v : in) v = n(g);
+    const size_t out_bytes = sizeof(float) * out_dim;
+    std::vector<float> all(size_t(rows) * out_dim), split(all.size()), one(out_dim);
+    net.forward(in.data(), rows, all.data());
+    net.forward(in.data(), 10, split.data());
+    net.forward(in.data() + 10 * in_dim, rows - 10, split.data() + 10 * out_dim);
+    EXPECT_EQ(std::memcmp(all.data(), split.data(), all.size() * sizeof(float)), 0) << "rows 0..9 + 10..36";
+    double worst = 0;
+    for (int r = 0; r < rows; ++r) {
+      net.forward(in.data() + r * in_dim, 1, one.data());
+      EXPECT_EQ(std::memcmp(one.data(), all.data() + r * out_dim, out_bytes), 0) << "row " << r << " alone";
+      const std::vector<double> ref = reference_forward(layout, params, in.data() + r * in_dim);
+      for (int j = 0; j < out_dim; ++j) {
+        const double err = std::abs(double(all[r * out_dim + j]) - ref[j]) / std::max(std::abs(ref[j]), 1.0);
+        EXPECT_LE(err, 1e-5) << "row " << r << " output " << j << ": " << all[r * out_dim + j] << " vs " << ref[j];
+        worst = std::max(worst, err);
+      }
+    }
+    std::printf("%s: worst relative difference from double precision %.2e\n", layout.describe().c_str(), worst);
+    // After the single rows the scratch is reused, not regrown: the batch again gives the same bits.
+    std::vector<float> again(all.size());
+    net.forward(in.data(), rows, again.data());
+    EXPECT_EQ(std::memcmp(all.data(), again.data(), all.size() * sizeof(float)), 0) << "second call";
   }
 }
 
