@@ -334,7 +334,14 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   s.check(st.max_env_steps() >= 0, "max_env_steps", "expected >= 0 (0 = no limit)");
   s.check(st.max_updates() >= 0, "max_updates", "expected >= 0 (0 = no limit)");
   if (st.eval_goal_size() > 0) {
-    const std::vector<std::string> metrics = robots::task_spec(c.task()).metric_names;
+    // The task name is checked where a task is built (robots/task.cpp's registry); an unknown one
+    // has no metrics to name.
+    std::vector<std::string> metrics;
+    try {
+      metrics = robots::task_spec(c.task()).metric_names;
+    } catch (const std::invalid_argument& e) {
+      s.fail("eval_goal", std::string("a goal names one of the task's metrics: ") + e.what(), 0);
+    }
     std::string known;
     for (const auto& m : metrics) known += (known.empty() ? "" : ", ") + m;
     for (int i = 0; i < st.eval_goal_size(); ++i) {

@@ -261,6 +261,12 @@ TEST(Config, EvaluationGoalsNameTheTasksMetrics) {
   EXPECT_EQ(error_of(head + "  eval_goal { metric: \"fell\" }\n}\n"),
             "exp.txtpb:4:3: field 'stop.eval_goal': metric \"fell\": set at_least, below or both");
   EXPECT_EQ(error_of(head + "  eval_goal { metric: \"fell\" below: 0.1 }\n}\n"), "");
+  // A task name nobody knows has no metrics: an error, not an exception of another kind (found by
+  // fuzz_config).
+  EXPECT_EQ(error_of("experiment_id: \"a\"\ntask { name: \"kayak\" }\nstop {\n  eval_goal { metric: \"success\" "
+                     "at_least: 0.9 }\n}\n"),
+            "exp.txtpb:4:3: field 'stop.eval_goal': a goal names one of the task's metrics: no task spec for task "
+            "'kayak'");
 }
 
 // A section built in code (a unit test, a tool that changes a loaded config) gets the loader's
