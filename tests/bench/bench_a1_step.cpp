@@ -30,6 +30,7 @@
 #include "../unit/quadruped_testing.h"
 #include "embedded_mjcf.h"
 #include "quadruped/quadruped_task.h"
+#include "quadruped_rate.h"
 #include "task.h"
 
 namespace {
@@ -164,23 +165,7 @@ Profile profile(const QuadrupedTask& task, const mjModel* model, double seconds)
 double task_rate(const QuadrupedTask& task, const mjModel* model, double seconds) {
   auto s = task.make_state();
   ts::use_model(task, static_cast<QuadrupedState&>(*s), model);
-  std::vector<float> obs(task.spec().obs_dim), a(task.spec().act_dim);
-  std::mt19937_64 rng(1);
-  std::uniform_real_distribution<float> u(-0.5f, 0.5f);
-  uint64_t seed = 1, steps = 0;
-  task.reset(*s, seed++, obs.data());
-  const auto t0 = Clock::now();
-  double elapsed = 0;
-  do {
-    for (int i = 0; i < 100; ++i) {
-      for (auto& x : a) x = u(rng);
-      const auto r = task.step(*s, a.data(), obs.data());
-      if (r.terminated || r.truncated) task.reset(*s, seed++, obs.data());
-    }
-    steps += 100;
-    elapsed = seconds_since(t0);
-  } while (elapsed < seconds);
-  return steps / elapsed;
+  return farm::bench::random_action_rate(task, *s, seconds);
 }
 
 // bench_worker's raw rate: mj_step alone from a state of the task, in env steps/s.

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "quadruped/quadruped_task.h"
+#include "quadruped_rate.h"
 #include "task.h"
 
 namespace {
@@ -56,27 +57,7 @@ double raw_physics_steps_per_second(const QuadrupedTask& task, double seconds) {
 // Env steps/s with uniformly random actions in [-0.5, 0.5], episodes reset as they end.
 double env_steps_per_second(const QuadrupedTask& task, double seconds, uint64_t* episodes) {
   auto s = task.make_state();
-  std::vector<float> obs(task.spec().obs_dim), a(task.spec().act_dim);
-  std::mt19937_64 rng(1);
-  std::uniform_real_distribution<float> u(-0.5f, 0.5f);
-  uint64_t seed = 1, steps = 0;
-  *episodes = 0;
-  task.reset(*s, seed++, obs.data());
-  const auto t0 = Clock::now();
-  double elapsed = 0;
-  do {
-    for (int i = 0; i < 100; ++i) {
-      for (auto& x : a) x = u(rng);
-      const auto r = task.step(*s, a.data(), obs.data());
-      if (r.terminated || r.truncated) {
-        task.reset(*s, seed++, obs.data());
-        ++*episodes;
-      }
-    }
-    steps += 100;
-    elapsed = seconds_since(t0);
-  } while (elapsed < seconds);
-  return steps / elapsed;
+  return farm::bench::random_action_rate(task, *s, seconds, episodes);
 }
 
 }  // namespace
