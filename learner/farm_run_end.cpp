@@ -24,6 +24,9 @@ std::string FarmService::summary_head(double elapsed, const std::string& reason)
     << "wall time         " << fmt("%.1f", elapsed) << " s\n"
     << "env steps         " << c.env_steps << " (" << fmt("%.0f", c.env_steps / std::max(elapsed, 1e-9))
     << " steps/s)\n";
+  if (steps_at_stop_ > 0)
+    o << "after the stop    " << (c.env_steps - steps_at_stop_)
+      << " env steps arrived (workers held at the stop: their batches already made)\n";
   if (const std::string n = untrained_stop_note(reason); !n.empty()) o << "note              " << n << "\n";
   return o.str();
 }

@@ -116,6 +116,13 @@ int FarmService::run() {
     log("checkpoint written; resume with --resume");
     return 130;
   }
+  // Training data made from here on is not used: the workers are held (at most one more batch
+  // each, besides those already filled) while the final evaluation runs on one of them.
+  // Batches that had arrived before the stop are taken first (for at most a second).
+  for (const double t_end = now_seconds() + 1.0; now_seconds() < t_end && drain_batches(1024) > 0;) {
+  }
+  steps_at_stop_ = ingest_.counters().env_steps;
+  algo_->hold_workers(*this);
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
   evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);

@@ -155,6 +155,7 @@ class FarmService final : public Farm {
   std::vector<FinishedEpisode> episodes_;
   std::deque<float> recent_returns_;
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
+  uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
   std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal

@@ -123,7 +123,8 @@ class Algorithm {
   // when due, publish, evaluate. Returns how long the farm may wait for data before the next pass.
   virtual double train(Farm& farm, bool got_data) = 0;
   // Re-sends the current version with a quota of one batch, so every worker that already sent on
-  // it waits (the interrupted learner's stop: nothing is on its way at the checkpoint).
+  // it waits: at an interrupted stop (nothing is on its way at the checkpoint) and at a stop rule
+  // (no training data is made while the final evaluation runs).
   virtual void hold_workers(Farm& farm) = 0;
   // The periodic progress: a log line, and for algorithms that write per period, a CSV row.
   virtual void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) = 0;

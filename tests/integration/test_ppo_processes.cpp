@@ -135,6 +135,11 @@ TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
       << summary;
   EXPECT_EQ(std::stoll(m[2]), env_steps) << summary;
   EXPECT_EQ(std::stoll(m[1]), std::stoll(m[3]) + std::stoll(m[4])) << summary;
+  // The workers are held at the stop: while the final evaluation runs, each sends at most the
+  // batches it had made or begun (two sender buffers and the one it collects, or its one of a
+  // version just published), not the rest of its quota (16 envs x 64 steps a batch).
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(after the stop\s+(\d+) env steps arrived)"))) << summary;
+  EXPECT_LE(std::stoll(m[1]), 2 * 4 * 16 * 64) << summary;
   // Each fit's CSV row: lag within the window; some fits used older versions' data (workers ran on).
   std::ifstream csv(run + "/learner.csv");
   std::string header, row;
