@@ -425,6 +425,7 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
   if (fallen(s)) {
     s.fell = true;
     r.terminated = true;
+    r.reward += float(cfg_.reward().termination() * policy_dt());  // after the clip, as legged_gym adds it
   } else if (s.step >= cfg_.max_episode_steps()) {
     r.truncated = true;
   }

@@ -76,6 +76,36 @@ TEST(Quadruped, ContactQueriesReportTheRightPairs) {
   }
 }
 
+TEST(Quadruped, AFallCostsTheTerminationTermAfterTheClip) {
+  // The same fall twice, without and with legged_gym's termination term: the second step's reward
+  // is the first's (clipped at 0) plus termination x policy step, so it is negative.
+  std::vector<float> rewards;
+  for (const double scale : {0.0, -50.0}) {
+    config::TaskConfig c;
+    c.set_name("a1");
+    auto* l = legged_of(c);
+    l->set_noise_level(0);
+    l->set_push_interval_s(0);
+    l->mutable_reward()->set_termination(scale);
+    auto task = std::unique_ptr<QuadrupedTask>(static_cast<QuadrupedTask*>(make_task(c).release()));
+    auto s = task->make_state();
+    auto& qs = static_cast<QuadrupedState&>(*s);
+    std::vector<float> obs(task->spec().obs_dim), zero(task->spec().act_dim, 0.f);
+    task->reset(*s, 5, obs.data());
+    const StepResult standing = task->step(*s, zero.data(), obs.data());
+    EXPECT_FALSE(standing.terminated);
+    const double z = 0.03;
+    legged::write_property(qs.model, qs.data, legged::Property::kBodyHeight, task->trunk_body(), &z);
+    mj_forward(qs.model, qs.data);
+    const StepResult r = task->step(*s, zero.data(), obs.data());
+    ASSERT_TRUE(r.terminated);
+    rewards.push_back(r.reward);
+  }
+  EXPECT_GE(rewards[0], 0.f);
+  EXPECT_NEAR(rewards[1], rewards[0] - 50.0 * 0.02, 1e-6);
+  EXPECT_LT(rewards[1], 0.f);
+}
+
 TEST(Quadruped, RestingOnTheHipHousingsIsAFall) {
   // Pitched 55 degrees nose-down, the front hip housings are the lowest part of the trunk and
   // carry it with its centre well above min_base_height: a fall all the same. (The A1's hips
