@@ -2,8 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
 #include <sstream>
 #include <stdexcept>
+
+#include "mlp_kernel.h"
 
 namespace farm {
 
@@ -24,17 +29,53 @@ const char* activation_name(Activation a) {
   return "unknown-activation";
 }
 
-// Grows a scratch matrix's storage, never shrinks it, so steady-state calls do not allocate.
-// Rows are padded to 64 bytes so every row starts at the same alignment: Eigen picks its
-// scalar/packet split by address, and the activation must not vary with a row's position.
-void reserve_rows(EigenMlp::Matrix& m, int rows, int cols) {
-  const Eigen::Index padded = (cols + 15) / 16 * 16;
-  if (m.rows() < rows || m.cols() != padded) {
-    m.resize(std::max<Eigen::Index>(rows, m.rows()), padded);
+// The path a network asked for runs on: kAuto by FARM_MLP_ISA, then the CPU.
+MlpIsa resolve_isa(MlpIsa asked) {
+  if (asked == MlpIsa::kAuto) {
+    const char* env = std::getenv("FARM_MLP_ISA");
+    const std::string v = env ? env : "";
+    if (v.empty() || v == "auto") return mlp_kernel::cpu_has_avx2_fma() ? MlpIsa::kAvx2Fma : MlpIsa::kBaseline;
+    if (v == "baseline") return MlpIsa::kBaseline;
+    if (v != "avx2" && v != "avx2+fma") {
+      throw std::invalid_argument("FARM_MLP_ISA is '" + v + "': expected baseline, avx2 or auto");
+    }
+    asked = MlpIsa::kAvx2Fma;
   }
+  if (asked != MlpIsa::kBaseline && asked != MlpIsa::kAvx2Fma) {
+    throw std::invalid_argument("mlp: unknown kernel path " + std::to_string(int(asked)));
+  }
+  if (!mlp_isa_supported(asked)) {
+    throw std::invalid_argument(std::string("mlp: the ") + mlp_isa_name(asked) +
+                                " kernel path needs a CPU with AVX2 and FMA, and this one lacks them "
+                                "(FARM_MLP_ISA=baseline or auto runs the baseline path)");
+  }
+  return asked;
 }
 
 }  // namespace
+
+const char* mlp_isa_name(MlpIsa isa) {
+  switch (isa) {
+    case MlpIsa::kAuto:
+      return "auto";
+    case MlpIsa::kBaseline:
+      return "baseline";
+    case MlpIsa::kAvx2Fma:
+      return "avx2+fma";
+  }
+  return "unknown-isa";
+}
+
+bool mlp_isa_supported(MlpIsa isa) {
+  switch (isa) {
+    case MlpIsa::kAuto:
+    case MlpIsa::kBaseline:
+      return true;
+    case MlpIsa::kAvx2Fma:
+      return mlp_kernel::cpu_has_avx2_fma();
+  }
+  return false;
+}
 
 size_t MlpLayout::num_params() const {
   size_t n = 0;
@@ -51,7 +92,7 @@ std::string MlpLayout::describe() const {
   return s.str();
 }
 
-EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params) : layout_(layout) {
+EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params, MlpIsa isa) : layout_(layout) {
   if (layout.sizes.size() < 2) {
     throw std::invalid_argument("mlp layout '" + layout.describe() + "': needs at least an input and an output size");
   }
@@ -68,62 +109,45 @@ EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params) : 
     throw std::invalid_argument("mlp params: expected " + std::to_string(layout.num_params()) + " floats for layout " +
                                 layout.describe() + ", got " + std::to_string(params.size()));
   }
+  isa_ = resolve_isa(isa);
   const size_t layers = layout.sizes.size() - 1;
-  weights_.resize(layers);
+  panels_.resize(layers);
   biases_.resize(layers);
-  acts_.resize(layers);
-  weights_t_.resize(layers);
+  widths_.resize(layers);
   const float* p = params.data();
   for (size_t l = 0; l < layers; ++l) {
     const int in = layout.sizes[l], out = layout.sizes[l + 1];
-    weights_[l] = Eigen::Map<const Matrix>(p, out, in);
-    p += size_t(out) * in;
-    if (out >= in) weights_t_[l] = weights_[l].transpose();
-    biases_[l] = Eigen::Map<const Eigen::Matrix<float, 1, Eigen::Dynamic>>(p, out);
-    p += out;
+    widths_[l] = mlp_kernel::pack_layer(isa_, p, p + size_t(out) * in, in, out, &panels_[l], &biases_[l]);
+    p += size_t(out) * in + out;
   }
 }
 
-// Rows are evaluated one at a time (matrix-vector products) rather than as one matrix product:
-// Eigen's GEMM blocks by batch shape, so a row's result would change in its last bits with the
-// batch size and the row's position in it, and a rollout would depend on how envs are split
-// over threads. Per-row products are bit-identical wherever the row sits, and at policy sizes
-// (tens of rows, 64-256 units) cost about the same or less. Which form a layer uses depends on
-// its shape only, so that property holds.
+// Rows go through the network layer by layer, all rows of the call at once, in blocks of rows per
+// pass over a layer's weights (mlp_kernel.h). Eigen's matrix product is not used: its blocking, and
+// so the order in which it sums, depends on the batch's shape, so a row's result would change in
+// its last bits with the batch size and its position in it, and a rollout would depend on how envs
+// are split over threads. The kernel sums every output element in the same order whatever the
+// block (a lone row's included), so a row's result is bit-identical wherever it sits.
 void EigenMlp::forward(const float* in, int rows, float* out) {
-  const size_t layers = weights_.size();
-  const int in_dim = layout_.sizes.front();
-  for (size_t l = 0; l + 1 < layers; ++l) reserve_rows(acts_[l], rows, layout_.sizes[l + 1]);
-  using RowVec = Eigen::Matrix<float, 1, Eigen::Dynamic>;
+  if (rows <= 0 || widths_.empty()) return;
+  const size_t layers = widths_.size();
+  // Two buffers of [rows x widest layer], each starting on a 64-byte boundary (speed only: the
+  // kernel's results do not depend on alignment).
+  const size_t buffer = (size_t(rows) * size_t(*std::max_element(widths_.begin(), widths_.end())) + 15) / 16 * 16;
+  if (scratch_.size() < 2 * buffer + 16) scratch_.resize(2 * buffer + 16);
+  float* base = scratch_.data() + (16 - (reinterpret_cast<uintptr_t>(scratch_.data()) / sizeof(float)) % 16) % 16;
+  const float* x = in;
+  size_t x_stride = size_t(layout_.sizes.front());
+  for (size_t l = 0; l < layers; ++l) {
+    float* y = base + (l % 2) * buffer;
+    mlp_kernel::dense(isa_, layout_.activation, l + 1 < layers, layout_.sizes[l], widths_[l], panels_[l].data(),
+                      biases_[l].data(), x, x_stride, rows, y, size_t(widths_[l]));
+    x = y;
+    x_stride = size_t(widths_[l]);
+  }
+  const int out_dim = layout_.sizes.back();
   for (int r = 0; r < rows; ++r) {
-    Eigen::Map<const RowVec> x0(in + size_t(r) * in_dim, in_dim);
-    for (size_t l = 0; l < layers; ++l) {
-      const int out_dim = layout_.sizes[l + 1];
-      const bool last = l + 1 == layers;
-      Eigen::Map<RowVec> y(last ? out + size_t(r) * out_dim : acts_[l].row(r).data(), out_dim);
-      const bool by_columns = weights_t_[l].size() > 0;
-      if (l == 0) {
-        if (by_columns) {
-          y.noalias() = x0 * weights_t_[l];
-        } else {
-          y.noalias() = x0 * weights_[l].transpose();
-        }
-      } else {
-        const auto x = acts_[l - 1].row(r).head(layout_.sizes[l]);
-        if (by_columns) {
-          y.noalias() = x * weights_t_[l];
-        } else {
-          y.noalias() = x * weights_[l].transpose();
-        }
-      }
-      y += biases_[l];
-      if (last) break;
-      if (layout_.activation == Activation::kRelu) {
-        y = y.cwiseMax(0.f);
-      } else {
-        y = y.array().tanh().matrix();
-      }
-    }
+    std::memcpy(out + size_t(r) * out_dim, x + size_t(r) * x_stride, sizeof(float) * out_dim);
   }
 }
 

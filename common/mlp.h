@@ -3,7 +3,6 @@
 // [out x in] row-major (torch::nn::Linear's own layout), then its bias [out].
 #pragma once
 
-#include <Eigen/Dense>
 #include <cstdint>
 #include <random>
 #include <string>
@@ -33,26 +32,41 @@ struct MlpLayout {
   std::string describe() const;  // e.g. "3-64-64-2 relu"
 };
 
-// Feed-forward network evaluated in Eigen on a batch of rows. Allocates only when the batch
-// grows, so a worker's hot loop does not allocate.
+// Which compiled form of the forward kernel (common/mlp_kernel.cpp) a network runs. kBaseline
+// runs on any x86-64 (SSE2: a multiply and an add, each rounded); kAvx2Fma needs a CPU with AVX2
+// and FMA (a fused multiply-add, rounded once), so the two paths may differ in the last bits of
+// a result. On one path a row's result never depends on the batch (see EigenMlp::forward).
+// kAuto: kAvx2Fma where the CPU has it, unless the environment sets FARM_MLP_ISA=baseline
+// (FARM_MLP_ISA=avx2 asks for the AVX2 path and fails where the CPU lacks it; auto or unset
+// chooses by the CPU).
+enum class MlpIsa : int32_t { kAuto = -1, kBaseline = 0, kAvx2Fma = 1 };
+const char* mlp_isa_name(MlpIsa isa);  // "auto", "baseline", "avx2+fma"
+bool mlp_isa_supported(MlpIsa isa);    // whether this CPU can run the path (kAuto: always)
+
+// Feed-forward network evaluated on a batch of rows by the kernel of common/mlp_kernel.h, a block
+// of rows per pass over each weight matrix. Allocates only when the batch grows, so a worker's
+// hot loop does not allocate.
 class EigenMlp {
  public:
-  using Matrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   EigenMlp() = default;
-  // Throws std::invalid_argument if params.size() != layout.num_params().
-  EigenMlp(const MlpLayout& layout, const std::vector<float>& params);
+  // Throws std::invalid_argument if params.size() != layout.num_params(), on an unknown
+  // FARM_MLP_ISA value (kAuto), or if the CPU cannot run the path asked for.
+  EigenMlp(const MlpLayout& layout, const std::vector<float>& params, MlpIsa isa = MlpIsa::kAuto);
   const MlpLayout& layout() const { return layout_; }
-  // in: [rows x sizes.front()], out: [rows x sizes.back()].
+  MlpIsa isa() const { return isa_; }  // the path chosen at construction, never kAuto
+  // in: [rows x sizes.front()], out: [rows x sizes.back()]. Row r of out depends on row r of in
+  // only, bit for bit, whatever other rows share the call (on one path, on one machine).
   void forward(const float* in, int rows, float* out);
 
  private:
   MlpLayout layout_;
-  std::vector<Matrix> weights_;  // [out x in]
-  std::vector<Eigen::Matrix<float, 1, Eigen::Dynamic>> biases_;
-  std::vector<Matrix> acts_;  // scratch per layer
-  // [in x out] copies for layers at least as wide out as in, evaluated as sums of columns
-  // (faster there than row dot products); empty for the other layers.
-  std::vector<Matrix> weights_t_;
+  MlpIsa isa_ = MlpIsa::kBaseline;
+  // Per layer, the weights and bias packed for the kernel (mlp_kernel::pack_layer), and the
+  // layer's output width padded to the kernel's panel width.
+  std::vector<std::vector<float>> panels_, biases_;
+  std::vector<int> widths_;
+  // Two activation buffers, [rows x widest padded layer] each, used in turn layer by layer.
+  std::vector<float> scratch_;
 };
 
 // A policy as the workers run it: observation normalizer + network + head.

@@ -7,6 +7,10 @@
 // --config takes the task (with its settings) and the envs per worker from an experiment config.
 // --raw-only measures only K raw loops at once and prints each loop's limit and their mean
 // (tests/bench/bench_worker_farm.sh sets a farm's workers against it).
+// The policy is the config's actor where --config names a PPO or SAC config (hidden sizes,
+// activation, head), else a 64-64 relu actor. --inference-only measures only policy inference:
+// rows/s for calls of 1, 8 and 64 rows and of --envs rows (FARM_MLP_ISA=baseline forces the
+// kernel's baseline path, see common/mlp.h).
 #include <mujoco/mujoco.h>
 
 #include <chrono>
@@ -120,13 +124,51 @@ double policy_rows_per_second(const farm::PolicyParams& params, int rows, double
   return double(done) / elapsed;
 }
 
+// The actor the learner would publish for the task: with a PPO or SAC config, its hidden sizes,
+// activation and head; otherwise a 64-64 relu net with SAC's [mean | log_std] or DQN's Q values.
+// Weights are random: inference costs the same whatever they are.
+farm::PolicyParams bench_policy(const farm::config::ExperimentConfig* cfg, const farm::robots::TaskSpec& spec) {
+  farm::PolicyParams policy;
+  std::vector<int> hidden = {64, 64};
+  farm::Activation activation = farm::Activation::kRelu;
+  auto from_config = [&](const auto& section, std::vector<int> fallback) {
+    hidden.assign(section.hidden().begin(), section.hidden().end());
+    if (hidden.empty()) hidden = std::move(fallback);
+    activation = section.activation() == "tanh" ? farm::Activation::kTanh : farm::Activation::kRelu;
+  };
+  const int discrete = spec.num_actions;
+  int out = discrete > 0 ? discrete : 2 * spec.act_dim;
+  if (discrete > 0) {
+    policy.head = farm::PolicyHead::kDiscreteQ;
+    policy.epsilon = 0.05f;
+  } else if (cfg && cfg->algorithm() == "ppo") {
+    from_config(cfg->ppo(), {64, 64});
+    policy.head = farm::PolicyHead::kGaussian;
+    out = spec.act_dim;
+    policy.log_std.assign(out, float(cfg->ppo().initial_log_std()));
+    policy.log_std_min = float(cfg->ppo().log_std_min());
+    policy.log_std_max = float(cfg->ppo().log_std_max());
+  } else if (cfg && cfg->algorithm() == "sac") {
+    from_config(cfg->sac(), {256, 256});
+  }
+  policy.layout.sizes = {spec.obs_dim};
+  policy.layout.sizes.insert(policy.layout.sizes.end(), hidden.begin(), hidden.end());
+  policy.layout.sizes.push_back(out);
+  policy.layout.activation = activation;
+  policy.params.resize(policy.layout.num_params());
+  std::mt19937_64 rng(1);
+  std::normal_distribution<float> normal(0.f, 0.2f);
+  for (auto& v : policy.params) v = normal(rng);
+  return policy;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   int envs = 16, threads = int(std::thread::hardware_concurrency());
   double seconds = 2.0;
   std::string task_name = "pendulum", config_path;
-  bool raw_only = false, envs_given = false, task_given = false;
+  bool raw_only = false, inference_only = false, envs_given = false, task_given = false;
   const int T = 32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -144,15 +186,22 @@ int main(int argc, char** argv) {
       seconds = std::atof(argv[++i]);
     } else if (a == "--raw-only") {
       raw_only = true;
+    } else if (a == "--inference-only") {
+      inference_only = true;
     } else {
       std::fprintf(stderr,
-                   "usage: %s [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only]\n",
+                   "usage: %s [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] "
+                   "[--raw-only | --inference-only]\n",
                    argv[0]);
       return 2;
     }
   }
   if (task_given && !config_path.empty()) {
     std::fprintf(stderr, "--task and --config both name the task: give one\n");
+    return 2;
+  }
+  if (raw_only && inference_only) {
+    std::fprintf(stderr, "--raw-only and --inference-only exclude each other: give one\n");
     return 2;
   }
   if (envs < 1 || threads < 1 || !(seconds > 0)) {
@@ -163,9 +212,10 @@ int main(int argc, char** argv) {
   farm::config::TaskConfig task_cfg;
   task_cfg.set_name(task_name);
   std::shared_ptr<const farm::robots::Task> task;
+  farm::config::ExperimentConfig cfg;
   try {
     if (!config_path.empty()) {
-      farm::config::ExperimentConfig cfg = farm::load_config_file(config_path);
+      cfg = farm::load_config_file(config_path);
       farm::clear_output_paths(&cfg);  // as a worker does: the task is built, nothing written
       task_cfg = cfg.task();
       if (!envs_given) envs = cfg.worker().envs_per_worker();
@@ -191,22 +241,29 @@ int main(int argc, char** argv) {
     std::printf("raw per loop (%d at once): %.0f env steps/s\n", threads, sum / threads);
     return 0;
   }
-  // The learner's actor shape for the task: SAC's [mean | log_std], or DQN's Q values.
-  farm::PolicyParams policy;
-  const int discrete = task->spec().num_actions;
-  policy.layout = {{task->spec().obs_dim, 64, 64, discrete > 0 ? discrete : 2 * task->spec().act_dim},
-                   farm::Activation::kRelu};
-  if (discrete > 0) {
-    policy.head = farm::PolicyHead::kDiscreteQ;
-    policy.epsilon = 0.05f;
+  const farm::PolicyParams policy = bench_policy(config_path.empty() ? nullptr : &cfg, task->spec());
+  // The kernel path the policy runs (FARM_MLP_ISA or the CPU; see common/mlp.h).
+  const char* isa = nullptr;
+  try {
+    isa = farm::mlp_isa_name(farm::EigenMlp(policy.layout, policy.params).isa());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_worker: %s\n", e.what());
+    return 2;
   }
-  policy.params.resize(policy.layout.num_params());
-  std::mt19937_64 rng(1);
-  std::normal_distribution<float> normal(0.f, 0.2f);
-  for (auto& v : policy.params) v = normal(rng);
+  if (inference_only) {
+    std::printf("task %s, policy %s (%s kernel), %.1f s per measurement\n", task->spec().name.c_str(),
+                policy.layout.describe().c_str(), isa, seconds);
+    std::vector<int> row_counts = {1, 8, 64};
+    if (envs != 1 && envs != 8 && envs != 64) row_counts.push_back(envs);
+    for (int rows : row_counts) {
+      std::printf("policy inference (%d rows per call): %.0f rows/s\n", rows,
+                  policy_rows_per_second(policy, rows, seconds));
+    }
+    return 0;
+  }
 
-  std::printf("task %s, policy %s, %d envs, T=%d, %.1f s per measurement\n", task->spec().name.c_str(),
-              policy.layout.describe().c_str(), envs, T, seconds);
+  std::printf("task %s, policy %s (%s kernel), %d envs, T=%d, %.1f s per measurement\n", task->spec().name.c_str(),
+              policy.layout.describe().c_str(), isa, envs, T, seconds);
   const RawStart start = raw_start(*task);
   const double per = start.physics_per_env_step;
   const double raw = raw_steps_per_second(task->model(), start.data, seconds) / per;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <random>
 #include <stdexcept>
@@ -112,10 +113,18 @@ std::vector<double> reference_forward(const MlpLayout& layout, const std::vector
   return x;
 }
 
+// The kernel paths this CPU runs: the baseline one always, the AVX2 + FMA one where the CPU has it.
+std::vector<MlpIsa> runnable_paths() {
+  std::vector<MlpIsa> paths = {MlpIsa::kBaseline};
+  if (mlp_isa_supported(MlpIsa::kAvx2Fma)) paths.push_back(MlpIsa::kAvx2Fma);
+  return paths;
+}
+
 // Rows go through the network in blocks; a row's bits must not depend on how many rows share the
-// call or where it sits in it (37 rows: full blocks and a padded last one), and must match a
-// double-precision evaluation. The A1 actor's shape, a relu one, and widths that are not a
-// multiple of any vector or panel width.
+// call or where it sits in it (37 rows: full blocks and 1 left over; 10 + 27: 2 and 3 left over;
+// one row alone), and must match a double-precision evaluation, on every kernel path this CPU
+// runs. The A1 actor's shape, a relu one, and widths that are not a multiple of any vector or
+// panel width.
 TEST(EigenMlp, BlockedRowsAreBitIdenticalAndAccurate) {
   const std::vector<MlpLayout> layouts = {{{48, 512, 256, 128, 12}, Activation::kTanh},
                                           {{48, 64, 64, 24}, Activation::kRelu},
@@ -124,7 +133,6 @@ TEST(EigenMlp, BlockedRowsAreBitIdenticalAndAccurate) {
   std::mt19937 g(17);
   std::normal_distribution<float> n;
   for (const MlpLayout& layout : layouts) {
-    SCOPED_TRACE(layout.describe());
     // Weights scaled by 1 / sqrt(fan-in), as the learners' initialization does, so the hidden
     // units are neither all saturated nor all near zero.
     std::vector<float> params;
@@ -133,32 +141,89 @@ TEST(EigenMlp, BlockedRowsAreBitIdenticalAndAccurate) {
       for (int i = 0; i < layout.sizes[l + 1] * (layout.sizes[l] + 1); ++i) params.push_back(scale * n(g));
     }
     ASSERT_EQ(params.size(), layout.num_params());
-    EigenMlp net(layout, params);
     const int rows = 37, in_dim = layout.sizes.front(), out_dim = layout.sizes.back();
     std::vector<float> in(size_t(rows) * in_dim);
     for (auto& v : in) v = n(g);
-    const size_t out_bytes = sizeof(float) * out_dim;
-    std::vector<float> all(size_t(rows) * out_dim), split(all.size()), one(out_dim);
-    net.forward(in.data(), rows, all.data());
-    net.forward(in.data(), 10, split.data());
-    net.forward(in.data() + 10 * in_dim, rows - 10, split.data() + 10 * out_dim);
-    EXPECT_EQ(std::memcmp(all.data(), split.data(), all.size() * sizeof(float)), 0) << "rows 0..9 + 10..36";
-    double worst = 0;
-    for (int r = 0; r < rows; ++r) {
-      net.forward(in.data() + r * in_dim, 1, one.data());
-      EXPECT_EQ(std::memcmp(one.data(), all.data() + r * out_dim, out_bytes), 0) << "row " << r << " alone";
-      const std::vector<double> ref = reference_forward(layout, params, in.data() + r * in_dim);
-      for (int j = 0; j < out_dim; ++j) {
-        const double err = std::abs(double(all[r * out_dim + j]) - ref[j]) / std::max(std::abs(ref[j]), 1.0);
-        EXPECT_LE(err, 1e-5) << "row " << r << " output " << j << ": " << all[r * out_dim + j] << " vs " << ref[j];
-        worst = std::max(worst, err);
+    for (MlpIsa isa : runnable_paths()) {
+      SCOPED_TRACE(layout.describe() + " on the " + mlp_isa_name(isa) + " path");
+      EigenMlp net(layout, params, isa);
+      ASSERT_EQ(net.isa(), isa);
+      const size_t out_bytes = sizeof(float) * out_dim;
+      std::vector<float> all(size_t(rows) * out_dim), split(all.size()), one(out_dim);
+      net.forward(in.data(), rows, all.data());
+      net.forward(in.data(), 10, split.data());
+      net.forward(in.data() + 10 * in_dim, rows - 10, split.data() + 10 * out_dim);
+      EXPECT_EQ(std::memcmp(all.data(), split.data(), all.size() * sizeof(float)), 0) << "rows 0..9 + 10..36";
+      double worst = 0;
+      for (int r = 0; r < rows; ++r) {
+        net.forward(in.data() + r * in_dim, 1, one.data());
+        EXPECT_EQ(std::memcmp(one.data(), all.data() + r * out_dim, out_bytes), 0) << "row " << r << " alone";
+        const std::vector<double> ref = reference_forward(layout, params, in.data() + r * in_dim);
+        for (int j = 0; j < out_dim; ++j) {
+          const double err = std::abs(double(all[r * out_dim + j]) - ref[j]) / std::max(std::abs(ref[j]), 1.0);
+          EXPECT_LE(err, 1e-5) << "row " << r << " output " << j << ": " << all[r * out_dim + j] << " vs " << ref[j];
+          worst = std::max(worst, err);
+        }
       }
+      std::printf("%s, %s path: worst relative difference from double precision %.2e\n", layout.describe().c_str(),
+                  mlp_isa_name(isa), worst);
+      // After the single rows the scratch is reused, not regrown: the batch again gives the same bits.
+      std::vector<float> again(all.size());
+      net.forward(in.data(), rows, again.data());
+      EXPECT_EQ(std::memcmp(all.data(), again.data(), all.size() * sizeof(float)), 0) << "second call";
     }
-    std::printf("%s: worst relative difference from double precision %.2e\n", layout.describe().c_str(), worst);
-    // After the single rows the scratch is reused, not regrown: the batch again gives the same bits.
-    std::vector<float> again(all.size());
-    net.forward(in.data(), rows, again.data());
-    EXPECT_EQ(std::memcmp(all.data(), again.data(), all.size() * sizeof(float)), 0) << "second call";
+  }
+}
+
+// Sets an environment variable for one scope and restores what was there.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const char* value) : name_(name) {
+    const char* old = std::getenv(name);
+    had_ = old != nullptr;
+    if (had_) old_ = old;
+    setenv(name, value, 1);
+  }
+  ~ScopedEnv() {
+    if (had_) {
+      setenv(name_, old_.c_str(), 1);
+    } else {
+      unsetenv(name_);
+    }
+  }
+
+ private:
+  const char* name_;
+  bool had_ = false;
+  std::string old_;
+};
+
+// kAuto takes the AVX2 path where the CPU has it; FARM_MLP_ISA=baseline forces the baseline one,
+// and a value it does not know is an error naming the variable.
+TEST(EigenMlp, KernelPathFollowsCpuAndEnvironment) {
+  const MlpLayout layout{{2, 2, 1}, Activation::kRelu};
+  {
+    ScopedEnv env("FARM_MLP_ISA", "");
+    EXPECT_EQ(EigenMlp(layout, tiny_params()).isa(),
+              mlp_isa_supported(MlpIsa::kAvx2Fma) ? MlpIsa::kAvx2Fma : MlpIsa::kBaseline);
+  }
+  {
+    ScopedEnv env("FARM_MLP_ISA", "baseline");
+    EXPECT_EQ(EigenMlp(layout, tiny_params()).isa(), MlpIsa::kBaseline);
+    // An explicit path is not overridden by the environment.
+    EXPECT_EQ(EigenMlp(layout, tiny_params(), MlpIsa::kBaseline).isa(), MlpIsa::kBaseline);
+  }
+  {
+    ScopedEnv env("FARM_MLP_ISA", "avx512");
+    try {
+      EigenMlp net(layout, tiny_params());
+      FAIL() << "expected std::invalid_argument";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_STREQ(e.what(), "FARM_MLP_ISA is 'avx512': expected baseline, avx2 or auto");
+    }
+  }
+  if (!mlp_isa_supported(MlpIsa::kAvx2Fma)) {
+    EXPECT_THROW(EigenMlp(layout, tiny_params(), MlpIsa::kAvx2Fma), std::invalid_argument);
   }
 }
 
