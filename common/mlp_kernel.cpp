@@ -16,6 +16,8 @@
 
 #include <immintrin.h>
 
+#include <stdexcept>
+
 // Avx2Fma's helpers take and return 256-bit vectors, and GCC warns that such an ABI differs from
 // code built without AVX. They only ever run inlined into the target("avx2,fma") functions at the
 // bottom of this file (flatten), or called from them, both sides built with AVX; the generic
@@ -47,6 +49,14 @@ struct Sse {
 };
 
 #define FARM_AVX2_FMA __attribute__((target("avx2,fma")))
+// Clang checks the vector ABI of the generic templates below when it compiles them for Avx2Fma,
+// before inlining them into the target("avx2,fma") function, and refuses; a Clang build (the
+// fuzzers') keeps the baseline path alone, and cpu_has_avx2_fma() says no there.
+#if defined(__clang__)
+#define FARM_MLP_AVX2 0
+#else
+#define FARM_MLP_AVX2 1
+#endif
 
 // AVX2 + FMA: 8 floats a vector; multiply-add is fused.
 struct Avx2Fma {
@@ -212,11 +222,13 @@ __attribute__((flatten)) void dense_sse(Activation activation, bool activate_out
   dense_layer<Sse>(activation, activate_out, in, width, w, b, x, x_stride, rows, y, y_stride);
 }
 
+#if FARM_MLP_AVX2
 FARM_AVX2_FMA __attribute__((flatten)) void dense_avx2_fma(Activation activation, bool activate_out, int in, int width,
                                                            const float* w, const float* b, const float* x,
                                                            size_t x_stride, int rows, float* y, size_t y_stride) {
   dense_layer<Avx2Fma>(activation, activate_out, in, width, w, b, x, x_stride, rows, y, y_stride);
 }
+#endif
 
 }  // namespace
 
@@ -225,7 +237,7 @@ int panel_width(MlpIsa isa) { return isa == MlpIsa::kAvx2Fma ? 2 * Avx2Fma::kLan
 bool cpu_has_avx2_fma() {
   // GCC's and Clang's CPU tests also check that the OS saves the AVX registers (XGETBV).
   __builtin_cpu_init();
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return FARM_MLP_AVX2 && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
 }
 
 int pack_layer(MlpIsa isa, const float* w, const float* b, int in, int out, std::vector<float>* panels,
@@ -245,7 +257,11 @@ int pack_layer(MlpIsa isa, const float* w, const float* b, int in, int out, std:
 void dense(MlpIsa isa, Activation activation, bool activate, int in, int width, const float* panels, const float* bias,
            const float* x, size_t x_stride, int rows, float* y, size_t y_stride) {
   if (isa == MlpIsa::kAvx2Fma) {
+#if FARM_MLP_AVX2
     dense_avx2_fma(activation, activate, in, width, panels, bias, x, x_stride, rows, y, y_stride);
+#else
+    throw std::logic_error("mlp kernel: the avx2 path is not in this build");
+#endif
   } else {
     dense_sse(activation, activate, in, width, panels, bias, x, x_stride, rows, y, y_stride);
   }
