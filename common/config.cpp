@@ -276,8 +276,8 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.non_negative("value_loss_coef", c.value_loss_coef());
   s.layer_sizes("hidden", c.hidden());
-  s.check(c.activation() == "tanh" || c.activation() == "relu", "activation",
-          "expected \"tanh\" or \"relu\", got \"" + c.activation() + "\"");
+  s.check(c.activation() == "tanh" || c.activation() == "relu" || c.activation() == "elu", "activation",
+          "expected \"tanh\", \"relu\" or \"elu\", got \"" + c.activation() + "\"");
   s.check(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < ppo.log_std_max");
   s.non_negative("max_policy_lag", c.max_policy_lag());
   s.check(c.mode() == "sync" || c.mode() == "async", "mode",

@@ -414,8 +414,11 @@ PolicyParams from_wire(const farm::msg::PolicyWeights& w) {
       w.head() != static_cast<int32_t>(PolicyHead::kGaussian))
     throw std::invalid_argument("PolicyWeights: unknown policy head " + std::to_string(w.head()));
   p.head = static_cast<PolicyHead>(w.head());
-  if (w.activation() != 0 && w.activation() != 1)
-    throw std::invalid_argument("PolicyWeights: unknown activation " + std::to_string(w.activation()));
+  if (w.activation() != static_cast<int32_t>(Activation::kRelu) &&
+      w.activation() != static_cast<int32_t>(Activation::kTanh) &&
+      w.activation() != static_cast<int32_t>(Activation::kElu))
+    throw std::invalid_argument("PolicyWeights: unknown activation " + std::to_string(w.activation()) +
+                                " (expected 0 relu, 1 tanh or 2 elu)");
   p.layout.activation = static_cast<Activation>(w.activation());
   p.layout.sizes.assign(w.layer_sizes().begin(), w.layer_sizes().end());
   p.log_std_min = w.log_std_min();

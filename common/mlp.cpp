@@ -25,6 +25,8 @@ const char* activation_name(Activation a) {
       return "relu";
     case Activation::kTanh:
       return "tanh";
+    case Activation::kElu:
+      return "elu";
   }
   return "unknown-activation";
 }
@@ -102,8 +104,10 @@ EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params, Ml
                                   std::to_string(layout.sizes[i]) + ", must be > 0");
     }
   }
-  if (layout.activation != Activation::kRelu && layout.activation != Activation::kTanh) {
-    throw std::invalid_argument("mlp layout: unknown activation " + std::to_string(int(layout.activation)));
+  if (layout.activation != Activation::kRelu && layout.activation != Activation::kTanh &&
+      layout.activation != Activation::kElu) {
+    throw std::invalid_argument("mlp layout: unknown activation " + std::to_string(int(layout.activation)) +
+                                " (expected 0 relu, 1 tanh or 2 elu)");
   }
   if (params.size() != layout.num_params()) {
     throw std::invalid_argument("mlp params: expected " + std::to_string(layout.num_params()) + " floats for layout " +

@@ -10,7 +10,9 @@
 
 namespace farm {
 
-enum class Activation : int32_t { kRelu = 0, kTanh = 1 };
+// The hidden layers' activation; the values are the wire's (PolicyWeights.activation). kElu:
+// x > 0 ? x : exp(x) - 1 (alpha 1, legged_gym's actor), computed with std::expm1.
+enum class Activation : int32_t { kRelu = 0, kTanh = 1, kElu = 2 };
 
 // How the network output turns into an action.
 enum class PolicyHead : int32_t {
@@ -29,7 +31,7 @@ struct MlpLayout {
   std::vector<int> sizes;  // [input, hidden..., output]
   Activation activation = Activation::kRelu;
   size_t num_params() const;
-  std::string describe() const;  // e.g. "3-64-64-2 relu"
+  std::string describe() const;  // e.g. "3-64-64-2 relu" (or tanh, elu)
 };
 
 // Which compiled form of the forward kernel (common/mlp_kernel.cpp) a network runs. kBaseline

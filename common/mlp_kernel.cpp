@@ -16,6 +16,7 @@
 
 #include <immintrin.h>
 
+#include <cmath>
 #include <stdexcept>
 
 // Avx2Fma's helpers take and return 256-bit vectors, and GCC warns that such an ABI differs from
@@ -100,6 +101,15 @@ void tanh_rational_at(float* y) {
   O::store(y, O::select_abs_below(v, O::set1(0.0004f), x, O::div(p, q)));
 }
 
+// ELU with alpha 1, as torch::elu: x where x > 0, else exp(x) - 1, computed as std::expm1(x) (no
+// cancellation near 0). One lane at a time through the C library's expm1f, the same scalar function
+// for every element on either path and in every kernel variant, so a row's bits still do not
+// depend on the batch; both paths give the same ELU of the same sum. In place, one vector at y.
+template <class O>
+void elu_at(float* y) {
+  for (int i = 0; i < O::kLanes; ++i) y[i] = y[i] > 0.f ? y[i] : std::expm1(y[i]);
+}
+
 // The hidden layers' activation, in place on one vector at y: the one place a new Activation
 // needs code (besides its name and checks in mlp.h and mlp.cpp).
 template <class O>
@@ -110,6 +120,9 @@ void activate_at(Activation a, float* y) {
       return;
     case Activation::kTanh:
       tanh_rational_at<O>(y);
+      return;
+    case Activation::kElu:
+      elu_at<O>(y);
       return;
   }
 }

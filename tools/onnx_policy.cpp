@@ -1,5 +1,5 @@
 // The ONNX graph of a worker's deterministic policy: Sub/Div for the observation normalizer, one
-// Gemm (+ Relu or Tanh) per layer, then the action head (Tanh, Clip or ArgMax).
+// Gemm (+ Relu, Tanh or Elu) per layer, then the action head (Tanh, Clip or ArgMax).
 #include "onnx_policy.h"
 
 #include <onnx/checker.h>
@@ -57,6 +57,23 @@ void set_value_info(onnx::ValueInfoProto* v, const std::string& name, onnx::Tens
   t->mutable_shape()->add_dim()->set_dim_value(cols);
 }
 
+// The hidden layers' activation on y as the node "NAME.relu", ".tanh" or ".elu"; returns its output.
+std::string add_activation(onnx::GraphProto& g, Activation a, const std::string& y, const std::string& name) {
+  switch (a) {
+    case Activation::kRelu:
+      add_node(g, "Relu", {y}, name + ".relu");
+      return name + ".relu";
+    case Activation::kTanh:
+      add_node(g, "Tanh", {y}, name + ".tanh");
+      return name + ".tanh";
+    case Activation::kElu:
+      // x > 0 ? x : alpha * (exp(x) - 1), alpha 1 as the worker's kernel and torch::elu.
+      set_float(add_node(g, "Elu", {y}, name + ".elu"), "alpha", 1.f);
+      return name + ".elu";
+  }
+  throw std::invalid_argument("onnx export: unknown activation " + std::to_string(int(a)));
+}
+
 }  // namespace
 
 onnx::ModelProto policy_to_onnx(const PolicyParams& p, const std::vector<std::pair<std::string, std::string>>& metadata,
@@ -106,10 +123,7 @@ onnx::ModelProto policy_to_onnx(const PolicyParams& p, const std::vector<std::pa
     const std::string y = !last ? name + ".linear" : p.head == PolicyHead::kDiscreteQ ? kQValuesName : "mean";
     set_int(add_node(g, "Gemm", {x, name + ".weight", name + ".bias"}, y), "transB", 1);
     x = y;
-    if (!last) {
-      x = name + (p.layout.activation == Activation::kTanh ? ".tanh" : ".relu");
-      add_node(g, p.layout.activation == Activation::kTanh ? "Tanh" : "Relu", {y}, x);
-    }
+    if (!last) x = add_activation(g, p.layout.activation, y, name);
     w = b + out;
   }
   switch (p.head) {

@@ -16,7 +16,8 @@ namespace {
 constexpr double kHalfLog2Pi = 0.91893853320467274178;
 
 struct MlpImpl : torch::nn::Module {
-  MlpImpl(const std::vector<int64_t>& sizes, bool tanh_hidden, double last_gain) : tanh_hidden(tanh_hidden) {
+  MlpImpl(const std::vector<int64_t>& sizes, Activation hidden_activation, double last_gain)
+      : hidden_activation(hidden_activation) {
     for (size_t i = 0; i + 1 < sizes.size(); ++i)
       layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
     // A small last layer starts the policy near mean 0 (actions centred, exploration from the
@@ -28,14 +29,34 @@ struct MlpImpl : torch::nn::Module {
   torch::Tensor forward(torch::Tensor x) {
     for (size_t i = 0; i < layers.size(); ++i) {
       x = layers[i]->forward(x);
-      if (i + 1 < layers.size()) x = tanh_hidden ? torch::tanh(x) : torch::relu(x);
+      if (i + 1 < layers.size()) x = activate(x);
     }
     return x;
   }
+  // The hidden layers' activation, as the workers' kernel computes it (common/mlp_kernel.cpp).
+  torch::Tensor activate(const torch::Tensor& x) const {
+    switch (hidden_activation) {
+      case Activation::kTanh:
+        return torch::tanh(x);
+      case Activation::kElu:
+        return torch::elu(x);  // alpha 1
+      case Activation::kRelu:
+        break;
+    }
+    return torch::relu(x);
+  }
   std::vector<torch::nn::Linear> layers;
-  bool tanh_hidden;
+  Activation hidden_activation;
 };
 TORCH_MODULE(Mlp);
+
+// PpoConfig.activation as the policy layout's; config validation refuses any other name.
+Activation ppo_activation(const config::PpoConfig& c) {
+  if (c.activation() == "tanh") return Activation::kTanh;
+  if (c.activation() == "relu") return Activation::kRelu;
+  if (c.activation() == "elu") return Activation::kElu;
+  throw std::invalid_argument("ppo.activation must be \"tanh\", \"relu\" or \"elu\", got \"" + c.activation() + "\"");
+}
 
 torch::Tensor from_floats(const float* p, int64_t rows, int64_t cols) {
   return torch::from_blob(const_cast<float*>(p), {rows, cols}, torch::kFloat32).clone();
@@ -110,9 +131,9 @@ Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) 
   }
   a.push_back(act_dim);
   v.push_back(1);
-  const bool th = cfg.activation() == "tanh";
-  s.actor = Mlp(a, th, 0.01);  // initialized on the host, so a seed gives the same nets everywhere
-  s.critic = Mlp(v, th, 1.0);
+  const Activation act = ppo_activation(cfg);
+  s.actor = Mlp(a, act, 0.01);  // initialized on the host, so a seed gives the same nets everywhere
+  s.critic = Mlp(v, act, 1.0);
   s.device = learner_device(cfg.device(), "ppo.device");
   s.actor->to(s.device);
   s.critic->to(s.device);
@@ -247,7 +268,7 @@ PolicyParams Ppo::export_policy(uint64_t version) const {
   PolicyParams p;
   p.version = version;
   p.head = PolicyHead::kGaussian;
-  p.layout.activation = s.cfg.activation() == "tanh" ? Activation::kTanh : Activation::kRelu;
+  p.layout.activation = s.actor->hidden_activation;
   p.layout.sizes.push_back(s.obs_dim);
   p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
   p.layout.sizes.push_back(s.act_dim);

@@ -134,7 +134,9 @@ farm::PolicyParams bench_policy(const farm::config::ExperimentConfig* cfg, const
   auto from_config = [&](const auto& section, std::vector<int> fallback) {
     hidden.assign(section.hidden().begin(), section.hidden().end());
     if (hidden.empty()) hidden = std::move(fallback);
-    activation = section.activation() == "tanh" ? farm::Activation::kTanh : farm::Activation::kRelu;
+    activation = section.activation() == "tanh"  ? farm::Activation::kTanh
+                 : section.activation() == "elu" ? farm::Activation::kElu
+                                                 : farm::Activation::kRelu;
   };
   const int discrete = spec.num_actions;
   int out = discrete > 0 ? discrete : 2 * spec.act_dim;

@@ -5,9 +5,9 @@ recorded observations the actions the worker's Eigen policy took (farm-export --
 
   check_onnx_export.py MODEL.onnx RECORD.csv ALGORITHM [TOLERANCE [MIN_DISTINCT]]
 
-SAC, PPO: max |action_onnx - action_eigen| <= TOLERANCE (default 1e-5). DQN: the same argmax
-action on every row, at least MIN_DISTINCT (default 2) different actions among them, and
-max |q_onnx - q_eigen| <= TOLERANCE. Exits 1 with the reason otherwise.
+SAC, PPO: max |action_onnx - action_eigen| <= TOLERANCE (default 1e-5), with at least a tenth of
+the rows inside (-1, 1) (not clipped). DQN: the same argmax action on every row, at least
+MIN_DISTINCT (default 2) different actions among them, and max |q_onnx - q_eigen| <= TOLERANCE. Exits 1 with the reason otherwise.
 """
 import sys
 
@@ -80,15 +80,20 @@ def main():
         if onnx_act.shape != act.shape:
             fail(f"action shape {onnx_act.shape}, expected {act.shape}")
         diff = float(np.abs(onnx_act - act).max())
+        # Rows whose every action lies inside (-1, 1): there the network's output itself is compared,
+        # not a bound both sides clip to.
+        inside = int((np.abs(act) < 1).all(axis=1).sum())
         print(f"{algorithm}: {n} observations of task {meta['task']}, max |action_onnx - action_eigen| = "
               f"{diff:.3g} (limit {tol:g}); actions in [{float(act.min()):.3f}, {float(act.max()):.3f}], "
-              f"std {float(act.std()):.3g}; normalizer: {meta['observation_normalizer']}")
+              f"std {float(act.std()):.3g}, {inside} rows inside (-1, 1); normalizer: {meta['observation_normalizer']}")
         if not diff <= tol:
             fail(f"actions differ by {diff:.3g} > {tol:g}")
         if not (np.abs(act) <= 1).all():
             fail("recorded actions leave [-1, 1]")
         if float(act.std()) < 1e-3:
             fail("the recorded actions are (nearly) constant: the comparison would be vacuous")
+        if inside < n // 10:
+            fail(f"only {inside} of {n} rows have all actions inside (-1, 1): the comparison would be mostly of clipped bounds")
 
 
 if __name__ == "__main__":

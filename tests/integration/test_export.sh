@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # farm-export: a SAC (pendulum, tests/data/checkpoint_v1), a PPO (cart-pole, the same fixtures,
-# observation normalizer on) and DQN policies (Jetbot, from runs of a learner and a worker here:
-# the initial network, and one trained for 10 s, with its best) exported as ONNX; onnx.checker
+# observation normalizer on), a PPO with ELU hidden layers (cart-pole, from a run of a learner and a
+# worker here: the ELU network crosses DDS and runs in the worker) and DQN policies (Jetbot, from
+# runs here too: the initial network, and one trained for 10 s, with its best) exported as ONNX
+# (the ELU one with Elu nodes); onnx.checker
 # accepts each model and OpenCV's DNN module computes from 1,000 observations of real episodes the
 # actions the worker's Eigen policy took there (within 1e-5; DQN: the same argmax, Q values within
 # 1e-5). Bad input gets an error naming what was wrong.
@@ -17,6 +19,12 @@ py=python3
 [ -x /usr/bin/python3 ] && py=/usr/bin/python3
 "$py" -c "import cv2, onnx" 2>/dev/null || { echo "SKIP: $py lacks cv2 or onnx (python3-opencv, python3-onnx)"; exit 77; }
 
+# start_run NAME: the learner of $dir/NAME.txtpb and one worker, in the background ($lp).
+start_run() {
+  "$learner" --config "$dir/$1.txtpb" --run-dir "$dir/$1" --domain $domain >"$dir/$1.log" 2>&1 & lp=$!
+  pids+=($lp)
+  "$worker" --domain $domain --experiment it_export_$1 --id export-$1 >"$dir/$1-worker.log" 2>&1 & pids+=($!)
+}
 # dqn_run NAME DQN_FIELDS STOP: a Jetbot DQN run, learner and one worker, in the background ($lp).
 dqn_run() {
   cat >"$dir/$1.txtpb" <<CFG
@@ -30,15 +38,32 @@ checkpoint_every_seconds: 600
 log_every_seconds: 1
 stop { $3 }
 CFG
-  "$learner" --config "$dir/$1.txtpb" --run-dir "$dir/$1" --domain $domain >"$dir/$1.log" 2>&1 & lp=$!
-  pids+=($lp)
-  "$worker" --domain $domain --experiment it_export_$1 --id export-$1 >"$dir/$1-worker.log" 2>&1 & pids+=($!)
+  start_run "$1"
 }
 # The initial network (no update: learning_starts beyond the run; torch seeded by the config's
 # seed, so the same weights on every machine), whose greedy actions vary over the observations
 # (4 of the 7 in 1,000 steps): the argmax head is compared where it picks different actions.
 dqn_run dqn_initial "learning_starts: 20000" "max_env_steps: 1000 max_seconds: 60"
 wait $lp || fail "dqn_initial learner exited $?: $(tail -5 "$dir/dqn_initial.log")"
+# PPO with ELU hidden layers on cart-pole (the fixture's setup): 16 fits, the weights of each
+# version sent to the worker over DDS and run there.
+ppo_elu_steps=16384
+cat >"$dir/ppo_elu.txtpb" <<CFG
+experiment_id: "it_export_ppo_elu"
+algorithm: "ppo"
+task { name: "cartpole" cartpole { control_substeps: 2 max_episode_steps: 100 } }
+ppo { activation: "elu" steps_per_fit: 1024 mini_batch_size: 256 hidden: 16 hidden: 16 eval_every_fits: 4 }
+worker { envs_per_worker: 8 steps_per_batch: 32 max_batches_per_version: 4 }
+eval { episodes: 2 final_episodes: 2 }
+checkpoint_every_seconds: 600
+log_every_seconds: 1
+stop { max_env_steps: $ppo_elu_steps max_seconds: 60 }
+CFG
+start_run ppo_elu
+wait $lp || fail "ppo_elu learner exited $?: $(tail -5 "$dir/ppo_elu.log")"
+elu_steps=$(sed -n 's/^env_steps: \([0-9]*\)$/\1/p' "$dir/ppo_elu/checkpoint/manifest.txtpb" 2>/dev/null)
+[ "${elu_steps:-0}" -ge $ppo_elu_steps ] ||
+  fail "ppo_elu: the worker ran ${elu_steps:-no} steps of the ELU policy, expected $ppo_elu_steps: $(tail -3 "$dir/ppo_elu-worker.log")"
 # A policy trained for 10 s (some thousand updates): it may keep to one or two actions.
 dqn_run dqn "learning_starts: 200" "max_seconds: 10"
 mkdir -p "$dir/sac" "$dir/ppo"
@@ -58,6 +83,14 @@ export_and_check() {
 }
 export_and_check sac sac 0
 export_and_check ppo ppo 0
+export_and_check ppo_elu ppo 0
+"$py" - "$dir/ppo_elu.onnx" <<'PY' || fail "ppo_elu: the model's activations are not Elu with alpha 1"
+import sys, onnx
+m = onnx.load(sys.argv[1])
+acts = [n for n in m.graph.node if n.op_type in ("Elu", "Relu", "Tanh")]
+print("ppo_elu: activation nodes", [(n.op_type, [a.f for a in n.attribute if a.name == "alpha"]) for n in acts])
+sys.exit(0 if len(acts) == 2 and all(n.op_type == "Elu" and [a.f for a in n.attribute] == [1.0] for n in acts) else 1)
+PY
 
 wait $lp || fail "dqn learner exited $?: $(tail -5 "$dir/dqn.log")"
 export_and_check dqn_initial dqn 2
@@ -99,4 +132,4 @@ expect_error "oversized manifest" "bytes, more than a manifest's limit of 167772
 expect_error "bad --record" "--record expects a whole number" --run-dir "$dir/sac" --out "$dir/x.onnx" --record -5 "$dir/r.csv"
 [ -e "$dir/x.onnx" ] && fail "a failed export left $dir/x.onnx"
 
-farm_test_end "farm-export: SAC, PPO and DQN models act as the worker under OpenCV's DNN"
+farm_test_end "farm-export: SAC, PPO (tanh and ELU) and DQN models act as the worker under OpenCV's DNN"

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <string>
 
 #include "config.h"
 
@@ -250,6 +251,16 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "got 0");
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  mode: \"later\"\n}\n"),
             "exp.txtpb:4:3: field 'ppo.mode': expected \"sync\" or \"async\", got \"later\"");
+  // Hidden activations: PPO has tanh, relu and elu; SAC tanh and relu.
+  for (const char* a : {"tanh", "relu", "elu"}) {
+    EXPECT_EQ(
+        error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  activation: \"" + std::string(a) + "\"\n}\n"), "")
+        << a;
+  }
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  hidden: 8\n  activation: \"gelu\"\n}\n"),
+            "exp.txtpb:5:3: field 'ppo.activation': expected \"tanh\", \"relu\" or \"elu\", got \"gelu\"");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  activation: \"elu\"\n}\n"),
+            "exp.txtpb:3:3: field 'sac.activation': expected \"relu\" or \"tanh\", got \"elu\"");
 }
 
 TEST(Config, EvaluationGoalsNameTheTasksMetrics) {

@@ -18,8 +18,21 @@ namespace {
 // 2-2-1: W1 = [[1, -2], [0.5, 1]], b1 = [0.1, -0.3], W2 = [[2, -1]], b2 = [0.5].
 std::vector<float> tiny_params() { return {1.f, -2.f, 0.5f, 1.f, 0.1f, -0.3f, 2.f, -1.f, 0.5f}; }
 
+// The hidden activation in float: ELU with alpha 1 as torch::elu computes it (expm1 below 0).
+float activate(float v, Activation act) {
+  switch (act) {
+    case Activation::kRelu:
+      return std::max(v, 0.f);
+    case Activation::kTanh:
+      return std::tanh(v);
+    case Activation::kElu:
+      return v > 0.f ? v : std::expm1(v);
+  }
+  return NAN;
+}
+
 float tiny_by_hand(float x0, float x1, Activation act) {
-  auto f = [act](float v) { return act == Activation::kRelu ? std::max(v, 0.f) : std::tanh(v); };
+  auto f = [act](float v) { return activate(v, act); };
   const float h0 = f(1.f * x0 - 2.f * x1 + 0.1f);
   const float h1 = f(0.5f * x0 + 1.f * x1 - 0.3f);
   return 2.f * h0 - 1.f * h1 + 0.5f;
@@ -30,12 +43,13 @@ TEST(MlpLayout, CountsAndDescribes) {
   EXPECT_EQ(l.num_params(), size_t(3 * 64 + 64 + 64 * 64 + 64 + 64 * 2 + 2));
   EXPECT_EQ(l.describe(), "3-64-64-2 relu");
   EXPECT_EQ((MlpLayout{{2, 2, 1}, Activation::kTanh}).describe(), "2-2-1 tanh");
+  EXPECT_EQ((MlpLayout{{2, 2, 1}, Activation::kElu}).describe(), "2-2-1 elu");
 }
 
 TEST(EigenMlp, TinyNetMatchesHandComputation) {
-  for (Activation act : {Activation::kRelu, Activation::kTanh}) {
+  for (Activation act : {Activation::kRelu, Activation::kTanh, Activation::kElu}) {
     EigenMlp net(MlpLayout{{2, 2, 1}, act}, tiny_params());
-    // The second row drives the first hidden unit negative, where relu and tanh differ.
+    // The second row drives the first hidden unit negative, where relu, tanh and elu differ.
     const std::vector<float> in = {1.f, 0.5f, -1.f, 1.f, 0.3f, -0.7f};
     std::vector<float> out(3, -99.f);
     net.forward(in.data(), 3, out.data());
@@ -75,6 +89,36 @@ TEST(EigenMlp, WrongParamCountThrowsWithMessage) {
   }
 }
 
+TEST(EigenMlp, UnknownActivationIsRefused) {
+  try {
+    EigenMlp net(MlpLayout{{2, 2, 1}, static_cast<Activation>(3)}, tiny_params());
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_STREQ(e.what(), "mlp layout: unknown activation 3 (expected 0 relu, 1 tanh or 2 elu)");
+  }
+}
+
+// ELU is x above 0 and expm1(x) at or below it, to the bit, on every kernel path: a 1-1-1 network
+// with unit weights and zero biases passes its input through unchanged to the hidden unit and out
+// again. exp(x) - 1 would lose most digits near 0 (-1e-6 gives -9.537e-07 in floats); far below 0
+// ELU is -1.
+TEST(EigenMlp, EluIsExpm1BelowZeroToTheBit) {
+  const std::vector<float> xs = {-1e-6f, -3e-4f, -0.1f, -0.5f, -1.f, -2.5f, -20.f, -100.f, 0.f, 1e-7f, 0.3f, 2.f, 37.f};
+  for (MlpIsa isa : {MlpIsa::kBaseline, MlpIsa::kAvx2Fma}) {
+    if (!mlp_isa_supported(isa)) continue;
+    SCOPED_TRACE(mlp_isa_name(isa));
+    EigenMlp net(MlpLayout{{1, 1, 1}, Activation::kElu}, {1.f, 0.f, 1.f, 0.f}, isa);
+    std::vector<float> out(xs.size());
+    net.forward(xs.data(), int(xs.size()), out.data());
+    for (size_t i = 0; i < xs.size(); ++i) {
+      const float want = xs[i] > 0.f ? xs[i] : std::expm1(xs[i]);
+      EXPECT_EQ(out[i], want) << "x = " << xs[i];
+    }
+    EXPECT_NEAR(out[0], -1e-6, 1e-12);  // -9.999995e-07
+    EXPECT_EQ(out[7], -1.f);
+  }
+}
+
 TEST(EigenMlp, RowResultsDoNotDependOnBatch) {
   std::mt19937 g(3);
   std::normal_distribution<float> n;
@@ -105,7 +149,15 @@ std::vector<double> reference_forward(const MlpLayout& layout, const std::vector
       double s = b[j];
       for (int k = 0; k < n_in; ++k) s += double(w[size_t(j) * n_in + k]) * x[k];
       const bool hidden = l + 2 < layout.sizes.size();
-      y[j] = !hidden ? s : layout.activation == Activation::kRelu ? std::max(s, 0.0) : std::tanh(s);
+      if (!hidden) {
+        y[j] = s;
+      } else if (layout.activation == Activation::kRelu) {
+        y[j] = std::max(s, 0.0);
+      } else if (layout.activation == Activation::kTanh) {
+        y[j] = std::tanh(s);
+      } else {
+        y[j] = s > 0 ? s : std::expm1(s);  // ELU, alpha 1
+      }
     }
     p = b + n_out;
     x = std::move(y);
@@ -123,13 +175,16 @@ std::vector<MlpIsa> runnable_paths() {
 // Rows go through the network in blocks; a row's bits must not depend on how many rows share the
 // call or where it sits in it (37 rows: full blocks and 1 left over; 10 + 27: 2 and 3 left over;
 // one row alone), and must match a double-precision evaluation, on every kernel path this CPU
-// runs. The A1 actor's shape, a relu one, and widths that are not a multiple of any vector or
-// panel width.
+// runs. The A1 actor's shape (tanh, and ELU as legged_gym's), a relu one, and widths that are not a
+// multiple of any vector or panel width, with each activation.
 TEST(EigenMlp, BlockedRowsAreBitIdenticalAndAccurate) {
   const std::vector<MlpLayout> layouts = {{{48, 512, 256, 128, 12}, Activation::kTanh},
+                                          {{48, 512, 256, 128, 12}, Activation::kElu},
                                           {{48, 64, 64, 24}, Activation::kRelu},
                                           {{7, 37, 19, 5}, Activation::kRelu},
-                                          {{3, 9, 1}, Activation::kTanh}};
+                                          {{7, 37, 19, 5}, Activation::kElu},
+                                          {{3, 9, 1}, Activation::kTanh},
+                                          {{3, 9, 1}, Activation::kElu}};
   std::mt19937 g(17);
   std::normal_distribution<float> n;
   for (const MlpLayout& layout : layouts) {

@@ -1,6 +1,6 @@
-// farm-export's ONNX graph (tools/onnx_policy.*): the operators and tensors of each head, the
-// layout of the weights, the metadata, onnx's checker accepting what is built and rejecting a
-// broken graph, and the worker's consistency checks applied before anything is built.
+// farm-export's ONNX graph (tools/onnx_policy.*): the operators and tensors of each head and
+// activation, the layout of the weights, the metadata, onnx's checker accepting what is built and
+// rejecting a broken graph, and the worker's consistency checks applied before anything is built.
 #include <gtest/gtest.h>
 
 #include <cstring>
@@ -92,6 +92,31 @@ TEST(OnnxPolicy, PpoClipsTheMeanAndDqnTakesTheArgmax) {
   EXPECT_EQ(dm.graph().output(1).name(), "q_values");
   EXPECT_EQ(dm.graph().output(1).type().tensor_type().shape().dim(1).dim_value(), 4);
   EXPECT_EQ(floats(initializer(dm, "layer1.bias")), (std::vector<float>{21, 22, 23, 24}));  // all four rows
+}
+
+// ELU hidden layers (PPO's "elu", legged_gym's A1 network) are Elu nodes with alpha 1, the
+// worker's x > 0 ? x : exp(x) - 1; the node after every hidden layer, none after the last.
+TEST(OnnxPolicy, EluLayersAreEluNodesWithAlphaOne) {
+  PolicyParams p;
+  p.head = PolicyHead::kGaussian;
+  p.layout = {{2, 3, 3, 2}, Activation::kElu};
+  p.params.assign(p.layout.num_params(), 0.5f);
+  p.log_std = {0.f, 0.f};
+  const auto m = policy_to_onnx(p, {}, "");
+  EXPECT_NO_THROW(check_onnx_model(m));
+  EXPECT_EQ(ops(m), (std::vector<std::string>{"Gemm", "Elu", "Gemm", "Elu", "Gemm", "Clip"}));
+  for (const auto& n : m.graph().node()) {
+    if (n.op_type() != "Elu") continue;
+    ASSERT_EQ(n.attribute_size(), 1) << n.name();
+    EXPECT_EQ(n.attribute(0).name(), "alpha");
+    EXPECT_EQ(n.attribute(0).type(), onnx::AttributeProto::FLOAT);
+    EXPECT_EQ(n.attribute(0).f(), 1.f);
+  }
+  EXPECT_EQ(m.graph().node(1).input(0), "layer0.linear");
+  EXPECT_EQ(m.graph().node(2).input(0), m.graph().node(1).output(0));  // the next Gemm reads the Elu's output
+  // An activation the worker does not know is refused before any graph is built.
+  p.layout.activation = static_cast<Activation>(7);
+  EXPECT_THROW(policy_to_onnx(p, {}, ""), std::invalid_argument);
 }
 
 TEST(OnnxPolicy, TheCheckerRejectsABrokenGraph) {

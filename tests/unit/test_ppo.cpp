@@ -1,15 +1,20 @@
 // PPO's small parts: GAE, the KL-adaptive rate, the fit scheduler and the dataset shape of seed
 // 000 §3.1, the running observation normalizer, the rollout storage's split and carry-over, and
-// the PPO learner itself (its log-probabilities against the workers', and a short fit that must
-// move the policy toward the better action).
+// the PPO learner itself (its log-probabilities against the workers', its exported network against
+// the LibTorch actor for each activation, and a short fit that must move the policy toward the
+// better action).
 #include <gtest/gtest.h>
 
 #include "config.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <numeric>
 #include <random>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "fit_scheduler.h"
@@ -448,4 +453,79 @@ TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
   config::PpoConfig d;
   d.set_episodes_per_fit(4);  // with the default steps_per_fit: two triggers
   EXPECT_THROW(farm::check_config(d), std::invalid_argument);
+}
+
+namespace {
+
+// The actor's mean as the learner computes it (LibTorch), read from its log-probabilities: with
+// every action inside (-1, 1), log p(a) sums -0.5 ((a_j - m_j) / s_j)^2 - log s_j - log sqrt(2 pi)
+// over the dims, so two actions that differ only in dim j, +d and -d, give
+// m_j = (lp(+d) - lp(-d)) s_j^2 / (2 d). A small s makes that difference large next to the
+// log-probabilities' float rounding.
+std::vector<double> learner_means(const Ppo& ppo, const std::vector<float>& obs, int rows, int act_dim,
+                                  double log_std) {
+  const float d = 0.05f;
+  std::vector<double> means(size_t(rows) * act_dim);
+  for (int j = 0; j < act_dim; ++j) {
+    std::vector<float> plus(size_t(rows) * act_dim, 0.f), minus(plus.size(), 0.f);
+    for (int r = 0; r < rows; ++r) {
+      plus[size_t(r) * act_dim + j] = d;
+      minus[size_t(r) * act_dim + j] = -d;
+    }
+    const auto lp_plus = ppo.log_probs(obs.data(), plus.data(), rows);
+    const auto lp_minus = ppo.log_probs(obs.data(), minus.data(), rows);
+    for (int r = 0; r < rows; ++r) {
+      means[size_t(r) * act_dim + j] =
+          (double(lp_plus[r]) - double(lp_minus[r])) * std::exp(2 * log_std) / (2 * double(d));
+    }
+  }
+  return means;
+}
+
+}  // namespace
+
+// The policy PPO exports runs, in the workers' EigenMlp, the network the learner trains: for each
+// activation (ELU as legged_gym's A1 actor, 48-512-256-128-12), the exported forward pass gives the
+// LibTorch actor's mean within 1e-5, and the same weights under either other activation do not.
+TEST(Ppo, ExportedPolicyComputesTheActorsMeanForEachActivation) {
+  const std::vector<std::pair<std::string, Activation>> activations = {
+      {"tanh", Activation::kTanh}, {"relu", Activation::kRelu}, {"elu", Activation::kElu}};
+  const int obs_dim = 48, act_dim = 12, rows = 64;
+  const double log_std = -4;  // within [log_std_min, log_std_max]: not clamped
+  std::mt19937_64 rng(5);
+  std::normal_distribution<float> g(0.f, 2.f);
+  std::vector<float> obs(size_t(rows) * obs_dim);
+  for (auto& x : obs) x = g(rng);
+  for (const auto& [name, activation] : activations) {
+    SCOPED_TRACE("activation " + name);
+    config::PpoConfig c;
+    c.set_activation(name);
+    for (int h : {512, 256, 128}) c.add_hidden(h);
+    c.set_initial_log_std(log_std);
+    c.set_normalize_observations(false);  // the network alone
+    Ppo ppo(c, obs_dim, act_dim, 17);
+    const PolicyParams p = ppo.export_policy(1);
+    ASSERT_EQ(p.layout.activation, activation);
+    EXPECT_EQ(p.layout.describe(), "48-512-256-128-12 " + name);
+    ASSERT_TRUE(p.obs_mean.empty());
+    const std::vector<double> want = learner_means(ppo, obs, rows, act_dim, log_std);
+    // Worst |EigenMlp - LibTorch| with the exported layout, and with each other activation.
+    std::map<Activation, double> worst;
+    double spread = 0;
+    for (Activation a : {Activation::kTanh, Activation::kRelu, Activation::kElu}) {
+      EigenMlp net(MlpLayout{p.layout.sizes, a}, p.params);
+      std::vector<float> mean(want.size());
+      net.forward(obs.data(), rows, mean.data());
+      for (size_t i = 0; i < want.size(); ++i) {
+        worst[a] = std::max(worst[a], std::abs(double(mean[i]) - want[i]));
+        spread = std::max(spread, std::abs(want[i]));
+      }
+    }
+    std::printf("ppo %s: max |mean| %.3g; max |EigenMlp - LibTorch| tanh %.2e, relu %.2e, elu %.2e\n", name.c_str(),
+                spread, worst[Activation::kTanh], worst[Activation::kRelu], worst[Activation::kElu]);
+    EXPECT_LE(worst[activation], 1e-5);
+    for (const auto& [a, err] : worst) {
+      if (a != activation) EXPECT_GT(err, 1e-4) << "activation " << int(a) << " is not told apart";
+    }
+  }
 }
