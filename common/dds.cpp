@@ -414,9 +414,7 @@ PolicyParams from_wire(const farm::msg::PolicyWeights& w) {
       w.head() != static_cast<int32_t>(PolicyHead::kGaussian))
     throw std::invalid_argument("PolicyWeights: unknown policy head " + std::to_string(w.head()));
   p.head = static_cast<PolicyHead>(w.head());
-  if (w.activation() != static_cast<int32_t>(Activation::kRelu) &&
-      w.activation() != static_cast<int32_t>(Activation::kTanh) &&
-      w.activation() != static_cast<int32_t>(Activation::kElu))
+  if (!activation_known(w.activation()))
     throw std::invalid_argument("PolicyWeights: unknown activation " + std::to_string(w.activation()) +
                                 " (expected 0 relu, 1 tanh or 2 elu)");
   p.layout.activation = static_cast<Activation>(w.activation());

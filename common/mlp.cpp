@@ -56,6 +56,16 @@ MlpIsa resolve_isa(MlpIsa asked) {
 
 }  // namespace
 
+bool activation_known(int32_t wire) {
+  return wire == int32_t(Activation::kRelu) || wire == int32_t(Activation::kTanh) || wire == int32_t(Activation::kElu);
+}
+
+Activation activation_from_name(const std::string& name) {
+  for (const Activation a : {Activation::kRelu, Activation::kTanh, Activation::kElu})
+    if (name == activation_name(a)) return a;
+  throw std::invalid_argument("activation must be \"tanh\", \"relu\" or \"elu\", got \"" + name + "\"");
+}
+
 const char* mlp_isa_name(MlpIsa isa) {
   switch (isa) {
     case MlpIsa::kAuto:
@@ -104,8 +114,7 @@ EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params, Ml
                                   std::to_string(layout.sizes[i]) + ", must be > 0");
     }
   }
-  if (layout.activation != Activation::kRelu && layout.activation != Activation::kTanh &&
-      layout.activation != Activation::kElu) {
+  if (!activation_known(int32_t(layout.activation))) {
     throw std::invalid_argument("mlp layout: unknown activation " + std::to_string(int(layout.activation)) +
                                 " (expected 0 relu, 1 tanh or 2 elu)");
   }

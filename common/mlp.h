@@ -13,6 +13,10 @@ namespace farm {
 // The hidden layers' activation; the values are the wire's (PolicyWeights.activation). kElu:
 // x > 0 ? x : exp(x) - 1 (alpha 1, legged_gym's actor), computed with std::expm1.
 enum class Activation : int32_t { kRelu = 0, kTanh = 1, kElu = 2 };
+// Whether a wire value is one of the above.
+bool activation_known(int32_t wire);
+// The activation a config names ("relu", "tanh" or "elu"); std::invalid_argument otherwise.
+Activation activation_from_name(const std::string& name);
 
 // How the network output turns into an action.
 enum class PolicyHead : int32_t {

@@ -50,14 +50,6 @@ struct MlpImpl : torch::nn::Module {
 };
 TORCH_MODULE(Mlp);
 
-// PpoConfig.activation as the policy layout's; config validation refuses any other name.
-Activation ppo_activation(const config::PpoConfig& c) {
-  if (c.activation() == "tanh") return Activation::kTanh;
-  if (c.activation() == "relu") return Activation::kRelu;
-  if (c.activation() == "elu") return Activation::kElu;
-  throw std::invalid_argument("ppo.activation must be \"tanh\", \"relu\" or \"elu\", got \"" + c.activation() + "\"");
-}
-
 torch::Tensor from_floats(const float* p, int64_t rows, int64_t cols) {
   return torch::from_blob(const_cast<float*>(p), {rows, cols}, torch::kFloat32).clone();
 }
@@ -131,7 +123,7 @@ Ppo::Ppo(const config::PpoConfig& cfg, int obs_dim, int act_dim, uint64_t seed) 
   }
   a.push_back(act_dim);
   v.push_back(1);
-  const Activation act = ppo_activation(cfg);
+  const Activation act = activation_from_name(cfg.activation());  // checked by the config
   s.actor = Mlp(a, act, 0.01);  // initialized on the host, so a seed gives the same nets everywhere
   s.critic = Mlp(v, act, 1.0);
   s.device = learner_device(cfg.device(), "ppo.device");

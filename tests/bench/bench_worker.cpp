@@ -134,9 +134,7 @@ farm::PolicyParams bench_policy(const farm::config::ExperimentConfig* cfg, const
   auto from_config = [&](const auto& section, std::vector<int> fallback) {
     hidden.assign(section.hidden().begin(), section.hidden().end());
     if (hidden.empty()) hidden = std::move(fallback);
-    activation = section.activation() == "tanh"  ? farm::Activation::kTanh
-                 : section.activation() == "elu" ? farm::Activation::kElu
-                                                 : farm::Activation::kRelu;
+    activation = farm::activation_from_name(section.activation());
   };
   const int discrete = spec.num_actions;
   int out = discrete > 0 ? discrete : 2 * spec.act_dim;
