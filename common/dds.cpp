@@ -2,10 +2,13 @@
 
 #include "paths.h"
 
+#include <arpa/inet.h>
 #include <fastdds/rtps/builtin/data/ParticipantProxyData.h>
 #include <fastdds/rtps/participant/ParticipantDiscoveryInfo.h>
+#include <netinet/in.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
+#include <sys/socket.h>
 #include <unistd.h>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/log/Log.hpp>
@@ -29,6 +32,38 @@ using eprosima::fastrtps::types::ReturnCode_t;
 namespace {
 
 bool file_exists(const std::string& p) { return std::ifstream(p).good(); }
+
+// Fast DDS gives a new participant the lowest free participant id; after a SIGKILL that is the
+// killed process's, and taking it over recreates that id's shared-memory port segments while a
+// live peer may keep writing into the segments it had opened (Fast DDS 2.9): a learner resumed
+// after a SIGKILL then never heard a worker that outlived the killed learner. A participant takes
+// the lowest id whose unicast ports no process has left a segment for (/dev/shm/fastrtps_port<N>)
+// and whose UDP ports are free; -1 (Fast DDS chooses) when none is left.
+bool udp_port_free(uint32_t port) {
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  if (fd < 0) return true;  // cannot tell: Fast DDS finds out itself
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_ANY);
+  a.sin_port = htons(static_cast<uint16_t>(port));
+  const bool ok = ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+  ::close(fd);
+  return ok;
+}
+
+int participant_id_without_leftovers(int domain, const eprosima::fastrtps::rtps::PortParameters& p) {
+  constexpr int kMaxId = 119;  // ports of id 120 would reach the next domain's range (gain 2, 250 per domain)
+  for (int id = 0; id <= kMaxId; ++id) {
+    const uint32_t base = p.portBase + p.domainIDGain * uint32_t(domain) + p.participantIDGain * uint32_t(id);
+    const uint32_t ports[2] = {base + p.offsetd1, base + p.offsetd3};  // metatraffic and user unicast
+    bool clean = true;
+    for (uint32_t port : ports)
+      clean =
+          clean && port < 65536 && !file_exists("/dev/shm/fastrtps_port" + std::to_string(port)) && udp_port_free(port);
+    if (clean) return id;
+  }
+  return -1;
+}
 
 // The profiles file a process uses when none is given: next to the binary's install prefix, then
 // the source tree it was built from.
@@ -328,6 +363,10 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
   }
   pqos.name(participant_name);
+  // A participant id given in the profiles file is the operator's; otherwise one no killed process left ports for.
+  if (pqos.wire_protocol().participant_id < 0)
+    pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
+  participant_id_ = pqos.wire_protocol().participant_id;
   security_dir_ = security_dir_of(opts);
   if (!security_dir_.empty()) {
     refuse_discovery_server_with_security(pqos);

@@ -88,6 +88,13 @@ class Bus {
   fdds::Subscriber* subscriber() { return subscriber_; }
   int domain() const { return domain_; }
   const std::string& profiles_file() const { return profiles_file_; }
+  // The DDS participant id asked for (its unicast ports follow from it); -1 when Fast DDS chose.
+  int participant_id() const { return participant_id_; }
+  // "participant id N" for start lines.
+  std::string participant_label() const {
+    return "participant id " +
+           (participant_id_ >= 0 ? std::to_string(participant_id_) : std::string("chosen by Fast DDS"));
+  }
   // The DDS Security folder in use, or "" when security is off.
   const std::string& security_dir() const { return security_dir_; }
   // With DDS Security: the certificate name (CN) of the authenticated remote participant that
@@ -107,6 +114,7 @@ class Bus {
   std::string profiles_file_;
   std::string security_dir_;
   int domain_ = 0;
+  int participant_id_ = -1;
 };
 
 template <class T, class PubSubType>

@@ -80,7 +80,7 @@ int FarmService::run() {
   algo_->start(*this);
   log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
       ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " +
-      std::to_string(bus_.domain()) + ", run dir " + run_dir_ +
+      std::to_string(bus_.domain()) + " (" + bus_.participant_label() + "), run dir " + run_dir_ +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 

@@ -79,8 +79,9 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
       experiment_(o.experiment) {}
 
 int WorkerApp::run() {
-  log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) +
-      (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") + ", DDS profiles " + bus_.profiles_file() +
+  log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) + " (" +
+      bus_.participant_label() + ")" + (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
+      ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   sender_ = std::thread([this] { sender_main(); });
   double last_wait_note = -1e9;

@@ -234,7 +234,8 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
       {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain, "--resume"}, "learner-2");
   ASSERT_TRUE(poll_log(
       d + "/learner-2.log", [&](const std::string& t) { return count(t, fit_line) >= 2; }, 180))
-      << slurp(d + "/learner-2.log");
+      << slurp(d + "/learner-2.log") << "\nthe worker's log:\n"
+      << set.log("worker");
   kill(second.pid, SIGINT);
   EXPECT_EQ(wait_for(second, 60), 130) << slurp(d + "/learner-2.log");
   const std::string log2 = slurp(d + "/learner-2.log");

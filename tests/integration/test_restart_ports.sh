@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# A process started after another was SIGKILLed never listens on the killed one's shared-memory
+# ports. Fast DDS gives a new participant the lowest free participant id, the killed one's, and
+# recreates that id's port segments, while a live peer may keep writing into the segments it
+# had opened before: a learner resumed after a SIGKILL then never heard a worker that outlived the
+# killed learner (its roster said "workers 0" for minutes). The ports a process listens on are the
+# shared-memory lock files it holds open (/dev/shm/fastrtps_port<N>_el).
+# Then the case itself: a learner killed with SIGKILL, a new one started on the same domain, and the
+# worker that outlived the first joins the second.
+#   tests/integration/test_restart_ports.sh LEARNER WORKER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") src=$(readlink -f "$3")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init restart-ports 131
+
+# The shared-memory ports process $1 listens on, one per line.
+ports_of() { ls -l "/proc/$1/fd" 2>/dev/null | sed -n 's/.*fastrtps_port\([0-9]*\)_el$/\1/p' | sort -u; }
+# Waits until process $1 listens on a port (its participant is up); prints them.
+wait_ports() {
+  local p
+  for _ in $(seq 100); do
+    p=$(ports_of "$1")
+    [ -n "$p" ] && { echo "$p"; return 0; }
+    sleep 0.2
+  done
+  return 1
+}
+
+# 1. Three processes in turn; the first is killed before the third starts.
+"$worker" --domain $domain --id a >"$dir/a.log" 2>&1 & pa=$!; pids+=($pa)
+ports_a=$(wait_ports $pa) || fail "worker a holds no shared-memory port: $(tail -3 "$dir/a.log")"
+"$worker" --domain $domain --id b >"$dir/b.log" 2>&1 & pb=$!; pids+=($pb)
+ports_b=$(wait_ports $pb) || fail "worker b holds no shared-memory port: $(tail -3 "$dir/b.log")"
+kill -9 $pa; wait $pa 2>/dev/null
+for p in $ports_a; do
+  [ -e "/dev/shm/fastrtps_port$p" ] || fail "test set-up: the killed worker left no segment for port $p"
+done
+"$worker" --domain $domain --id c >"$dir/c.log" 2>&1 & pc=$!; pids+=($pc)
+ports_c=$(wait_ports $pc) || fail "worker c holds no shared-memory port: $(tail -3 "$dir/c.log")"
+echo "ports: killed a: $(echo $ports_a), live b: $(echo $ports_b), new c: $(echo $ports_c)"
+reused=$(comm -12 <(echo "$ports_a") <(echo "$ports_c"))
+[ -z "$reused" ] || fail "the new process listens on the killed one's ports: $(echo $reused)"
+grep -q "participant id" "$dir/c.log" || fail "worker c does not say which participant id it took: $(head -2 "$dir/c.log")"
+kill -9 $pb $pc 2>/dev/null; wait $pb $pc 2>/dev/null
+
+# 2. A learner killed with SIGKILL, another started: the worker that outlived the first joins it.
+domain2=$((domain + 1))
+sed -e 's/max_seconds: 480/max_seconds: 120/' "$src/deploy/configs/pendulum_sac.txtpb" >"$dir/cfg.txtpb"
+"$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run1" --domain $domain2 >"$dir/learner1.log" 2>&1 & l1=$!
+pids+=($l1)
+"$worker" --domain $domain2 --id w >"$dir/w.log" 2>&1 & pids+=($!)
+wait_text "$dir/learner1.log" "batches ok [1-9]" 60 || fail "the first learner got no batch: $(tail -3 "$dir/learner1.log")"
+kill -9 $l1; wait $l1 2>/dev/null
+"$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run2" --domain $domain2 >"$dir/learner2.log" 2>&1 & pids+=($!)
+wait_text "$dir/learner2.log" "worker w on .* joined" 40 ||
+  fail "the second learner never heard the worker that outlived the first: $(tail -3 "$dir/learner2.log")"
+wait_text "$dir/learner2.log" "batches ok [1-9]" 60 ||
+  fail "the second learner got no batch from that worker: $(tail -3 "$dir/learner2.log")"
+
+farm_test_end "a restarted process takes ports no killed one left behind"
