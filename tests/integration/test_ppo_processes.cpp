@@ -145,10 +145,11 @@ TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
   std::string header, row;
   ASSERT_TRUE(std::getline(csv, header));
   const auto column = [&](const std::string& name) {
-    int i = 0;
-    for (size_t at = 0, next; (next = header.find(',', at)), true; at = next + 1, ++i) {
-      if (header.substr(at, next == std::string::npos ? std::string::npos : next - at) == name) return i;
+    for (size_t at = 0, i = 0;; ++i) {
+      const size_t next = header.find(',', at);
+      if (header.substr(at, next == std::string::npos ? std::string::npos : next - at) == name) return int(i);
       if (next == std::string::npos) return -1;
+      at = next + 1;
     }
   };
   const int lag_max = column("lag_max");
