@@ -289,6 +289,8 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
   }
   s.positive("vtrace_rho_bar", c.vtrace_rho_bar());
   s.positive("vtrace_c_bar", c.vtrace_c_bar());
+  s.check(c.surrogate() == "behaviour" || c.surrogate() == "proximal", "surrogate",
+          "expected \"behaviour\" or \"proximal\", got \"" + c.surrogate() + "\"");
   s.check(c.steps_per_run() >= 0, "steps_per_run", "expected >= 0 (0 = no limit)");
   s.check(c.episodes_per_run() >= 0, "episodes_per_run", "expected >= 0 (0 = no limit)");
   s.check(c.eval_every_fits() >= 0, "eval_every_fits",

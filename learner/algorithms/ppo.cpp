@@ -172,6 +172,7 @@ PpoStats Ppo::fit(const PpoSamples& d) {
   const auto X = s.normalize(d.obs.data(), n);
   const auto A = from_floats(d.actions.data(), n, s.act_dim).to(s.device);
   torch::Tensor old_mean, old_ls, old_lp;
+  torch::Tensor weight;  // "proximal": each step's weight in the surrogate (undefined: all 1)
   {
     torch::NoGradGuard g;
     old_mean = s.actor->forward(X);
@@ -180,7 +181,14 @@ PpoStats Ppo::fit(const PpoSamples& d) {
     const auto behaviour = from_floats(d.behaviour_log_prob.data(), n, 1).reshape({n}).to(s.device);
     const auto cur =
         torch::from_blob(const_cast<uint8_t*>(d.current.data()), {n}, torch::kUInt8).to(s.device).to(torch::kBool);
-    old_lp = torch::where(cur, recomputed, behaviour);
+    if (s.cfg.surrogate() == "proximal") {
+      old_lp = recomputed;
+      // min(rho_bar, pi_start / pi_behaviour), the exponent clamped first so it cannot overflow.
+      const auto w = torch::exp(torch::clamp_max(recomputed - behaviour, std::log(s.cfg.vtrace_rho_bar())));
+      weight = torch::where(cur, torch::ones_like(w), w);
+    } else {
+      old_lp = torch::where(cur, recomputed, behaviour);
+    }
   }
   auto adv = from_floats(d.advantages.data(), n, 1).reshape({n}).to(s.device);
   const auto ret = from_floats(d.returns.data(), n, 1).reshape({n}).to(s.device);
@@ -202,7 +210,8 @@ PpoStats Ppo::fit(const PpoSamples& d) {
       const auto lp = Impl::log_prob(mean, ls, a);
       const auto ratio = torch::exp(lp - old_lp.index_select(0, idx));
       const auto ad = adv.index_select(0, idx);
-      const auto surr = torch::min(ratio * ad, torch::clamp(ratio, 1 - eps, 1 + eps) * ad);
+      auto surr = torch::min(ratio * ad, torch::clamp(ratio, 1 - eps, 1 + eps) * ad);
+      if (weight.defined()) surr = surr * weight.index_select(0, idx);
       const auto policy_loss = -surr.mean();
       const auto value_loss = (s.critic->forward(x).reshape({-1}) - ret.index_select(0, idx)).pow(2).mean();
       const auto entropy = (ls + 0.5 + kHalfLog2Pi).sum();

@@ -47,7 +47,8 @@ class PpoAlgorithm final : public Algorithm {
            ppo_.export_policy(0).layout.describe() + " actor, " +
            (p.steps_per_fit() > 0 ? std::to_string(p.steps_per_fit()) + " steps"
                                   : std::to_string(p.episodes_per_fit()) + " episodes") +
-           " per fit, max policy lag " + std::to_string(p.max_policy_lag());
+           " per fit, max policy lag " + std::to_string(p.max_policy_lag()) +
+           (p.surrogate() == "proximal" ? ", proximal surrogate" : "");
   }
 
   uint64_t version() const override { return version_; }
@@ -416,7 +417,8 @@ class PpoAlgorithm final : public Algorithm {
       << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
       << c.invalid << ", stale " << stale_total_ << "\n"
       << "quota top-ups     " << top_ups_ << "\n"
-      << "mode              " << (async_ ? "async" : "sync") << ", max policy lag " << pc_.max_policy_lag() << "\n";
+      << "mode              " << (async_ ? "async" : "sync") << ", max policy lag " << pc_.max_policy_lag()
+      << ", surrogate " << pc_.surrogate() << "\n";
     // Every simulated step the learner was sent is fitted, counted stale, or still held at the end.
     const uint64_t held = uint64_t(storage_.steps()), unused = stale_steps_ + held;
     const uint64_t all = used_steps_ + unused;

@@ -441,6 +441,77 @@ TEST(Ppo, KlAdaptiveVariantLowersAnOversizedRate) {
   EXPECT_EQ(st.learning_rate, ppo.learning_rate());
 }
 
+namespace {
+
+// Steps of an older version whose every ratio against the behaviour is past the clip range in the
+// direction its advantage pushes: +1 where the action is above the (zero-observation) mean, with the
+// behaviour's log-probability 1 below the current policy's (ratio e), -1 below it, 1 above (1/e).
+PpoSamples stale_steps_past_the_clip(const Ppo& ppo, int n, uint8_t current) {
+  std::mt19937_64 rng(5);
+  Policy pol(ppo.export_policy(0));
+  PpoSamples s;
+  s.n = n;
+  s.obs.assign(n, 0.f);
+  s.actions.resize(n);
+  std::vector<float> lp(n);
+  pol.act(s.obs.data(), n, rng, false, s.actions.data(), lp.data());
+  std::vector<float> mean(1);
+  pol.act(s.obs.data(), 1, rng, true, mean.data(), nullptr);
+  const auto now = ppo.log_probs(s.obs.data(), s.actions.data(), n);
+  s.advantages.resize(n);
+  s.behaviour_log_prob.resize(n);
+  for (int i = 0; i < n; ++i) {
+    const bool up = s.actions[i] > mean[0];
+    s.advantages[i] = up ? 1.f : -1.f;
+    s.behaviour_log_prob[i] = now[i] + (up ? -1.f : 1.f);
+  }
+  s.current.assign(n, current);
+  s.returns.assign(n, 0.f);
+  return s;
+}
+
+config::PpoConfig surrogate_config(const char* surrogate) {
+  config::PpoConfig c;
+  c.set_variant("plain");
+  c.set_mini_batch_size(128);
+  c.set_learning_rate(1e-2);
+  c.set_normalize_advantages(false);
+  c.set_surrogate(surrogate);
+  return c;
+}
+
+}  // namespace
+
+// Stale steps already past the clip range at a fit's start: the behaviour surrogate (APPO) takes
+// no gradient from them and the policy stays where it was (KL exactly 0); the proximal one
+// (decoupled PPO) starts each ratio at 1 against the fit's own start and learns from them, the
+// mean moving the way the advantages point. With steps of the fitted version both are one fit.
+TEST(Ppo, ProximalSurrogateLearnsFromStaleStepsTheBehaviourOneClipsAway) {
+  const int n = 512;
+  Ppo behaviour(surrogate_config("behaviour"), 1, 1, 3), proximal(surrogate_config("proximal"), 1, 1, 3);
+  const PpoStats b = behaviour.fit(stale_steps_past_the_clip(behaviour, n, 0));
+  const PpoStats p = proximal.fit(stale_steps_past_the_clip(proximal, n, 0));
+  EXPECT_EQ(b.kl, 0.0);
+  EXPECT_DOUBLE_EQ(b.clip_fraction, 1.0);
+  EXPECT_GT(p.kl, 1e-4);
+  EXPECT_LT(p.clip_fraction, 1.0);
+  std::mt19937_64 rng(1);
+  const std::vector<float> zero(1, 0.f);
+  float before = 0, after = 0;
+  Policy(behaviour.export_policy(1)).act(zero.data(), 1, rng, true, &before, nullptr);
+  Policy(proximal.export_policy(1)).act(zero.data(), 1, rng, true, &after, nullptr);
+  EXPECT_GT(after, before + 0.01f) << "the advantages push the mean up";
+
+  // One after the other: each learner seeds LibTorch's generator, which the mini-batch order draws on.
+  Ppo b2(surrogate_config("behaviour"), 1, 1, 3);
+  const PpoStats bc = b2.fit(stale_steps_past_the_clip(b2, n, 1));
+  Ppo p2(surrogate_config("proximal"), 1, 1, 3);
+  const PpoStats pc = p2.fit(stale_steps_past_the_clip(p2, n, 1));
+  EXPECT_EQ(bc.kl, pc.kl);
+  EXPECT_EQ(bc.policy_loss, pc.policy_loss);
+  EXPECT_GT(bc.kl, 0.0);
+}
+
 TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
   config::PpoConfig c;
   c.set_variant("fancy");
@@ -453,6 +524,14 @@ TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
   config::PpoConfig d;
   d.set_episodes_per_fit(4);  // with the default steps_per_fit: two triggers
   EXPECT_THROW(farm::check_config(d), std::invalid_argument);
+  config::PpoConfig e;
+  e.set_surrogate("impala");
+  try {
+    farm::check_config(e);
+    FAIL();
+  } catch (const std::invalid_argument& x) {
+    EXPECT_NE(std::string(x.what()).find("ppo.surrogate"), std::string::npos) << x.what();
+  }
 }
 
 namespace {
