@@ -5,6 +5,7 @@
 #include <arpa/inet.h>
 #include <fastdds/rtps/builtin/data/ParticipantProxyData.h>
 #include <fastdds/rtps/participant/ParticipantDiscoveryInfo.h>
+#include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
 #include <netinet/in.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
@@ -33,12 +34,7 @@ namespace {
 
 bool file_exists(const std::string& p) { return std::ifstream(p).good(); }
 
-// Fast DDS gives a new participant the lowest free participant id; after a SIGKILL that is the
-// killed process's, and taking it over recreates that id's shared-memory port segments while a
-// live peer may keep writing into the segments it had opened (Fast DDS 2.9): a learner resumed
-// after a SIGKILL then never heard a worker that outlived the killed learner. A participant takes
-// the lowest id whose unicast ports no process has left a segment for (/dev/shm/fastrtps_port<N>)
-// and whose UDP ports are free; -1 (Fast DDS chooses) when none is left.
+// Whether a UDP port can be bound now (no process of this host listens on it).
 bool udp_port_free(uint32_t port) {
   const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
   if (fd < 0) return true;  // cannot tell: Fast DDS finds out itself
@@ -51,6 +47,19 @@ bool udp_port_free(uint32_t port) {
   return ok;
 }
 
+bool uses_shared_memory(const fdds::DomainParticipantQos& q) {
+  if (q.transport().use_builtin_transports) return true;  // Fast DDS's builtin set has shared memory
+  for (const auto& t : q.transport().user_transports)
+    if (std::dynamic_pointer_cast<eprosima::fastdds::rtps::SharedMemTransportDescriptor>(t)) return true;
+  return false;
+}
+
+// Fast DDS gives a new participant the lowest free participant id; after a SIGKILL that is the
+// killed process's, and taking it over recreates that id's shared-memory port segments while a
+// live peer may keep writing into the segments it had opened (Fast DDS 2.9): a learner resumed
+// after a SIGKILL then never heard a worker that outlived the killed learner. A participant takes
+// the lowest id whose unicast ports no process has left a segment for (/dev/shm/fastrtps_port<N>)
+// and whose UDP ports are free; -1 (Fast DDS chooses) when none is left.
 int participant_id_without_leftovers(int domain, const eprosima::fastrtps::rtps::PortParameters& p) {
   constexpr int kMaxId = 119;  // ports of id 120 would reach the next domain's range (gain 2, 250 per domain)
   for (int id = 0; id <= kMaxId; ++id) {
@@ -364,7 +373,9 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
   }
   pqos.name(participant_name);
   // A participant id given in the profiles file is the operator's; otherwise one no killed process left ports for.
-  if (pqos.wire_protocol().participant_id < 0)
+  // Only with shared memory: the leftovers are its segments, and a UDP-only profile may discover by
+  // well-known ports (peers_udp.xml: the first four participant ids of the learner's host).
+  if (pqos.wire_protocol().participant_id < 0 && uses_shared_memory(pqos))
     pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
   participant_id_ = pqos.wire_protocol().participant_id;
   security_dir_ = security_dir_of(opts);

@@ -88,12 +88,13 @@ class Bus {
   fdds::Subscriber* subscriber() { return subscriber_; }
   int domain() const { return domain_; }
   const std::string& profiles_file() const { return profiles_file_; }
-  // The DDS participant id asked for (its unicast ports follow from it); -1 when Fast DDS chose.
+  // The DDS participant id asked for (its unicast ports follow from it; Fast DDS moves on to the
+  // next free ports when another process took them first); -1 when Fast DDS chose.
   int participant_id() const { return participant_id_; }
   // "participant id N" for start lines.
   std::string participant_label() const {
-    return "participant id " +
-           (participant_id_ >= 0 ? std::to_string(participant_id_) : std::string("chosen by Fast DDS"));
+    return participant_id_ >= 0 ? "asked for participant id " + std::to_string(participant_id_)
+                                : std::string("participant id chosen by Fast DDS");
   }
   // The DDS Security folder in use, or "" when security is off.
   const std::string& security_dir() const { return security_dir_; }

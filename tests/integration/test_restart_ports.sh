@@ -40,8 +40,16 @@ ports_c=$(wait_ports $pc) || fail "worker c holds no shared-memory port: $(tail 
 echo "ports: killed a: $(echo $ports_a), live b: $(echo $ports_b), new c: $(echo $ports_c)"
 reused=$(comm -12 <(echo "$ports_a") <(echo "$ports_c"))
 [ -z "$reused" ] || fail "the new process listens on the killed one's ports: $(echo $reused)"
-grep -q "participant id" "$dir/c.log" || fail "worker c does not say which participant id it took: $(head -2 "$dir/c.log")"
+grep -q "asked for participant id [0-9]" "$dir/c.log" || fail "worker c does not say which participant id it took: $(head -2 "$dir/c.log")"
 kill -9 $pb $pc 2>/dev/null; wait $pb $pc 2>/dev/null
+# A UDP-only profile keeps Fast DDS's choice: peers_udp.xml finds the learner by the well-known ports
+# of the first participant ids of its host.
+"$worker" --domain $domain --id d --dds-profiles "$src/deploy/discovery/peers_udp.xml" >"$dir/d.log" 2>&1 & pd=$!
+pids+=($pd)
+wait_text "$dir/d.log" "started: session" 20 || fail "worker d did not start: $(tail -3 "$dir/d.log")"
+grep -q "participant id chosen by Fast DDS" "$dir/d.log" ||
+  fail "a UDP-only worker asked for a participant id itself: $(head -1 "$dir/d.log")"
+kill -9 $pd 2>/dev/null; wait $pd 2>/dev/null
 
 # 2. A learner killed with SIGKILL, another started: the worker that outlived the first joins it.
 domain2=$((domain + 1))
