@@ -372,9 +372,10 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
   }
   pqos.name(participant_name);
-  // A participant id given in the profiles file is the operator's; otherwise one no killed process left ports for.
-  // Only with shared memory: the leftovers are its segments, and a UDP-only profile may discover by
-  // well-known ports (peers_udp.xml: the first four participant ids of the learner's host).
+  // A participant id given in the profiles file is the operator's; otherwise one whose ports no
+  // killed process left behind. Only with shared memory: the leftovers are its segments, and a
+  // UDP-only profile may discover by well-known ports (peers_udp.xml: the first four participant
+  // ids of the learner's host).
   if (pqos.wire_protocol().participant_id < 0 && uses_shared_memory(pqos))
     pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
   participant_id_ = pqos.wire_protocol().participant_id;

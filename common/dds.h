@@ -91,7 +91,7 @@ class Bus {
   // The DDS participant id asked for (its unicast ports follow from it; Fast DDS moves on to the
   // next free ports when another process took them first); -1 when Fast DDS chose.
   int participant_id() const { return participant_id_; }
-  // "participant id N" for start lines.
+  // For start lines: "asked for participant id N", or that Fast DDS chose.
   std::string participant_label() const {
     return participant_id_ >= 0 ? "asked for participant id " + std::to_string(participant_id_)
                                 : std::string("participant id chosen by Fast DDS");
