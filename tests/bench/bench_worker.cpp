@@ -1,19 +1,25 @@
 // Worker throughput against the physics alone: how much of raw mj_step speed survives policy
 // inference, batching and threading.
 //   bench_worker [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only]
-// The limit is a raw mj_step loop on the task's own model from a state one of its episodes
-// reached, with the controls the task had set there, divided by the physics steps the task runs
-// per env step (measured from the simulated time one env step advances).
-// --config takes the task (with its settings) and the envs per worker from an experiment config.
-// --raw-only measures only K raw loops at once and prints each loop's limit and their mean
-// (tests/bench/bench_worker_farm.sh sets a farm's workers against it).
+// The limit is mj_step alone on the task's own simulations over states its episodes visit: the
+// worker's envs as the task makes them (each its own mjData, and its own mjModel where the task
+// randomizes dynamics), the visited states dealt to them round-robin, each restored with the
+// controls the task had set and stepped the physics steps of one env step; in env steps/s (the
+// physics steps per env step are measured from the simulated time one env step advances). Beside
+// it the older figure, one resting state in one mjData stepped on and on: it keeps one simulation
+// hot in the cache and meets only settled contacts, so a worker set against it loses to the cache
+// misses of its envs and the physics of its states as much as to its own overhead.
+// --raw-only measures only K loops at once and prints each loop's limit and their mean, both
+// limits (tests/bench/bench_worker_farm.sh sets a farm's workers against the visited-state one).
 // The policy is the config's actor where --config names a PPO or SAC config (hidden sizes,
 // activation, head), else a 64-64 relu actor. --inference-only measures only policy inference:
 // rows/s for calls of 1, 8 and 64 rows and of --envs rows (FARM_MLP_ISA=baseline forces the
 // kernel's baseline path, see common/mlp.h).
 #include <mujoco/mujoco.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -56,6 +62,80 @@ RawStart raw_start(const farm::robots::Task& task) {
   if (k > 0) out.physics_per_env_step = std::max(1.0, (s->data->time - t0) / m->opt.timestep / k);
   out.data = mj_copyData(nullptr, m, s->data);
   return out;
+}
+
+// States the task's own episodes visit: `envs` episodes of the task driven by Gaussian actions of
+// standard deviation `action_std` (a policy's exploration before it has learned), sampled every env
+// step for `env_steps` env steps, each episode restarted where it ends. A record is the state at the
+// end of an env step (positions, velocities, actuator activations, the controls the task set last,
+// the solver's warm start): what mj_step meets in training, where one resting state meets only its
+// own settled contacts.
+constexpr int kVisitedSteps = 200;  // env steps recorded per env
+
+struct VisitedStates {
+  int nq = 0, nv = 0, na = 0, nu = 0;
+  std::vector<double> time, qpos, qvel, act, ctrl, warm;
+  size_t size() const { return time.size(); }
+};
+
+VisitedStates visited_states(const farm::robots::Task& task, int envs, int env_steps, double action_std) {
+  const mjModel* m = task.model();
+  VisitedStates v;
+  v.nq = m->nq, v.nv = m->nv, v.na = m->na, v.nu = m->nu;
+  const auto& spec = task.spec();
+  std::vector<float> obs(spec.obs_dim), act(spec.act_dim);
+  std::mt19937_64 rng(7);
+  std::normal_distribution<float> noise(0.f, float(action_std));
+  for (int e = 0; e < envs; ++e) {
+    auto s = task.make_state();
+    uint64_t episode = 1000 * uint64_t(e) + 1;
+    task.reset(*s, episode, obs.data());
+    for (int k = 0; k < env_steps; ++k) {
+      for (auto& a : act) a = std::clamp(noise(rng), -1.f, 1.f);
+      const auto r = task.step(*s, act.data(), obs.data());
+      const mjData* d = s->data;
+      v.time.push_back(d->time);
+      v.qpos.insert(v.qpos.end(), d->qpos, d->qpos + m->nq);
+      v.qvel.insert(v.qvel.end(), d->qvel, d->qvel + m->nv);
+      v.act.insert(v.act.end(), d->act, d->act + m->na);
+      v.ctrl.insert(v.ctrl.end(), d->ctrl, d->ctrl + m->nu);
+      v.warm.insert(v.warm.end(), d->qacc_warmstart, d->qacc_warmstart + m->nv);
+      if (r.terminated || r.truncated) task.reset(*s, ++episode, obs.data());
+    }
+  }
+  return v;
+}
+
+// mj_step over the visited states: each state restored into one mjData, then the physics steps of
+// one env step with the controls it had. Physics steps per second, restoring not counted.
+double visited_steps_per_second(const farm::robots::Task& task, const VisitedStates& v, int copies, int per,
+                                double seconds) {
+  // `copies` simulations as the task makes them (a worker's envs: each its own mjData and, where
+  // the task randomizes dynamics, its own mjModel), the visited states dealt round-robin to them.
+  std::vector<std::unique_ptr<farm::robots::TaskState>> sims;
+  for (int c = 0; c < copies; ++c) sims.push_back(task.make_state());
+  uint64_t steps = 0;
+  double stepping = 0;
+  const auto t0 = Clock::now();
+  size_t i = 0;
+  while (seconds_since(t0) < seconds) {
+    for (int n = 0; n < 200; ++n, i = (i + 1) % v.size()) {
+      farm::robots::TaskState& sim = *sims[i % sims.size()];
+      const mjModel* m = task.model_of(sim);
+      mjData* d = sim.data;
+      d->time = v.time[i];
+      mju_copy(d->qpos, v.qpos.data() + i * v.nq, v.nq);
+      mju_copy(d->qvel, v.qvel.data() + i * v.nv, v.nv);
+      if (v.na) mju_copy(d->act, v.act.data() + i * v.na, v.na);
+      if (v.nu) mju_copy(d->ctrl, v.ctrl.data() + i * v.nu, v.nu);
+      mju_copy(d->qacc_warmstart, v.warm.data() + i * v.nv, v.nv);
+      const auto s0 = Clock::now();
+      for (int k = 0; k < per; ++k) mj_step(m, d);
+      stepping += seconds_since(s0);
+      steps += per;
+    }
+  }
+  return double(steps) / stepping;
 }
 
 double raw_steps_per_second(const mjModel* m, const mjData* start, double seconds) {
@@ -225,19 +305,40 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "bench_worker: %s\n", e.what());
     return 2;
   }
+  // Exploration noise of the visited states: the PPO config's initial standard deviation, else
+  // half the action range.
+  const double action_std =
+      !config_path.empty() && cfg.algorithm() == "ppo" ? std::exp(cfg.ppo().initial_log_std()) : 0.5;
   if (raw_only) {
-    // Only the limit: K raw loops at once, each one's env steps/s (what one single-threaded worker
-    // among K on this host can reach at most) and their mean.
+    // Only the limit: K loops at once, each one's env steps/s (what one single-threaded worker
+    // among K on this host can reach at most) and their mean; the limit is mj_step over the states
+    // the task visits, the resting-state loop is printed beside it.
     const RawStart start = raw_start(*task);
     const double per = start.physics_per_env_step;
-    const std::vector<double> loops = raw_parallel_loops(task->model(), start.data, threads, seconds);
-    double sum = 0;
-    std::printf("task %s, %.2f physics steps per env step, %d raw mj_step loops at once, %.1f s\n",
-                task->spec().name.c_str(), per, threads, seconds);
-    for (int k = 0; k < threads; ++k) {
-      std::printf("raw loop %d: %.0f env steps/s\n", k, loops[k] / per);
-      sum += loops[k] / per;
+    const int per_int = std::max(1, int(per + 0.5));
+    const VisitedStates visited = visited_states(*task, envs, kVisitedSteps, action_std);
+    std::vector<double> loops(threads), resting;
+    {
+      std::vector<std::thread> pool;
+      for (int k = 0; k < threads; ++k) {
+        pool.emplace_back(
+            [&, k] { loops[k] = visited_steps_per_second(*task, visited, envs, per_int, seconds) / per_int; });
+      }
+      for (auto& t : pool) t.join();
     }
+    resting = raw_parallel_loops(task->model(), start.data, threads, seconds);
+    double sum = 0, sum_resting = 0;
+    std::printf(
+        "task %s, %.2f physics steps per env step, %d mj_step loops at once, %.1f s; %zu visited states "
+        "(%d envs x %d env steps, action std %.3f)\n",
+        task->spec().name.c_str(), per, threads, seconds, visited.size(), envs, kVisitedSteps, action_std);
+    for (int k = 0; k < threads; ++k) {
+      std::printf("raw loop %d: %.0f env steps/s over visited states, %.0f from one resting state\n", k, loops[k],
+                  resting[k] / per);
+      sum += loops[k];
+      sum_resting += resting[k] / per;
+    }
+    std::printf("resting-state raw per loop (%d at once): %.0f env steps/s\n", threads, sum_resting / threads);
     std::printf("raw per loop (%d at once): %.0f env steps/s\n", threads, sum / threads);
     return 0;
   }
@@ -267,22 +368,33 @@ int main(int argc, char** argv) {
   const RawStart start = raw_start(*task);
   const double per = start.physics_per_env_step;
   const double raw = raw_steps_per_second(task->model(), start.data, seconds) / per;
-  std::printf("raw mj_step: %.0f steps/s, %.2f per env step: limit %.0f env steps/s\n", raw * per, per, raw);
+  std::printf("raw mj_step from one resting state: %.0f steps/s, %.2f per env step: %.0f env steps/s\n", raw * per, per,
+              raw);
+  const int per_int = std::max(1, int(per + 0.5));
+  const VisitedStates visited = visited_states(*task, envs, kVisitedSteps, action_std);
+  const double vis1 = visited_steps_per_second(*task, visited, 1, per_int, seconds) / per_int;
+  std::printf("raw mj_step over %zu visited states (action std %.3f) in one mjData: %.0f env steps/s\n", visited.size(),
+              action_std, vis1);
+  const double vis = visited_steps_per_second(*task, visited, envs, per_int, seconds) / per_int;
+  std::printf(
+      "raw mj_step over the visited states in the %d envs' own mjData: limit %.0f env steps/s (%.3f of the "
+      "resting state's)\n",
+      envs, vis, vis / raw);
   const double infer = policy_rows_per_second(policy, envs, seconds);
   std::printf("policy inference (%d rows per call): %.0f rows/s\n", envs, infer);
 
   const double w1 = worker_steps_per_second(task, policy, envs, 1, T, seconds);
   std::printf("worker 1 thread: %.0f env steps/s\n", w1);
-  std::printf("ratio worker/raw (1 thread): %.3f\n", w1 / raw);
+  std::printf("ratio worker/limit (1 thread): %.3f (against the resting state: %.3f)\n", w1 / vis, w1 / raw);
 
   const int k = std::min(threads, envs);
   const double wk = worker_steps_per_second(task, policy, envs, k, T, seconds);
   std::printf("worker %d threads: %.0f env steps/s\n", k, wk);
-  std::printf("raw x %d threads: %.0f steps/s\n", k, raw * k);
-  std::printf("ratio worker/(raw x threads) (%d threads): %.3f\n", k, wk / (raw * k));
+  std::printf("resting-state raw x %d threads: %.0f env steps/s\n", k, raw * k);
+  std::printf("ratio worker/(resting-state raw x threads) (%d threads): %.3f\n", k, wk / (raw * k));
   std::printf("speedup %d threads over 1: %.2f\n", k, wk / w1);
   const double raw_k = raw_parallel_steps_per_second(task->model(), start.data, k, seconds) / per;
-  std::printf("raw mj_step on %d threads at once (measured): %.0f env steps/s\n", k, raw_k);
-  std::printf("ratio worker/(measured parallel raw) (%d threads): %.3f\n", k, wk / raw_k);
+  std::printf("resting-state raw mj_step on %d threads at once (measured): %.0f env steps/s\n", k, raw_k);
+  std::printf("ratio worker/(measured parallel resting-state raw) (%d threads): %.3f\n", k, wk / raw_k);
   return 0;
 }

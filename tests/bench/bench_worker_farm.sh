@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Workers in a real training run against the raw mj_step limit of the same host: first the limit
-# (bench_worker --raw-only: WORKERS raw mj_step loops on the config's task at once, the env steps/s
-# of each and their mean), then one farm-learner with CONFIG and WORKERS farm-workers (one thread
-# each) for SECONDS, and per worker its env steps/s from its throughput lines, set against the
-# per-loop limit. Only lines in state `running` count, and none from a worker's first
-# WARMUP_SECONDS of running.
+# (bench_worker --raw-only: WORKERS loops at once, each mj_step alone over states the config's
+# task visits, in the ENVS simulations a worker holds; the env steps/s of each and their mean,
+# with the older one-resting-state figure beside it), then one farm-learner with CONFIG and WORKERS
+# farm-workers (one thread each) for SECONDS, and per worker its env steps/s from its throughput
+# lines, set against the per-loop limit. Only lines in state `running` count, and none from a
+# worker's first WARMUP_SECONDS of running.
 #   tests/bench/bench_worker_farm.sh LEARNER_BIN WORKER_BIN CONFIG WORKERS SECONDS [ENVS]
 # e.g. tests/bench/bench_worker_farm.sh build/learner/farm-learner build/worker/farm-worker \
 #        deploy/configs/a1_ppo.txtpb 15 120
