@@ -64,13 +64,23 @@ RawStart raw_start(const farm::robots::Task& task) {
   return out;
 }
 
-// States the task's own episodes visit: `envs` episodes of the task driven by Gaussian actions of
-// standard deviation `action_std` (a policy's exploration before it has learned), sampled every env
+// States the task's own episodes visit: `episodes` episodes of the task driven by Gaussian actions of
+// standard deviation `action_std` (a policy's exploration before it has learned; uniform action
+// indices for a task with discrete actions), sampled every env
 // step for `env_steps` env steps, each episode restarted where it ends. A record is the state at the
 // end of an env step (positions, velocities, actuator activations, the controls the task set last,
 // the solver's warm start): what mj_step meets in training, where one resting state meets only its
 // own settled contacts.
-constexpr int kVisitedSteps = 200;  // env steps recorded per env
+constexpr int kVisitedSteps = 200;               // env steps recorded per episode, at most
+constexpr int kVisitedEpisodes = 8;              // episodes recorded (fewer where the worker has fewer envs)
+constexpr double kVisitedPhysicsSteps = 320000;  // physics steps recorded in all, at most
+
+// Env steps recorded per episode: kVisitedSteps, fewer for a task whose env step runs many physics
+// steps (the mCLARI microbot's 500), at least 10.
+int visited_steps_per_episode(double physics_per_env_step, int episodes) {
+  const double fit = kVisitedPhysicsSteps / (physics_per_env_step * episodes);
+  return std::max(10, std::min(kVisitedSteps, int(fit)));
+}
 
 struct VisitedStates {
   int nq = 0, nv = 0, na = 0, nu = 0;
@@ -78,7 +88,7 @@ struct VisitedStates {
   size_t size() const { return time.size(); }
 };
 
-VisitedStates visited_states(const farm::robots::Task& task, int envs, int env_steps, double action_std) {
+VisitedStates visited_states(const farm::robots::Task& task, int episodes, int env_steps, double action_std) {
   const mjModel* m = task.model();
   VisitedStates v;
   v.nq = m->nq, v.nv = m->nv, v.na = m->na, v.nu = m->nu;
@@ -86,12 +96,16 @@ VisitedStates visited_states(const farm::robots::Task& task, int envs, int env_s
   std::vector<float> obs(spec.obs_dim), act(spec.act_dim);
   std::mt19937_64 rng(7);
   std::normal_distribution<float> noise(0.f, float(action_std));
-  for (int e = 0; e < envs; ++e) {
+  for (int e = 0; e < episodes; ++e) {
     auto s = task.make_state();
     uint64_t episode = 1000 * uint64_t(e) + 1;
     task.reset(*s, episode, obs.data());
     for (int k = 0; k < env_steps; ++k) {
-      for (auto& a : act) a = std::clamp(noise(rng), -1.f, 1.f);
+      if (spec.num_actions > 0) {  // a discrete task takes an action index
+        act[0] = float(std::uniform_int_distribution<int>(0, spec.num_actions - 1)(rng));
+      } else {
+        for (auto& a : act) a = std::clamp(noise(rng), -1.f, 1.f);
+      }
       const auto r = task.step(*s, act.data(), obs.data());
       const mjData* d = s->data;
       v.time.push_back(d->time);
@@ -316,7 +330,9 @@ int main(int argc, char** argv) {
     const RawStart start = raw_start(*task);
     const double per = start.physics_per_env_step;
     const int per_int = std::max(1, int(per + 0.5));
-    const VisitedStates visited = visited_states(*task, envs, kVisitedSteps, action_std);
+    const VisitedStates visited =
+        visited_states(*task, std::min(envs, kVisitedEpisodes),
+                       visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
     std::vector<double> loops(threads), resting;
     {
       std::vector<std::thread> pool;
@@ -330,8 +346,9 @@ int main(int argc, char** argv) {
     double sum = 0, sum_resting = 0;
     std::printf(
         "task %s, %.2f physics steps per env step, %d mj_step loops at once, %.1f s; %zu visited states "
-        "(%d envs x %d env steps, action std %.3f)\n",
-        task->spec().name.c_str(), per, threads, seconds, visited.size(), envs, kVisitedSteps, action_std);
+        "(%d episodes x %d env steps, action std %.3f)\n",
+        task->spec().name.c_str(), per, threads, seconds, visited.size(), std::min(envs, kVisitedEpisodes),
+        visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
     for (int k = 0; k < threads; ++k) {
       std::printf("raw loop %d: %.0f env steps/s over visited states, %.0f from one resting state\n", k, loops[k],
                   resting[k] / per);
@@ -371,7 +388,9 @@ int main(int argc, char** argv) {
   std::printf("raw mj_step from one resting state: %.0f steps/s, %.2f per env step: %.0f env steps/s\n", raw * per, per,
               raw);
   const int per_int = std::max(1, int(per + 0.5));
-  const VisitedStates visited = visited_states(*task, envs, kVisitedSteps, action_std);
+  const VisitedStates visited =
+      visited_states(*task, std::min(envs, kVisitedEpisodes),
+                     visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
   const double vis1 = visited_steps_per_second(*task, visited, 1, per_int, seconds) / per_int;
   std::printf("raw mj_step over %zu visited states (action std %.3f) in one mjData: %.0f env steps/s\n", visited.size(),
               action_std, vis1);
