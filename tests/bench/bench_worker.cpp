@@ -23,6 +23,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <memory>
 #include <random>
 #include <string>
@@ -64,33 +65,33 @@ RawStart raw_start(const farm::robots::Task& task) {
   return out;
 }
 
-// States the task's own episodes visit: `episodes` episodes of the task driven by Gaussian actions of
-// standard deviation `action_std` (a policy's exploration before it has learned; uniform action
-// indices for a task with discrete actions), sampled every env
-// step for `env_steps` env steps, each episode restarted where it ends. A record is the state at the
-// end of an env step (positions, velocities, actuator activations, the controls the task set last,
-// the solver's warm start): what mj_step meets in training, where one resting state meets only its
-// own settled contacts.
+// States the task's own episodes visit, driven by Gaussian actions of standard deviation
+// `action_std` (a policy's exploration before it has learned; uniform action indices for a task
+// with discrete actions), sampled every env step, each episode restarted where it ends. A record is
+// the state at the end of an env step (positions, velocities, actuator activations, the controls the
+// task set last, the solver's warm start): what mj_step meets in training, where one resting state
+// meets only its own settled contacts.
 constexpr int kVisitedSteps = 200;               // env steps recorded per episode, at most
 constexpr int kVisitedEpisodes = 8;              // episodes recorded (fewer where the worker has fewer envs)
 constexpr double kVisitedPhysicsSteps = 320000;  // physics steps recorded in all, at most
 
-// Env steps recorded per episode: kVisitedSteps, fewer for a task whose env step runs many physics
-// steps (the mCLARI microbot's 500), at least 10.
-int visited_steps_per_episode(double physics_per_env_step, int episodes) {
-  const double fit = kVisitedPhysicsSteps / (physics_per_env_step * episodes);
-  return std::max(10, std::min(kVisitedSteps, int(fit)));
-}
-
 struct VisitedStates {
+  int episodes = 0, steps_per_episode = 0;
   int nq = 0, nv = 0, na = 0, nu = 0;
   std::vector<double> time, qpos, qvel, act, ctrl, warm;
   size_t size() const { return time.size(); }
 };
 
-VisitedStates visited_states(const farm::robots::Task& task, int episodes, int env_steps, double action_std) {
+// For a worker of `envs` envs: kVisitedEpisodes episodes (fewer where it has fewer envs) of
+// kVisitedSteps env steps, fewer for a task whose env step runs many physics steps (the mCLARI
+// microbot's 500), at least 10.
+VisitedStates visited_states(const farm::robots::Task& task, int envs, double physics_per_env_step, double action_std) {
+  const int episodes = std::min(envs, kVisitedEpisodes);
+  const int env_steps =
+      std::max(10, std::min(kVisitedSteps, int(kVisitedPhysicsSteps / (physics_per_env_step * episodes))));
   const mjModel* m = task.model();
   VisitedStates v;
+  v.episodes = episodes, v.steps_per_episode = env_steps;
   v.nq = m->nq, v.nv = m->nv, v.na = m->na, v.nu = m->nu;
   const auto& spec = task.spec();
   std::vector<float> obs(spec.obs_dim), act(spec.act_dim);
@@ -169,14 +170,17 @@ double raw_steps_per_second(const mjModel* m, const mjData* start, double second
 // The same loop on `threads` threads at once: what the hardware gives in parallel (shared
 // cores, turbo limits), so the worker's scaling can be told apart from the machine's. Each loop's
 // steps/s.
-std::vector<double> raw_parallel_loops(const mjModel* m, const mjData* start, int threads, double seconds) {
+// `loop` on `threads` threads at once, each one's result.
+std::vector<double> on_threads(int threads, const std::function<double()>& loop) {
   std::vector<double> rates(threads);
   std::vector<std::thread> pool;
-  for (int k = 0; k < threads; ++k) {
-    pool.emplace_back([&, k] { rates[k] = raw_steps_per_second(m, start, seconds); });
-  }
+  for (int k = 0; k < threads; ++k) pool.emplace_back([&, k] { rates[k] = loop(); });
   for (auto& t : pool) t.join();
   return rates;
+}
+
+std::vector<double> raw_parallel_loops(const mjModel* m, const mjData* start, int threads, double seconds) {
+  return on_threads(threads, [&] { return raw_steps_per_second(m, start, seconds); });
 }
 
 double raw_parallel_steps_per_second(const mjModel* m, const mjData* start, int threads, double seconds) {
@@ -330,25 +334,16 @@ int main(int argc, char** argv) {
     const RawStart start = raw_start(*task);
     const double per = start.physics_per_env_step;
     const int per_int = std::max(1, int(per + 0.5));
-    const VisitedStates visited =
-        visited_states(*task, std::min(envs, kVisitedEpisodes),
-                       visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
-    std::vector<double> loops(threads), resting;
-    {
-      std::vector<std::thread> pool;
-      for (int k = 0; k < threads; ++k) {
-        pool.emplace_back(
-            [&, k] { loops[k] = visited_steps_per_second(*task, visited, envs, per_int, seconds) / per_int; });
-      }
-      for (auto& t : pool) t.join();
-    }
-    resting = raw_parallel_loops(task->model(), start.data, threads, seconds);
+    const VisitedStates visited = visited_states(*task, envs, per, action_std);
+    const std::vector<double> loops =
+        on_threads(threads, [&] { return visited_steps_per_second(*task, visited, envs, per_int, seconds) / per_int; });
+    const std::vector<double> resting = raw_parallel_loops(task->model(), start.data, threads, seconds);
     double sum = 0, sum_resting = 0;
     std::printf(
         "task %s, %.2f physics steps per env step, %d mj_step loops at once, %.1f s; %zu visited states "
         "(%d episodes x %d env steps, action std %.3f)\n",
-        task->spec().name.c_str(), per, threads, seconds, visited.size(), std::min(envs, kVisitedEpisodes),
-        visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
+        task->spec().name.c_str(), per, threads, seconds, visited.size(), visited.episodes, visited.steps_per_episode,
+        action_std);
     for (int k = 0; k < threads; ++k) {
       std::printf("raw loop %d: %.0f env steps/s over visited states, %.0f from one resting state\n", k, loops[k],
                   resting[k] / per);
@@ -388,9 +383,7 @@ int main(int argc, char** argv) {
   std::printf("raw mj_step from one resting state: %.0f steps/s, %.2f per env step: %.0f env steps/s\n", raw * per, per,
               raw);
   const int per_int = std::max(1, int(per + 0.5));
-  const VisitedStates visited =
-      visited_states(*task, std::min(envs, kVisitedEpisodes),
-                     visited_steps_per_episode(per, std::min(envs, kVisitedEpisodes)), action_std);
+  const VisitedStates visited = visited_states(*task, envs, per, action_std);
   const double vis1 = visited_steps_per_second(*task, visited, 1, per_int, seconds) / per_int;
   std::printf("raw mj_step over %zu visited states (action std %.3f) in one mjData: %.0f env steps/s\n", visited.size(),
               action_std, vis1);
