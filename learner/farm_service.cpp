@@ -75,6 +75,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
 int FarmService::run() {
   prepare_run_dir();
   drop_snapshot(eval_dir_);  // what a learner that crashed mid-evaluation left
+  algo_->warm_up(*this);     // workers are not told of the run yet, so none waits on it
   spec_.publish(false);
   t0_ = now_seconds() - elapsed_offset_;
   algo_->start(*this);

@@ -114,6 +114,9 @@ class Algorithm {
   // The mean return of the latest evaluation (NaN before the first), for the stop target.
   virtual double last_eval() const = 0;
 
+  // Before the experiment is published and the run's clock starts: what makes the first updates as
+  // fast as the later ones (PPO on a GPU: ppo_warm_up).
+  virtual void warm_up(Farm&) {}
   // After the experiment is published, before the first batch.
   virtual void start(Farm&) {}
   // One batch that ingest accepted; false when the algorithm does not use it (counted by the

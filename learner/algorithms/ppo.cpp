@@ -292,6 +292,7 @@ PolicyParams Ppo::export_policy(uint64_t version) const {
 ObsNormalizer& Ppo::normalizer() { return impl_->norm; }
 const ObsNormalizer& Ppo::normalizer() const { return impl_->norm; }
 double Ppo::learning_rate() const { return impl_->lr; }
+torch::Device Ppo::device() const { return impl_->device; }
 int64_t Ppo::fits() const { return impl_->fits; }
 int64_t Ppo::updates() const { return impl_->updates; }
 

@@ -69,6 +69,7 @@ class Ppo {
   ObsNormalizer& normalizer();
   const ObsNormalizer& normalizer() const;
   double learning_rate() const;
+  torch::Device device() const;  // where the networks fit
   int64_t fits() const;
   int64_t updates() const;  // mini-batch gradient steps
 

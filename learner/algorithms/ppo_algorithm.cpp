@@ -1,10 +1,14 @@
 #include "ppo_algorithm.h"
 
+#include <ATen/CPUGeneratorImpl.h>
+
 #include <algorithm>
 #include <cmath>
 #include <deque>
 #include <filesystem>
 #include <map>
+#include <mutex>
+#include <random>
 #include <sstream>
 #include <stdexcept>
 
@@ -55,6 +59,13 @@ class PpoAlgorithm final : public Algorithm {
   int64_t updates() const override { return ppo_.updates(); }
   double last_eval() const override { return last_eval_.mean; }
 
+  void warm_up(Farm& farm) override {
+    if (!pc_.warm_up() || !ppo_.device().is_cuda()) return;
+    const double s = ppo_warm_up(pc_, spec_.obs_dim, spec_.act_dim, cfg_.seed(), ppo_.device().str());
+    farm.log("warm-up on " + ppo_.device().str() + ": one fit of a throwaway copy on synthetic steps, " +
+             fmt("%.2f", s) + " s, before the run starts (ppo.warm_up)");
+  }
+
   void start(Farm&) override { last_data_ = now_seconds(); }
 
   double train(Farm& farm, bool got_data) override {
@@ -70,13 +81,7 @@ class PpoAlgorithm final : public Algorithm {
       }
       return 0.05;
     }
-    if (sched_.fit_due() && async_) {
-      // Steps that waited in the store while versions moved on past the window: counted, not used.
-      const uint64_t lag = uint64_t(pc_.max_policy_lag());
-      const int64_t dropped = storage_.drop_older_than(version_ > lag ? version_ - lag : 0);
-      sched_.forget(dropped);
-      stale_steps_ += uint64_t(dropped);
-    }
+    if (sched_.fit_due() && async_) drop_stale();
     if (sched_.fit_due()) {
       fit(farm, farm.elapsed());
       return 0;
@@ -252,12 +257,12 @@ class PpoAlgorithm final : public Algorithm {
     const uint64_t fitted = version_;
     ++version_;
     quota_ = batches_for_next_fit(farm);
-    if (!sched_.run_done())
+    if (!sched_.run_done() && !stopping_)
       publish_weights(farm);
     else
       policy_ = ppo_.export_policy(version_);
     // The evaluation is asked now and answered later (evaluated()); this fit's CSV row waits for it.
-    const bool eval_now = pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0 &&
+    const bool eval_now = !stopping_ && pc_.eval_every_fits() > 0 && ppo_.fits() % pc_.eval_every_fits() == 0 &&
                           ask_evaluation(farm, cfg_.eval().episodes(), elapsed, "eval");
     const FarmFigures c = farm.figures();
     const double mean_ret = c.mean_return;
@@ -399,7 +404,35 @@ class PpoAlgorithm final : public Algorithm {
   }
 
   void final_evaluation(Farm& farm, double elapsed) override {
+    fit_what_is_held(farm, elapsed);
     ask_evaluation(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  // At a stop rule (goal, time): the steps that arrived before it and wait for a fit that would
+  // have come go into one last fit, so the final policy (evaluated, checkpointed) is trained on
+  // everything the workers sent in time; those within the lag window, and at least a mini-batch
+  // of them. The workers are held already, so the new version is not published to them.
+  // A learner behind its workers holds more than a fit: one fit at a time, each version's lag
+  // window checked again after the one before.
+  void fit_what_is_held(Farm& farm, double elapsed) {
+    if (!published_) return;
+    const int64_t least = std::max<int64_t>(1, pc_.mini_batch_size());
+    for (;;) {
+      if (async_) drop_stale();
+      if (sched_.fit_steps() < least) return;
+      if (!stopping_)
+        farm.log("the " + std::to_string(sched_.fit_steps()) + " steps held at the stop go into a last fit");
+      stopping_ = true;
+      fit(farm, elapsed);
+    }
+  }
+
+  // Steps that waited in the store while versions moved on past the window: counted, not used.
+  void drop_stale() {
+    const uint64_t lag = uint64_t(pc_.max_policy_lag());
+    const int64_t dropped = storage_.drop_older_than(version_ > lag ? version_ - lag : 0);
+    sched_.forget(dropped);
+    stale_steps_ += uint64_t(dropped);
   }
 
   std::string summary(const FarmFigures& c, double) const override {
@@ -459,10 +492,57 @@ class PpoAlgorithm final : public Algorithm {
   const bool async_;
   double last_data_ = 0;
   bool published_ = false;
+  bool stopping_ = false;  // a stop rule fired: fits no longer publish or evaluate
   static constexpr double kJoinGraceSeconds = 1.0;
 };
 
 }  // namespace
+
+double ppo_warm_up(const config::PpoConfig& pc_in, int obs_dim, int act_dim, uint64_t seed, const std::string& device) {
+  const double t = now_seconds();
+  auto gen = at::detail::getDefaultCPUGenerator();
+  torch::Tensor cpu_state;
+  {
+    std::lock_guard<std::mutex> lock(gen.mutex());
+    cpu_state = gen.get_state();
+  }
+  {
+    config::PpoConfig pc = pc_in;
+    pc.set_device(device);  // resolved: "auto" is said once, by the run's own networks
+    Ppo ppo(pc, obs_dim, act_dim, seed);
+    RolloutStorage storage(obs_dim, act_dim);
+    const int T = 24, N = 64;  // a batch's shape; the fit's shapes are what matter
+    const int64_t steps = pc.steps_per_fit() > 0 ? pc.steps_per_fit() : int64_t(T) * N;
+    const uint64_t lag = uint64_t(std::max(0, pc.max_policy_lag()));
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::vector<float> obs(size_t(T) * N * obs_dim), next(obs.size()), act(size_t(T) * N * act_dim);
+    std::vector<float> rew(size_t(T) * N);
+    std::vector<uint8_t> term(rew.size(), 0), trunc(rew.size(), 0);
+    for (int64_t added = 0, b = 0; added < steps; added += int64_t(T) * N, ++b) {
+      for (auto* v : {&obs, &next, &act, &rew})
+        for (float& x : *v) x = u(rng);
+      term.assign(term.size(), 0);
+      term[size_t(b) % term.size()] = 1;  // an episode ends in each batch
+      const std::vector<float> lp = ppo.log_probs(obs.data(), act.data(), int64_t(T) * N);
+      storage.add(T, N, obs.data(), act.data(), rew.data(), term.data(), trunc.data(), lp.data(), next.data(),
+                  uint64_t(b) % (lag + 1));
+    }
+    RolloutStorage::VTrace vtrace;
+    vtrace.log_prob = [&ppo](const float* o, const float* a, int64_t n) { return ppo.log_probs(o, a, n); };
+    vtrace.rho_bar = pc.vtrace_rho_bar();
+    vtrace.c_bar = pc.vtrace_c_bar();
+    PpoSamples samples;
+    storage.take(
+        std::min(steps, storage.steps()), [&ppo](const float* o, int64_t n) { return ppo.values(o, n); }, pc.gamma(),
+        pc.gae_lambda(), lag, samples, pc.mode() == "async" ? &vtrace : nullptr);
+    ppo.fit(samples);
+    (void)ppo.export_policy(1);
+  }
+  std::lock_guard<std::mutex> lock(gen.mutex());
+  gen.set_state(cpu_state);
+  return now_seconds() - t;
+}
 
 std::unique_ptr<Algorithm> make_ppo(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
   if (spec.num_actions > 0)

@@ -22,6 +22,7 @@
 #include "mlp.h"
 #include "obs_normalizer.h"
 #include "ppo.h"
+#include "ppo_algorithm.h"
 #include "rollout_storage.h"
 
 using namespace farm;
@@ -510,6 +511,26 @@ TEST(Ppo, ProximalSurrogateLearnsFromStaleStepsTheBehaviourOneClipsAway) {
   EXPECT_EQ(bc.kl, pc.kl);
   EXPECT_EQ(bc.policy_loss, pc.policy_loss);
   EXPECT_GT(bc.kl, 0.0);
+}
+
+// The warm-up (run on a GPU before a run starts) fits a copy of its own, seeded as the run's
+// networks are: the run after it draws the mini-batch orders it would have drawn without it, and
+// the copy's fit went through the asynchronous path (steps of three versions, V-trace).
+TEST(PpoWarmUp, LeavesTheGeneratorAsItFoundIt) {
+  config::PpoConfig c = surrogate_config("proximal");
+  c.set_mode("async");
+  c.set_max_policy_lag(2);
+  c.set_steps_per_fit(24 * 64 * 2);
+  c.set_mini_batch_size(768);
+  torch::manual_seed(5);
+  const auto without = torch::rand({8});
+  torch::manual_seed(5);
+  const double s = ppo_warm_up(c, 3, 2, 7, "cpu");
+  const auto with = torch::rand({8});
+  EXPECT_GT(s, 0.0);
+  EXPECT_TRUE(torch::equal(without, with)) << "the warm-up's seeding and mini-batch draws leaked into the run";
+  c.set_device("no-such-device");
+  EXPECT_THROW(ppo_warm_up(c, 3, 2, 7, "no-such-device"), std::invalid_argument);
 }
 
 TEST(Ppo, BadConfigIsRefusedWithTheFieldNamed) {
