@@ -117,13 +117,23 @@ int FarmService::run() {
     log("checkpoint written; resume with --resume");
     return 130;
   }
-  // Training data made from here on is not used: the workers are held (at most one more batch
-  // each, besides those already filled) while the final evaluation runs on one of them.
+  // No training data is made from here on: the workers are held (at most one more batch each,
+  // besides those already filled) while the final evaluation runs on one of them.
   // Batches that had arrived before the stop are taken first (for at most a second).
   for (const double t_end = now_seconds() + 1.0; now_seconds() < t_end && drain_batches(1024) > 0;) {
   }
   steps_at_stop_ = ingest_.counters().env_steps;
   algo_->hold_workers(*this);
+  // What the held workers had made or begun (a batch or two each) arrives within moments; it is
+  // taken before the final evaluation, so that a last fit can use it. Until no batch came for half
+  // a second, three seconds at most.
+  for (double t = now_seconds(), quiet_from = t, t_end = t + 3.0; t < t_end && t - quiet_from < 0.5;
+       t = now_seconds()) {
+    if (drain_batches(1024) > 0)
+      quiet_from = now_seconds();
+    else
+      batches_in_.wait(0.05);
+  }
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
   evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);

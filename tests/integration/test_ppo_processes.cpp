@@ -149,9 +149,10 @@ TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
   // version just published), not the rest of its quota (16 envs x 64 steps a batch).
   ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(after the stop\s+(\d+) env steps arrived)"))) << summary;
   EXPECT_LE(std::stoll(m[1]), 2 * 4 * 16 * 64) << summary;
-  // What had arrived before the stop went into a last fit, unless it was less than a mini-batch
-  // (2,048 steps; a fit takes 8,192): what is left unfitted came after the stop, or was that little.
-  EXPECT_LT(held_at_end - std::stoll(m[1]), 2048) << summary << log;
+  // What had arrived before the stop, and what the held workers had made, went into a last fit,
+  // unless it was less than a mini-batch (2,048 steps; a fit takes 8,192): left unfitted is that
+  // little, and at most one batch (1,024 steps) that came later still.
+  EXPECT_LT(held_at_end, 2048 + 1024) << summary << log;
   // Each fit's CSV row: lag within the window; some fits used older versions' data (workers ran on).
   std::ifstream csv(run + "/learner.csv");
   std::string header, row;
