@@ -14,9 +14,11 @@ class SacAlgorithm final : public OffPolicy {
   SacAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
       : cfg_(cfg.sac()), sac_(cfg.sac(), spec.obs_dim, spec.act_dim, cfg.seed()) {}
   std::string name() const override { return "sac"; }
-  OffPolicyStats update(const SampledBatch& b) override {
-    const SacStats s = sac_.update(b);
-    return {s.critic_loss, s.actor_loss, s.alpha};
+  OffPolicyStats update(const SampledBatch& b) override { return figures(sac_.update(b)); }
+  std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next_batch) override {
+    std::vector<OffPolicyStats> out;
+    for (const SacStats& s : sac_.update_n(n, next_batch)) out.push_back(figures(s));
+    return out;
   }
   PolicyParams export_policy(uint64_t v) const override { return sac_.export_policy(v); }
   int64_t updates() const override { return sac_.updates(); }
@@ -31,6 +33,7 @@ class SacAlgorithm final : public OffPolicy {
   std::string describe() const override { return "SAC " + sac_.export_policy(0).layout.describe() + " actor"; }
 
  private:
+  static OffPolicyStats figures(const SacStats& s) { return {s.critic_loss, s.actor_loss, s.alpha}; }
   config::SacConfig cfg_;
   Sac sac_;
 };

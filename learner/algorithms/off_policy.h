@@ -4,8 +4,10 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "farm_config.pb.h"
 #include "mlp.h"
@@ -20,6 +22,9 @@ struct OffPolicyStats {
   double critic_loss = 0, actor_loss = 0, alpha = 0;
 };
 
+// Updates the replay driver runs between two looks at the bus, as one OffPolicy::update_n group.
+inline constexpr int kUpdatesPerGroup = 8;
+
 class OffPolicy {
  public:
   virtual ~OffPolicy() = default;
@@ -28,6 +33,14 @@ class OffPolicy {
   // What OffPolicyStats::alpha holds, as messages name it (DQN: "epsilon").
   virtual std::string alpha_name() const { return "alpha"; }
   virtual OffPolicyStats update(const SampledBatch& batch) = 0;
+  // n updates on the batches next_batch() returns, in order, and their figures. An adapter whose
+  // updates can be queued on a device (SAC's CUDA graph) overrides this; the default calls update().
+  virtual std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next_batch) {
+    std::vector<OffPolicyStats> out;
+    out.reserve(n);
+    for (int i = 0; i < n; ++i) out.push_back(update(next_batch()));
+    return out;
+  }
   virtual PolicyParams export_policy(uint64_t version) const = 0;
   virtual int64_t updates() const = 0;
   // Environment steps received so far (DQN's exploration schedule follows it).

@@ -59,11 +59,12 @@ class OffPolicyAlgorithm final : public Algorithm {
   }
 
   double train(Farm& farm, bool got_data) override {
-    bool updated = false;
-    for (int k = 0; k < 8 && can_update(farm); ++k) {
-      train_step();
-      updated = true;
-    }
+    // One group of updates between looks at the bus: on a GPU the algorithm queues them back to
+    // back (OffPolicy::update_n).
+    int n = 0;
+    while (n < kUpdatesPerGroup && can_update(farm, n)) ++n;
+    const bool updated = n > 0;
+    if (updated) train_steps(n);
     if (updates_since_publish_ >= algo_->publish_every_updates()) publish_weights(farm);
     double wait = 0;
     if (!updated) {
@@ -172,20 +173,25 @@ class OffPolicyAlgorithm final : public Algorithm {
     batches_since_publish_ = 0;
   }
 
-  bool can_update(const Farm& farm) const {
+  // Whether one more update may run after `ahead` more than have run so far.
+  bool can_update(const Farm& farm, int ahead) const {
+    const int64_t done = algo_->updates() + ahead;
     if (replay_.size() < std::max<int64_t>(algo_->learning_starts(), algo_->batch_size())) return false;
-    if (cfg_.stop().max_updates() > 0 && algo_->updates() >= cfg_.stop().max_updates()) return false;
-    return double(algo_->updates()) < algo_->max_updates_per_step() * double(farm.env_steps()) + 1;
+    if (cfg_.stop().max_updates() > 0 && done >= cfg_.stop().max_updates()) return false;
+    return double(done) < algo_->max_updates_per_step() * double(farm.env_steps()) + 1;
   }
 
-  void train_step() {
-    last_stats_ = algo_->update(replay_.sample(algo_->batch_size(), rng_));
-    require_finite_update(algo_name_, algo_->updates(),
-                          {{"critic loss", last_stats_.critic_loss},
-                           {"actor loss", last_stats_.actor_loss},
-                           {alpha_name_.c_str(), last_stats_.alpha}});
-    ++updates_since_publish_;
-    updates_meter_.add(1);
+  void train_steps(int n) {
+    const auto stats = algo_->update_n(n, [this] { return replay_.sample(algo_->batch_size(), rng_); });
+    const int64_t first = algo_->updates() - int64_t(stats.size()) + 1;
+    for (size_t k = 0; k < stats.size(); ++k)
+      require_finite_update(algo_name_, first + int64_t(k),
+                            {{"critic loss", stats[k].critic_loss},
+                             {"actor loss", stats[k].actor_loss},
+                             {alpha_name_.c_str(), stats[k].alpha}});
+    if (!stats.empty()) last_stats_ = stats.back();
+    updates_since_publish_ += int(stats.size());
+    updates_meter_.add(stats.size());
   }
 
   void ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {

@@ -105,6 +105,14 @@ Sac::~Sac() = default;
 Sac::Sac(Sac&&) noexcept = default;
 Sac& Sac::operator=(Sac&&) noexcept = default;
 
+std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& next_batch) {
+  if (impl_->use_graph()) return impl_->graph_update_n(n, next_batch);
+  std::vector<SacStats> out;
+  out.reserve(n);
+  for (int i = 0; i < n; ++i) out.push_back(update(next_batch()));
+  return out;
+}
+
 SacStats Sac::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
   if (s.use_graph()) return s.graph_update(host_batch);

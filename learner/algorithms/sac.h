@@ -6,6 +6,7 @@
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -49,6 +50,11 @@ class Sac {
 
   // One gradient step of temperature, critics and actor, then the polyak target update.
   SacStats update(const SampledBatch& batch);
+  // n updates in a row, each on the batch next_batch() returns, and their figures in order: the
+  // same as n calls of update(next_batch()). With a CUDA graph the replays are queued on the GPU
+  // and next_batch() samples the following batch on the host while the queued ones run, so the
+  // GPU does not wait for the host between updates; the figures come back at the end.
+  std::vector<SacStats> update_n(int n, const std::function<SampledBatch()>& next_batch);
 
   // The actor as the workers run it: layout {obs, hidden..., 2*act} relu, squashed-Gaussian head,
   // no observation normalizer.

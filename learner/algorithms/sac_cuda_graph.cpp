@@ -1,5 +1,6 @@
 // SAC's update on CUDA captured as one CUDA graph (a handful of launches instead of a few hundred),
 // built only against a CUDA LibTorch (FARM_CUDA_GRAPHS, learner/algorithms/CMakeLists.txt).
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -65,7 +66,10 @@ struct GraphAdam {
 
 // One update captured as a CUDA graph. Its inputs are static device tensors that each update
 // overwrites with the sampled batch (one pinned host buffer, one host-to-device copy); its output
-// is a static tensor of the six figures, read back with one copy. The policy's sampling noise is
+// is a static tensor of the six figures, read back with one copy. Replays can be queued
+// (graph_update_n): each queued update stages its batch in a pinned buffer of its own and reads
+// its figures back into a pinned slot of its own, and the stream's order keeps every copy between
+// the replays it belongs to. The policy's sampling noise is
 // drawn inside the graph from the default CUDA generator, which graph capture registers: each
 // replay advances the generator's philox offset by what the captured kernels consume, so a replay
 // draws the same numbers the eager ops would from the same generator state.
@@ -80,6 +84,8 @@ struct Sac::Impl::CudaGraph {
   // (cuBLAS handles and workspaces, autograd's device threads, allocator blocks, events) exists
   // before it.
   static constexpr int kWarmupUpdates = 3;
+  // Replays queued at most before the host waits for them (pinned input and output slots).
+  static constexpr int kSlots = 16;
 
   CudaGraph(Impl& s, int64_t batch)
       : batch(batch),
@@ -93,7 +99,7 @@ struct Sac::Impl::CudaGraph {
     const int64_t o = s.obs_dim, a = s.act_dim;
     widths = {o, a, 1, 1, o};
     const auto f32 = torch::TensorOptions().dtype(torch::kFloat);
-    host_in = torch::empty({batch * (2 * o + a + 2)}, f32.pinned_memory(true));
+    for (auto& h : host_in) h = torch::empty({batch * (2 * o + a + 2)}, f32.pinned_memory(true));
     dev_in = torch::empty({batch * (2 * o + a + 2)}, f32.device(s.device));
     std::array<torch::Tensor*, 5> views{&obs, &actions, &rewards, &terminated, &next_obs};
     int64_t offset = 0;
@@ -104,7 +110,46 @@ struct Sac::Impl::CudaGraph {
       offset += n;
     }
     out = torch::zeros({kFigures}, f32.device(s.device));
-    host_out = torch::empty({kFigures}, f32.pinned_memory(true));
+    for (auto& h : host_out) h = torch::empty({kFigures}, f32.pinned_memory(true));
+  }
+
+  // Stages the sampled batch in pinned slot `slot` (plain memcpy: the sampled tensors are fresh
+  // host floats), then queues one asynchronous copy to the static inputs on the current stream,
+  // the one the graph replays on. The slot must not have a copy still pending.
+  void stage(const SampledBatch& host_batch, int slot) {
+    const std::array<const torch::Tensor*, 5> fields{&host_batch.obs, &host_batch.actions, &host_batch.rewards,
+                                                     &host_batch.terminated, &host_batch.next_obs};
+    float* dst = host_in[slot].data_ptr<float>();
+    for (size_t i = 0; i < fields.size(); ++i) {
+      const torch::Tensor t = fields[i]->to(torch::kCPU, torch::kFloat).contiguous();
+      if (t.numel() != batch * widths[i])
+        throw std::invalid_argument("sac update: batch field " + std::to_string(i) + " has " +
+                                    std::to_string(t.numel()) + " values, expected " +
+                                    std::to_string(batch * widths[i]));
+      std::memcpy(dst, t.data_ptr<float>(), sizeof(float) * t.numel());
+      dst += t.numel();
+    }
+    dev_in.copy_(host_in[slot], /*non_blocking=*/true);
+  }
+
+  // After a replay (or the eager warm-up) is queued: its figures to pinned slot `slot`, and the
+  // host's Adam step counts (save() writes them) advanced as the device's were.
+  void queue_figures(int slot) {
+    host_out[slot].copy_(out, /*non_blocking=*/true);
+    for (GraphAdam* a : {&actor_adam, &critic_adam, &alpha_adam}) a->state->step(a->state->step() + 1);
+  }
+
+  // Slot `slot`'s figures; only after the stream has been synchronized past their copy.
+  SacStats figures(int slot) const {
+    const float* f = host_out[slot].data_ptr<float>();
+    SacStats st;
+    st.critic_loss = f[0];
+    st.actor_loss = f[1];
+    st.alpha_loss = f[2];
+    st.entropy = f[3];
+    st.q_mean = f[4];
+    st.alpha = f[5];
+    return st;
   }
 
   // The update of Sac::update with the temperature kept on the device (no item()) and the three
@@ -203,7 +248,8 @@ struct Sac::Impl::CudaGraph {
   int64_t batch;
   c10::DeviceIndex device_index;
   std::array<int64_t, 5> widths;
-  torch::Tensor host_in, dev_in, obs, actions, rewards, terminated, next_obs, out, host_out;
+  std::array<torch::Tensor, kSlots> host_in, host_out;
+  torch::Tensor dev_in, obs, actions, rewards, terminated, next_obs, out;
   GraphAdam actor_adam, critic_adam, alpha_adam;
   c10::cuda::CUDAStream capture_stream, target_stream, alpha_stream;
   std::array<at::cuda::CUDAEvent, 6> events;
@@ -229,21 +275,7 @@ SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
   }
   CudaGraph& g = *graph;
   c10::cuda::CUDAGuard device_guard(g.device_index);
-
-  // Stage the batch in the pinned buffer (plain memcpy: the sampled tensors are fresh host floats),
-  // then one asynchronous copy to the static inputs on the stream the graph replays on.
-  const std::array<const torch::Tensor*, 5> fields{&host_batch.obs, &host_batch.actions, &host_batch.rewards,
-                                                   &host_batch.terminated, &host_batch.next_obs};
-  float* dst = g.host_in.data_ptr<float>();
-  for (size_t i = 0; i < fields.size(); ++i) {
-    const torch::Tensor t = fields[i]->to(torch::kCPU, torch::kFloat).contiguous();
-    if (t.numel() != b * g.widths[i])
-      throw std::invalid_argument("sac update: batch field " + std::to_string(i) + " has " + std::to_string(t.numel()) +
-                                  " values, expected " + std::to_string(b * g.widths[i]));
-    std::memcpy(dst, t.data_ptr<float>(), sizeof(float) * t.numel());
-    dst += t.numel();
-  }
-  g.dev_in.copy_(g.host_in, /*non_blocking=*/true);
+  g.stage(host_batch, 0);
 
   if (g.graph) {
     g.graph->replay();
@@ -267,24 +299,57 @@ SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
     torch::cuda::synchronize(g.device_index);
     if (g.graph) g.graph->replay();  // capture recorded the update without running it
   }
-  g.host_out.copy_(g.out, /*non_blocking=*/true);
+  g.queue_figures(0);
   c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
-  for (GraphAdam* a : {&g.actor_adam, &g.critic_adam, &g.alpha_adam}) a->state->step(a->state->step() + 1);
-
-  const float* f = g.host_out.data_ptr<float>();
-  SacStats st;
-  st.critic_loss = f[0];
-  st.actor_loss = f[1];
-  st.alpha_loss = f[2];
-  st.entropy = f[3];
-  st.q_mean = f[4];
-  st.alpha = f[5];
   ++updates;
-  return st;
+  return g.figures(0);
 #else
   (void)host_batch;
   throw std::logic_error("sac: CUDA graph update in a build without CUDA");
 #endif
+}
+
+std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<SampledBatch()>& next_batch) {
+  std::vector<SacStats> stats;
+  stats.reserve(std::max(n, 0));
+#ifdef FARM_CUDA_GRAPHS
+  int queued = 0;  // replays whose figures are in slots 0 .. queued-1, not yet read
+  auto collect = [&] {
+    if (queued == 0) return;
+    c10::cuda::getCurrentCUDAStream(graph->device_index).synchronize();
+    for (int k = 0; k < queued; ++k) stats.push_back(graph->figures(k));
+    queued = 0;
+  };
+  for (int i = 0; i < n; ++i) {
+    const SampledBatch b = next_batch();  // on the host, while the queued replays run
+    if (!graph || !graph->graph || graph->batch != b.obs.size(0)) {
+      // Warm-ups, the capture, a new batch size: one at a time, after what is queued.
+      if (graph) {
+        c10::cuda::CUDAGuard device_guard(graph->device_index);
+        collect();
+      }
+      stats.push_back(graph_update(b));
+      continue;
+    }
+    CudaGraph& g = *graph;
+    c10::cuda::CUDAGuard device_guard(g.device_index);
+    if (queued == CudaGraph::kSlots) collect();
+    g.stage(b, queued);
+    g.graph->replay();
+    g.queue_figures(queued);
+    ++queued;
+    ++updates;
+  }
+  if (graph) {
+    c10::cuda::CUDAGuard device_guard(graph->device_index);
+    collect();
+  }
+#else
+  (void)n;
+  (void)next_batch;
+  throw std::logic_error("sac: CUDA graph update in a build without CUDA");
+#endif
+  return stats;
 }
 
 // Construction order matters: the seed must be set before the networks are initialized.

@@ -5,6 +5,7 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <functional>
 #include <memory>
 #include <string>
 #include <utility>
@@ -200,6 +201,7 @@ struct Sac::Impl {
 #endif
   bool use_graph() const;
   SacStats graph_update(const SampledBatch& host_batch);
+  std::vector<SacStats> graph_update_n(int n, const std::function<SampledBatch()>& next_batch);
   void drop_graph();  // the next update on CUDA captures anew
 };
 

@@ -3,8 +3,9 @@
 //   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
-// On CUDA each size is measured twice in the same run, eager (sac.cuda_graph false) and as CUDA
-// graph replays (the learner's default), and before that a check runs N updates (default 200) of
+// On CUDA each size is measured three times in the same run: eager (sac.cuda_graph false), as
+// CUDA graph replays one update at a time, and as the learner runs them (the default): groups of
+// kUpdatesPerGroup queued replays (Sac::update_n). Before that a check runs N updates (default 200) of
 // both paths from the same start on the same batches and compares figures and parameters; a
 // mismatch beyond float tolerance makes the exit status 1.
 // Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread on a shared machine (see
@@ -21,6 +22,7 @@
 #include <vector>
 
 #include "compute.h"
+#include "off_policy.h"
 #include "replay_buffer.h"
 #include "sac.h"
 
@@ -56,19 +58,31 @@ struct Rate {
   double elapsed = 0, sample_s = 0;
 };
 
-Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds, std::mt19937_64& rng) {
+// group 0: one update() per sampled batch. group G > 0: update_n(G, sampler), as the learner's
+// replay driver calls it (8 updates per group); on a CUDA graph the G replays are queued and each
+// next batch is sampled while the GPU runs the ones before it, so "sampling" is then host time
+// that the GPU need not wait for.
+Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds, std::mt19937_64& rng, int group = 0) {
+  Rate r;
+  auto sampler = [&] {
+    const auto ts = Clock::now();
+    auto b = buf.sample(batch, rng);
+    r.sample_s += seconds_since(ts);
+    return b;
+  };
+  auto run = [&] {
+    if (group > 0) return int64_t(sac.update_n(group, sampler).size());
+    sac.update(sampler());
+    return int64_t(1);
+  };
   // Warm-up: first-touch allocations, Adam's state creation and the graph capture are not the
   // steady state.
   const auto warm = Clock::now();
-  while (seconds_since(warm) < std::min(0.5, seconds / 4)) sac.update(buf.sample(batch, rng));
-  Rate r;
+  while (seconds_since(warm) < std::min(0.5, seconds / 4)) run();
+  r = Rate{};
   const auto t0 = Clock::now();
   while (r.elapsed < seconds) {
-    const auto ts = Clock::now();
-    const auto b = buf.sample(batch, rng);
-    r.sample_s += seconds_since(ts);
-    sac.update(b);
-    ++r.n;
+    r.n += run();
     r.elapsed = seconds_since(t0);
   }
   return r;
@@ -218,7 +232,6 @@ int main(int argc, char** argv) {
       farm::configure_compute(n_threads);
       farm::config::SacConfig cfg;
       cfg.set_cuda_tf32(g_tf32);
-      cfg.set_cuda_tf32(g_tf32);
       for (int h : hidden) cfg.add_hidden(h);
       cfg.set_device(device);
       const std::string net = describe(kObs, hidden, kAct);
@@ -245,6 +258,13 @@ int main(int argc, char** argv) {
       print_rate(" cuda graph", net, batch, device, n_threads, graph);
       std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx\n", net.c_str(), batch, device.c_str(),
                   (graph.n / graph.elapsed) / (eager.n / eager.elapsed));
+      // The learner's path: groups of queued replays (off_policy_algorithm.cpp), a fresh SAC.
+      farm::Sac grouped(cfg, kObs, kAct, 1);
+      const Rate queued = measure(grouped, buf, batch, seconds, rng, farm::kUpdatesPerGroup);
+      print_rate(" cuda graph, 8 queued", net, batch, device, n_threads, queued);
+      std::printf("sac update (%s, batch %d, %s): cuda graph 8 queued / eager = %.2fx, / one at a time = %.2fx\n",
+                  net.c_str(), batch, device.c_str(), (queued.n / queued.elapsed) / (eager.n / eager.elapsed),
+                  (queued.n / queued.elapsed) / (graph.n / graph.elapsed));
       std::fflush(stdout);
     }
   }

@@ -328,6 +328,52 @@ TEST(SacCuda, GraphStateSurvivesSaveLoad) {
   std::filesystem::remove_all(dir);
 }
 
+// update_n(n, next) is n calls of update(next()): same batches in the same order, same figures,
+// same parameters after them. On the CPU the same arithmetic runs, so they agree exactly.
+TEST(Sac, UpdateNIsUpdatesInARow) {
+  auto cfg = small_config();
+  Sac one(cfg, 3, 2, 5), group(cfg, 3, 2, 5);
+  std::vector<SacStats> want;
+  for (int k = 0; k < 12; ++k) want.push_back(one.update(random_batch(64, 3, 2, 700 + k)));
+  int k = 0;
+  auto next = [&] { return random_batch(64, 3, 2, 700 + k++); };
+  std::vector<SacStats> got = group.update_n(5, next);
+  const auto more = group.update_n(7, next);
+  got.insert(got.end(), more.begin(), more.end());
+  ASSERT_EQ(got.size(), want.size());
+  EXPECT_EQ(group.updates(), 12);
+  for (size_t i = 0; i < want.size(); ++i) expect_stats_near(got[i], want[i], 0.0, int(i));
+  EXPECT_EQ(relative_difference(group.actor_parameters(), one.actor_parameters()), 0.0);
+  EXPECT_EQ(relative_difference(group.critic_parameters(), one.critic_parameters()), 0.0);
+}
+
+// Only where a GPU and a CUDA LibTorch are there: queued graph replays (groups that take in the
+// warm-ups and the capture, and one longer than the pinned slots) compute what one update at a
+// time computes, kernel for kernel.
+TEST(SacCuda, QueuedUpdatesMatchOneAtATime) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = small_config();
+  cfg.set_device("cuda");
+  Sac one(cfg, 3, 2, 5), queued(cfg, 3, 2, 5);
+  if (!one.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  std::vector<SacStats> want;
+  for (int k = 0; k < 45; ++k) want.push_back(one.update(random_batch(64, 3, 2, 500 + k)));
+  int k = 0;
+  auto next = [&] { return random_batch(64, 3, 2, 500 + k++); };
+  std::vector<SacStats> got;
+  for (int n : {6, 1, 38}) {
+    const auto part = queued.update_n(n, next);
+    EXPECT_EQ(int(part.size()), n);
+    got.insert(got.end(), part.begin(), part.end());
+  }
+  ASSERT_EQ(got.size(), want.size());
+  EXPECT_EQ(queued.updates(), 45);
+  for (size_t i = 0; i < want.size(); ++i) expect_stats_near(got[i], want[i], 1e-6, int(i));
+  EXPECT_LE(relative_difference(queued.actor_parameters(), one.actor_parameters()), 1e-6);
+  EXPECT_LE(relative_difference(queued.critic_parameters(), one.critic_parameters()), 1e-6);
+  EXPECT_LE(relative_difference(queued.target_critic_parameters(), one.target_critic_parameters()), 1e-6);
+}
+
 TEST(Sac, CriticHiddenSizesItsOwnLayers) {
   auto cfg = small_config();  // actor 32-32
   cfg.add_critic_hidden(24);
