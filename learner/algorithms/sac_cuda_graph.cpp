@@ -320,25 +320,32 @@ std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<Sampl
     for (int k = 0; k < queued; ++k) stats.push_back(graph->figures(k));
     queued = 0;
   };
-  for (int i = 0; i < n; ++i) {
-    const SampledBatch b = next_batch();  // on the host, while the queued replays run
-    if (!graph || !graph->graph || graph->batch != b.obs.size(0)) {
-      // Warm-ups, the capture, a new batch size: one at a time, after what is queued.
-      if (graph) {
-        c10::cuda::CUDAGuard device_guard(graph->device_index);
-        collect();
+  try {
+    for (int i = 0; i < n; ++i) {
+      const SampledBatch b = next_batch();  // on the host, while the queued replays run
+      if (!graph || !graph->graph || graph->batch != b.obs.size(0)) {
+        // Warm-ups, the capture, a new batch size: one at a time, after what is queued.
+        if (graph) {
+          c10::cuda::CUDAGuard device_guard(graph->device_index);
+          collect();
+        }
+        stats.push_back(graph_update(b));
+        continue;
       }
-      stats.push_back(graph_update(b));
-      continue;
+      CudaGraph& g = *graph;
+      c10::cuda::CUDAGuard device_guard(g.device_index);
+      if (queued == CudaGraph::kSlots) collect();
+      g.stage(b, queued);
+      g.graph->replay();
+      g.queue_figures(queued);
+      ++queued;
+      ++updates;
     }
-    CudaGraph& g = *graph;
-    c10::cuda::CUDAGuard device_guard(g.device_index);
-    if (queued == CudaGraph::kSlots) collect();
-    g.stage(b, queued);
-    g.graph->replay();
-    g.queue_figures(queued);
-    ++queued;
-    ++updates;
+  } catch (...) {
+    // A batch that failed to sample or stage: what is queued still runs; wait for it, so that
+    // no copy from a pinned slot is pending when the next call writes that slot.
+    if (graph && queued > 0) c10::cuda::getCurrentCUDAStream(graph->device_index).synchronize();
+    throw;
   }
   if (graph) {
     c10::cuda::CUDAGuard device_guard(graph->device_index);
