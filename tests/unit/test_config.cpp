@@ -92,15 +92,19 @@ TEST(Config, ShippedConfigsLoad) {
   EXPECT_GE(n, 8);
 }
 
-// A limit in env steps (or updates) ends a run sooner the more workers feed it, so a shipped
-// config stops on its goal or on time, never on a step count.
+// A limit in env steps ends a run less trained the more workers feed it (the learner's updates
+// per env step fall as the steps arrive faster: Kaya with 15 workers stopped untrained at its
+// 1,000,000 steps), so a shipped config never stops on a step count. A limit in updates is the
+// training itself, the same with 2 workers or 15 and on any host; it comes with a time limit, so
+// a slow host still ends the run. Otherwise a shipped config stops on its goal or on time.
 TEST(Config, ShippedConfigsStopOnTheirGoalOrOnTime) {
   int n = 0;
   for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
     if (e.path().extension() != ".txtpb") continue;
     const auto c = farm::load_config_file(e.path().string());
     EXPECT_EQ(c.stop().max_env_steps(), 0) << e.path() << ": stops on an env step limit";
-    EXPECT_EQ(c.stop().max_updates(), 0) << e.path() << ": stops on an update limit";
+    if (c.stop().max_updates() > 0)
+      EXPECT_GT(c.stop().max_seconds(), 0) << e.path() << ": an update limit without a time limit";
     EXPECT_TRUE(c.stop().max_seconds() > 0 || !std::isnan(c.stop().target_eval_return()))
         << e.path() << ": no time limit and no target";
     ++n;
