@@ -20,7 +20,8 @@ task's own goal:
                         the worst terrain's share of the best fixed point, and falls
 Writes DIR/seeds.md (per-seed table, then median and interquartile mean with a 95 % bootstrap
 interval over the seeds, as in Agarwal et al. 2021), DIR/seeds.csv and DIR/seeds.png (each seed's
-evaluation curve against wall time and the goal). --report-only measures and reports runs already in
+evaluation curve against wall time and the goal: success % for mobile robots, from the learner's log;
+its points in DIR/seeds_curves.csv). --report-only measures and reports runs already in
 DIR. Exit status 0 when every seed's kept best meets the goal, 1 otherwise. Runs with
 /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
@@ -358,7 +359,44 @@ def report(args, task, kind, target, seeds):
     return met
 
 
+def log_success(log):
+    """(elapsed s, success %) of every evaluation of a mobile robot's run that the learner logged,
+    its final one included: learner.csv has no success column."""
+    try:
+        text = open(log).read()
+    except OSError:
+        return []
+    return [(float(m.group(2)), round(100.0 * float(m.group(1)), 3))
+            for m in re.finditer(r"\] (?:eval|final): mean return .*?, success ([0-9.]+),.*?, ([0-9.]+) s\)$",
+                                 text, re.M)]
+
+
+def curve(out, s, kind):
+    """(label, [(elapsed s, value)]) that the plot draws for seed s: the learner's evaluations of
+    the goal's measure where it has them (success % for mobile robots, from the log), else the
+    evaluation return."""
+    run = os.path.join(out, f"seed{s}")
+    if kind == "mobile":
+        pts = log_success(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        if pts:
+            return "success % (learner's evaluations)", pts
+    column = "eval_tracking_lin" if kind == "walking" else "eval_return"
+    if kind == "return":
+        pts = log_evals(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        if pts:
+            return column, pts
+    return column + (" (learner's evaluation)" if kind in ("mobile", "mclari") else ""), [
+        (number(r["elapsed_s"]), number(r[column])) for r in eval_rows(read_rows(run), column)]
+
+
 def plot(args, kind, target, seeds):
+    curves = {s: curve(args.out, s, kind) for s in seeds}
+    with open(os.path.join(args.out, "seeds_curves.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["seed", "elapsed_s", "measure", "value"])
+        for s, (label, pts) in curves.items():
+            for t, v in pts:
+                w.writerow([s, t, label, v])
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -366,17 +404,18 @@ def plot(args, kind, target, seeds):
     except ImportError:
         print("seeds: no matplotlib (apt-get install python3-matplotlib); no plot", file=sys.stderr)
         return
-    column = "eval_tracking_lin" if kind == "walking" else "eval_return"
     fig, ax = plt.subplots(figsize=(7, 4))
-    for s in seeds:
-        ev = eval_rows(read_rows(os.path.join(args.out, f"seed{s}")), column)
-        if ev:
-            ax.plot([number(r["elapsed_s"]) for r in ev], [number(r[column]) for r in ev], label=f"seed {s}")
-    goal = WALKING_LIN if kind == "walking" else target
+    labels = set()
+    for s, (label, pts) in curves.items():
+        if pts:
+            ax.plot([t for t, _ in pts], [v for _, v in pts], marker="o", ms=3, label=f"seed {s}")
+            labels.add(label)
+    mobile_success = kind == "mobile" and labels == {"success % (learner's evaluations)"}
+    goal = WALKING_LIN if kind == "walking" else MOBILE_GOAL if mobile_success else target
     if not math.isnan(goal):
         ax.axhline(goal, color="k", ls="--", lw=1, label="goal")
     ax.set_xlabel("wall time [s]")
-    ax.set_ylabel(column + (" (learner's evaluation)" if kind in ("mobile", "mclari") else ""))
+    ax.set_ylabel(" / ".join(sorted(labels)) or "evaluation")
     ax.set_title(os.path.basename(args.config))
     ax.legend()
     fig.tight_layout()

@@ -50,6 +50,26 @@ printf 'experiment        x\nfinal eval return -145.2 (mean of 50 deterministic 
 out=$(seeds "$T/pendulum.txtpb" --seeds 4 --report-only --out "$T/s" 2>&1) || fail "seed 4 met the goal, exit non-zero: $out"
 grep -q "^| 4 | 10 | 42600 | 10 | -145 | -145 | +0 | yes | yes |$" <<< "$out" || fail "log and summary row: $out"
 
+# A mobile robot's plot: the success of each evaluation from the learner's log, the final one
+# included (learner.csv has no success column), next to the goal; the points in seeds_curves.csv.
+mkdir -p "$T/m/seed2" "$T/m/logs"
+printf 'elapsed_s,env_steps,eval_return\n60.0,1000,9.9\n' > "$T/m/seed2/learner.csv"
+cat > "$T/m/logs/seed2-learner.log" <<'LOG'
+[learner] eval: mean return 9.9 over 30 deterministic episodes, success 0.967, time_s 8.150, collision 0.033 (policy v1937, 61616 updates, 60.0 s)
+[learner] eval: mean return 2.1 over 30 deterministic episodes, success 0.833, time_s 9.7, collision 0.167 (policy v3777, 120504 updates, 120.4 s)
+[learner] final: mean return 8.6 over 100 deterministic episodes, success 0.940, time_s 8.141, collision 0.060 (policy v12512, 400000 updates, 415.9 s)
+LOG
+(cd "$T/m" && /usr/bin/python3 -c "
+import sys, types; sys.path.insert(0, '$SRC/tools'); import seeds
+seeds.plot(types.SimpleNamespace(out='.', config='jetbot.txtpb'), 'mobile', float('nan'), [2])") \
+  || fail "mobile plot"
+[ -s "$T/m/seeds.png" ] || fail "mobile plot not written"
+want="seed,elapsed_s,measure,value
+2,60.0,success % (learner's evaluations),96.7
+2,120.4,success % (learner's evaluations),83.3
+2,415.9,success % (learner's evaluations),94.0"
+[ "$(tr -d '\r' < "$T/m/seeds_curves.csv")" = "$want" ] || fail "mobile curve: $(cat "$T/m/seeds_curves.csv")"
+
 # Errors name what is wrong.
 err=$(seeds "$T/pendulum.txtpb" --seeds 1,x --report-only --out "$T/p" 2>&1) && fail "bad --seeds accepted"
 grep -q "seeds: --seeds: expected a comma-separated list of integers, got '1,x'" <<< "$err" || fail "bad --seeds: $err"
