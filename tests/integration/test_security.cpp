@@ -318,6 +318,11 @@ TEST(Security, WorkerWhoseClockIsAnHourBehindJoins) {
 
   std::string cfg = kConfig;
   cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 30 max_env_steps: 4000");
+  // What is tested is the join and the training under a skewed clock; the final evaluation's wait
+  // is bounded well inside the 60 s given to the learner below (in one CI run of many, the skewed
+  // worker left its final evaluation unanswered for the whole 60 s while its heartbeats went on;
+  // the worker's log now comes with such a failure).
+  cfg.replace(cfg.find("final_episodes: 10"), 18, "final_episodes: 10 answer_timeout_seconds: 20");
   write_file(d + "/skew.txtpb", cfg);
   Proc& late = set.start({kFaketime, "--exclude-monotonic", "-f", "-1h", FARM_WORKER_BIN, "--domain", domain,
                           "--security", d + "/late/worker-late"},
@@ -333,7 +338,7 @@ TEST(Security, WorkerWhoseClockIsAnHourBehindJoins) {
   EXPECT_NE(set.log("worker-late").find("validate_local_identity"), std::string::npos) << set.log("worker-late");
   EXPECT_NE(set.log("worker-late").find("farm-worker: cannot create DDS participant"), std::string::npos)
       << set.log("worker-late");
-  ASSERT_EQ(wait_for(learner, 60), 0) << set.log("learner");
+  ASSERT_EQ(wait_for(learner, 60), 0) << set.log("learner") << set.log("worker");
   // The worker saw the learner finish and ended by itself. Its exit status is not checked: under
   // libfaketime 0.9.10 it was killed by SIGSEGV after its last line in 2 of 6 runs here (faketime
   // printed `Caught Segmentation fault`), which the same worker without faketime has not shown.
