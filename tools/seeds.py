@@ -37,6 +37,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WALKING_LIN, WALKING_FELL = 0.6, 0.1
 MOBILE_GOAL, MCLARI_GOAL, MCLARI_FALLS = 95.0, 90.0, 0.1
+SUCCESS_LABEL = "success % (learner's evaluations)"
 
 
 def fail(msg):
@@ -117,13 +118,18 @@ def summary_value(run, label):
     return number(m.group(1)) if m else math.nan
 
 
+def read_text(path):
+    """The file's text, "" where it cannot be read (a run without a log)."""
+    try:
+        return open(path).read()
+    except OSError:
+        return ""
+
+
 def log_evals(log):
     """(elapsed s, mean return) of every evaluation the learner logged: learner.csv holds a row per
     log interval only (SAC, DQN), and a run that stops on its target may end between two rows."""
-    try:
-        text = open(log).read()
-    except OSError:
-        return []
+    text = read_text(log)
     return [(float(m.group(2)), float(m.group(1)))
             for m in re.finditer(r"\] eval: mean return (-?[0-9.]+).*?, ([0-9.]+) s\)$", text, re.M)]
 
@@ -362,10 +368,7 @@ def report(args, task, kind, target, seeds):
 def log_success(log):
     """(elapsed s, success %) of every evaluation of a mobile robot's run that the learner logged,
     its final one included: learner.csv has no success column."""
-    try:
-        text = open(log).read()
-    except OSError:
-        return []
+    text = read_text(log)
     return [(float(m.group(2)), round(100.0 * float(m.group(1)), 3))
             for m in re.finditer(r"\] (?:eval|final): mean return .*?, success ([0-9.]+),.*?, ([0-9.]+) s\)$",
                                  text, re.M)]
@@ -379,7 +382,7 @@ def curve(out, s, kind):
     if kind == "mobile":
         pts = log_success(os.path.join(out, "logs", f"seed{s}-learner.log"))
         if pts:
-            return "success % (learner's evaluations)", pts
+            return SUCCESS_LABEL, pts
     column = "eval_tracking_lin" if kind == "walking" else "eval_return"
     if kind == "return":
         pts = log_evals(os.path.join(out, "logs", f"seed{s}-learner.log"))
@@ -410,7 +413,7 @@ def plot(args, kind, target, seeds):
         if pts:
             ax.plot([t for t, _ in pts], [v for _, v in pts], marker="o", ms=3, label=f"seed {s}")
             labels.add(label)
-    mobile_success = kind == "mobile" and labels == {"success % (learner's evaluations)"}
+    mobile_success = kind == "mobile" and labels == {SUCCESS_LABEL}
     goal = WALKING_LIN if kind == "walking" else MOBILE_GOAL if mobile_success else target
     if not math.isnan(goal):
         ax.axhline(goal, color="k", ls="--", lw=1, label="goal")
