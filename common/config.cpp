@@ -329,6 +329,8 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   e.check(c.eval().final_episodes() <= kMaxEvalEpisodes, "final_episodes",
           "expected at most " + std::to_string(kMaxEvalEpisodes) + ", got " + num(c.eval().final_episodes()));
   e.finite_positive("answer_timeout_seconds", c.eval().answer_timeout_seconds());
+  e.check(c.eval().min_episodes_per_worker() >= 0, "min_episodes_per_worker",
+          "expected >= 0 (0 = every evaluation on one worker), got " + num(c.eval().min_episodes_per_worker()));
 
   const auto& st = c.stop();
   const Section s = root.nest("stop", st);

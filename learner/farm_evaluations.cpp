@@ -1,9 +1,11 @@
-// The learner's evaluations, run on its workers (FarmService, farm_service.h): each one goes to a
-// live worker of the roster in turn with the policy to evaluate, the networks of that moment kept
-// aside for <run dir>/best; the answer is checked (eval_answer.h) and handed to the algorithm. A
-// request whose worker is marked dead or that is not answered in eval.answer_timeout_seconds is
-// counted lost and asked once more of another worker. Training never waits for an answer; only
-// the final evaluation is waited for, within the same timeout.
+// The learner's evaluations, run on its workers (FarmService, farm_service.h): each one is split
+// into parts over the live workers of the roster (eval.min_episodes_per_worker episodes each at
+// least), each part going to the next worker in turn with the policy to evaluate, the networks of
+// that moment kept aside for <run dir>/best; each answer is checked (eval_answer.h), and once every
+// part is answered their episodes are handed to the algorithm as one report. A part whose worker is
+// marked dead or that is not answered in eval.answer_timeout_seconds is counted lost and asked once
+// more of another worker; a part lost twice gives up its whole evaluation. Training never waits for
+// an answer; only the final evaluation is waited for, within the same timeout.
 #include <algorithm>
 #include <filesystem>
 #include <sstream>
@@ -37,38 +39,62 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
       }
     }
   }
-  EvalRequest r;
-  r.id = ++next_eval_id_;
-  r.seed = cfg_.seed() + 1000003ull * ++evals_;
-  r.ask = ask;
-  r.policy = policy;
-  r.snapshot = (fs::path(eval_dir_) / std::to_string(r.id)).string();
+  const uint64_t g = ++next_eval_group_;
+  EvalGroup& group = eval_groups_[g];
+  group.ask = ask;
+  group.policy = policy;
+  group.asked_at = now_seconds();
+  group.snapshot = (fs::path(eval_dir_) / std::to_string(g)).string();
   try {
-    fs::create_directories(r.snapshot);
-    algo_->save_networks(r.snapshot);
+    fs::create_directories(group.snapshot);
+    algo_->save_networks(group.snapshot);
   } catch (const std::exception& e) {
     log("the networks of policy v" + std::to_string(ask.version) + " could not be kept for best/ (" + e.what() +
         "); the evaluation goes on");
-    drop_snapshot(r.snapshot);
-    r.snapshot.clear();
+    drop_snapshot(group.snapshot);
+    group.snapshot.clear();
   }
-  if (!send_evaluation(r) && !eval_waiting_noted_) {
+  // As many parts as there are workers ready now, each of at least min_episodes_per_worker
+  // episodes; part k resets its episodes from seed + k (part 0: the seed one worker would get).
+  const int min_each = cfg_.eval().min_episodes_per_worker();
+  const int ready = int(eval_ready_workers(group.asked_at).size());
+  const int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
+  group.parts = group.parts_left = parts;
+  const uint64_t seed = cfg_.seed() + 1000003ull * ++evals_;
+  bool sent = true;
+  for (int k = 0; k < parts; ++k) {
+    EvalRequest r;
+    r.id = ++next_eval_id_;
+    r.group = g;
+    r.part = k + 1;
+    r.episodes = ask.episodes / parts + (k < ask.episodes % parts ? 1 : 0);
+    r.seed = seed + uint64_t(k);
+    r.ask = ask;
+    sent = send_evaluation(r) && sent;
+    evals_out_.push_back(std::move(r));
+  }
+  if (!sent && !eval_waiting_noted_) {
     log(ask.label + " evaluation of policy v" + std::to_string(ask.version) +
         " waits for a live worker (none now); training goes on");
     eval_waiting_noted_ = true;
   }
-  evals_out_.push_back(std::move(r));
   return true;
+}
+
+std::vector<std::pair<std::string, const WorkerRoster::View*>> FarmService::eval_ready_workers(double now) const {
+  std::vector<std::pair<std::string, const WorkerRoster::View*>> ready;
+  for (const auto& [key, v] : roster_.views())
+    if (roster_.live(v, now) && v.last.envs() > 0 && v.last.state() != "error") ready.emplace_back(key, &v);
+  return ready;
 }
 
 bool FarmService::send_evaluation(EvalRequest& r) {
   const double now = now_seconds();
   // Live workers that have built their environments, in roster order; the turn goes on from the
   // one asked last, and a retry goes to another worker than the one that lost it where it can.
-  std::vector<std::pair<std::string, const WorkerRoster::View*>> ready;
-  for (const auto& [key, v] : roster_.views())
-    if (roster_.live(v, now) && v.last.envs() > 0 && v.last.state() != "error") ready.emplace_back(key, &v);
+  const auto ready = eval_ready_workers(now);
   if (ready.empty()) return false;
+  const EvalGroup& group = eval_groups_.at(r.group);
   std::vector<std::pair<std::string, const WorkerRoster::View*>> others;
   for (const auto& c : ready)
     if (c.second->last.worker_id() != r.avoid) others.push_back(c);
@@ -87,9 +113,9 @@ bool FarmService::send_evaluation(EvalRequest& r) {
   m.request_id(r.id);
   m.worker_id(r.worker_id);
   m.policy_version(r.ask.version);
-  m.episodes(uint32_t(r.ask.episodes));
+  m.episodes(uint32_t(r.episodes));
   m.seed(r.seed);
-  farm::dds::to_wire(r.policy, cfg_.experiment_id(), m.policy());
+  farm::dds::to_wire(group.policy, cfg_.experiment_id(), m.policy());
   if (!eval_out_.write(m)) {
     // The reliable history is full (a reader that does not acknowledge): counted as asked, and
     // lost when its time is up.
@@ -98,8 +124,11 @@ bool FarmService::send_evaluation(EvalRequest& r) {
   ++evals_asked_;
   eval_waiting_noted_ = false;
   log("evaluation " + std::to_string(r.id) + " (" + r.ask.label + ", policy v" + std::to_string(r.ask.version) + ", " +
-      std::to_string(r.ask.episodes) + " episodes" + (r.attempt > 1 ? ", second try" : "") + ") asked of worker " +
-      r.worker_id);
+      std::to_string(r.episodes) + " episodes" +
+      (group.parts > 1 ? ", part " + std::to_string(r.part) + " of " + std::to_string(group.parts) + ", " +
+                             std::to_string(r.ask.episodes) + " in all"
+                       : std::string()) +
+      (r.attempt > 1 ? ", second try" : "") + ") asked of worker " + r.worker_id);
   return true;
 }
 
@@ -153,7 +182,7 @@ void FarmService::take_answer() {
   e.request_id = it->id;
   e.worker_session = it->worker_session;
   e.policy_version = it->ask.version;
-  e.episodes = it->ask.episodes;
+  e.episodes = it->episodes;
   e.num_metrics = int(task_spec_.metric_names.size());
   e.max_episode_steps = task_spec_.max_episode_steps;
   if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
@@ -166,11 +195,22 @@ void FarmService::take_answer() {
   EvalRequest r = std::move(*it);
   evals_out_.erase(it);
   ++evals_answered_;
+  log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
+      " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
+  const auto g = eval_groups_.find(r.group);
+  if (g == eval_groups_.end()) {
+    log("evaluation " + std::to_string(r.id) + " was part of an evaluation given up: not used");
+    return;
+  }
+  EvalGroup& group = g->second;
+  for (auto& ep : answer_.episodes()) group.episodes.push_back(ep);
+  if (--group.parts_left > 0) return;
+
   EvalReport rep;
-  rep.episodes = int(answer_.episodes().size());
+  rep.episodes = int(group.episodes.size());
   rep.metrics.assign(e.num_metrics, 0.0);
   double sum = 0, len = 0;
-  for (const auto& ep : answer_.episodes()) {
+  for (const auto& ep : group.episodes) {
     sum += ep.episode_return();
     len += ep.length();
     rep.min = std::isnan(rep.min) ? ep.episode_return() : std::min<double>(rep.min, ep.episode_return());
@@ -182,20 +222,24 @@ void FarmService::take_answer() {
     rep.mean_length = len / rep.episodes;
     for (auto& m : rep.metrics) m /= rep.episodes;
   }
-  log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
-      " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
-  if (r.ask.label == "eval" && rep.episodes > 0) note_goal(r.ask, rep);
-  eval_snapshot_ = &r.snapshot;
-  algo_->evaluated(*this, r.ask, rep);
+  if (group.parts > 1)
+    log("evaluation of policy v" + std::to_string(group.ask.version) + " complete: " + std::to_string(rep.episodes) +
+        " episodes from " + std::to_string(group.parts) + " workers, " + fmt("%.1f", now_seconds() - group.asked_at) +
+        " s since asked");
+  const EvalGroup done = std::move(group);
+  eval_groups_.erase(g);
+  if (done.ask.label == "eval" && rep.episodes > 0) note_goal(done.ask, rep);
+  eval_snapshot_ = &done.snapshot;
+  algo_->evaluated(*this, done.ask, rep);
   eval_snapshot_ = nullptr;
-  drop_snapshot(r.snapshot);
+  drop_snapshot(done.snapshot);
 }
 
 void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
   ++evals_lost_;
   if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
   evals_closed_.insert(r.id);
-  if (r.attempt == 1) {
+  if (r.attempt == 1 && eval_groups_.count(r.group)) {
     log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
         r.worker_id + " lost: " + why + "; asked again");
     r.avoid = r.worker_id;
@@ -210,8 +254,29 @@ void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
   }
   log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
       r.worker_id + " lost: " + why + "; given up after a second try");
-  algo_->not_evaluated(*this, r.ask);
-  drop_snapshot(r.snapshot);
+  evaluation_given_up(r.group);
+}
+
+void FarmService::evaluation_given_up(uint64_t group) {
+  const auto g = eval_groups_.find(group);
+  if (g == eval_groups_.end()) return;  // already given up with another of its parts
+  const EvalGroup done = std::move(g->second);
+  eval_groups_.erase(g);
+  // Its other parts are not waited for: counted lost, and an answer that still comes is late.
+  for (auto it = evals_out_.begin(); it != evals_out_.end();) {
+    if (it->group != group) {
+      ++it;
+      continue;
+    }
+    if (!it->worker_id.empty()) {
+      ++evals_lost_;
+      if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
+      evals_closed_.insert(it->id);
+    }
+    it = evals_out_.erase(it);
+  }
+  algo_->not_evaluated(*this, done.ask);
+  drop_snapshot(done.snapshot);
 }
 
 void FarmService::drop_snapshot(const std::string& dir) {
@@ -249,8 +314,7 @@ void FarmService::wait_for_evaluations() {
     log(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
         (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
         fmt("%.0f", now_seconds() - t0) + " s: not reported");
-    algo_->not_evaluated(*this, r.ask);
-    drop_snapshot(r.snapshot);
+    evaluation_given_up(r.group);
   }
 }
 

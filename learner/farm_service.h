@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <deque>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -93,18 +94,33 @@ class FarmService final : public Farm {
   void drain_before_interrupted_stop();
 
   // --- Evaluations on workers (farm_evaluations.cpp) ---
-  // One evaluation asked of one worker; a lost one is asked once more (attempt 2) under a new id.
+  // One evaluation (one EvalAsk), spread over one or more workers as parts (eval.min_episodes_per_worker),
+  // reported once every part is answered.
+  struct EvalGroup {
+    EvalAsk ask;
+    PolicyParams policy;
+    std::string snapshot;  // the algorithm's networks when it asked (for best/); "" if not kept
+    int parts = 1, parts_left = 1;
+    double asked_at = 0;
+    std::vector<farm::msg::EvaluationEpisode> episodes;  // of the parts answered so far
+  };
+  // One part of an evaluation asked of one worker; a lost one is asked once more (attempt 2) under
+  // a new id.
   struct EvalRequest {
-    uint64_t id = 0, seed = 0, worker_session = 0;
+    uint64_t id = 0, seed = 0, worker_session = 0, group = 0;
+    int episodes = 0, part = 1;
     std::string worker_id, roster_key;  // empty while no live worker could take it
     double asked_at = 0;
     int attempt = 1;
     std::string avoid;  // the worker that lost attempt 1: another one is asked where there is one
     EvalAsk ask;
-    PolicyParams policy;
-    std::string snapshot;      // the algorithm's networks when it asked (for best/); "" if not kept
     bool skips_noted = false;  // a training evaluation skipped while this one is out was logged
   };
+  // Live workers that have built their environments, by roster key.
+  std::vector<std::pair<std::string, const WorkerRoster::View*>> eval_ready_workers(double now) const;
+  // The evaluation of a group ended without a report (a part given up, or not answered at the end):
+  // the algorithm is told, its snapshot dropped. Its other parts' answers are not used.
+  void evaluation_given_up(uint64_t group);
   // Takes the answers that arrived, hands the good ones to the algorithm, counts lost the requests
   // whose worker died or that timed out (asking them again once), and sends the waiting ones.
   void poll_evaluations();
@@ -160,8 +176,10 @@ class FarmService final : public Farm {
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
   std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal
   int rejections_logged_ = 0;
-  std::set<std::string> foreign_noted_;         // other experiments whose batches were seen (bounded)
-  std::deque<EvalRequest> evals_out_;           // asked, not yet answered or given up
+  std::set<std::string> foreign_noted_;        // other experiments whose batches were seen (bounded)
+  std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
+  std::map<uint64_t, EvalGroup> eval_groups_;  // evaluations with parts out
+  uint64_t next_eval_group_ = 0;
   std::set<uint64_t> evals_closed_;             // ids lost or given up, for answers that come late (bounded)
   std::string eval_dir_;                        // <run dir>/evaluating: the networks of each request
   std::string eval_last_key_;                   // the roster key asked last, for the turn

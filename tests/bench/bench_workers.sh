@@ -29,6 +29,11 @@ if [ "$cpus" -gt 0 ] && [ $((cpus * parallel)) -gt "$(nproc)" ]; then
   echo "bench_workers: CPUS_PER_RUN $cpus x PARALLEL $parallel is more than this host's $(nproc) cores" >&2
   exit 2
 fi
+read -r -a list <<<"$counts"
+if [ $((domain0 + ${#list[@]} - 1)) -gt 232 ] || [ "$domain0" -lt 0 ]; then
+  echo "bench_workers: DOMAIN $domain0 .. $((domain0 + ${#list[@]} - 1)) (one per count) is outside DDS's 0..232" >&2
+  exit 2
+fi
 mkdir -p "$out"
 echo "host: $(nproc) cores, load $(cut -d' ' -f1-3 /proc/loadavg); config $config; parallel $parallel," \
   "cores per run ${cpus:-all}, GPUs ${GPUS:-as the config says}"
@@ -75,7 +80,6 @@ report() {  # COUNT
     "$(awk -v u="$upd" -v e="$steps" 'BEGIN{printf "%.4f", u / e}')" "$reason"
 }
 
-read -r -a list <<<"$counts"
 pids=() slots=() k=0
 for n in "${list[@]}"; do
   # Wait for a free slot: slot s is busy while pids[s] runs.

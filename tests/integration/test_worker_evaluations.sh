@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Evaluations run on the workers, asked for and answered over the bus.
 #   1. A learner alone: its final evaluation finds no worker, says so and the learner ends.
-#   2. A learner and two workers: evaluations are asked of both in turn and answered (asked ==
-#      answered, lost 0, invalid 0); then the worker holding a request is SIGKILLed: the request is
-#      counted lost, asked again of the other worker and answered there, and the run finishes.
+#   2. A learner and two workers: each evaluation is split into two parts, one asked of each
+#      worker, answered (asked == answered, lost 0, invalid 0) and reported as one; then the worker
+#      holding a part is SIGKILLed: the part is counted lost, asked again of the other worker and
+#      answered there, and the run finishes.
 #   tests/integration/test_worker_evaluations.sh LEARNER WORKER
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2")
@@ -50,6 +51,14 @@ pids+=($w1 $w2)
 for w in ev-1 ev-2; do
   wait_text "$dir/two.log" "answered by $w " 60 || fail "no evaluation answered by $w within 60 s"
 done
+# Each evaluation is split over the two workers (eval.min_episodes_per_worker: 4 by default): 750
+# episodes each, asked of both, reported once as 1,500.
+wait_text "$dir/two.log" "complete: 1500 episodes from 2 workers" 60 ||
+  fail "no evaluation reported as 1500 episodes from 2 workers: $(grep 'asked of worker' "$dir/two.log" | head -4)"
+first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "750 episodes, part 1 of 2, 1500 in all)")
+grep -q "(eval, policy v[0-9]*, 750 episodes, part 2 of 2, 1500 in all) asked of worker ev-" <<<"$first" &&
+  [ "$(grep -o 'asked of worker ev-[12]' <<<"$first" | sort -u | wc -l)" = 2 ] ||
+  fail "no evaluation asked as two parts of 750 of the two workers: $first"
 # The next request: its worker is killed as soon as it says it has it.
 asked=$(grep -c "asked of worker" "$dir/two.log")
 for _ in $(seq 150); do [ "$(grep -c "asked of worker" "$dir/two.log")" -gt "$asked" ] && break; sleep 0.1; done
@@ -72,7 +81,7 @@ if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
   grep -q "evaluation $id (policy v[0-9]*) asked of $victim lost: its worker is no longer live; asked again" \
     "$dir/two.log" || fail "request $id not counted lost when $victim died"
   retry=$(grep -A3 "evaluation $id (policy v[0-9]*) asked of $victim lost" "$dir/two.log" |
-    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes, second try) asked of worker \(ev-[12]\)$/\1 \2/p')
+    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes[^)]*, second try) asked of worker \(ev-[12]\)$/\1 \2/p')
   [ "${retry#* }" = "$other" ] || fail "the lost request was not asked again of $other: '$retry'"
   grep -q "evaluation ${retry%% *} answered by $other " "$dir/two.log" || fail "the second try was not answered"
 fi
