@@ -55,6 +55,14 @@ TEST(Config, OutOfRangeValueNamesFieldLineAndExpectation) {
   EXPECT_NE(e.find("expected > 0, got -3"), std::string::npos) << e;
 }
 
+TEST(Config, EvaluationSplitIsCheckedAndDefaultsToFourEpisodesAWorker) {
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\n", "exp.txtpb").eval().min_episodes_per_worker(), 4);
+  std::string e = error_of("experiment_id: \"a\"\neval {\n  min_episodes_per_worker: -1\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
+  EXPECT_NE(e.find("eval.min_episodes_per_worker"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected >= 0 (0 = every evaluation on one worker), got -1"), std::string::npos) << e;
+}
+
 TEST(Config, NestedTaskFieldIsLocated) {
   std::string e = error_of("experiment_id: \"a\"\ntask {\n  pendulum {\n    dt: 0\n  }\n}\n");
   EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
