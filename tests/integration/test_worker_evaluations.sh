@@ -80,7 +80,8 @@ grep "evaluation\|eval:" "$dir/two.log" | tail -12
 if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
   grep -q "evaluation $id (policy v[0-9]*) asked of $victim lost: its worker is no longer live; asked again" \
     "$dir/two.log" || fail "request $id not counted lost when $victim died"
-  retry=$(grep -A3 "evaluation $id (policy v[0-9]*) asked of $victim lost" "$dir/two.log" |
+  # The second try is the first one asked after the loss (it may wait for a live worker first).
+  retry=$(sed -n "/evaluation $id (policy v[0-9]*) asked of $victim lost/,\$p" "$dir/two.log" | grep -m1 "second try) asked of" |
     sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes[^)]*, second try) asked of worker \(ev-[12]\)$/\1 \2/p')
   [ "${retry#* }" = "$other" ] || fail "the lost request was not asked again of $other: '$retry'"
   grep -q "evaluation ${retry%% *} answered by $other " "$dir/two.log" || fail "the second try was not answered"
