@@ -8,6 +8,7 @@
 // an answer; only the final evaluation is waited for, within the same timeout.
 #include <algorithm>
 #include <filesystem>
+#include <iterator>
 #include <sstream>
 
 #include "checkpoint.h"
@@ -197,13 +198,11 @@ void FarmService::take_answer() {
   ++evals_answered_;
   log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
       " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
+  // Every part out has its group: giving a group up takes its other parts out (evaluation_given_up).
   const auto g = eval_groups_.find(r.group);
-  if (g == eval_groups_.end()) {
-    log("evaluation " + std::to_string(r.id) + " was part of an evaluation given up: not used");
-    return;
-  }
   EvalGroup& group = g->second;
-  for (auto& ep : answer_.episodes()) group.episodes.push_back(ep);
+  group.episodes.insert(group.episodes.end(), std::make_move_iterator(answer_.episodes().begin()),
+                        std::make_move_iterator(answer_.episodes().end()));
   if (--group.parts_left > 0) return;
 
   EvalReport rep;
@@ -237,9 +236,8 @@ void FarmService::take_answer() {
 
 void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
   ++evals_lost_;
-  if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
-  evals_closed_.insert(r.id);
-  if (r.attempt == 1 && eval_groups_.count(r.group)) {
+  close_eval_id(r.id);
+  if (r.attempt == 1) {
     log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
         r.worker_id + " lost: " + why + "; asked again");
     r.avoid = r.worker_id;
@@ -270,13 +268,17 @@ void FarmService::evaluation_given_up(uint64_t group) {
     }
     if (!it->worker_id.empty()) {
       ++evals_lost_;
-      if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
-      evals_closed_.insert(it->id);
+      close_eval_id(it->id);
     }
     it = evals_out_.erase(it);
   }
   algo_->not_evaluated(*this, done.ask);
   drop_snapshot(done.snapshot);
+}
+
+void FarmService::close_eval_id(uint64_t id) {
+  if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
+  evals_closed_.insert(id);
 }
 
 void FarmService::drop_snapshot(const std::string& dir) {

@@ -121,6 +121,8 @@ class FarmService final : public Farm {
   // The evaluation of a group ended without a report (a part given up, or not answered at the end):
   // the algorithm is told, its snapshot dropped. Its other parts' answers are not used.
   void evaluation_given_up(uint64_t group);
+  // Remembers a request id lost or given up (bounded), so an answer that still comes counts late.
+  void close_eval_id(uint64_t id);
   // Takes the answers that arrived, hands the good ones to the algorithm, counts lost the requests
   // whose worker died or that timed out (asking them again once), and sends the waiting ones.
   void poll_evaluations();
