@@ -1,6 +1,7 @@
 #include "dds.h"
 
 #include "paths.h"
+#include "shm_leftovers.h"
 
 #include <arpa/inet.h>
 #include <fastdds/rtps/builtin/data/ParticipantProxyData.h>
@@ -376,6 +377,13 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
   // killed process left behind. Only with shared memory: the leftovers are its segments, and a
   // UDP-only profile may discover by well-known ports (peers_udp.xml: the first four participant
   // ids of the learner's host).
+  if (uses_shared_memory(pqos)) {
+    // What killed processes left in /dev/shm goes first; the memory is the host's (a tmpfs).
+    const ShmLeftovers gone = remove_dead_segments();
+    if (gone.segments > 0)
+      std::fprintf(stderr, "removed %d shared-memory segment(s) of ended Fast DDS processes from /dev/shm (%.1f MiB)\n",
+                   gone.segments, double(gone.bytes) / (1024.0 * 1024.0));
+  }
   if (pqos.wire_protocol().participant_id < 0 && uses_shared_memory(pqos))
     pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
   participant_id_ = pqos.wire_protocol().participant_id;

@@ -5,6 +5,8 @@
 # had opened before: a learner resumed after a SIGKILL then never heard a worker that outlived the
 # killed learner (its roster said "workers 0" for minutes). The ports a process listens on are the
 # shared-memory lock files it holds open (/dev/shm/fastrtps_port<N>_el).
+# The killed process's 32 MiB data segment is removed by the next process to start, while a live
+# one's stays.
 # Then the case itself: a learner killed with SIGKILL, a new one started on the same domain, and the
 # worker that outlived the first joins the second.
 #   tests/integration/test_restart_ports.sh LEARNER WORKER SOURCE_DIR
@@ -15,6 +17,8 @@ farm_test_init restart-ports 131
 
 # The shared-memory ports process $1 listens on, one per line.
 ports_of() { ls -l "/proc/$1/fd" 2>/dev/null | sed -n 's/.*fastrtps_port\([0-9]*\)_el$/\1/p' | sort -u; }
+# The data segment process $1 made (it holds the segment's lock file /dev/shm/fastrtps_<16>_el).
+segment_of() { ls -l "/proc/$1/fd" 2>/dev/null | sed -n 's/.*\/dev\/shm\/\(fastrtps_[0-9a-z]\{16\}\)_el$/\1/p' | head -1; }
 # Waits until process $1 listens on a port (its participant is up); prints them.
 wait_ports() {
   local p
@@ -31,12 +35,23 @@ wait_ports() {
 ports_a=$(wait_ports $pa) || fail "worker a holds no shared-memory port: $(tail -3 "$dir/a.log")"
 "$worker" --domain $domain --id b >"$dir/b.log" 2>&1 & pb=$!; pids+=($pb)
 ports_b=$(wait_ports $pb) || fail "worker b holds no shared-memory port: $(tail -3 "$dir/b.log")"
+seg_a=$(segment_of $pa) seg_b=$(segment_of $pb)
+[ -n "$seg_a" ] && [ -n "$seg_b" ] || fail "test set-up: no data segment held by worker a ('$seg_a') or b ('$seg_b')"
 kill -9 $pa; wait $pa 2>/dev/null
 for p in $ports_a; do
   [ -e "/dev/shm/fastrtps_port$p" ] || fail "test set-up: the killed worker left no segment for port $p"
 done
+[ -e "/dev/shm/$seg_a" ] || fail "test set-up: the killed worker left no data segment $seg_a"
+# Both data segments made old enough to be judged (a younger one may belong to a process that is
+# about to lock it): only the killed worker's goes when the next process starts.
+touch -d '-2 min' "/dev/shm/${seg_a}_el" "/dev/shm/${seg_b}_el"
 "$worker" --domain $domain --id c >"$dir/c.log" 2>&1 & pc=$!; pids+=($pc)
 ports_c=$(wait_ports $pc) || fail "worker c holds no shared-memory port: $(tail -3 "$dir/c.log")"
+[ ! -e "/dev/shm/$seg_a" ] && [ ! -e "/dev/shm/${seg_a}_el" ] ||
+  fail "the killed worker's 32 MiB data segment $seg_a is still in /dev/shm after worker c started"
+grep -q "removed [1-9][0-9]* shared-memory segment(s) of ended Fast DDS processes" "$dir/c.log" ||
+  fail "worker c does not say it removed leftover segments: $(head -2 "$dir/c.log")"
+[ -e "/dev/shm/$seg_b" ] && [ -e "/dev/shm/${seg_b}_el" ] || fail "worker b's data segment $seg_b, in use, was removed"
 echo "ports: killed a: $(echo $ports_a), live b: $(echo $ports_b), new c: $(echo $ports_c)"
 reused=$(comm -12 <(echo "$ports_a") <(echo "$ports_c"))
 [ -z "$reused" ] || fail "the new process listens on the killed one's ports: $(echo $reused)"
@@ -65,4 +80,4 @@ wait_text "$dir/learner2.log" "worker w on .* joined" 40 ||
 wait_text "$dir/learner2.log" "batches ok [1-9]" 60 ||
   fail "the second learner got no batch from that worker: $(tail -3 "$dir/learner2.log")"
 
-farm_test_end "a restarted process takes ports no killed one left behind"
+farm_test_end "a restarted process takes ports no killed one left behind and removes its data segment"
