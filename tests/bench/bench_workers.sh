@@ -11,7 +11,8 @@
 # 16-core one-GPU hosts would, apart from what they share (memory bandwidth, caches): say so next
 # to its figures. Prints one line per count: the time to goal (when the evaluation that met the
 # config's stop.eval_goal was asked, or the wall time at a stop.target_eval_return), the stop
-# reason, env steps, updates, updates/s and update-to-data (updates per env step).
+# reason, env steps, updates, updates/s, update-to-data (updates per env step), and batches and
+# evaluations lost / invalid from the summary.
 set -euo pipefail
 if [ $# -lt 4 ]; then
   sed -n '2,14p' "$0" >&2
@@ -75,9 +76,12 @@ report() {  # COUNT
     *"goal reached"*) ;;
     *) t="-" ;;  # stopped on a limit: the goal was not reached
   esac
-  printf '%8d %14s %10s %12s %10s %10s %8s  %s\n' "$n" "$t" "$wall" "$steps" "$upd" \
+  # Batches lost / invalid and evaluations lost / invalid, from the summary's account lines.
+  b=$(sed -n 's/^batches *ok [0-9]*, lost \([0-9]*\), duplicate [0-9]*, invalid \([0-9]*\).*/\1\/\2/p' "$s")
+  e=$(sed -n 's/^evaluations *asked [0-9]*, answered [0-9]*, lost \([0-9]*\), invalid \([0-9]*\).*/\1\/\2/p' "$s")
+  printf '%8d %14s %10s %12s %10s %10s %8s %9s %9s  %s\n' "$n" "$t" "$wall" "$steps" "$upd" \
     "$(awk -v u="$upd" -v w="$wall" 'BEGIN{printf "%.0f", u / w}')" \
-    "$(awk -v u="$upd" -v e="$steps" 'BEGIN{printf "%.4f", u / e}')" "$reason"
+    "$(awk -v u="$upd" -v e="$steps" 'BEGIN{printf "%.4f", u / e}')" "${b:-?}" "${e:-?}" "$reason"
 }
 
 pids=() slots=() k=0
@@ -97,6 +101,6 @@ for n in "${list[@]}"; do
   done
 done
 wait
-printf '%8s %14s %10s %12s %10s %10s %8s  %s\n' workers "time to goal" "wall [s]" "env steps" updates \
-  "updates/s" "UTD" "stop reason"
+printf '%8s %14s %10s %12s %10s %10s %8s %9s %9s  %s\n' workers "time to goal" "wall [s]" "env steps" updates \
+  "updates/s" "UTD" "b lost/inv" "e lost/inv" "stop reason"
 for n in "${list[@]}"; do report "$n"; done
