@@ -373,19 +373,19 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     throw std::runtime_error("profile 'farm_participant' missing in " + profiles_file_);
   }
   pqos.name(participant_name);
-  // A participant id given in the profiles file is the operator's; otherwise one whose ports no
-  // killed process left behind. Only with shared memory: the leftovers are its segments, and a
-  // UDP-only profile may discover by well-known ports (peers_udp.xml: the first four participant
-  // ids of the learner's host).
   if (uses_shared_memory(pqos)) {
-    // What killed processes left in /dev/shm goes first; the memory is the host's (a tmpfs).
+    // The data segments killed processes left in /dev/shm go first; the memory is the host's (a tmpfs).
     const ShmLeftovers gone = remove_dead_segments();
     if (gone.segments > 0)
       std::fprintf(stderr, "removed %d shared-memory segment(s) of ended Fast DDS processes from /dev/shm (%.1f MiB)\n",
                    gone.segments, double(gone.bytes) / (1024.0 * 1024.0));
+    // A participant id given in the profiles file is the operator's; otherwise one whose ports no
+    // killed process left behind. Only with shared memory: the leftovers are its segments, and a
+    // UDP-only profile may discover by well-known ports (peers_udp.xml: the first four participant
+    // ids of the learner's host).
+    if (pqos.wire_protocol().participant_id < 0)
+      pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
   }
-  if (pqos.wire_protocol().participant_id < 0 && uses_shared_memory(pqos))
-    pqos.wire_protocol().participant_id = participant_id_without_leftovers(opts.domain, pqos.wire_protocol().port);
   participant_id_ = pqos.wire_protocol().participant_id;
   security_dir_ = security_dir_of(opts);
   if (!security_dir_.empty()) {
