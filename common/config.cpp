@@ -190,6 +190,14 @@ void check_mclari(const Section& s, const config::MclariConfig& c) {
     if (!(r > 0) || !std::isfinite(r))
       s.fail("reference_efficiency", "expected finite values > 0, got " + num(r) + " for terrain " + num(t), t);
   }
+  if (c.goal_efficiency_size() != 0 && c.goal_efficiency_size() != kMclariTerrains)
+    s.fail("goal_efficiency", "expected one value per terrain (" + num(kMclariTerrains) + ") or none, got " +
+                                  num(c.goal_efficiency_size()));
+  for (int t = 0; t < c.goal_efficiency_size(); ++t) {
+    const double r = c.goal_efficiency(t);
+    if (!(r > 0) || !std::isfinite(r))
+      s.fail("goal_efficiency", "expected finite values > 0, got " + num(r) + " for terrain " + num(t), t);
+  }
   s.at_least("hfield_size", c.hfield_size(), 2);
   s.positive("hfield_sigma", c.hfield_sigma());
   s.check(c.hfield_filter() >= 1 && c.hfield_filter() % 2 == 1, "hfield_filter",
@@ -331,6 +339,21 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   e.finite_positive("answer_timeout_seconds", c.eval().answer_timeout_seconds());
   e.check(c.eval().min_episodes_per_worker() >= 0, "min_episodes_per_worker",
           "expected >= 0 (0 = every evaluation on one worker), got " + num(c.eval().min_episodes_per_worker()));
+  e.check(c.eval().best_reduce() == "mean" || c.eval().best_reduce() == "min", "best_reduce",
+          "expected \"mean\" or \"min\", got \"" + c.eval().best_reduce() + "\"");
+  if (!c.eval().best_metric().empty()) {
+    std::vector<std::string> metrics;
+    try {
+      metrics = robots::task_spec(c.task()).metric_names;
+    } catch (const std::invalid_argument& err) {
+      e.fail("best_metric", std::string("names one of the task's metrics: ") + err.what());
+    }
+    std::string known;
+    for (const auto& m : metrics) known += (known.empty() ? "" : ", ") + m;
+    if (std::find(metrics.begin(), metrics.end(), c.eval().best_metric()) == metrics.end())
+      e.fail("best_metric", "\"" + c.eval().best_metric() + "\" is not one of task '" + c.task().name() +
+                                "': " + known + " (empty: the mean return)");
+  }
 
   const auto& st = c.stop();
   const Section s = root.nest("stop", st);

@@ -59,7 +59,7 @@ TaskSpec task_spec(const config::TaskConfig& cfg) {
   if (n == "mclari") {
     const auto& m = cfg.mclari();
     return simple(n, 4 + (m.observe_gait() ? 2 : 0) + (m.observe_terrain() ? 3 : 0), 2, m.max_episode_steps(),
-                  {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance"});
+                  {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance", "share"});
   }
   if (n == "jetbot") return mobile(n, cfg.jetbot().scene(), true);
   if (n == "kaya") return mobile(n, cfg.kaya().scene(), false);

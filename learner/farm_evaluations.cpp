@@ -56,19 +56,24 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
     group.snapshot.clear();
   }
   // As many parts as there are workers ready now, each of at least min_episodes_per_worker
-  // episodes; part k resets its episodes from seed + k (part 0: the seed one worker would get).
+  // episodes; part k resets its episodes from seed + k (part 0: the seed one worker would get), and
+  // its first episode is numbered after the parts before it (a task's evaluation conditions go
+  // round the whole evaluation, not each part).
   const int min_each = cfg_.eval().min_episodes_per_worker();
   const int ready = int(eval_ready_workers(group.asked_at).size());
   const int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
   group.parts = group.parts_left = parts;
   const uint64_t seed = cfg_.seed() + 1000003ull * ++evals_;
   bool sent = true;
+  int first = 0;
   for (int k = 0; k < parts; ++k) {
     EvalRequest r;
     r.id = ++next_eval_id_;
     r.group = g;
     r.part = k + 1;
     r.episodes = ask.episodes / parts + (k < ask.episodes % parts ? 1 : 0);
+    r.first_episode = first;
+    first += r.episodes;
     r.seed = seed + uint64_t(k);
     r.ask = ask;
     sent = send_evaluation(r) && sent;
@@ -116,6 +121,7 @@ bool FarmService::send_evaluation(EvalRequest& r) {
   m.policy_version(r.ask.version);
   m.episodes(uint32_t(r.episodes));
   m.seed(r.seed);
+  m.first_episode(uint32_t(r.first_episode));
   farm::dds::to_wire(group.policy, cfg_.experiment_id(), m.policy());
   if (!eval_out_.write(m)) {
     // The reliable history is full (a reader that does not acknowledge): counted as asked, and
@@ -208,13 +214,22 @@ void FarmService::take_answer() {
   EvalReport rep;
   rep.episodes = int(group.episodes.size());
   rep.metrics.assign(e.num_metrics, 0.0);
+  rep.metrics_min.assign(e.num_metrics, NAN);
   double sum = 0, len = 0;
   for (const auto& ep : group.episodes) {
     sum += ep.episode_return();
     len += ep.length();
     rep.min = std::isnan(rep.min) ? ep.episode_return() : std::min<double>(rep.min, ep.episode_return());
     rep.max = std::isnan(rep.max) ? ep.episode_return() : std::max<double>(rep.max, ep.episode_return());
-    for (int k = 0; k < e.num_metrics; ++k) rep.metrics[k] += ep.metrics()[k];
+    for (int k = 0; k < e.num_metrics; ++k) {
+      const double v = ep.metrics()[k];
+      rep.metrics[k] += v;
+      // The lowest episode's value; a NaN (a metric the task cannot compute) makes it NaN, as the mean.
+      const bool first = &ep == &group.episodes.front();
+      rep.metrics_min[k] = first                                             ? v
+                           : std::isnan(rep.metrics_min[k]) || std::isnan(v) ? NAN
+                                                                             : std::min(rep.metrics_min[k], v);
+    }
   }
   if (rep.episodes > 0) {
     rep.mean = sum / rep.episodes;

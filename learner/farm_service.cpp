@@ -210,6 +210,7 @@ FarmFigures FarmService::figures() const {
   f.workers = live_count();
   f.mean_return = mean_recent_return();
   f.best_eval = best_eval_;
+  f.best_measure = best_measure();
   f.evals_asked = evals_asked_;
   f.evals_answered = evals_answered_;
   f.evals_lost = evals_lost_;
@@ -269,12 +270,20 @@ void FarmService::prepare_run_dir() {
     const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
     algo_->load(usable_checkpoint(ckpt_dir_));
     elapsed_offset_ = m.elapsed_seconds();
-    best_eval_ = m.has_best_eval_return() ? m.best_eval_return() : best_eval_;
+    // A best kept by another measure (the config's eval.best_metric changed) is no bar for this one.
+    const auto same_measure = [this](const config::CheckpointManifest& k) {
+      return (k.has_best_eval_measure() ? k.best_eval_measure() : std::string("return")) == best_measure();
+    };
+    if (m.has_best_eval_return() && same_measure(m)) best_eval_ = m.best_eval_return();
     // A best policy kept after the checkpoint (the learner stopped before the next one) stays the
     // one to beat: it is not overwritten by a weaker one after the resume.
     if (checkpoint_exists(best_dir_)) {
       const config::CheckpointManifest b = read_manifest(best_dir_, cfg_.experiment_id());
-      if (b.has_best_eval_return() && (std::isnan(best_eval_) || b.best_eval_return() > best_eval_))
+      if (b.has_best_eval_return() && !same_measure(b))
+        log("the best kept in " + best_dir_ + " was by " +
+            (b.has_best_eval_measure() ? b.best_eval_measure() : std::string("return")) + ", this run keeps by " +
+            best_measure() + ": the next evaluation replaces it");
+      else if (b.has_best_eval_return() && (std::isnan(best_eval_) || b.best_eval_return() > best_eval_))
         best_eval_ = b.best_eval_return();
     }
     episodes_total_ = m.episodes();
@@ -347,10 +356,27 @@ void FarmService::record_episode(float episode_return) {
   ++episodes_total_;
 }
 
-void FarmService::record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) {
-  if (std::isnan(mean_return) || mean_return <= best_eval_) return;
+std::string FarmService::best_measure() const {
+  const auto& e = cfg_.eval();
+  return e.best_metric().empty() ? std::string("return") : e.best_metric() + " (" + e.best_reduce() + ")";
+}
+
+double FarmService::evaluation_score(const EvalReport& r) const {
+  if (r.episodes <= 0) return NAN;
+  const auto& e = cfg_.eval();
+  if (e.best_metric().empty()) return r.mean;
+  const auto& names = task_spec_.metric_names;
+  const size_t k = size_t(std::find(names.begin(), names.end(), e.best_metric()) - names.begin());
+  const auto& values = e.best_reduce() == "min" ? r.metrics_min : r.metrics;
+  return k < values.size() ? values[k] : NAN;  // the config check named a metric of the task
+}
+
+void FarmService::record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) {
+  const double score = evaluation_score(report);
+  if (std::isnan(score) || score <= best_eval_) return;
+  const std::string what = best_measure() + " " + fmt(cfg_.eval().best_metric().empty() ? "%.1f" : "%.4f", score);
   const double previous_best = best_eval_;
-  best_eval_ = mean_return;
+  best_eval_ = score;
   const double t = now_seconds();
   try {
     // The networks as they were when this version was asked (training went on meanwhile).
@@ -363,12 +389,11 @@ void FarmService::record_evaluation(double mean_return, uint64_t version, int64_
     });
   } catch (const std::exception& e) {
     best_eval_ = previous_best;  // the folder still holds the previous best: it stays the bar
-    log(std::string("best evaluation so far (") + fmt("%.1f", mean_return) + ") not kept: " + e.what() +
-        "; training goes on");
+    log(std::string("best evaluation so far (") + what + ") not kept: " + e.what() + "; training goes on");
     return;
   }
-  log("best evaluation so far (" + fmt("%.1f", mean_return) + ", policy v" + std::to_string(version) + "): kept in " +
-      best_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+  log("best evaluation so far (" + what + ", policy v" + std::to_string(version) + "): kept in " + best_dir_ + " (" +
+      fmt("%.2f", now_seconds() - t) + " s)");
 }
 
 double FarmService::mean_recent_return() const {
@@ -431,7 +456,10 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   m.set_policy_version(version);
   m.set_updates(updates);
   m.set_elapsed_seconds(elapsed);
-  if (!std::isnan(best_eval_)) m.set_best_eval_return(best_eval_);
+  if (!std::isnan(best_eval_)) {
+    m.set_best_eval_return(best_eval_);
+    m.set_best_eval_measure(best_measure());
+  }
   m.set_config_text(config_to_text(cfg_));
   m.set_episodes(episodes_total_);
   accounts_to_manifest(ingest_, m);

@@ -50,7 +50,11 @@ class FarmService final : public Farm {
   uint64_t env_steps() const override { return ingest_.counters().env_steps; }
   double elapsed() const override;
   bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) override;
-  void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) override;
+  void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) override;
+  // What the kept best is the best of: "return", or "<eval.best_metric> (<best_reduce>)".
+  std::string best_measure() const;
+  // An evaluation's score by that measure; NaN for one without episodes.
+  double evaluation_score(const EvalReport& r) const;
   void log(const std::string& s) const override;
   void csv_row(const std::string& row) override;
 
@@ -108,7 +112,7 @@ class FarmService final : public Farm {
   // a new id.
   struct EvalRequest {
     uint64_t id = 0, seed = 0, worker_session = 0, group = 0;
-    int episodes = 0, part = 1;
+    int episodes = 0, part = 1, first_episode = 0;
     std::string worker_id, roster_key;  // empty while no live worker could take it
     double asked_at = 0;
     int attempt = 1;

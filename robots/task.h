@@ -45,6 +45,13 @@ class Task {
   virtual std::unique_ptr<TaskState> make_state() const = 0;
   // Starts an episode; writes obs_dim floats.
   virtual void reset(TaskState& s, uint64_t seed, float* obs) const = 0;
+  // Conditions an evaluation spreads its episodes over evenly (mCLARI: its terrains), so that a
+  // few episodes measure each of them rather than whichever reset draws: evaluation episode k
+  // starts with reset_in_condition(.., k mod eval_conditions(), ..). 0: none, reset draws.
+  virtual int eval_conditions() const { return 0; }
+  virtual void reset_in_condition(TaskState& s, uint64_t seed, int /*condition*/, float* obs) const {
+    reset(s, seed, obs);
+  }
   // One agent step (may run several physics steps); writes the next observation.
   virtual StepResult step(TaskState& s, const float* action, float* obs) const = 0;
   // Writes metric_names.size() floats about the episode that just ended.

@@ -184,7 +184,8 @@ void Rollout::merge_ends(RolloutBatch& out) {
 }
 
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
-                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel) {
+                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel,
+                                           uint32_t first_episode) {
   if (episodes <= 0) return {};
   Policy policy(params);
   VecEnv env(std::move(task), episodes, seed);
@@ -194,8 +195,12 @@ std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> t
     throw std::invalid_argument("evaluate_policy: task '" + env.spec().name +
                                 "' has no time limit, an episode might never end");
   }
-  env.reset_all();
   const int N = env.num_envs();
+  if (const int conditions = env.task().eval_conditions(); conditions > 0) {
+    for (int i = 0; i < N; ++i) env.reset_in_condition(i, int((uint64_t(first_episode) + uint64_t(i)) % conditions));
+  } else {
+    env.reset_all();
+  }
   std::vector<float> actions(size_t(N) * env.act_dim()), rewards(N);
   std::vector<uint8_t> terminated(N), truncated(N);
   std::vector<EpisodeRecord> records(N);

@@ -90,7 +90,11 @@ class Rollout {
 // (tanh(mean)), and returns their records ordered by env. Throws std::invalid_argument if the
 // policy does not fit the task or the task has no time limit. cancel, if given and set, ends it
 // between two steps with an empty result.
+// first_episode: the index of the first of them in a larger evaluation; where the task has
+// evaluation conditions (robots::Task::eval_conditions), episode k starts in condition
+// (first_episode + k) mod their number.
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
-                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel = nullptr);
+                                           int episodes, uint64_t seed, const std::atomic<bool>* cancel = nullptr,
+                                           uint32_t first_episode = 0);
 
 }  // namespace farm

@@ -37,6 +37,11 @@ void VecEnv::reset(int env) {
   task_->reset(*states_[env], splitmix64(seed_state_[env]), obs_.data() + size_t(env) * obs_dim_);
 }
 
+void VecEnv::reset_in_condition(int env, int condition) {
+  task_->reset_in_condition(*states_[env], splitmix64(seed_state_[env]), condition,
+                            obs_.data() + size_t(env) * obs_dim_);
+}
+
 void VecEnv::reset_all() {
   for (int i = 0; i < num_envs(); ++i) reset(i);
 }

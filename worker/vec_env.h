@@ -65,6 +65,8 @@ class VecEnv {
   // Starts a new episode in every env (each with the next seed of its generator).
   void reset_all();
   void reset(int env);
+  // Starts a new episode in env `env` in the task's evaluation condition `condition`.
+  void reset_in_condition(int env, int condition);
 
   const float* obs() const { return obs_.data(); }  // [N x obs_dim]
   const float* obs(int env) const { return obs_.data() + size_t(env) * obs_dim_; }

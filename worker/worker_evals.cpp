@@ -24,6 +24,12 @@ void WorkerApp::poll_eval_requests() {
                           " (the experiment's eval.episodes / final_episodes)");
       continue;
     }
+    if (q.first_episode() > uint32_t(eval_max_episodes_) - q.episodes()) {
+      answer_error(q, "first episode " + std::to_string(q.first_episode()) + " + " + std::to_string(q.episodes()) +
+                          " episodes past " + std::to_string(eval_max_episodes_) +
+                          " (the experiment's eval.episodes / final_episodes)");
+      continue;
+    }
     if (q.policy().experiment_id() != experiment_ || q.policy().version() != q.policy_version()) {
       answer_error(q, "the policy carried is v" + std::to_string(q.policy().version()) + " of '" +
                           q.policy().experiment_id().substr(0, 64) + "', not v" + std::to_string(q.policy_version()));
@@ -86,7 +92,8 @@ void WorkerApp::eval_thread_main() {
     farm::msg::EvaluationAnswer a = answer_to(q, job.worker_session);
     const double t0 = now_seconds();
     try {
-      const auto recs = evaluate_policy(job.task, job.policy, int(q.episodes()), q.seed(), &eval_stop_);
+      const auto recs =
+          evaluate_policy(job.task, job.policy, int(q.episodes()), q.seed(), &eval_stop_, q.first_episode());
       if (eval_stop_) return;
       std::vector<farm::msg::EvaluationEpisode> eps(recs.size());
       for (size_t i = 0; i < recs.size(); ++i) {

@@ -1,6 +1,7 @@
 // What the algorithms share of algorithm.h: number formatting and the evaluation counts.
 #include "algorithm.h"
 
+#include <algorithm>
 #include <cstdio>
 
 namespace farm {
@@ -14,6 +15,13 @@ std::string fmt(const char* f, double v) {
 std::string eval_counts(const FarmFigures& f) {
   return " | evals asked " + std::to_string(f.evals_asked) + " answered " + std::to_string(f.evals_answered) +
          " lost " + std::to_string(f.evals_lost) + " invalid " + std::to_string(f.evals_invalid);
+}
+
+std::string best_eval_line(const FarmFigures& f) {
+  if (f.best_measure == "return") return "best eval return  " + fmt("%.1f", f.best_eval);
+  std::string label = "best eval " + f.best_measure;
+  label.resize(std::max<size_t>(label.size() + 1, 18), ' ');
+  return label + fmt("%.4f", f.best_eval);
 }
 
 }  // namespace farm

@@ -26,12 +26,15 @@ std::string fmt(const char* f, double v);
 struct FarmFigures;
 // " | evals asked N answered M lost K invalid I" for a progress line.
 std::string eval_counts(const FarmFigures& f);
+// The summary's "best eval return  141.5" line (or "best eval share   0.872 (min)" by eval.best_metric).
+std::string best_eval_line(const FarmFigures& f);
 
 // What an evaluation reports: returns, lengths and the task's own metrics.
 struct EvalReport {
   int episodes = 0;
   double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
-  std::vector<double> metrics;  // means, in the order of TaskSpec::metric_names
+  std::vector<double> metrics;      // means, in the order of TaskSpec::metric_names
+  std::vector<double> metrics_min;  // the lowest episode's, in the same order
 };
 
 // An evaluation an algorithm asks for (Farm::ask_evaluation); handed back with its report
@@ -48,10 +51,11 @@ struct EvalAsk {
 // The farm's own figures, for an algorithm's progress line, fit line and summary.
 struct FarmFigures {
   uint64_t env_steps = 0, ok = 0, lost = 0, duplicate = 0, invalid = 0;
-  uint64_t episodes = 0;     // finished episodes taken so far
-  int workers = 0;           // live workers
-  double mean_return = NAN;  // of the last 100 training episodes
-  double best_eval = NAN;    // the best evaluation so far (kept in <run dir>/best)
+  uint64_t episodes = 0;                // finished episodes taken so far
+  int workers = 0;                      // live workers
+  double mean_return = NAN;             // of the last 100 training episodes
+  double best_eval = NAN;               // the best evaluation so far (kept in <run dir>/best), by best_measure
+  std::string best_measure = "return";  // what best_eval is: "return", or eval.best_metric (best_reduce)
   // Evaluations asked of workers (retries included), answered, lost (unanswered in time, or the
   // worker died) and answers refused as invalid.
   uint64_t evals_asked = 0, evals_answered = 0, evals_lost = 0, evals_invalid = 0;
@@ -94,9 +98,10 @@ class Farm {
   // arrives. false (said in the log) when it is not asked: a training evaluation ("eval") is still
   // out. A final evaluation ("final") is always asked; the farm waits for it before the summary.
   virtual bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) = 0;
-  // Each evaluation's mean return goes through here (from Algorithm::evaluated): a new best is
-  // kept in <run dir>/best, as the networks were when that version was asked.
-  virtual void record_evaluation(double mean_return, uint64_t version, int64_t updates, double elapsed) = 0;
+  // Each evaluation's report goes through here (from Algorithm::evaluated): a new best (by its mean
+  // return, or by eval.best_metric) is kept in <run dir>/best, as the networks were when that
+  // version was asked.
+  virtual void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) = 0;
   virtual void log(const std::string& line) const = 0;
   // One row of <run dir>/learner.csv, without the newline (columns: Algorithm::csv_header).
   virtual void csv_row(const std::string& row) = 0;

@@ -124,7 +124,7 @@ class OffPolicyAlgorithm final : public Algorithm {
     farm.log(ask.label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(r.episodes) +
              " deterministic episodes" + metric_txt + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
              ", " + fmt("%.1f", ask.elapsed) + " s)");
-    farm.record_evaluation(mean, ask.version, ask.updates, ask.elapsed);
+    farm.record_evaluation(r, ask.version, ask.updates, ask.elapsed);
   }
 
   std::string summary(const FarmFigures& f, double elapsed) const override {
@@ -135,7 +135,7 @@ class OffPolicyAlgorithm final : public Algorithm {
       << "episodes          " << f.episodes << "\n"
       << "final eval return " << fmt("%.1f", final_return_) << " (mean of " << cfg_.eval().final_episodes()
       << " deterministic episodes)\n"
-      << "best eval return  " << fmt("%.1f", f.best_eval) << "\n"
+      << best_eval_line(f) << "\n"
       << "batches           ok " << f.ok << ", lost " << f.lost << ", duplicate " << f.duplicate << ", invalid "
       << f.invalid << "\n";
     return o.str();

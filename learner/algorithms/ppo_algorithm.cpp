@@ -321,7 +321,7 @@ class PpoAlgorithm final : public Algorithm {
              fmt("%.1f", r.max) + ") over " + std::to_string(r.episodes) + " deterministic episodes, length " +
              fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
              ", " + fmt("%.1f", ask.elapsed) + " s)");
-    farm.record_evaluation(r.mean, ask.version, ask.updates, ask.elapsed);
+    farm.record_evaluation(r, ask.version, ask.updates, ask.elapsed);
     if (ask.label == "eval") settle_row(farm, ask.version, &r);
   }
 
@@ -446,7 +446,7 @@ class PpoAlgorithm final : public Algorithm {
       << fmt("%.1f", fe.mean_length) << "\n";
     for (size_t i = 0; i < fe.metrics.size(); ++i)
       o << "final eval metric " << spec_.metric_names[i] << " " << fmt("%.4f", fe.metrics[i]) << "\n";
-    o << "best eval return  " << fmt("%.1f", c.best_eval) << "\n"
+    o << best_eval_line(c) << "\n"
       << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
       << c.invalid << ", stale " << stale_total_ << "\n"
       << "quota top-ups     " << top_ups_ << "\n"

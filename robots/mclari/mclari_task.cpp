@@ -102,6 +102,8 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   terrains_.assign(cfg.terrains().begin(), cfg.terrains().end());
   if (terrains_.empty())
     for (int t = 0; t < mclari::kNumTerrains; ++t) terrains_.push_back(t);
+  for (int t : terrains_)
+    if (std::find(eval_terrains_.begin(), eval_terrains_.end(), t) == eval_terrains_.end()) eval_terrains_.push_back(t);
 
   hfield_ = mclari::rough_height_field(cfg.hfield_size(), cfg.hfield_sigma(), cfg.hfield_filter(), cfg.hfield_seed());
   if (cfg.has_hfield_png()) mclari::write_height_png(cfg.hfield_png(), hfield_, cfg.hfield_size());
@@ -143,7 +145,7 @@ McLariTask::McLariTask(const config::MclariConfig& cfg) : cfg_(cfg) {
   spec_.obs_dim = 4 + (cfg.observe_gait() ? 2 : 0) + (cfg.observe_terrain() ? 3 : 0);
   spec_.act_dim = 2;
   spec_.max_episode_steps = cfg.max_episode_steps();
-  spec_.metric_names = {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance"};
+  spec_.metric_names = {"efficiency", "fell", "reached", "terrain", "mean_frequency", "final_distance", "share"};
 }
 
 McLariTask::~McLariTask() {
@@ -174,6 +176,10 @@ void McLariTask::reset(TaskState& s, uint64_t seed, float* obs) const {
   std::mt19937_64 rng(seed);
   const int terrain = terrains_[std::uniform_int_distribution<size_t>(0, terrains_.size() - 1)(rng)];
   reset_on(s, rng(), terrain, obs);
+}
+
+void McLariTask::reset_in_condition(TaskState& s, uint64_t seed, int condition, float* obs) const {
+  reset_on(s, seed, eval_terrains_.at(size_t(condition) % eval_terrains_.size()), obs);
 }
 
 void McLariTask::reset_on(TaskState& base, uint64_t seed, int terrain, float* obs) const {
@@ -382,6 +388,8 @@ void McLariTask::episode_metrics(const TaskState& base, float* out) const {
   out[3] = float(s.terrain);
   out[4] = s.measured_steps > 0 ? float(s.frequency_sum / s.measured_steps) : 0.f;
   out[5] = float(std::hypot(s.target[0] - c[0], s.target[1] - c[1]));
+  const auto& goal = cfg_.goal_efficiency_size() > 0 ? cfg_.goal_efficiency() : cfg_.reference_efficiency();
+  out[6] = s.fell ? 0.f : goal.empty() ? out[0] : float(out[0] / goal.Get(s.terrain));
 }
 
 std::unique_ptr<Task> make_mclari_task(const config::TaskConfig& cfg) {

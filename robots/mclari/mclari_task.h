@@ -57,9 +57,13 @@ class McLariTask final : public Task {
   const mjModel_* terrain_model(int terrain) const { return terrain_models_.at(terrain); }
   std::unique_ptr<TaskState> make_state() const override;
   void reset(TaskState& s, uint64_t seed, float* obs) const override;
+  // An evaluation's episodes go round the config's terrains (each once, in their order).
+  int eval_conditions() const override { return int(eval_terrains_.size()); }
+  void reset_in_condition(TaskState& s, uint64_t seed, int condition, float* obs) const override;
   StepResult step(TaskState& s, const float* action, float* obs) const override;
   // "efficiency" (mean eta over the steps without a fall), "fell", "reached", "terrain",
-  // "mean_frequency", "final_distance" (mm).
+  // "mean_frequency", "final_distance" (mm), "share" (efficiency over the terrain's
+  // goal_efficiency, else its reference_efficiency, else 1; 0 after a fall).
   void episode_metrics(const TaskState& s, float* out) const override;
 
   const config::MclariConfig& config() const { return cfg_; }
@@ -89,11 +93,12 @@ class McLariTask final : public Task {
   TaskSpec spec_;
   std::vector<mjModel_*> terrain_models_;  // owned, one per terrain
   std::vector<float> hfield_;
-  std::vector<int> groups_;       // active set, of all 27
-  std::vector<int> frequencies_;  // a0 picks one of these when set (Hz)
-  std::vector<int> terrains_;     // drawn at reset
-  int body_ = 1;                  // the robot's root body
-  int act_dof_[8] = {};           // dof driven by actuator k
+  std::vector<int> groups_;         // active set, of all 27
+  std::vector<int> frequencies_;    // a0 picks one of these when set (Hz)
+  std::vector<int> terrains_;       // drawn at reset
+  std::vector<int> eval_terrains_;  // terrains_ without repeats, in order
+  int body_ = 1;                    // the robot's root body
+  int act_dof_[8] = {};             // dof driven by actuator k
   double mass_g_ = 0;
 };
 

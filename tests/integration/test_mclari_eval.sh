@@ -3,6 +3,8 @@
 # config for a few seconds with 6-step episodes; the evaluation prints the six-terrain table and
 # --trace writes each step's gait, which must lie in the config's group set and frequency range.
 # The learner's best policy (run/best) evaluates as the checkpoint when the final evaluation was its only one.
+# That evaluation (6 episodes, split over two workers) covers each terrain once, the second part
+# going on where the first ended, and the best is kept by its worst episode's share of the reference.
 # A small sweep's best.csv gives the comparison column, and the table says when the sweep's runs
 # were not as long as the episodes.
 # usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
@@ -17,7 +19,7 @@ trap 'cleanup; kill $BYSTANDER 2>/dev/null; rm -rf "$T"' EXIT
 BYSTANDER=$!
 fail() { echo "FAIL: $*"; exit 1; }
 sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seconds: 100000/' \
-    -e 's/final_episodes: 6/final_episodes: 1/' \
+    -e 's/final_episodes: 6/final_episodes: 6 min_episodes_per_worker: 3 best_metric: "share" best_reduce: "min"/' \
     -e 's/    groups: \[5, 11, 15, 19, 20, 23\]/    groups: [5, 11, 15, 19, 20, 23]\n    max_episode_steps: 6/' \
     "$SRC/deploy/configs/mclari_sac_swept.txtpb" > "$T/c.txtpb"
 grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episodes of the swept config"
@@ -25,8 +27,19 @@ grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episo
 L=$!; PIDS+=($L)
 "$WORKER" --domain 94 --id eval1 > "$T/worker.log" 2>&1 &
 PIDS+=($!)
+"$WORKER" --domain 94 --id eval2 > "$T/worker2.log" 2>&1 &
+PIDS+=($!)
 wait $L || { tail -20 "$T/learner.log"; fail "learner failed"; }
 [ -d "$T/run/checkpoint/sac" ] || fail "no checkpoint in $T/run"
+grep -q "6 in all" "$T/learner.log" || { cat "$T/learner.log"; fail "the final evaluation was not split"; }
+# Terrains 0..5 once each: a mean terrain of 2.5 (both parts from terrain 0 would give 1.0).
+grep -q "^\[learner\] final: .* over 6 deterministic episodes.*, terrain 2.500," "$T/learner.log" \
+    || { grep "final:" "$T/learner.log"; fail "the final evaluation did not run each terrain once"; }
+grep -q "best evaluation so far (share (min) [0-9.]*, policy" "$T/learner.log" \
+    || { grep "best evaluation" "$T/learner.log"; fail "the best was not kept by the worst share"; }
+grep -q "^best eval share (min) *[0-9.]*$" "$T/run/summary.txt" || { cat "$T/run/summary.txt"; fail "summary: no best share"; }
+grep -q 'best_eval_measure: "share (min)"' "$T/run/best/manifest.txtpb" \
+    || { cat "$T/run/best/manifest.txtpb"; fail "run/best does not say what it is the best of"; }
 
 "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 2 --threads 2 \
     --trace "$T/trace.csv" > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }

@@ -275,6 +275,16 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "exp.txtpb:3:3: field 'sac.activation': expected \"relu\" or \"tanh\", got \"elu\"");
 }
 
+TEST(Config, TheKeptBestIsByReturnOrANamedMetric) {
+  const std::string head = "experiment_id: \"a\"\ntask { name: \"mclari\" }\neval {\n";
+  EXPECT_EQ(error_of(head + "  best_metric: \"share\"\n  best_reduce: \"min\"\n}\n"), "");
+  EXPECT_EQ(error_of(head + "  best_metric: \"shares\"\n}\n"),
+            "exp.txtpb:4:3: field 'eval.best_metric': \"shares\" is not one of task 'mclari': efficiency, fell, "
+            "reached, terrain, mean_frequency, final_distance, share (empty: the mean return)");
+  EXPECT_EQ(error_of(head + "  best_reduce: \"max\"\n}\n"),
+            "exp.txtpb:4:3: field 'eval.best_reduce': expected \"mean\" or \"min\", got \"max\"");
+}
+
 TEST(Config, EvaluationGoalsNameTheTasksMetrics) {
   const std::string head = "experiment_id: \"a\"\ntask { name: \"a1\" }\nstop {\n";
   EXPECT_EQ(error_of(head + "  eval_goal { metric: \"tracking_lin\" at_least: 0.6 }\n  eval_goal { metric: "

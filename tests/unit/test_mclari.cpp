@@ -251,7 +251,7 @@ TEST(McLari, RewardAndTermination) {
   McLariTask task(c);
   auto s = task.make_state();
   float obs[4], act[2] = {0, 0};
-  float metrics[6];
+  float metrics[7];
 
   // Plain step: reward = efficiency; the time limit truncates at 2 steps.
   task.reset_on(*s, 1, 0, obs);
@@ -320,7 +320,7 @@ TEST(McLari, ReferenceEfficiencyScalesTheRewardPerTerrain) {
   for (double v : ref) c.add_reference_efficiency(v);
   McLariTask task(c);
   auto s = task.make_state();
-  float obs[4], act[2] = {0, 0}, metrics[6];
+  float obs[4], act[2] = {0, 0}, metrics[7];
   for (int terrain : {0, 4}) {
     task.reset_on(*s, 7, terrain, obs);
     auto r = task.step(*s, act, obs);
@@ -337,6 +337,67 @@ TEST(McLari, ReferenceEfficiencyScalesTheRewardPerTerrain) {
   auto r = task.step(*s, act, obs);
   EXPECT_TRUE(r.terminated);
   EXPECT_NEAR(r.reward, st(*s).last.efficiency / ref[3] + 10.0, 1e-4);
+}
+
+TEST(McLari, ShareIsEfficiencyOverTheGoalAndZeroAfterAFall) {
+  // "share" divides the episode's efficiency by its terrain's goal_efficiency (reference_efficiency
+  // without it, 1 without either: metrics are finite) and is 0 for an episode that fell.
+  farm::config::MclariConfig c = fixed(150, 15);
+  c.set_steps_per_period(20);
+  c.set_max_timestep(0.002);
+  const double ref[6] = {0.25, 1.5, 0.3, 0.125, 1.25, 0.1}, goal[6] = {0.5, 3, 0.6, 0.25, 2.5, 0.2};
+  float obs[4], act[2] = {0, 0}, m[7];
+  {
+    McLariTask task(c);
+    auto s = task.make_state();
+    task.reset_on(*s, 7, 4, obs);
+    task.step(*s, act, obs);
+    task.episode_metrics(*s, m);
+    EXPECT_EQ(m[6], m[0]);
+  }
+  for (double v : ref) c.add_reference_efficiency(v);
+  {
+    McLariTask task(c);
+    auto s = task.make_state();
+    task.reset_on(*s, 7, 4, obs);
+    task.step(*s, act, obs);
+    task.episode_metrics(*s, m);
+    ASSERT_GT(m[0], 0.f);
+    EXPECT_NEAR(m[6], m[0] / ref[4], 1e-6);
+  }
+  for (double v : goal) c.add_goal_efficiency(v);
+  McLariTask task(c);
+  ASSERT_EQ(task.spec().metric_names.size(), 7u);
+  EXPECT_EQ(task.spec().metric_names[6], "share");
+  auto s = task.make_state();
+  for (int terrain : {0, 4}) {
+    task.reset_on(*s, 7, terrain, obs);
+    task.step(*s, act, obs);
+    task.episode_metrics(*s, m);
+    ASSERT_GT(m[0], 0.f);
+    EXPECT_NEAR(m[6], m[0] / goal[terrain], 1e-6) << "terrain " << terrain;
+  }
+  st(*s).fell = true;
+  task.episode_metrics(*s, m);
+  EXPECT_EQ(m[6], 0.f);
+}
+
+TEST(McLari, EvaluationConditionsAreTheTerrainsOnce) {
+  // Evaluation episode k starts on the k-th distinct terrain of the config's list (a terrain listed
+  // twice is drawn twice as often in training, but is one condition).
+  farm::config::MclariConfig c;
+  for (int t : {4, 1, 4, 3}) c.add_terrains(t);
+  McLariTask task(c);
+  ASSERT_EQ(task.eval_conditions(), 3);
+  auto s = task.make_state();
+  float obs[4];
+  const int want[5] = {4, 1, 3, 4, 1};
+  for (int k = 0; k < 5; ++k) {
+    task.reset_in_condition(*s, 11, k, obs);
+    EXPECT_EQ(st(*s).terrain, want[k]) << "condition " << k;
+  }
+  McLariTask all(farm::config::MclariConfig{});
+  EXPECT_EQ(all.eval_conditions(), 6);
 }
 
 TEST(McLari, TendonsPushOnlyBelowTheirRestLength) {
@@ -384,6 +445,12 @@ TEST(McLari, BadConfigIsNamed) {
   c = {};
   c.set_steps_per_period(0);
   expect_error(c, "steps_per_period");
+  c = {};
+  c.add_goal_efficiency(0.2);
+  expect_error(c, "goal_efficiency");  // one per terrain
+  c = {};
+  for (int t = 0; t < 6; ++t) c.add_goal_efficiency(t == 3 ? 0 : 0.2);
+  expect_error(c, "goal_efficiency");  // > 0
   c = {};
   c.set_reduced_groups(true);
   c.set_initial_group(8);

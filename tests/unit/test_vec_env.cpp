@@ -255,5 +255,35 @@ TEST(EvaluatePolicy, RunsFullDeterministicEpisodes) {
   EXPECT_TRUE(evaluate_policy(task, p, 0, 1).empty());
 }
 
+TEST(EvaluatePolicy, SpreadsEpisodesOverTheTasksConditions) {
+  // mCLARI's evaluation conditions are its terrains: episode k of an evaluation whose first episode
+  // is number `first` starts on terrain (first + k) mod 6, whatever the seed; training resets draw.
+  config::TaskConfig cfg;
+  cfg.set_name("mclari");
+  auto* m = cfg.mutable_mclari();
+  m->set_fixed_frequency(1);
+  m->set_fixed_group(11);
+  m->set_max_episode_steps(1);
+  std::shared_ptr<const robots::Task> task = robots::make_task(cfg);
+  ASSERT_EQ(task->eval_conditions(), 6);
+  PolicyParams p;
+  p.layout = {{4, 8, 4}, Activation::kTanh};  // mean and log-std of 2 actions
+  p.params.assign(p.layout.num_params(), 0.f);
+  const int terrain = 3;  // metric "terrain"
+  ASSERT_EQ(task->spec().metric_names[terrain], "terrain");
+  for (uint32_t first : {0u, 4u, 11u}) {
+    const auto records = evaluate_policy(task, p, 4, 17 + first, nullptr, first);
+    ASSERT_EQ(records.size(), 4u);
+    for (int k = 0; k < 4; ++k)
+      EXPECT_EQ(int(records[k].metrics[terrain]), int((first + k) % 6)) << "first " << first << ", episode " << k;
+  }
+  // A task without conditions resets as before: the pendulum's episodes from seed 31 are the same
+  // whatever first_episode says.
+  auto pend = pendulum(20);
+  const auto a = evaluate_policy(pend, random_policy(8), 3, 31, nullptr, 0);
+  const auto b = evaluate_policy(pend, random_policy(8), 3, 31, nullptr, 5);
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(a[k].episode_return, b[k].episode_return);
+}
+
 }  // namespace
 }  // namespace farm
