@@ -182,22 +182,16 @@ void check_mclari(const Section& s, const config::MclariConfig& c) {
   for (int i = 0; i < c.terrains_size(); ++i)
     if (c.terrains(i) < 0 || c.terrains(i) >= kMclariTerrains)
       s.fail("terrains", "entries must be in [0, " + num(kMclariTerrains) + "), got " + num(c.terrains(i)), i);
-  if (c.reference_efficiency_size() != 0 && c.reference_efficiency_size() != kMclariTerrains)
-    s.fail("reference_efficiency", "expected one value per terrain (" + num(kMclariTerrains) + ") or none, got " +
-                                       num(c.reference_efficiency_size()));
-  for (int t = 0; t < c.reference_efficiency_size(); ++t) {
-    const double r = c.reference_efficiency(t);
-    if (!(r > 0) || !std::isfinite(r))
-      s.fail("reference_efficiency", "expected finite values > 0, got " + num(r) + " for terrain " + num(t), t);
-  }
-  if (c.goal_efficiency_size() != 0 && c.goal_efficiency_size() != kMclariTerrains)
-    s.fail("goal_efficiency", "expected one value per terrain (" + num(kMclariTerrains) + ") or none, got " +
-                                  num(c.goal_efficiency_size()));
-  for (int t = 0; t < c.goal_efficiency_size(); ++t) {
-    const double r = c.goal_efficiency(t);
-    if (!(r > 0) || !std::isfinite(r))
-      s.fail("goal_efficiency", "expected finite values > 0, got " + num(r) + " for terrain " + num(t), t);
-  }
+  // One finite value > 0 per terrain, or none.
+  const auto per_terrain = [&s](const char* field, const pb::RepeatedField<double>& values) {
+    if (!values.empty() && values.size() != kMclariTerrains)
+      s.fail(field, "expected one value per terrain (" + num(kMclariTerrains) + ") or none, got " + num(values.size()));
+    for (int t = 0; t < values.size(); ++t)
+      if (!(values.Get(t) > 0) || !std::isfinite(values.Get(t)))
+        s.fail(field, "expected finite values > 0, got " + num(values.Get(t)) + " for terrain " + num(t), t);
+  };
+  per_terrain("reference_efficiency", c.reference_efficiency());
+  per_terrain("goal_efficiency", c.goal_efficiency());
   s.at_least("hfield_size", c.hfield_size(), 2);
   s.positive("hfield_sigma", c.hfield_sigma());
   s.check(c.hfield_filter() >= 1 && c.hfield_filter() % 2 == 1, "hfield_filter",
