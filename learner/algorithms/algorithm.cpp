@@ -18,10 +18,9 @@ std::string eval_counts(const FarmFigures& f) {
 }
 
 std::string best_eval_line(const FarmFigures& f) {
-  if (f.best_measure == "return") return "best eval return  " + fmt("%.1f", f.best_eval);
   std::string label = "best eval " + f.best_measure;
-  label.resize(std::max<size_t>(label.size() + 1, 18), ' ');
-  return label + fmt("%.4f", f.best_eval);
+  label.resize(std::max<size_t>(label.size() + 1, 18), ' ');  // the summary's value column
+  return label + fmt(f.best_measure == "return" ? "%.1f" : "%.4f", f.best_eval);
 }
 
 }  // namespace farm

@@ -26,7 +26,7 @@ std::string fmt(const char* f, double v);
 struct FarmFigures;
 // " | evals asked N answered M lost K invalid I" for a progress line.
 std::string eval_counts(const FarmFigures& f);
-// The summary's "best eval return  141.5" line (or "best eval share   0.872 (min)" by eval.best_metric).
+// The summary's "best eval return  141.5" line ("best eval share (min) 0.8712" by eval.best_metric).
 std::string best_eval_line(const FarmFigures& f);
 
 // What an evaluation reports: returns, lengths and the task's own metrics.
