@@ -89,6 +89,19 @@ bool mlp_isa_supported(MlpIsa isa) {
   return false;
 }
 
+void MlpLayout::check() const {
+  if (sizes.size() < 2)
+    throw std::invalid_argument("layout '" + describe() + "': needs at least an input and an output size");
+  if (sizes.size() > kMaxMlpLayers + 1)
+    throw std::invalid_argument("layout of " + std::to_string(sizes.size()) + " sizes: at most " +
+                                std::to_string(kMaxMlpLayers + 1) + " (" + std::to_string(kMaxMlpLayers) + " layers)");
+  for (size_t i = 0; i < sizes.size(); ++i) {
+    if (sizes[i] <= 0 || sizes[i] > kMaxMlpWidth)
+      throw std::invalid_argument("layout '" + describe() + "': size " + std::to_string(i) + " is " +
+                                  std::to_string(sizes[i]) + ", must be in 1.." + std::to_string(kMaxMlpWidth));
+  }
+}
+
 size_t MlpLayout::num_params() const {
   size_t n = 0;
   for (size_t l = 0; l + 1 < sizes.size(); ++l) {
@@ -105,15 +118,7 @@ std::string MlpLayout::describe() const {
 }
 
 EigenMlp::EigenMlp(const MlpLayout& layout, const std::vector<float>& params, MlpIsa isa) : layout_(layout) {
-  if (layout.sizes.size() < 2) {
-    throw std::invalid_argument("mlp layout '" + layout.describe() + "': needs at least an input and an output size");
-  }
-  for (size_t i = 0; i < layout.sizes.size(); ++i) {
-    if (layout.sizes[i] <= 0) {
-      throw std::invalid_argument("mlp layout '" + layout.describe() + "': size " + std::to_string(i) + " is " +
-                                  std::to_string(layout.sizes[i]) + ", must be > 0");
-    }
-  }
+  layout.check();
   if (!activation_known(int32_t(layout.activation))) {
     throw std::invalid_argument("mlp layout: unknown activation " + std::to_string(int(layout.activation)) +
                                 " (expected 0 relu, 1 tanh or 2 elu)");
@@ -168,16 +173,7 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
   if (p.head != PolicyHead::kSquashedGaussian && p.head != PolicyHead::kDiscreteQ && p.head != PolicyHead::kGaussian) {
     throw std::invalid_argument("policy head: unknown head " + std::to_string(int(p.head)));
   }
-  if (p.layout.sizes.size() < 2) {
-    throw std::invalid_argument("policy layout '" + p.layout.describe() +
-                                "': needs at least an input and an output size");
-  }
-  for (size_t i = 0; i < p.layout.sizes.size(); ++i) {
-    if (p.layout.sizes[i] <= 0) {
-      throw std::invalid_argument("policy layout '" + p.layout.describe() + "': size " + std::to_string(i) + " is " +
-                                  std::to_string(p.layout.sizes[i]) + ", must be > 0");
-    }
-  }
+  p.layout.check();
   const int out = p.layout.sizes.back();
   if (p.head == PolicyHead::kDiscreteQ && !(p.epsilon >= 0.f && p.epsilon <= 1.f)) {
     throw std::invalid_argument("policy: epsilon " + std::to_string(p.epsilon) + " is not a probability in [0, 1]");

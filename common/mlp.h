@@ -31,10 +31,19 @@ enum class PolicyHead : int32_t {
   kGaussian = 1,
 };
 
+// Bounds on a layout, far above any network of the farm, so that num_params() cannot overflow
+// (64 layers of at most 2^20 x 2^20 weights): a layout comes over the network (PolicyWeights), and
+// one whose count wrapped around 2^64 to the number of floats it carried would pass the size check.
+inline constexpr int kMaxMlpWidth = 1 << 20;
+inline constexpr size_t kMaxMlpLayers = 64;
+
 struct MlpLayout {
   std::vector<int> sizes;  // [input, hidden..., output]
   Activation activation = Activation::kRelu;
-  size_t num_params() const;
+  // Throws std::invalid_argument, naming what is wrong, unless there are 2 .. kMaxMlpLayers + 1
+  // sizes, each in 1 .. kMaxMlpWidth.
+  void check() const;
+  size_t num_params() const;     // the flat parameter count; call check() first
   std::string describe() const;  // e.g. "3-64-64-2 relu" (or tanh, elu)
 };
 

@@ -3,7 +3,7 @@
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
 //                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]] [--try-writers 1]
-//                 [--heartbeat 1]
+//                 [--heartbeat 1] [--eval-requests WORKER]
 // --id NAME names the participant and the worker id of its batches; with --security DIR of another
 // participant's certificate it is a modified sender writing under an id that is not its own.
 // --heartbeat 1: also publish a WorkerStatus heartbeat (worker NAME, state running) with each batch
@@ -21,6 +21,11 @@
 // print which ones DDS Security's access control let it create (`writers created [...], refused
 // [...]`), then exit 0. A writer the permissions deny is refused by Fast DDS at creation, so no
 // sample of it can reach anyone; the security test runs it with worker and monitor certificates.
+// --eval-requests WORKER: instead of a stream, rounds of six evaluation requests addressed to WORKER,
+// 50 ms apart, each wrong in one way: 0 episodes, 2^32 - 1 episodes, a first episode of 2^32 - 1, a policy
+// of another experiment, a policy of another version than the request's, and a policy whose layout
+// ([3, 2^31 - 1 x 4, 2^31 - 3, 1, 536870915, 2]) counts 2^64 + 8 parameters and carries 8. They
+// name a learner session of their own, so a learner does not take the answers for its own.
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -34,6 +39,41 @@
 #include "meter.h"
 
 namespace {
+
+// One round of --eval-requests: six requests to `worker`, each wrong in one way; returns how many
+// were written.
+int send_bad_eval_requests(farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType>& out,
+                           const std::string& experiment, const std::string& worker, uint64_t& next_id) {
+  const int big = 2147483647;
+  farm::msg::PolicyWeights good;
+  good.experiment_id(experiment);
+  good.version(5);
+  good.layer_sizes({3, 4, 2});
+  good.parameters(std::vector<float>(3 * 4 + 4 + 4 * 2 + 2, 0.f));
+  const auto request = [&](uint32_t episodes, uint32_t first, const farm::msg::PolicyWeights& policy) {
+    farm::msg::EvaluationRequest q;
+    q.experiment_id(experiment);
+    q.learner_session(77);
+    q.request_id(++next_id);
+    q.worker_id(worker);
+    q.policy_version(5);
+    q.episodes(episodes);
+    q.first_episode(first);
+    q.seed(1);
+    q.policy(policy);
+    const int written = int(out.write(q));
+    // Apart in time: a worker keeps the last few requests addressed to it until its loop checks them.
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    return written;
+  };
+  farm::msg::PolicyWeights other = good, versioned = good, wrapped = good;
+  other.experiment_id("another_experiment");
+  versioned.version(6);
+  wrapped.layer_sizes({3, big, big, big, big, big - 2, 1, 536870915, 2});
+  wrapped.parameters(std::vector<float>(8, 0.f));
+  return request(0, 0, good) + request(UINT32_MAX, 0, good) + request(1, UINT32_MAX, good) + request(1, 0, other) +
+         request(1, 0, versioned) + request(1, 0, wrapped);
+}
 
 // Tries one writer of type T on topic; true if Fast DDS created it.
 template <class T, class PubSubType>
@@ -76,7 +116,7 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false, oversize = false, try_writers = false, heartbeat = false;
-  std::string spec_config;
+  std::string spec_config, eval_worker;
   unsigned spec_steps = 4;
   try {
     for (int i = 1; i < argc; ++i) {
@@ -106,6 +146,8 @@ int main(int argc, char** argv) {
         try_writers = v == "1";
       else if (a == "--heartbeat")
         heartbeat = v == "1";
+      else if (a == "--eval-requests")
+        eval_worker = v;
       else
         throw std::invalid_argument("unknown flag " + a);
     }
@@ -122,6 +164,20 @@ int main(int argc, char** argv) {
     std::printf("%s: joined domain %d %s\n", id.c_str(), bus.domain(), how.c_str());
     std::fflush(stdout);
     if (try_writers) return try_every_writer(bus, id);
+    if (!eval_worker.empty()) {
+      farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
+          bus, farm::dds::kEvalRequestTopic, "batch_writer");
+      const double t0 = farm::now_seconds();
+      while (requests.matched() == 0 && farm::now_seconds() - t0 < 15)
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      uint64_t next_id = 0, sent = 0;
+      while (farm::now_seconds() - t0 < seconds) {
+        sent += send_bad_eval_requests(requests, experiment, eval_worker, next_id);
+      }
+      std::printf("%s: sent %llu evaluation requests to %s, readers matched %d\n", id.c_str(), (unsigned long long)sent,
+                  eval_worker.c_str(), requests.matched());
+      return 0;
+    }
     farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
                                                                                             "batch_writer");
     farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights(

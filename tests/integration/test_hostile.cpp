@@ -232,4 +232,55 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   set.cleanup(::testing::Test::HasFailure());
 }
 
+// Evaluation requests from a participant that is not the learner, addressed to a training worker,
+// each wrong in one way (farm_intruder --eval-requests): every one is refused by the worker with
+// what was wrong, the policy whose layout counts 2^64 + 8 parameters included, and the worker goes
+// on training; the learner, whose session the requests do not name, takes none of the answers, and
+// its own final evaluation is answered.
+TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(95));
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("it_hostile"), 10, "it_hostile_eval");
+  write_file(d + "/cfg.txtpb", cfg);
+  Proc& learner = set.start(
+      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  double first_update = -1;
+  ASSERT_TRUE(training_settled(d + "/run/learner.csv", &first_update)) << set.log("learner");
+  Proc& intruder = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_hostile_eval", "--id",
+                              "forger", "--seconds", "6", "--eval-requests", "hw"},
+                             "forger");
+  ASSERT_EQ(wait_for(intruder, 60), 0) << set.log("forger");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+
+  std::smatch m;
+  const std::string h = set.log("forger");
+  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) evaluation requests to hw, readers matched (\d+))")))
+      << h;
+  EXPECT_GE(std::stoll(m[1]), 60) << h;
+  const std::string wlog = set.log("worker");
+  for (const char* why : {R"(refused: episodes 0 outside 1\.\.2 )", R"(refused: episodes 4294967295 outside 1\.\.2 )",
+                          R"(refused: first episode 4294967295 \+ 1 episodes past 2 )",
+                          R"(refused: the policy carried is v5 of 'another_experiment', not v5)",
+                          R"(refused: the policy carried is v6 of 'it_hostile_eval', not v5)",
+                          R"(answered with an error: .*size 1 is 2147483647, must be in 1\.\.1048576)"})
+    EXPECT_TRUE(std::regex_search(wlog, std::regex(why))) << why << "\n" << wlog.substr(0, 4000);
+  ASSERT_TRUE(std::regex_search(wlog, m, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
+  const std::string sent = m[1];
+
+  const std::string summary = slurp(d + "/run/summary.txt");
+  EXPECT_TRUE(std::regex_search(
+      summary, m,
+      std::regex(
+          R"(hw session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream closed)")))
+      << summary;
+  EXPECT_EQ(m[1], sent) << summary;
+  EXPECT_NE(summary.find("evaluations       asked 1, answered 1, lost 0, invalid 0"), std::string::npos) << summary;
+  const std::string llog = set.log("learner");
+  EXPECT_NE(llog.find("final: mean return"), std::string::npos) << llog;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
 }  // namespace

@@ -433,5 +433,40 @@ TEST(Policy, RejectsInconsistentParams) {
   }
 }
 
+// A layout from the network whose parameter count wraps around 2^64 to the few floats it carries
+// ([3, 2^31 - 1 x 4, 2^31 - 3, 1, 536870915, 2] counts 2^64 + 8) passed the count check before the
+// bounds on sizes, and the network then read far past its 8 parameters. Refused now, by name.
+TEST(Policy, LayoutsBeyondTheBoundsAreRefusedBeforeTheirCount) {
+  PolicyParams wrap = small_policy(0.f);
+  const int big = 2147483647;
+  wrap.layout = {{3, big, big, big, big, big - 2, 1, 536870915, 2}, Activation::kRelu};
+  wrap.params.assign(8, 0.f);
+  for (const bool eigen : {false, true}) {
+    try {
+      if (eigen)
+        EigenMlp net(wrap.layout, wrap.params);
+      else
+        Policy policy(wrap);
+      FAIL() << "expected std::invalid_argument";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("size 1 is 2147483647, must be in 1..1048576"), std::string::npos)
+          << e.what();
+    }
+  }
+  PolicyParams deep = small_policy(0.f);
+  deep.layout.sizes.assign(kMaxMlpLayers + 2, 2);
+  deep.params.assign(deep.layout.num_params(), 0.f);
+  try {
+    Policy policy(deep);
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("layout of 66 sizes: at most 65 (64 layers)"), std::string::npos) << e.what();
+  }
+  // The widest and deepest layout allowed is counted without overflow.
+  MlpLayout widest{std::vector<int>(kMaxMlpLayers + 1, kMaxMlpWidth), Activation::kRelu};
+  EXPECT_NO_THROW(widest.check());
+  EXPECT_EQ(widest.num_params(), kMaxMlpLayers * (size_t(kMaxMlpWidth) * kMaxMlpWidth + kMaxMlpWidth));
+}
+
 }  // namespace
 }  // namespace farm
