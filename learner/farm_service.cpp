@@ -373,8 +373,13 @@ double FarmService::evaluation_score(const EvalReport& r) const {
 
 void FarmService::record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) {
   const double score = evaluation_score(report);
-  if (std::isnan(score) || score <= best_eval_) return;
   const std::string what = best_measure() + " " + fmt(cfg_.eval().best_metric().empty() ? "%.1f" : "%.4f", score);
+  // A named measure is not in the evaluation's own line (that gives means): each one is logged, so
+  // its curve along the run can be read from the log (tools/seeds.py plots it).
+  if (!cfg_.eval().best_metric().empty() && !std::isnan(score))
+    log("evaluation of policy v" + std::to_string(version) + " at " + fmt("%.1f", elapsed) + " s: " + what +
+        (std::isnan(best_eval_) ? "" : ", best so far " + fmt("%.4f", best_eval_)));
+  if (std::isnan(score) || score <= best_eval_) return;
   const double previous_best = best_eval_;
   best_eval_ = score;
   const double t = now_seconds();

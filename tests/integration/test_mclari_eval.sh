@@ -4,7 +4,8 @@
 # --trace writes each step's gait, which must lie in the config's group set and frequency range.
 # The learner's best policy (run/best) evaluates as the checkpoint when the final evaluation was its only one.
 # That evaluation (6 episodes, split over two workers) covers each terrain once, the second part
-# going on where the first ended, and the best is kept by its worst episode's share of the reference.
+# going on where the first ended, and the best is kept by its worst episode's share of the reference,
+# which the learner logs.
 # A small sweep's best.csv gives the comparison column, and the table says when the sweep's runs
 # were not as long as the episodes.
 # usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
@@ -40,6 +41,10 @@ grep -q "best evaluation so far (share (min) [0-9.]*, policy" "$T/learner.log" \
 grep -q "^best eval share (min) *[0-9.]*$" "$T/run/summary.txt" || { cat "$T/run/summary.txt"; fail "summary: no best share"; }
 grep -q 'best_eval_measure: "share (min)"' "$T/run/best/manifest.txtpb" \
     || { cat "$T/run/best/manifest.txtpb"; fail "run/best does not say what it is the best of"; }
+# Each evaluation's score by that measure is logged (its curve along a run); the only one is the best.
+score=$(sed -n 's/^\[learner\] evaluation of policy v[0-9]* at [0-9.]* s: share (min) \([0-9.]*\)$/\1/p' "$T/learner.log")
+best=$(sed -n 's/^best eval share (min) *\([0-9.]*\)$/\1/p' "$T/run/summary.txt")
+[ -n "$score" ] && [ "$score" = "$best" ] || { grep "evaluation of policy" "$T/learner.log"; fail "score '$score' logged, best '$best'"; }
 
 "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 2 --threads 2 \
     --trace "$T/trace.csv" > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }
