@@ -21,15 +21,19 @@ task's own goal:
 Writes DIR/seeds.md (per-seed table, then median and interquartile mean with a 95 % bootstrap
 interval over the seeds, as in Agarwal et al. 2021), DIR/seeds.csv and DIR/seeds.png (each seed's
 evaluation curve against wall time and the goal: success % for mobile robots, from the learner's log;
-its points in DIR/seeds_curves.csv). --report-only measures and reports runs already in
-DIR. Exit status 0 when every seed's kept best meets the goal, 1 otherwise. Runs with
-/usr/bin/python3 (Debian's matplotlib)."""
+its points in DIR/seeds_curves.csv; for the mCLARI microbot the worst terrain's share that the
+learner logs for each evaluation). --report-only measures and reports runs already in DIR: a
+policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used again when it was
+made by the same command after the policy was written, unless --remeasure. The table names the
+training's command (DIR/command.txt, written when training starts). Exit status 0 when every seed's
+kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
 import csv
 import math
 import os
 import random
 import re
+import shlex
 import subprocess
 import sys
 import time
@@ -38,6 +42,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WALKING_LIN, WALKING_FELL = 0.6, 0.1
 MOBILE_GOAL, MCLARI_GOAL, MCLARI_FALLS = 95.0, 90.0, 0.1
 SUCCESS_LABEL = "success % (learner's evaluations)"
+SHARE_LABEL = "worst terrain % of the best fixed point (learner's evaluations)"
 
 
 def fail(msg):
@@ -158,39 +163,80 @@ def measure_curve(run, kind, target, log=""):
                 final=number(ev[-1]["eval_tracking_lin"]), best_ok=walking(best_row), final_ok=walking(ev[-1]))
 
 
-def run_tool(cmd, log):
-    with open(log, "w") as f:
-        f.write("$ " + " ".join(cmd) + "\n")
+def newest_mtime(path):
+    """The latest modification time of path or of anything under it."""
+    t = os.path.getmtime(path)
+    for d, _, files in os.walk(path):
+        for f in files:
+            t = max(t, os.path.getmtime(os.path.join(d, f)))
+    return t
+
+
+def run_tool(cmd, log, policy, parse, remeasure):
+    """Runs cmd, its output into log (first line: the command), and returns parse(output); parse
+    gives None for an incomplete output. A log from the same command, newer than everything in the
+    policy folder and complete, is used as it is unless remeasure: a measurement takes minutes. A new
+    measurement is written to log + ".new" and replaces log only when complete."""
+    head = "$ " + " ".join(cmd)
+    if not remeasure and os.path.exists(log) and os.path.exists(policy) \
+            and os.path.getmtime(log) > newest_mtime(policy):
+        text = read_text(log)
+        if text.split("\n", 1)[0] == head and parse(text) is not None:
+            print(f"seeds: {log}: measured already by the same command after {policy} was written: used "
+                  "(--remeasure measures again)", file=sys.stderr)
+            return parse(text)
+    new = log + ".new"
+    with open(new, "w") as f:
+        f.write(head + "\n")
         f.flush()
-        p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        except OSError as e:
+            f.write(f"cannot run {cmd[0]}: {e}\n")
+            print(f"seeds: cannot run {cmd[0]}: {e.strerror} (build it, or give --build)", file=sys.stderr)
+            return None
         f.write(p.stdout)
-    if p.returncode != 0:
-        print(f"seeds: {' '.join(cmd)} exited {p.returncode}; see {log}", file=sys.stderr)
+    got = parse(p.stdout) if p.returncode == 0 else None
+    if got is None:
+        print(f"seeds: {' '.join(cmd)} exited {p.returncode} without a complete result; see {new}", file=sys.stderr)
         return None
-    return p.stdout
+    os.replace(new, log)
+    return got
 
 
-def measure_mobile(run, build, episodes, which):
-    cmd = [os.path.join(build, "tools", "farm-mobile-eval"), "--run-dir", run, "--episodes", str(episodes)]
-    if which == "best":
-        cmd.append("--best")
-    out = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"))
-    m = re.search(r"success rate\s+([0-9.]+) %", out or "")
-    return float(m.group(1)) if m else math.nan
+def parse_mobile(out):
+    m = re.search(r"success rate\s+([0-9.]+) %", out)
+    return float(m.group(1)) if m else None
 
 
-def measure_mclari(run, build, config, episodes, which):
-    ckpt = os.path.join(run, "checkpoint" if which == "final" else "best")
-    cmd = [os.path.join(build, "tools", "farm-mclari-eval"), "--config", config, "--checkpoint", ckpt,
-           "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"), "--episodes", str(episodes)]
-    out = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"))
+def parse_mclari(out):
+    """(worst terrain's share of the best fixed point in %, highest fall rate) from farm-mclari-eval's table."""
     ratios, falls = [], []
-    for m in re.finditer(r"^\| [a-z-]+ \| (\d+) \| [0-9.]+ \| (\d+) / (\d+) \|.*\| (\d+) % \|$", out or "", re.M):
+    for m in re.finditer(r"^\| [a-z-]+ \| (\d+) \| [0-9.]+ \| (\d+) / (\d+) \|.*\| (\d+) % \|$", out, re.M):
         ratios.append(float(m.group(4)))
         falls.append(int(m.group(2)) / max(1, int(m.group(3))))
-    if len(ratios) != 6:
-        return math.nan, math.nan
-    return min(ratios), max(falls)
+    return (min(ratios), max(falls)) if len(ratios) == 6 else None
+
+
+def policy_dir(run, which):
+    return os.path.join(run, "checkpoint" if which == "final" else "best")
+
+
+def measure_mobile(run, args, which):
+    cmd = [os.path.join(args.build, "tools", "farm-mobile-eval"), "--run-dir", run, "--episodes",
+           str(args.eval_episodes)]
+    if which == "best":
+        cmd.append("--best")
+    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), policy_dir(run, which), parse_mobile, args.remeasure)
+    return math.nan if got is None else got
+
+
+def measure_mclari(run, args, episodes, which):
+    cmd = [os.path.join(args.build, "tools", "farm-mclari-eval"), "--config", args.config, "--checkpoint",
+           policy_dir(run, which), "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"),
+           "--episodes", str(episodes)]
+    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), policy_dir(run, which), parse_mclari, args.remeasure)
+    return (math.nan, math.nan) if got is None else got
 
 
 # ---- statistics over seeds ----------------------------------------------------------------------
@@ -226,7 +272,13 @@ def bootstrap_ci(xs, stat=iqm, reps=2000, seed=0):
 
 # ---- training -----------------------------------------------------------------------------------
 
+def this_command():
+    return "tools/seeds.py " + shlex.join(sys.argv[1:])
+
+
 def train(args, text, seeds):
+    with open(os.path.join(args.out, "command.txt"), "w") as f:
+        f.write(this_command() + "\n")
     learner = args.learner_bin or os.path.join(args.build, "learner", "farm-learner")
     worker = args.worker_bin or os.path.join(args.build, "worker", "farm-worker")
     for b in (learner, worker):
@@ -311,12 +363,12 @@ def report(args, task, kind, target, seeds):
             r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,
                      best_ok=bool(curve and curve["best_ok"]), final_ok=bool(curve and curve["final_ok"]))
         elif kind == "mobile":
-            r["best"] = measure_mobile(run, args.build, args.eval_episodes, "best")
-            r["final"] = measure_mobile(run, args.build, args.eval_episodes, "final")
+            r["best"] = measure_mobile(run, args, "best")
+            r["final"] = measure_mobile(run, args, "final")
             r["best_ok"], r["final_ok"] = r["best"] >= MOBILE_GOAL, r["final"] >= MOBILE_GOAL
         else:
-            r["best"], r["best_falls"] = measure_mclari(run, args.build, args.config, 10, "best")
-            r["final"], r["final_falls"] = measure_mclari(run, args.build, args.config, 10, "final")
+            r["best"], r["best_falls"] = measure_mclari(run, args, 10, "best")
+            r["final"], r["final_falls"] = measure_mclari(run, args, 10, "final")
             r["best_ok"] = r["best"] >= MCLARI_GOAL and r["best_falls"] < MCLARI_FALLS
             r["final_ok"] = r["final"] >= MCLARI_GOAL and r["final_falls"] < MCLARI_FALLS
         # How far the final policy ends below the kept best, in % of the best's magnitude (returns
@@ -330,9 +382,10 @@ def report(args, task, kind, target, seeds):
         "mobile": (f"success >= {MOBILE_GOAL:g} % over {args.eval_episodes} fresh maps", "success %"),
         "mclari": (f"every terrain >= {MCLARI_GOAL:g} % of the best fixed point, < 1 fall in 10", "worst terrain %"),
     }[kind]
+    trained = read_text(os.path.join(args.out, "command.txt")).strip()
     lines = [f"# {os.path.basename(args.config)}: {len(seeds)} seeds", "",
-             f"Task `{task}`; goal: {goal}. Command: `tools/seeds.py {args.config} --seeds "
-             f"{','.join(map(str, seeds))} --workers {args.workers} --parallel {args.parallel}`", "",
+             f"Task `{task}`; goal: {goal}. Trained with: `{trained or 'not recorded (no command.txt)'}`"
+             + (f"; measured with: `{this_command()}`" if args.report_only else ""), "",
              f"| seed | wall time [s] | env steps | goal first met at [s] | kept best ({unit}) | final ({unit}) "
              "| final - best [% of best] | best meets goal | final meets goal |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -374,6 +427,13 @@ def log_success(log):
                                  text, re.M)]
 
 
+def log_share(log):
+    """(elapsed s, worst terrain's share in %) of every evaluation of an mCLARI run that the learner
+    logged by the measure "share (min)" (eval.best_metric / best_reduce)."""
+    return [(float(m.group(1)), round(100.0 * float(m.group(2)), 3))
+            for m in re.finditer(r"\] evaluation of policy v\d+ at ([0-9.]+) s: share \(min\) ([0-9.]+)", read_text(log))]
+
+
 def curve(out, s, kind):
     """(label, [(elapsed s, value)]) that the plot draws for seed s: the learner's evaluations of
     the goal's measure where it has them (success % for mobile robots, from the log), else the
@@ -383,6 +443,10 @@ def curve(out, s, kind):
         pts = log_success(os.path.join(out, "logs", f"seed{s}-learner.log"))
         if pts:
             return SUCCESS_LABEL, pts
+    if kind == "mclari":
+        pts = log_share(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        if pts:
+            return SHARE_LABEL, pts
     column = "eval_tracking_lin" if kind == "walking" else "eval_return"
     if kind == "return":
         pts = log_evals(os.path.join(out, "logs", f"seed{s}-learner.log"))
@@ -414,7 +478,8 @@ def plot(args, kind, target, seeds):
             ax.plot([t for t, _ in pts], [v for _, v in pts], marker="o", ms=3, label=f"seed {s}")
             labels.add(label)
     mobile_success = kind == "mobile" and labels == {SUCCESS_LABEL}
-    goal = WALKING_LIN if kind == "walking" else MOBILE_GOAL if mobile_success else target
+    goal = WALKING_LIN if kind == "walking" else MOBILE_GOAL if mobile_success else \
+        MCLARI_GOAL if labels == {SHARE_LABEL} else target
     if not math.isnan(goal):
         ax.axhline(goal, color="k", ls="--", lw=1, label="goal")
     ax.set_xlabel("wall time [s]")
@@ -443,6 +508,8 @@ def main():
                     "the evaluation programs; --report-only measures later)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--remeasure", action="store_true", help="measure each policy again even where its "
+                    "measurement from the same command is newer than the policy")
     args = ap.parse_args()
     try:
         seeds = [int(s) for s in args.seeds.split(",")]

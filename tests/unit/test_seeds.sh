@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # tools/seeds.py --report-only on hand-made runs: the per-seed table (time to goal, kept best,
-# final, final/best), the spread over seeds, the exit status, and the errors.
+# final, final/best), the spread over seeds, the exit status, the errors, and measurements used again.
 # usage: test_seeds.sh SOURCE_DIR
 set -euo pipefail
 SRC=$1
@@ -79,4 +79,41 @@ grep -q "no top-level \`seed: N\` line" <<< "$err" || fail "no seed line: $err"
 grep -v 'target_eval_return' "$T/pendulum.txtpb" > "$T/notarget.txtpb"
 err=$(seeds "$T/notarget.txtpb" --report-only --out "$T/p" 2>&1) && fail "return task without target accepted"
 grep -q "stop.target_eval_return, which the config does not set" <<< "$err" || fail "no target: $err"
+# The mCLARI microbot: each policy's farm-mclari-eval table, made by the same command after the
+# policy was written, is used again (no program to run here: --build names none); the plot draws the
+# worst terrain's share that the learner logged for each evaluation. A policy written after its
+# table is measured again, and a measurement that cannot run leaves the old table in place.
+cp "$SRC/deploy/configs/mclari_sac_terrain.txtpb" "$T/mcl.txtpb"
+R="$T/c/seed1"; mkdir -p "$R/best" "$R/checkpoint" "$T/c/logs"
+printf 'elapsed_s,env_steps,eval_return\n1500,80000,100\n' > "$R/learner.csv"
+touch -d '2 hours ago' "$R/best" "$R/checkpoint"
+table() {  # WHICH DIR ROUGH_DRY_PERCENT
+  echo "\$ $T/nobuild/tools/farm-mclari-eval --config $T/mcl.txtpb --checkpoint $R/$2 --best $SRC/docs/data/mclari_best_180s.csv --episodes 10"
+  for t in plain-normal plain-wet plain-dry rough-normal rough-wet; do
+    echo "| $t | 10 | 0.2623 | 0 / 10 | 0 / 10 | 150.0 | (pi/2, 0, pi), 150 Hz | 0.2624 | 100 % |"; done
+  echo "| rough-dry | 10 | 0.1472 | 0 / 10 | 0 / 10 | 1.0 | (pi/2, 0, pi), 1 Hz | 0.1573 | $3 % |"
+}
+table best best 94 > "$R/eval_best.txt"; table final checkpoint 46 > "$R/eval_final.txt"
+cat > "$T/c/logs/seed1-learner.log" <<'LOG'
+[learner] evaluation of policy v7 at 150.0 s: share (min) 0.4123
+[learner] evaluation of policy v9 at 300.0 s: share (min) 0.9512, best so far 0.4123
+LOG
+mseeds() { seeds "$T/mcl.txtpb" --seeds 1 --report-only --out "$T/c" --build "$T/nobuild" "$@"; }
+out=$(mseeds 2>&1) || fail "the kept best meets the goal, exit non-zero: $out"
+grep -q "^| 1 | 1500 | 80000 | - | 94 | 46 | -51 | yes | no |$" <<< "$out" || fail "mclari row: $out"
+[ "$(grep -c "measured already by the same command" <<< "$out")" = 2 ] || fail "the tables were not used again: $out"
+grep -q "Trained with: \`not recorded (no command.txt)\`; measured with: \`tools/seeds.py $T/mcl.txtpb" <<< "$out" \
+  || fail "the commands: $out"
+want="seed,elapsed_s,measure,value
+1,150.0,worst terrain % of the best fixed point (learner's evaluations),41.23
+1,300.0,worst terrain % of the best fixed point (learner's evaluations),95.12"
+[ "$(tr -d '\r' < "$T/c/seeds_curves.csv")" = "$want" ] || fail "mclari curve: $(cat "$T/c/seeds_curves.csv")"
+echo "tools/seeds.py $T/mcl.txtpb --seeds 1 --workers 7" > "$T/c/command.txt"
+touch "$R/best/manifest.txtpb"
+out=$(mseeds 2>&1) && fail "the kept best could not be measured, exit 0: $out"
+grep -q "Trained with: \`tools/seeds.py $T/mcl.txtpb --seeds 1 --workers 7\`" <<< "$out" || fail "training command: $out"
+grep -q "^| 1 | 1500 | 80000 | - | - | 46 | - | no | no |$" <<< "$out" || fail "mclari row, best not measured: $out"
+grep -q "seeds: cannot run $T/nobuild/tools/farm-mclari-eval: No such file or directory" <<< "$out" || fail "missing program: $out"
+grep -q "| rough-dry .* | 94 % |$" "$R/eval_best.txt" || fail "the old table was lost: $(cat "$R/eval_best.txt")"
+
 echo "seeds.py report: ok"
