@@ -84,6 +84,7 @@ int WorkerApp::run() {
       ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   sender_ = std::thread([this] { sender_main(); });
+  beat_thread_ = std::thread([this] { beat_main(); });
   double last_wait_note = -1e9;
   while (!stop_) {
     poll_spec();
@@ -267,6 +268,7 @@ void WorkerApp::poll_weights() {
 
 void WorkerApp::finish() {
   finishing_ = true;
+  stop_beat_thread();  // no status of the loop's sent after the last one
   stop_eval_thread();
   end_stream();
   state_ = "finished";
@@ -298,6 +300,11 @@ void WorkerApp::heartbeat(bool force) {
   s.policy_version(rollout_ ? rollout_->policy_version() : 0);
   s.state(state);
   s.last_error(last_error_);
+  {
+    std::lock_guard<std::mutex> lk(beat_mu_);
+    beat_ = s;
+    beat_built_ = beat_sent_ = t;
+  }
   status_out_.write(s);
   if (t - last_log_ >= opt_.log_every && rollout_) {
     // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).
@@ -339,7 +346,31 @@ std::string WorkerApp::time_split(double t) {
   return s;
 }
 
+void WorkerApp::beat_main() {
+  std::unique_lock<std::mutex> lk(beat_mu_);
+  while (!beat_stop_) {
+    beat_cv_.wait_for(lk, std::chrono::milliseconds(250), [this] { return beat_stop_; });
+    const double t = now_seconds();
+    if (beat_stop_ || beat_built_ < 0 || t - beat_sent_ < 1.0 || t - beat_built_ > kMaxLoopSilenceS) continue;
+    farm::msg::WorkerStatus s = beat_;  // write() takes a non-const sample
+    beat_sent_ = t;
+    lk.unlock();
+    status_out_.write(s);
+    lk.lock();
+  }
+}
+
+void WorkerApp::stop_beat_thread() {
+  {
+    std::lock_guard<std::mutex> lk(beat_mu_);
+    beat_stop_ = true;
+  }
+  beat_cv_.notify_all();
+  if (beat_thread_.joinable()) beat_thread_.join();
+}
+
 WorkerApp::~WorkerApp() {
+  stop_beat_thread();
   stop_eval_thread();
   if (sender_.joinable()) {  // run() did not finish (an exception): what is queued is dropped
     sender_give_up_ = true;

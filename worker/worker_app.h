@@ -80,6 +80,9 @@ class WorkerApp {
   void end_stream();
   void finish();
   void heartbeat(bool force = false);
+  // The beat thread: re-sends the loop's last status while the loop is busy in one long call.
+  void beat_main();
+  void stop_beat_thread();
   // Evaluation requests: checked on the main loop, run by eval_thread_, answered from there.
   void poll_eval_requests();
   // The answer to q from this worker's id and `session`, episodes and error still empty.
@@ -151,6 +154,18 @@ class WorkerApp {
   std::string state_ = "starting", last_error_;
   Meter steps_;
   double last_status_ = 0, last_log_ = 0;
+  // Heartbeats between the loop's own: one collect of a slow task (mCLARI: 4 steps of 4 envs, each
+  // step up to 3,000 physics steps) or an evaluation beside it on a busy host takes longer than the
+  // learner's worker_timeout_seconds (4 s), which then marked a live worker dead and gave up the
+  // evaluation it held. The beat thread re-sends the loop's last status every second the loop has
+  // not, as long as the loop built one within kMaxLoopSilenceS: a loop stuck longer goes silent.
+  static constexpr double kMaxLoopSilenceS = 60.0;
+  std::mutex beat_mu_;
+  std::condition_variable beat_cv_;
+  bool beat_stop_ = false;
+  farm::msg::WorkerStatus beat_;  // the loop's last status, and when it was built and last sent
+  double beat_built_ = -1, beat_sent_ = 0;
+  std::thread beat_thread_;
   uint64_t log_steps_ = 0;  // steps_.total() at the last log line
   // Where the wall time went, for the throughput line. The collect loop's waits: on the sender
   // (both buffers with it: back-pressure) and on the learner (throttled, no weights, no learner).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # farm-mclari-eval on a real checkpoint: a learner and a worker (real DDS) train the swept mCLARI
-# config for a few seconds with 6-step episodes; the evaluation prints the six-terrain table and
+# config for a few seconds with 6-step episodes and collects longer than the heartbeat timeout; the evaluation prints the six-terrain table and
 # --trace writes each step's gait, which must lie in the config's group set and frequency range.
 # The learner's best policy (run/best) evaluates as the checkpoint when the final evaluation was its only one.
 # That evaluation (6 episodes, split over two workers) covers each terrain once, the second part
@@ -22,8 +22,14 @@ fail() { echo "FAIL: $*"; exit 1; }
 sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seconds: 100000/' \
     -e 's/final_episodes: 6/final_episodes: 6 min_episodes_per_worker: 3 best_metric: "share" best_reduce: "min"/' \
     -e 's/    groups: \[5, 11, 15, 19, 20, 23\]/    groups: [5, 11, 15, 19, 20, 23]\n    max_episode_steps: 6/' \
+    -e 's/^  steps_per_batch: 4$/  steps_per_batch: 16/' \
     "$SRC/deploy/configs/mclari_sac_swept.txtpb" > "$T/c.txtpb"
 grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episodes of the swept config"
+grep -q "^  steps_per_batch: 16$" "$T/c.txtpb" || fail "could not lengthen the batches of the swept config"
+# Collects of 16 steps x 4 envs of 1 s each take the workers several seconds here, longer than the
+# heartbeat timeout: the workers stay live all the same (heartbeats beside the loop), and the parts
+# of the evaluation they hold are not given up.
+echo "worker_timeout_seconds: 2" >> "$T/c.txtpb"
 "$LEARNER" --config "$T/c.txtpb" --run-dir "$T/run" --domain 94 > "$T/learner.log" 2>&1 &
 L=$!; PIDS+=($L)
 "$WORKER" --domain 94 --id eval1 > "$T/worker.log" 2>&1 &
@@ -33,6 +39,9 @@ PIDS+=($!)
 wait $L || { tail -20 "$T/learner.log"; fail "learner failed"; }
 [ -d "$T/run/checkpoint/sac" ] || fail "no checkpoint in $T/run"
 grep -q "6 in all" "$T/learner.log" || { cat "$T/learner.log"; fail "the final evaluation was not split"; }
+grep -q "marked dead" "$T/learner.log" && { grep -B3 "marked dead" "$T/learner.log"; grep "steps/s" "$T/worker.log"; fail "a live worker was marked dead during a long collect"; }
+grep -q "^evaluations       asked 2, answered 2, lost 0, invalid 0" "$T/run/summary.txt" \
+    || { cat "$T/run/summary.txt"; fail "evaluations asked, answered or lost"; }
 # Terrains 0..5 once each: a mean terrain of 2.5 (both parts from terrain 0 would give 1.0).
 grep -q "^\[learner\] final: .* over 6 deterministic episodes.*, terrain 2.500," "$T/learner.log" \
     || { grep "final:" "$T/learner.log"; fail "the final evaluation did not run each terrain once"; }
