@@ -18,8 +18,8 @@ experiment_id: "it_worker_evals_$1"
 task { name: "pendulum" }
 sac { hidden: 32 hidden: 32 learning_starts: 100 batch_size: 64 publish_every_updates: 5 }
 worker { envs_per_worker: 4 steps_per_batch: 25 max_batches_per_version: 4 }
-# Evaluations of 1,500 episodes take the worker asked a few seconds: long enough to kill it while it
-# holds one.
+# Evaluations of 8,000 episodes, 4,000 a worker, take 2-7 s a part here: long enough to kill one
+# while it holds a part (parts of 750 took 0.2-0.8 s here, and the kill once came after the answer).
 eval { episodes: $2 every_seconds: 2 final_episodes: 20 answer_timeout_seconds: 60 }
 worker_timeout_seconds: 2
 checkpoint_every_seconds: 600
@@ -41,7 +41,7 @@ grep -q "^evaluations       asked 0, answered 0, lost 0, invalid 0" "$dir/alone/
   fail "alone: summary: $(grep evaluations "$dir/alone/summary.txt")"
 
 # 2. Two workers, one killed while it evaluates.
-config two 1500 25
+config two 8000 25
 "$learner" --config "$dir/two.txtpb" --run-dir "$dir/two" --domain $domain >"$dir/two.log" 2>&1 & lp=$!
 pids+=($lp)
 "$worker" --domain $domain --id ev-1 >"$dir/ev-1.log" 2>&1 & w1=$!
@@ -51,14 +51,14 @@ pids+=($w1 $w2)
 for w in ev-1 ev-2; do
   wait_text "$dir/two.log" "answered by $w " 60 || fail "no evaluation answered by $w within 60 s"
 done
-# Each evaluation is split over the two workers (eval.min_episodes_per_worker: 4 by default): 750
-# episodes each, asked of both, reported once as 1,500.
-wait_text "$dir/two.log" "complete: 1500 episodes from 2 workers" 60 ||
-  fail "no evaluation reported as 1500 episodes from 2 workers: $(grep 'asked of worker' "$dir/two.log" | head -4)"
-first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "750 episodes, part 1 of 2, 1500 in all)")
-grep -q "(eval, policy v[0-9]*, 750 episodes, part 2 of 2, 1500 in all) asked of worker ev-" <<<"$first" &&
+# Each evaluation is split over the two workers (eval.min_episodes_per_worker: 4 by default): 4,000
+# episodes each, asked of both, reported once as 8,000.
+wait_text "$dir/two.log" "complete: 8000 episodes from 2 workers" 60 ||
+  fail "no evaluation reported as 8000 episodes from 2 workers: $(grep 'asked of worker' "$dir/two.log" | head -4)"
+first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "4000 episodes, part 1 of 2, 8000 in all)")
+grep -q "(eval, policy v[0-9]*, 4000 episodes, part 2 of 2, 8000 in all) asked of worker ev-" <<<"$first" &&
   [ "$(grep -o 'asked of worker ev-[12]' <<<"$first" | sort -u | wc -l)" = 2 ] ||
-  fail "no evaluation asked as two parts of 750 of the two workers: $first"
+  fail "no evaluation asked as two parts of 4000 of the two workers: $first"
 # The next request: its worker is killed as soon as it says it has it.
 asked=$(grep -c "asked of worker" "$dir/two.log")
 for _ in $(seq 150); do [ "$(grep -c "asked of worker" "$dir/two.log")" -gt "$asked" ] && break; sleep 0.1; done
