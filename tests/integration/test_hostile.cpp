@@ -88,13 +88,29 @@ bool training_settled(const std::string& csv, double* first_update) {
       60);
 }
 
-TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
-  ProcessSet set;
-  const std::string d = set.dir(), domain = std::to_string(private_domain(91));
-  write_file(d + "/cfg.txtpb", kConfig);
+// A learner of kConfig, its experiment named `experiment`, and one worker "hw", on a private domain.
+struct Farm {
+  std::string dir, domain;
+  Proc& learner;
+  Proc& worker;
+};
+
+Farm start_farm(ProcessSet& set, int domain_offset, const std::string& experiment) {
+  const std::string d = set.dir(), domain = std::to_string(private_domain(domain_offset));
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("it_hostile"), 10, experiment);
+  write_file(d + "/cfg.txtpb", cfg);
   Proc& learner = set.start(
       {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
   Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  return {d, domain, learner, worker};
+}
+
+TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
+  ProcessSet set;
+  const Farm farm = start_farm(set, 91, "it_hostile");
+  const std::string &d = farm.dir, &domain = farm.domain;
+  Proc &learner = farm.learner, &worker = farm.worker;
   const std::string csv = d + "/run/learner.csv";
   double first_update = -1;
   ASSERT_TRUE(training_settled(csv, &first_update)) << set.log("learner");
@@ -157,13 +173,9 @@ constexpr double kOversizeRssBoundMiB = 320;
 
 TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   ProcessSet set;
-  const std::string d = set.dir(), domain = std::to_string(private_domain(93));
-  std::string cfg = kConfig;
-  cfg.replace(cfg.find("it_hostile"), 10, "it_oversize");
-  write_file(d + "/cfg.txtpb", cfg);
-  Proc& learner = set.start(
-      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
-  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  const Farm farm = start_farm(set, 93, "it_oversize");
+  const std::string &d = farm.dir, &domain = farm.domain;
+  Proc &learner = farm.learner, &worker = farm.worker;
   const std::string csv = d + "/run/learner.csv";
   double first_update = -1;
   ASSERT_TRUE(training_settled(csv, &first_update)) << set.log("learner");
@@ -239,13 +251,9 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
 // its own final evaluation is answered.
 TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
   ProcessSet set;
-  const std::string d = set.dir(), domain = std::to_string(private_domain(95));
-  std::string cfg = kConfig;
-  cfg.replace(cfg.find("it_hostile"), 10, "it_hostile_eval");
-  write_file(d + "/cfg.txtpb", cfg);
-  Proc& learner = set.start(
-      {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", d + "/run", "--domain", domain}, "learner");
-  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "hw", "--log-every", "2"}, "worker");
+  const Farm farm = start_farm(set, 95, "it_hostile_eval");
+  const std::string &d = farm.dir, &domain = farm.domain;
+  Proc &learner = farm.learner, &worker = farm.worker;
   double first_update = -1;
   ASSERT_TRUE(training_settled(d + "/run/learner.csv", &first_update)) << set.log("learner");
   Proc& intruder = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_hostile_eval", "--id",
