@@ -268,9 +268,9 @@ void WorkerApp::poll_weights() {
 
 void WorkerApp::finish() {
   finishing_ = true;
-  stop_beat_thread();  // no status of the loop's sent after the last one
-  stop_eval_thread();
+  stop_eval_thread();  // both may take seconds (an evaluation step, the last batches): still beating
   end_stream();
+  stop_beat_thread();  // no status of the loop's sent after the last one
   state_ = "finished";
   heartbeat(true);
   const uint64_t sent = sequence_;
@@ -301,11 +301,12 @@ void WorkerApp::heartbeat(bool force) {
   s.state(state);
   s.last_error(last_error_);
   {
+    // Under the lock with the write: the beat thread's copy of an older status never lands after it.
     std::lock_guard<std::mutex> lk(beat_mu_);
     beat_ = s;
     beat_built_ = beat_sent_ = t;
+    status_out_.write(s);
   }
-  status_out_.write(s);
   if (t - last_log_ >= opt_.log_every && rollout_) {
     // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).
     if (last_log_ > 0) rate = double(steps_.total() - log_steps_) / (t - last_log_);
@@ -351,12 +352,10 @@ void WorkerApp::beat_main() {
   while (!beat_stop_) {
     beat_cv_.wait_for(lk, std::chrono::milliseconds(250), [this] { return beat_stop_; });
     const double t = now_seconds();
-    if (beat_stop_ || beat_built_ < 0 || t - beat_sent_ < 1.0 || t - beat_built_ > kMaxLoopSilenceS) continue;
-    farm::msg::WorkerStatus s = beat_;  // write() takes a non-const sample
+    // Only when the loop is late (its own beat is due each second), so the two do not both send.
+    if (beat_stop_ || beat_built_ < 0 || t - beat_sent_ < 1.5 || t - beat_built_ > kMaxLoopSilenceS) continue;
     beat_sent_ = t;
-    lk.unlock();
-    status_out_.write(s);
-    lk.lock();
+    status_out_.write(beat_);
   }
 }
 

@@ -157,8 +157,9 @@ class WorkerApp {
   // Heartbeats between the loop's own: one collect of a slow task (mCLARI: 4 steps of 4 envs, each
   // step up to 3,000 physics steps) or an evaluation beside it on a busy host takes longer than the
   // learner's worker_timeout_seconds (4 s), which then marked a live worker dead and gave up the
-  // evaluation it held. The beat thread re-sends the loop's last status every second the loop has
-  // not, as long as the loop built one within kMaxLoopSilenceS: a loop stuck longer goes silent.
+  // evaluation it held. The beat thread re-sends the loop's last status when the loop has sent none
+  // for 1.5 s (at most about 1.75 s apart), as long as the loop built one within kMaxLoopSilenceS: a
+  // loop stuck longer goes silent. Both write under beat_mu_, so statuses go out in order.
   static constexpr double kMaxLoopSilenceS = 60.0;
   std::mutex beat_mu_;
   std::condition_variable beat_cv_;
