@@ -14,6 +14,8 @@
 #include <utility>
 #include <vector>
 
+#include "mlp.h"
+
 #include "config.h"
 
 namespace farm::config_checks {
@@ -139,11 +141,16 @@ class Section {
     non_negative(f, x);
     finite(f, x);
   }
-  // Sizes of hidden layers, all > 0.
+  // Sizes of hidden layers: each in 1..kMaxMlpWidth, at most kMaxMlpLayers - 1 of them (with the
+  // output layer, the bounds every process holds a network to: common/mlp.h).
   template <typename List>
   void layer_sizes(const std::string& f, const List& sizes) const {
+    if (size_t(sizes.size()) > kMaxMlpLayers - 1)
+      fail(f, "expected at most " + std::to_string(kMaxMlpLayers - 1) + " hidden layers, got " +
+                  std::to_string(sizes.size()));
     for (int i = 0; i < sizes.size(); ++i)
-      if (sizes.Get(i) <= 0) fail(f, "expected sizes > 0, got " + num(sizes.Get(i)), i);
+      if (sizes.Get(i) <= 0 || sizes.Get(i) > kMaxMlpWidth)
+        fail(f, "expected sizes in 1.." + std::to_string(kMaxMlpWidth) + ", got " + std::to_string(sizes.Get(i)), i);
   }
   // Entries in [lo, hi], none twice; `range` says the bounds, `name` how an entry reads ("group 3").
   template <typename List, typename Name>

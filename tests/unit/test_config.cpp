@@ -275,6 +275,19 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "exp.txtpb:3:3: field 'sac.activation': expected \"relu\" or \"tanh\", got \"elu\"");
 }
 
+// Networks within the bounds every worker holds a received network to (common/mlp.h): a config
+// beyond them trained weights that every worker then refused.
+TEST(Config, HiddenLayersWithinTheNetworkBounds) {
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  hidden: 1048576\n}\n"), "");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  hidden: 64\n  critic_hidden: 1048577\n}\n"),
+            "exp.txtpb:4:3: field 'sac.critic_hidden': expected sizes in 1..1048576, got 1048577");
+  std::string deep = "experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n";
+  for (int i = 0; i < 64; ++i) deep += "  hidden: 4\n";
+  EXPECT_NE(error_of(deep + "}\n").find("field 'ppo.hidden': expected at most 63 hidden layers, got 64"),
+            std::string::npos)
+      << error_of(deep + "}\n");
+}
+
 TEST(Config, TheKeptBestIsByReturnOrANamedMetric) {
   const std::string head = "experiment_id: \"a\"\ntask { name: \"mclari\" }\neval {\n";
   EXPECT_EQ(error_of(head + "  best_metric: \"share\"\n  best_reduce: \"min\"\n}\n"), "");

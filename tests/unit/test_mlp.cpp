@@ -435,7 +435,8 @@ TEST(Policy, RejectsInconsistentParams) {
 
 // A layout from the network whose parameter count wraps around 2^64 to the few floats it carries
 // ([3, 2^31 - 1 x 4, 2^31 - 3, 1, 536870915, 2] counts 2^64 + 8) passed the count check before the
-// bounds on sizes, and the network then read far past its 8 parameters. Refused now, by name.
+// bounds on sizes, and only the allocator stopped the network's packing of it (std::length_error,
+// after an int overflow). Refused now, by name, before anything is counted or allocated.
 TEST(Policy, LayoutsBeyondTheBoundsAreRefusedBeforeTheirCount) {
   PolicyParams wrap = small_policy(0.f);
   const int big = 2147483647;
