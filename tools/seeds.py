@@ -163,29 +163,33 @@ def measure_curve(run, kind, target, log=""):
                 final=number(ev[-1]["eval_tracking_lin"]), best_ok=walking(best_row), final_ok=walking(ev[-1]))
 
 
-def newest_mtime(path):
-    """The latest modification time of path or of anything under it."""
+def newest_mtime(path, skip=()):
+    """The latest modification time of path or of anything under it but the paths in skip."""
     t = os.path.getmtime(path)
     for d, _, files in os.walk(path):
         for f in files:
-            t = max(t, os.path.getmtime(os.path.join(d, f)))
+            if os.path.join(d, f) not in skip:
+                t = max(t, os.path.getmtime(os.path.join(d, f)))
     return t
 
 
-def run_tool(cmd, log, policy, parse, remeasure):
+def run_tool(cmd, log, parse, remeasure):
     """Runs cmd, its output into log (first line: the command), and returns parse(output); parse
-    gives None for an incomplete output. A log from the same command, newer than everything in the
-    policy folder and complete, is used as it is unless remeasure: a measurement takes minutes. A new
-    measurement is written to log + ".new" and replaces log only when complete."""
+    gives None for an incomplete output. A complete log of the same command, begun after every file
+    the command names was last written (program, config, policy folder, reference), is used as it is
+    unless remeasure: a measurement takes minutes. A new measurement is written to log + ".new" and
+    replaces log only when complete; the log's time is then when it began."""
     head = "$ " + " ".join(cmd)
-    if not remeasure and os.path.exists(log) and os.path.exists(policy) \
-            and os.path.getmtime(log) > newest_mtime(policy):
+    new = log + ".new"
+    # farm-mobile-eval names the run folder, which holds the measurements too.
+    named = [newest_mtime(x, skip=(log, new)) for x in cmd if os.path.exists(x)]
+    if not remeasure and os.path.exists(log) and os.path.getmtime(log) > max(named, default=0):
         text = read_text(log)
         if text.split("\n", 1)[0] == head and parse(text) is not None:
-            print(f"seeds: {log}: measured already by the same command after {policy} was written: used "
-                  "(--remeasure measures again)", file=sys.stderr)
+            print(f"seeds: {log}: measured already by the same command, after what it names was written: "
+                  "used (--remeasure measures again)", file=sys.stderr)
             return parse(text)
-    new = log + ".new"
+    began = time.time()
     with open(new, "w") as f:
         f.write(head + "\n")
         f.flush()
@@ -201,6 +205,7 @@ def run_tool(cmd, log, policy, parse, remeasure):
         print(f"seeds: {' '.join(cmd)} exited {p.returncode} without a complete result; see {new}", file=sys.stderr)
         return None
     os.replace(new, log)
+    os.utime(log, (began, began))
     return got
 
 
@@ -227,7 +232,7 @@ def measure_mobile(run, args, which):
            str(args.eval_episodes)]
     if which == "best":
         cmd.append("--best")
-    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), policy_dir(run, which), parse_mobile, args.remeasure)
+    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), parse_mobile, args.remeasure)
     return math.nan if got is None else got
 
 
@@ -235,7 +240,7 @@ def measure_mclari(run, args, episodes, which):
     cmd = [os.path.join(args.build, "tools", "farm-mclari-eval"), "--config", args.config, "--checkpoint",
            policy_dir(run, which), "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"),
            "--episodes", str(episodes)]
-    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), policy_dir(run, which), parse_mclari, args.remeasure)
+    got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), parse_mclari, args.remeasure)
     return (math.nan, math.nan) if got is None else got
 
 
@@ -277,13 +282,16 @@ def this_command():
 
 
 def train(args, text, seeds):
-    with open(os.path.join(args.out, "command.txt"), "w") as f:
-        f.write(this_command() + "\n")
     learner = args.learner_bin or os.path.join(args.build, "learner", "farm-learner")
     worker = args.worker_bin or os.path.join(args.build, "worker", "farm-worker")
     for b in (learner, worker):
         if not os.access(b, os.X_OK):
             fail(f"{b} not found: build first (deploy/build.sh) or give --build")
+    for s in seeds:  # before anything starts, or command.txt is written
+        if os.path.exists(os.path.join(args.out, f"seed{s}")):
+            fail(f"{os.path.join(args.out, f'seed{s}')} exists: give another --out, or --report-only to report it")
+    with open(os.path.join(args.out, "command.txt"), "w") as f:
+        f.write(this_command() + "\n")
     profiles = os.path.join(ROOT, "deploy", "discovery", "local.xml")
     pending, running = list(seeds), []
     free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
@@ -298,8 +306,6 @@ def train(args, text, seeds):
             if args.gpus:
                 env["CUDA_VISIBLE_DEVICES"] = args.gpus[slot % len(args.gpus)]
             run = os.path.join(args.out, f"seed{s}")
-            if os.path.exists(run):
-                fail(f"{run} exists: give another --out, or --report-only to report it")
             cfg = os.path.join(args.out, f"seed{s}.txtpb")
             with open(cfg, "w") as f:
                 f.write(re.sub(r"^seed:\s*\d+\s*$", f"seed: {s}", text, count=1, flags=re.M))

@@ -167,9 +167,10 @@ int main(int argc, char** argv) {
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
           bus, farm::dds::kEvalRequestTopic, "batch_writer");
-      const double t0 = farm::now_seconds();
-      while (requests.matched() == 0 && farm::now_seconds() - t0 < 15)
+      const double t_match = farm::now_seconds();
+      while (requests.matched() == 0 && farm::now_seconds() - t_match < 15)
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      const double t0 = farm::now_seconds();  // --seconds of requests once matched
       uint64_t next_id = 0, sent = 0;
       while (farm::now_seconds() - t0 < seconds) {
         sent += send_bad_eval_requests(requests, experiment, eval_worker, next_id);

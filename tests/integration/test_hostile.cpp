@@ -268,6 +268,7 @@ TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
   ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) evaluation requests to hw, readers matched (\d+))")))
       << h;
   EXPECT_GE(std::stoll(m[1]), 60) << h;
+  EXPECT_GE(std::stoi(m[2]), 1) << h;
   const std::string wlog = set.log("worker");
   for (const char* why : {R"(refused: episodes 0 outside 1\.\.2 )", R"(refused: episodes 4294967295 outside 1\.\.2 )",
                           R"(refused: first episode 4294967295 \+ 1 episodes past 2 )",
