@@ -23,8 +23,8 @@ interval over the seeds, as in Agarwal et al. 2021), DIR/seeds.csv and DIR/seeds
 evaluation curve against wall time and the goal: success % for mobile robots, from the learner's log;
 its points in DIR/seeds_curves.csv; for the mCLARI microbot the worst terrain's share that the
 learner logs for each evaluation). --report-only measures and reports runs already in DIR: a
-policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used again when it was
-made by the same command after the policy was written, unless --remeasure. The table names the
+policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used again when the same
+command made it, begun after every file the command names was written, unless --remeasure. The table names the
 training's command (DIR/command.txt, written when training starts). Exit status 0 when every seed's
 kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
@@ -163,14 +163,18 @@ def measure_curve(run, kind, target, log=""):
                 final=number(ev[-1]["eval_tracking_lin"]), best_ok=walking(best_row), final_ok=walking(ev[-1]))
 
 
-def newest_mtime(path, skip=()):
-    """The latest modification time of path or of anything under it but the paths in skip."""
-    t = os.path.getmtime(path)
-    for d, _, files in os.walk(path):
-        for f in files:
-            if os.path.join(d, f) not in skip:
-                t = max(t, os.path.getmtime(os.path.join(d, f)))
-    return t
+MEASUREMENT = re.compile(r"eval_[a-z]+\.txt(\.new)?$")
+
+
+def newest_mtime(path):
+    """The latest modification time of the file path, or of the files under the folder path (its
+    own time changes with any file made in it), measurements (eval_*.txt) aside: farm-mobile-eval
+    names the run folder, which holds them. A folder without such files: its own time."""
+    if not os.path.isdir(path):
+        return os.path.getmtime(path)
+    times = [os.path.getmtime(os.path.join(d, f)) for d, _, files in os.walk(path) for f in files
+             if not MEASUREMENT.match(f)]
+    return max(times, default=os.path.getmtime(path))
 
 
 def run_tool(cmd, log, parse, remeasure):
@@ -181,8 +185,7 @@ def run_tool(cmd, log, parse, remeasure):
     replaces log only when complete; the log's time is then when it began."""
     head = "$ " + " ".join(cmd)
     new = log + ".new"
-    # farm-mobile-eval names the run folder, which holds the measurements too.
-    named = [newest_mtime(x, skip=(log, new)) for x in cmd if os.path.exists(x)]
+    named = [newest_mtime(x) for x in cmd if os.path.exists(x)]
     if not remeasure and os.path.exists(log) and os.path.getmtime(log) > max(named, default=0):
         text = read_text(log)
         if text.split("\n", 1)[0] == head and parse(text) is not None:

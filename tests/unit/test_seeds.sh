@@ -116,4 +116,17 @@ grep -q "^| 1 | 1500 | 80000 | - | - | 46 | - | no | no |$" <<< "$out" || fail "
 grep -q "seeds: cannot run $T/nobuild/tools/farm-mclari-eval: No such file or directory" <<< "$out" || fail "missing program: $out"
 grep -q "| rough-dry .* | 94 % |$" "$R/eval_best.txt" || fail "the old table was lost: $(cat "$R/eval_best.txt")"
 
+# A mobile robot's two measurements name the same run folder, which holds both: each is used again
+# (the other's table, written later, is not taken for a newer policy).
+cp "$SRC/deploy/configs/kaya_sac.txtpb" "$T/kaya.txtpb"
+K="$T/k/seed1"; mkdir -p "$K/best" "$K/checkpoint"
+printf 'elapsed_s,env_steps,eval_return\n60,90000,9.5\n' > "$K/learner.csv"
+touch -d '2 hours ago' "$K/best" "$K/checkpoint" "$K/learner.csv" "$K"
+printf '$ %s\nsuccess rate   96.0 %%\n' "$T/nobuild/tools/farm-mobile-eval --run-dir $K --episodes 100 --best" > "$K/eval_best.txt"
+printf '$ %s\nsuccess rate   97.0 %%\n' "$T/nobuild/tools/farm-mobile-eval --run-dir $K --episodes 100" > "$K/eval_final.txt"
+touch -d '1 hour ago' "$K/eval_best.txt" "$K"
+out=$(seeds "$T/kaya.txtpb" --seeds 1 --report-only --out "$T/k" --build "$T/nobuild" 2>&1) || fail "mobile: exit non-zero: $out"
+grep -q "^| 1 | 60 | 90000 | - | 96 | 97 | +1 | yes | yes |$" <<< "$out" || fail "mobile row: $out"
+[ "$(grep -c "measured already by the same command" <<< "$out")" = 2 ] || fail "mobile tables not used again: $out"
+
 echo "seeds.py report: ok"
