@@ -217,6 +217,7 @@ void FarmService::take_answer() {
   rep.metrics_min.assign(e.num_metrics, NAN);
   double sum = 0, len = 0;
   for (const auto& ep : group.episodes) {
+    const bool first = &ep == &group.episodes.front();
     sum += ep.episode_return();
     len += ep.length();
     rep.min = std::isnan(rep.min) ? ep.episode_return() : std::min<double>(rep.min, ep.episode_return());
@@ -225,7 +226,6 @@ void FarmService::take_answer() {
       const double v = ep.metrics()[k];
       rep.metrics[k] += v;
       // The lowest episode's value; a NaN (a metric the task cannot compute) makes it NaN, as the mean.
-      const bool first = &ep == &group.episodes.front();
       rep.metrics_min[k] = first                                             ? v
                            : std::isnan(rep.metrics_min[k]) || std::isnan(v) ? NAN
                                                                              : std::min(rep.metrics_min[k], v);

@@ -226,10 +226,6 @@ def parse_mclari(out):
     return (min(ratios), max(falls)) if len(ratios) == 6 else None
 
 
-def policy_dir(run, which):
-    return os.path.join(run, "checkpoint" if which == "final" else "best")
-
-
 def measure_mobile(run, args, which):
     cmd = [os.path.join(args.build, "tools", "farm-mobile-eval"), "--run-dir", run, "--episodes",
            str(args.eval_episodes)]
@@ -241,7 +237,7 @@ def measure_mobile(run, args, which):
 
 def measure_mclari(run, args, episodes, which):
     cmd = [os.path.join(args.build, "tools", "farm-mclari-eval"), "--config", args.config, "--checkpoint",
-           policy_dir(run, which), "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"),
+           os.path.join(run, "checkpoint" if which == "final" else "best"), "--best", os.path.join(ROOT, "docs", "data", "mclari_best_180s.csv"),
            "--episodes", str(episodes)]
     got = run_tool(cmd, os.path.join(run, f"eval_{which}.txt"), parse_mclari, args.remeasure)
     return (math.nan, math.nan) if got is None else got
