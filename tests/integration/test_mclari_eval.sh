@@ -26,9 +26,9 @@ sed -e 's/max_seconds: 1500/max_seconds: 8/' -e 's/every_seconds: 600/every_seco
     "$SRC/deploy/configs/mclari_sac_swept.txtpb" > "$T/c.txtpb"
 grep -q "max_episode_steps: 6" "$T/c.txtpb" || fail "could not shorten the episodes of the swept config"
 grep -q "^  steps_per_batch: 16$" "$T/c.txtpb" || fail "could not lengthen the batches of the swept config"
-# Collects of 16 steps x 4 envs of 1 s each take the workers about 6 s here, twice the heartbeat
-# timeout (3 s): the workers stay live all the same (heartbeats beside the loop), and the parts
-# of the evaluation they hold are not given up.
+# Collects of 16 steps x 4 envs of 1 s each take the workers 6-8 s here (8-11 steps/s), twice the
+# heartbeat timeout (3 s) or more: the workers stay live all the same (heartbeats beside the
+# loop), and the parts of the evaluation they hold are not given up.
 echo "worker_timeout_seconds: 3" >> "$T/c.txtpb"
 "$LEARNER" --config "$T/c.txtpb" --run-dir "$T/run" --domain 94 > "$T/learner.log" 2>&1 &
 L=$!; PIDS+=($L)
