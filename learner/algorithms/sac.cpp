@@ -140,14 +140,22 @@ SacStats Sac::update(const SampledBatch& host_batch) {
     target =
         sac_critic_target(batch.rewards, batch.terminated, next_q[0], next_q[1], next_log_prob, alpha, s.cfg.gamma());
   }
+  torch::Tensor actor_loss;
+  auto actor_step = [&] {
+    const auto q_pi = s.critic->forward(batch.obs, pi_action);
+    actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
+    step(*s.actor_opt, s.actor_p, actor_loss);
+  };
+  // sac.actor_on_previous_critic: the actor's step against the critics before theirs. The critic
+  // target above was drawn from the actor before its step either way.
+  if (s.cfg.actor_on_previous_critic()) actor_step();
+
   const auto q = s.critic->forward(batch.obs, batch.actions);
   // Mean over both critics' rows = sb3's 0.5 * (mse(q1) + mse(q2)).
   const auto critic_loss = torch::mse_loss(q, target.unsqueeze(0).expand_as(q));
   step(*s.critic_opt, s.critic_p, critic_loss);
 
-  const auto q_pi = s.critic->forward(batch.obs, pi_action);
-  const auto actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
-  step(*s.actor_opt, s.actor_p, actor_loss);
+  if (!s.cfg.actor_on_previous_critic()) actor_step();
 
   {
     torch::NoGradGuard no_grad;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
+#include <tuple>
 
 #include "sac_impl.h"
 
@@ -78,7 +79,8 @@ struct GraphAdam {
 // dependency chain, not the kernel count. Three parts that the rest does not wait for run on side
 // streams, which capture turns into parallel branches of the graph: the critic target (the
 // policy's sample on next_obs and the target critics) from the start until the critic loss; the
-// temperature step after the policy's sample on obs; the polyak update after the critic step.
+// temperature step after the policy's sample on obs; the polyak update after the critic step; with
+// sac.actor_on_previous_critic, the actor's step from the policy's sample on obs to its Adam step.
 struct Sac::Impl::CudaGraph {
   // Updates run eagerly (on the capture streams) before capture, so that lazily created state
   // (cuBLAS handles and workspaces, autograd's device threads, allocator blocks, events) exists
@@ -95,7 +97,8 @@ struct Sac::Impl::CudaGraph {
         alpha_adam(*s.alpha_opt, s.log_alpha),
         capture_stream(c10::cuda::getStreamFromPool(false, device_index)),
         target_stream(c10::cuda::getStreamFromPool(false, device_index)),
-        alpha_stream(c10::cuda::getStreamFromPool(false, device_index)) {
+        alpha_stream(c10::cuda::getStreamFromPool(false, device_index)),
+        actor_stream(c10::cuda::getStreamFromPool(false, device_index)) {
     const int64_t o = s.obs_dim, a = s.act_dim;
     widths = {o, a, 1, 1, o};
     const auto f32 = torch::TensorOptions().dtype(torch::kFloat);
@@ -160,15 +163,27 @@ struct Sac::Impl::CudaGraph {
   // order (obs, then next_obs), which is what fixes their philox offsets.
   void body(Impl& s) {
     const c10::cuda::CUDAStream main = c10::cuda::getCurrentCUDAStream(device_index);
+    // sac.actor_on_previous_critic: the actor's step (from its sample on obs to its Adam step) as a
+    // branch of its own beside the critics' step. Backward ops run on the streams of their forward
+    // ops, so the sample must be on that branch too. The branch reads the critics' weights
+    // (forward, and backward to the action) before their step writes them, and writes the actor's
+    // weights after the target branch read them.
+    const bool beside = s.cfg.actor_on_previous_critic();
+    const c10::cuda::CUDAStream sampled_on = beside ? actor_stream : main;
     const auto alpha = s.log_alpha.detach().exp();  // the temperature before this update's step
     order_after(events[0], main, target_stream);
-    auto [pi_action, log_prob] = sample(s, obs);
+    if (beside) order_after(events[6], main, actor_stream);
+    torch::Tensor pi_action, log_prob;
+    {
+      c10::cuda::CUDAStreamGuard on(sampled_on);
+      std::tie(pi_action, log_prob) = sample(s, obs);
+    }
 
     torch::Tensor target;
     {
       c10::cuda::CUDAStreamGuard on_side(target_stream);
       torch::NoGradGuard no_grad;
-      // Main joins this stream before either step reads its count.
+      // Main joins this stream before either step reads its count (and so does the actor's branch).
       torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count, actor_adam.step_count}, 1);
       auto [next_action, next_log_prob] = sample(s, next_obs);
       const auto next_q = s.critic_target->forward(next_obs, next_action);
@@ -177,7 +192,7 @@ struct Sac::Impl::CudaGraph {
     }
 
     torch::Tensor alpha_loss, entropy;
-    order_after(events[1], main, alpha_stream);
+    order_after(events[1], sampled_on, alpha_stream);
     {
       c10::cuda::CUDAStreamGuard on_side(alpha_stream);
       alpha_loss = sac_temperature_loss(s.log_alpha, log_prob, s.target_entropy);
@@ -188,10 +203,28 @@ struct Sac::Impl::CudaGraph {
       entropy = log_prob.mean().neg();
     }
 
+    torch::Tensor actor_loss;
+    auto actor_step = [&] {
+      const auto q_pi = s.critic->forward(obs, pi_action);
+      actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
+      const auto grad = flat_grad(actor_loss, s.actor_p);
+      if (beside) {
+        events[7].record(actor_stream);  // the critics' weights read; main waits before their step
+        order_after(events[8], target_stream, actor_stream);
+      }
+      actor_adam.step(grad);
+    };
+    if (beside) {
+      c10::cuda::CUDAStreamGuard on_side(actor_stream);
+      actor_step();
+    }
+
     const auto q = s.critic->forward(obs, actions);
     order_after(events[2], target_stream, main);
     const auto critic_loss = torch::mse_loss(q, target.unsqueeze(0).expand_as(q));
-    critic_adam.step(flat_grad(critic_loss, s.critic_p));
+    const auto critic_grad = flat_grad(critic_loss, s.critic_p);
+    if (beside) events[7].block(main);
+    critic_adam.step(critic_grad);
 
     torch::Tensor q_mean;
     order_after(events[3], main, target_stream);
@@ -202,9 +235,10 @@ struct Sac::Impl::CudaGraph {
       q_mean = q.mean();
     }
 
-    const auto q_pi = s.critic->forward(obs, pi_action);
-    const auto actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
-    actor_adam.step(flat_grad(actor_loss, s.actor_p));
+    if (beside)
+      order_after(events[9], actor_stream, main);
+    else
+      actor_step();
 
     order_after(events[4], target_stream, main);
     order_after(events[5], alpha_stream, main);
@@ -251,8 +285,8 @@ struct Sac::Impl::CudaGraph {
   std::array<torch::Tensor, kSlots> host_in, host_out;
   torch::Tensor dev_in, obs, actions, rewards, terminated, next_obs, out;
   GraphAdam actor_adam, critic_adam, alpha_adam;
-  c10::cuda::CUDAStream capture_stream, target_stream, alpha_stream;
-  std::array<at::cuda::CUDAEvent, 6> events;
+  c10::cuda::CUDAStream capture_stream, target_stream, alpha_stream, actor_stream;
+  std::array<at::cuda::CUDAEvent, 10> events;
   std::unique_ptr<at::cuda::CUDAGraph> graph;
   int warmups_left = kWarmupUpdates;
 };

@@ -1,6 +1,7 @@
 // SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
 // the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
 //   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]
+//             [--actor-on-previous-critic]
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
 // On CUDA each size is measured three times in the same run: eager (sac.cuda_graph false), as
@@ -32,6 +33,9 @@ using Clock = std::chrono::steady_clock;
 
 // sac.cuda_tf32 for every SAC of the run (--tf32 / --no-tf32; default: the config's default).
 bool g_tf32 = farm::config::SacConfig().cuda_tf32();
+// sac.actor_on_previous_critic for every SAC of the run (--actor-on-previous-critic): on CUDA the
+// actor's and the critics' steps as parallel branches of the graph.
+bool g_beside = farm::config::SacConfig().actor_on_previous_critic();
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -137,6 +141,7 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   for (int i = 0; i < updates; ++i) batches.push_back(buf.sample(batch, rng));
   farm::config::SacConfig cfg;
   cfg.set_cuda_tf32(g_tf32);
+  cfg.set_actor_on_previous_critic(g_beside);
   for (int h : hidden) cfg.add_hidden(h);
   cfg.set_device(device);
   cfg.set_cuda_graph(false);
@@ -200,6 +205,8 @@ int main(int argc, char** argv) {
     } else if (!std::strcmp(argv[i], "--tf32") || !std::strcmp(argv[i], "--no-tf32")) {
       // sac.cuda_tf32 for every SAC of the run, eager and graph alike (default: the config's).
       g_tf32 = !std::strcmp(argv[i], "--tf32");
+    } else if (!std::strcmp(argv[i], "--actor-on-previous-critic")) {
+      g_beside = true;
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
       threads.clear();
       std::stringstream list(argv[++i]);
@@ -207,7 +214,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]\n",
+                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32] [--actor-on-previous-critic]\n",
                    argv[0]);
       return 2;
     }
@@ -222,6 +229,8 @@ int main(int argc, char** argv) {
   if (cuda)
     std::printf("sac.cuda_tf32 %s: matrix products in %s, eager and graph alike\n", g_tf32 ? "true" : "false",
                 g_tf32 ? "TF32 (cuBLAS)" : "full FP32");
+  std::printf("sac.actor_on_previous_critic %s: the actor's step %s\n", g_beside ? "true" : "false",
+              g_beside ? "beside the critics' (against them before their step)" : "after the critics'");
   if (cuda && check_updates > 0) {
     farm::configure_compute(threads.empty() ? 1 : threads[0]);
     ok = check_graph({256, 256}, batch, device, check_updates, buf, rng);
@@ -232,6 +241,7 @@ int main(int argc, char** argv) {
       farm::configure_compute(n_threads);
       farm::config::SacConfig cfg;
       cfg.set_cuda_tf32(g_tf32);
+      cfg.set_actor_on_previous_critic(g_beside);
       for (int h : hidden) cfg.add_hidden(h);
       cfg.set_device(device);
       const std::string net = describe(kObs, hidden, kAct);

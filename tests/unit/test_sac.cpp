@@ -118,6 +118,36 @@ TEST(Sac, AutoDeviceTakesTheGpuWhereThereIsOne) {
   if (torch::cuda::is_available()) EXPECT_FALSE(at::globalContext().allowTF32CuBLAS());
 }
 
+bool all_equal(const std::vector<torch::Tensor>& a, const std::vector<torch::Tensor>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (!torch::equal(a[i], b[i])) return false;
+  return true;
+}
+
+// sac.actor_on_previous_critic: the actor steps against the critics as they were before this
+// update's critic step. From the same start on the same batch: its actor is the actor of an
+// update whose critics do not move (critic_lr 0), its critics are those of the default order, and
+// its actor is not the default order's (whose actor saw the critics after their step).
+TEST(Sac, ActorOnPreviousCriticStepsAgainstTheCriticsBeforeTheirStep) {
+  auto after_cfg = small_config();
+  auto beside_cfg = after_cfg;
+  beside_cfg.set_actor_on_previous_critic(true);
+  auto still_cfg = after_cfg;
+  still_cfg.set_critic_lr(0.0);
+  Sac after(after_cfg, 3, 2, 5), beside(beside_cfg, 3, 2, 5), still(still_cfg, 3, 2, 5);
+  const auto critic0 = copies(still.critic_parameters());
+  // random_batch seeds the generators, so the three draw the same policy noise.
+  after.update(random_batch(64, 3, 2, 900));
+  beside.update(random_batch(64, 3, 2, 900));
+  still.update(random_batch(64, 3, 2, 900));
+  EXPECT_TRUE(all_equal(still.critic_parameters(), critic0));
+  EXPECT_TRUE(all_equal(beside.actor_parameters(), still.actor_parameters()));
+  EXPECT_TRUE(all_equal(beside.critic_parameters(), after.critic_parameters()));
+  EXPECT_FALSE(all_equal(beside.actor_parameters(), after.actor_parameters()));
+  EXPECT_FALSE(all_equal(beside.critic_parameters(), critic0));
+}
+
 TEST(Sac, TargetsStartEqualAndMoveByTau) {
   const auto cfg = small_config();
   Sac sac(cfg, 3, 1, 7);
@@ -274,27 +304,32 @@ void expect_stats_near(const SacStats& got, const SacStats& want, double tol, in
 }
 
 // Only where a GPU and a CUDA LibTorch are there: the CUDA-graph update (warm-up, capture, replays)
-// computes what the eager CUDA update computes from the same start on the same batches.
+// computes what the eager CUDA update computes from the same start on the same batches, with the
+// actor's step after the critics' and beside it (sac.actor_on_previous_critic).
 TEST(SacCuda, GraphUpdateMatchesEager) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
-  auto cfg = small_config();
-  cfg.set_device("cuda");
-  auto eager_cfg = cfg;
-  eager_cfg.set_cuda_graph(false);
-  Sac graph(cfg, 3, 2, 5), eager(eager_cfg, 3, 2, 5);
-  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
-  EXPECT_FALSE(eager.uses_cuda_graph());
-  constexpr double kTol = 1e-3;
-  // random_batch seeds the generators, so both instances draw the same policy noise.
-  for (int k = 0; k < 30; ++k) {
-    const SacStats g = graph.update(random_batch(64, 3, 2, 500 + k));
-    const SacStats e = eager.update(random_batch(64, 3, 2, 500 + k));
-    expect_stats_near(g, e, kTol, k);
+  for (const bool beside : {false, true}) {
+    SCOPED_TRACE(beside ? "actor_on_previous_critic" : "actor after the critics");
+    auto cfg = small_config();
+    cfg.set_device("cuda");
+    cfg.set_actor_on_previous_critic(beside);
+    auto eager_cfg = cfg;
+    eager_cfg.set_cuda_graph(false);
+    Sac graph(cfg, 3, 2, 5), eager(eager_cfg, 3, 2, 5);
+    if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+    EXPECT_FALSE(eager.uses_cuda_graph());
+    constexpr double kTol = 1e-3;
+    // random_batch seeds the generators, so both instances draw the same policy noise.
+    for (int k = 0; k < 30; ++k) {
+      const SacStats g = graph.update(random_batch(64, 3, 2, 500 + k));
+      const SacStats e = eager.update(random_batch(64, 3, 2, 500 + k));
+      expect_stats_near(g, e, kTol, k);
+    }
+    EXPECT_EQ(graph.updates(), 30);
+    EXPECT_LE(relative_difference(graph.actor_parameters(), eager.actor_parameters()), kTol);
+    EXPECT_LE(relative_difference(graph.critic_parameters(), eager.critic_parameters()), kTol);
+    EXPECT_LE(relative_difference(graph.target_critic_parameters(), eager.target_critic_parameters()), kTol);
   }
-  EXPECT_EQ(graph.updates(), 30);
-  EXPECT_LE(relative_difference(graph.actor_parameters(), eager.actor_parameters()), kTol);
-  EXPECT_LE(relative_difference(graph.critic_parameters(), eager.critic_parameters()), kTol);
-  EXPECT_LE(relative_difference(graph.target_critic_parameters(), eager.target_critic_parameters()), kTol);
 }
 
 // The optimizer state of graph updates goes through save/load: into an eager instance, and into a
