@@ -24,11 +24,13 @@ evaluation curve against wall time and the goal: success % for mobile robots, fr
 its points in DIR/seeds_curves.csv; for the mCLARI microbot the worst terrain's share that the
 learner logs for each evaluation). --report-only measures and reports runs already in DIR: a
 policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used again when the same
-command made it, begun after every file the command names was written, unless --remeasure. The table names the
+command made it, begun after every file the command names was written, unless --remeasure; where
+RUN/best holds the final policy itself (same version, same files), it is measured once. The table names the
 training's command (DIR/command.txt, written when training starts). Exit status 0 when every seed's
 kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
 import csv
+import filecmp
 import math
 import os
 import random
@@ -226,6 +228,25 @@ def parse_mclari(out):
     return (min(ratios), max(falls)) if len(ratios) == 6 else None
 
 
+def same_policy(run):
+    """The policy version when RUN/best holds the final policy itself (the run's last evaluation was
+    its best): the same policy_version in both manifests and every other file of RUN/best byte for
+    byte in RUN/checkpoint. None otherwise."""
+    best, final = os.path.join(run, "best"), os.path.join(run, "checkpoint")
+    versions = [re.search(r"^policy_version: (\d+)$", read_text(os.path.join(d, "manifest.txtpb")), re.M)
+                for d in (best, final)]
+    if not all(versions) or versions[0].group(1) != versions[1].group(1):
+        return None
+    for d, _, files in os.walk(best):
+        for f in files:
+            rel = os.path.relpath(os.path.join(d, f), best)
+            other = os.path.join(final, rel)
+            if rel != "manifest.txtpb" and not (os.path.isfile(other) and
+                                                 filecmp.cmp(os.path.join(d, f), other, shallow=False)):
+                return None
+    return versions[0].group(1)
+
+
 def measure_mobile(run, args, which):
     cmd = [os.path.join(args.build, "tools", "farm-mobile-eval"), "--run-dir", run, "--episodes",
            str(args.eval_episodes)]
@@ -368,14 +389,20 @@ def report(args, task, kind, target, seeds):
             r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,
                      best_ok=bool(curve and curve["best_ok"]), final_ok=bool(curve and curve["final_ok"]))
         elif kind == "mobile":
+            r["same"] = same_policy(run)
             r["best"] = measure_mobile(run, args, "best")
-            r["final"] = measure_mobile(run, args, "final")
+            r["final"] = r["best"] if r["same"] else measure_mobile(run, args, "final")
             r["best_ok"], r["final_ok"] = r["best"] >= MOBILE_GOAL, r["final"] >= MOBILE_GOAL
         else:
+            r["same"] = same_policy(run)
             r["best"], r["best_falls"] = measure_mclari(run, args, 10, "best")
-            r["final"], r["final_falls"] = measure_mclari(run, args, 10, "final")
+            r["final"], r["final_falls"] = ((r["best"], r["best_falls"]) if r["same"] else
+                                            measure_mclari(run, args, 10, "final"))
             r["best_ok"] = r["best"] >= MCLARI_GOAL and r["best_falls"] < MCLARI_FALLS
             r["final_ok"] = r["final"] >= MCLARI_GOAL and r["final_falls"] < MCLARI_FALLS
+        if r.get("same"):
+            print(f"seeds: seed {s}: the final policy is the kept best (policy v{r['same']}, the same files): "
+                  "measured once", file=sys.stderr)
         # How far the final policy ends below the kept best, in % of the best's magnitude (returns
         # may be negative, so not a ratio): -10 or lower is flagged.
         r["drop"] = 100.0 * (r["final"] - r["best"]) / abs(r["best"]) if r["best"] else math.nan
@@ -407,6 +434,9 @@ def report(args, task, kind, target, seeds):
     met = sum(r["best_ok"] for r in results)
     lines.append(f"- goal met by the kept best in {met} of {len(results)} seeds, by the final policy in "
                  f"{sum(r['final_ok'] for r in results)} of {len(results)}")
+    if kind in ("mobile", "mclari"):
+        same = [f"seed {r['seed']} (v{r['same']})" for r in results if r.get("same")]
+        lines.append("- final policy is the kept best, measured once: " + (", ".join(same) or "none"))
     low = [r["seed"] for r in results if not math.isnan(r["drop"]) and r["drop"] <= -10]
     lines.append("- final more than 10 % below kept best: " + (", ".join(f"seed {s}" for s in low) or "none"))
     text = "\n".join(lines) + "\n"

@@ -116,6 +116,29 @@ grep -q "^| 1 | 1500 | 80000 | - | - | 46 | - | no | no |$" <<< "$out" || fail "
 grep -q "seeds: cannot run $T/nobuild/tools/farm-mclari-eval: No such file or directory" <<< "$out" || fail "missing program: $out"
 grep -q "| rough-dry .* | 94 % |$" "$R/eval_best.txt" || fail "the old table was lost: $(cat "$R/eval_best.txt")"
 
+# A run whose last evaluation was its best: RUN/best holds the final policy itself (same version,
+# same weights; the manifests differ in their counts), so its table is the final's too, with no
+# second measurement (none could run here). Weights that differ by a byte are measured apart.
+S="$T/s/seed1"; mkdir -p "$S/best/sac" "$S/checkpoint/sac" "$T/s/logs"
+printf 'elapsed_s,env_steps,eval_return\n1500,80000,100\n' > "$S/learner.csv"
+printf 'policy_version: 42\nbatches_ok: 10\n' > "$S/best/manifest.txtpb"
+printf 'policy_version: 42\nbatches_ok: 12\n' > "$S/checkpoint/manifest.txtpb"
+printf 'weights' > "$S/best/sac/sac.pt"; cp "$S/best/sac/sac.pt" "$S/checkpoint/sac/sac.pt"
+touch -d '2 hours ago' "$S/best" "$S/checkpoint" "$S/best/manifest.txtpb" "$S/best/sac/sac.pt" \
+  "$S/checkpoint/manifest.txtpb" "$S/checkpoint/sac/sac.pt"
+R="$S" table best best 94 > "$S/eval_best.txt"
+sseeds() { seeds "$T/mcl.txtpb" --seeds 1 --report-only --out "$T/s" --build "$T/nobuild" "$@"; }
+out=$(sseeds 2>&1) || fail "same policy: exit non-zero: $out"
+grep -q "^| 1 | 1500 | 80000 | - | 94 | 94 | +0 | yes | yes |$" <<< "$out" || fail "same policy row: $out"
+grep -q "seeds: seed 1: the final policy is the kept best (policy v42, the same files): measured once" <<< "$out" \
+  || fail "same policy note: $out"
+grep -q "^- final policy is the kept best, measured once: seed 1 (v42)$" <<< "$out" || fail "same policy line: $out"
+grep -q "cannot run" <<< "$out" && fail "same policy measured twice: $out"
+printf 'weightz' > "$S/checkpoint/sac/sac.pt"; touch -d '2 hours ago' "$S/checkpoint/sac/sac.pt"
+out=$(sseeds 2>&1) || fail "other final: exit non-zero: $out"
+grep -q "^| 1 | 1500 | 80000 | - | 94 | - | - | yes | no |$" <<< "$out" || fail "other final row: $out"
+grep -q "^- final policy is the kept best, measured once: none$" <<< "$out" || fail "other final line: $out"
+
 # A mobile robot's two measurements name the same run folder, which holds both: each is used again
 # (the other's table, written later, is not taken for a newer policy).
 cp "$SRC/deploy/configs/kaya_sac.txtpb" "$T/kaya.txtpb"
