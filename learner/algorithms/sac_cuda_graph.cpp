@@ -186,6 +186,7 @@ struct Sac::Impl::CudaGraph {
       // Main joins this stream before either step reads its count (and so does the actor's branch).
       torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count, actor_adam.step_count}, 1);
       auto [next_action, next_log_prob] = sample(s, next_obs);
+      if (beside) events[8].record(target_stream);  // the actor's weights read: its Adam step waits
       const auto next_q = s.critic_target->forward(next_obs, next_action);
       auto soft_v = torch::min(next_q[0], next_q[1]).sub_(next_log_prob * alpha);
       target = torch::addcmul(rewards, soft_v, 1.0 - terminated, s.cfg.gamma());
@@ -210,7 +211,7 @@ struct Sac::Impl::CudaGraph {
       const auto grad = flat_grad(actor_loss, s.actor_p);
       if (beside) {
         events[7].record(actor_stream);  // the critics' weights read; main waits before their step
-        order_after(events[8], target_stream, actor_stream);
+        events[8].block(actor_stream);
       }
       actor_adam.step(grad);
     };

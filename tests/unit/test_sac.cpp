@@ -332,6 +332,34 @@ TEST(SacCuda, GraphUpdateMatchesEager) {
   }
 }
 
+// The graph honours sac.actor_on_previous_critic through warm-ups, capture and replays: with a
+// large critic step the two orders give actors far apart, and the graph's actor is the eager
+// update's of the same order (a graph that ignored the option, or raced the critics' step against
+// the actor's reading of them, would not be).
+TEST(SacCuda, GraphHonoursTheActorOrder) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = small_config();
+  cfg.set_device("cuda");
+  cfg.set_cuda_tf32(false);
+  cfg.set_critic_lr(0.1);
+  cfg.set_actor_on_previous_critic(true);
+  auto eager_cfg = cfg;
+  eager_cfg.set_cuda_graph(false);
+  auto after_cfg = eager_cfg;
+  after_cfg.set_actor_on_previous_critic(false);
+  Sac graph(cfg, 3, 2, 5), eager(eager_cfg, 3, 2, 5), after(after_cfg, 3, 2, 5);
+  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  for (int k = 0; k < 8; ++k) {
+    graph.update(random_batch(64, 3, 2, 800 + k));
+    eager.update(random_batch(64, 3, 2, 800 + k));
+    after.update(random_batch(64, 3, 2, 800 + k));
+  }
+  const double same = relative_difference(graph.actor_parameters(), eager.actor_parameters());
+  const double other = relative_difference(graph.actor_parameters(), after.actor_parameters());
+  EXPECT_LE(same, 1e-3);
+  EXPECT_GT(other, 10 * same) << "the graph's actor is as near the other order's as its own";
+}
+
 // The optimizer state of graph updates goes through save/load: into an eager instance, and into a
 // graph instance that must capture again, both then update as the saved one does.
 TEST(SacCuda, GraphStateSurvivesSaveLoad) {
