@@ -385,22 +385,21 @@ def report(args, task, kind, target, seeds):
         log = os.path.join(args.out, "logs", f"seed{s}-learner.log")
         curve = measure_curve(run, "walking" if kind == "walking" else "return", target, log) if rows else None
         r["time"] = curve["time"] if curve else math.nan
+        r["same"] = same_policy(run) if kind in ("mobile", "mclari") else None
         if kind in ("return", "walking"):
             r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,
                      best_ok=bool(curve and curve["best_ok"]), final_ok=bool(curve and curve["final_ok"]))
         elif kind == "mobile":
-            r["same"] = same_policy(run)
             r["best"] = measure_mobile(run, args, "best")
             r["final"] = r["best"] if r["same"] else measure_mobile(run, args, "final")
             r["best_ok"], r["final_ok"] = r["best"] >= MOBILE_GOAL, r["final"] >= MOBILE_GOAL
         else:
-            r["same"] = same_policy(run)
             r["best"], r["best_falls"] = measure_mclari(run, args, 10, "best")
             r["final"], r["final_falls"] = ((r["best"], r["best_falls"]) if r["same"] else
                                             measure_mclari(run, args, 10, "final"))
             r["best_ok"] = r["best"] >= MCLARI_GOAL and r["best_falls"] < MCLARI_FALLS
             r["final_ok"] = r["final"] >= MCLARI_GOAL and r["final_falls"] < MCLARI_FALLS
-        if r.get("same"):
+        if r["same"]:
             print(f"seeds: seed {s}: the final policy is the kept best (policy v{r['same']}, the same files): "
                   "measured once", file=sys.stderr)
         # How far the final policy ends below the kept best, in % of the best's magnitude (returns
