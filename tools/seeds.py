@@ -38,6 +38,7 @@ import re
 import shlex
 import subprocess
 import sys
+import textwrap
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -517,11 +518,13 @@ def plot(args, kind, target, seeds):
     if not math.isnan(goal):
         ax.axhline(goal, color="k", ls="--", lw=1, label="goal")
     ax.set_xlabel("wall time [s]")
-    ax.set_ylabel(" / ".join(sorted(labels)) or "evaluation")
+    # Wrapped: the worst-terrain label is longer than the figure is high.
+    ax.set_ylabel(textwrap.fill(" / ".join(sorted(labels)) or "evaluation", 36))
     ax.set_title(os.path.basename(args.config))
     ax.legend()
     fig.tight_layout()
     fig.savefig(os.path.join(args.out, "seeds.png"), dpi=100)
+    return fig
 
 
 def main():

@@ -108,6 +108,15 @@ want="seed,elapsed_s,measure,value
 1,150.0,worst terrain % of the best fixed point (learner's evaluations),41.23
 1,300.0,worst terrain % of the best fixed point (learner's evaluations),95.12"
 [ "$(tr -d '\r' < "$T/c/seeds_curves.csv")" = "$want" ] || fail "mclari curve: $(cat "$T/c/seeds_curves.csv")"
+# The plot's labels stay inside the figure (the worst-terrain label is long).
+(cd "$T/c" && /usr/bin/python3 -c "
+import sys, types; sys.path.insert(0, '$SRC/tools'); import seeds
+fig = seeds.plot(types.SimpleNamespace(out='.', config='mcl.txtpb'), 'mclari', float('nan'), [1])
+r = fig.canvas.get_renderer(); box = fig.bbox
+for a in (fig.axes[0].yaxis.label, fig.axes[0].xaxis.label, fig.axes[0].title):
+    e = a.get_window_extent(r)
+    assert e.x0 >= 0 and e.y0 >= 0 and e.x1 <= box.x1 and e.y1 <= box.y1, (a.get_text(), e, box)") \
+  || fail "mclari plot: a label is cut off"
 echo "tools/seeds.py $T/mcl.txtpb --seeds 1 --workers 7" > "$T/c/command.txt"
 touch "$R/best/manifest.txtpb"
 out=$(mseeds 2>&1) && fail "the kept best could not be measured, exit 0: $out"
