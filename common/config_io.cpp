@@ -59,7 +59,16 @@ std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg)
 void clear_output_paths(config::ExperimentConfig* cfg) { walk_output_paths(cfg, "", true, nullptr); }
 
 config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source) {
-  config::ExperimentConfig cfg = parse_config_text(text, source);
+  config::ExperimentConfig cfg;
+  try {
+    cfg = parse_config_text(text, source);
+  } catch (const ConfigError& e) {
+    // The sender's program knows a field this one does not: the two were built from different sources.
+    if (std::string(e.what()).find("has no field named") == std::string::npos) throw;
+    throw ConfigError(std::string(e.what()) +
+                      " (the sender was built from newer sources than this program: rebuild or update this host's "
+                      "farm programs)");
+  }
   const std::vector<std::string> paths = output_path_fields(cfg);
   if (!paths.empty())
     throw ConfigError(source + ": field '" + paths.front() +

@@ -29,7 +29,8 @@ class WorkerRoster {
       : timeout_(timeout_seconds), log_(std::move(log)), experiment_id_(std::move(experiment_id)) {}
 
   // One heartbeat, received at `now`; false when it is not of this experiment (ignored; one log
-  // line for the first heartbeat of each other experiment).
+  // line for the first heartbeat of each other experiment, and one for each worker that reports
+  // it cannot run this experiment's spec).
   bool heard(const farm::msg::WorkerStatus& s, double now);
   // Marks the workers silent for longer than the timeout dead, each with a log line.
   void check(double now);
@@ -45,6 +46,9 @@ class WorkerRoster {
   std::map<std::string, View> views_;
   std::set<std::string> foreign_;  // other experiments already noted (bounded: kMaxForeignNoted)
   static constexpr size_t kMaxForeignNoted = 16;
+  std::set<std::string> rejected_;  // workers that could not run our spec, noted (bounded)
+  static constexpr size_t kMaxRejectionsNoted = 64;
+  void note_rejection(const farm::msg::WorkerStatus& s);
 };
 
 }  // namespace farm

@@ -225,9 +225,10 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
         " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
         " steps per batch");
   } catch (const std::exception& e) {
-    last_error_ = e.what();
+    // Named for the experiment: the learner reports it (WorkerRoster), this worker having joined none.
+    last_error_ = "cannot run experiment '" + s.experiment_id() + "': " + e.what();
     state_ = "error";
-    log(std::string("cannot run this experiment: ") + e.what());
+    log(last_error_);
     rollout_.reset();
     heartbeat(true);
   }

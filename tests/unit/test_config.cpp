@@ -165,6 +165,26 @@ TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
   EXPECT_NO_THROW(farm::parse_config_from_bus(farm::config_to_text(cfg), "ExperimentSpec(m)"));
 }
 
+// A field this program does not know, in a config from the bus, means the learner was built from
+// newer sources than this worker: the error says so (its own wording names only the field).
+TEST(Config, UnknownFieldFromTheBusSaysTheWorkerIsOlder) {
+  try {
+    farm::parse_config_from_bus("experiment_id: \"m\"\nsac { field_of_a_newer_build: true }\n", "ExperimentSpec(m)");
+    ADD_FAILURE() << "accepted";
+  } catch (const farm::ConfigError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("ExperimentSpec(m):2:"), std::string::npos) << what;
+    EXPECT_NE(what.find("field_of_a_newer_build"), std::string::npos) << what;
+    EXPECT_NE(what.find("built from newer sources than this program"), std::string::npos) << what;
+  }
+  try {
+    farm::parse_config_text("sac { field_of_a_newer_build: true }\n", "mine.txtpb");
+    ADD_FAILURE() << "accepted";
+  } catch (const farm::ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()).find("newer sources"), std::string::npos) << "a local file: " << e.what();
+  }
+}
+
 TEST(Config, TextRoundTrip) {
   auto c = parse_config_text("experiment_id: \"rt\"\nsac { hidden: 64 hidden: 64 }\n", "x");
   auto d = parse_config_text(farm::config_to_text(c), "y");

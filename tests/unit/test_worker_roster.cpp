@@ -96,3 +96,47 @@ TEST(WorkerRoster, OnlyWorkersOfItsExperimentCount) {
   ASSERT_EQ(l.lines.size(), 2u);
   EXPECT_EQ(l.lines[1], "worker local-2 on vm joined (session 42, 4 envs on 1 threads)");
 }
+
+// A worker that cannot run the learner's spec (an older build that lacks a config field, a task it
+// does not know) has joined no experiment, so its heartbeats are not the learner's; its error is
+// still what the learner's user must see, once per worker session and error. Errors about another
+// experiment's spec are that learner's to report.
+TEST(WorkerRoster, AWorkerThatCannotRunTheSpecIsReportedOnce) {
+  Lines l;
+  farm::WorkerRoster roster(5.0, l.log(), "exp_a");
+  farm::msg::WorkerStatus rejected = status(0, "error");
+  rejected.last_error(
+      "cannot run experiment 'exp_a': ExperimentSpec(exp_a):26:27: Message type \"farm.config.SacConfig\" has no "
+      "field named \"x\".");
+  EXPECT_FALSE(roster.heard(rejected, 1.0));
+  EXPECT_FALSE(roster.heard(rejected, 2.0));
+  ASSERT_EQ(l.lines.size(), 1u);
+  EXPECT_EQ(l.lines[0], "worker local-2 on vm cannot join: " + rejected.last_error());
+  EXPECT_EQ(roster.live_count(2.0), 0) << "it runs nothing, so it is not counted";
+  // A worker of an older build words its error without the prefix; the spec's name is in it.
+  farm::msg::WorkerStatus old = status(0, "error");
+  old.worker_id("old-1");
+  old.last_error("ExperimentSpec(exp_a):3:1: Message type \"farm.config.ExperimentConfig\" has no field named \"y\".");
+  EXPECT_FALSE(roster.heard(old, 3.0));
+  ASSERT_EQ(l.lines.size(), 2u);
+  EXPECT_EQ(l.lines[1], "worker old-1 on vm cannot join: " + old.last_error());
+  // Another learner's spec on the same domain: not ours to report.
+  farm::msg::WorkerStatus other = status(0, "error");
+  other.worker_id("b-1");
+  other.last_error("cannot run experiment 'exp_b': unknown task");
+  EXPECT_FALSE(roster.heard(other, 4.0));
+  EXPECT_EQ(l.lines.size(), 2u);
+  // A hostile or broken heartbeat cannot flood the log: the error is cut, the workers noted bounded.
+  farm::msg::WorkerStatus longer = status(0, "error");
+  longer.worker_id("long-1");
+  longer.last_error("cannot run experiment 'exp_a': " + std::string(100000, 'z'));
+  EXPECT_FALSE(roster.heard(longer, 5.0));
+  ASSERT_EQ(l.lines.size(), 3u);
+  EXPECT_LT(l.lines[2].size(), 700u);
+  for (int i = 0; i < 1000; ++i) {
+    farm::msg::WorkerStatus many = rejected;
+    many.worker_id("w" + std::to_string(i));
+    roster.heard(many, 6.0);
+  }
+  EXPECT_LT(l.lines.size(), 100u);
+}
