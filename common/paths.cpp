@@ -1,8 +1,12 @@
 #include "paths.h"
 
+#include <ftw.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <stdexcept>
 
 namespace farm {
@@ -45,6 +49,17 @@ std::string find_companion(const std::string& name, const std::string& given, co
   std::string list;
   for (const auto& t : tried) list += (list.empty() ? "" : ", ") + t;
   throw std::runtime_error(name + " not found (tried " + list + "); give its path with " + flag + " PATH");
+}
+
+// Plain POSIX nftw, not std::filesystem::remove_all: the learner of the GPU build path (g++ 13
+// against a host's CUDA LibTorch) died with SIGSEGV at its second checkpoint, the first that
+// removes a previous one, where remove_all was called (and again when an evaluation's kept
+// networks were dropped; and test_sac's checkpoint tests in that build); with nftw the same build checkpoints, resumes
+// and evaluates.
+void remove_tree(const std::string& dir) {
+  auto rm = [](const char* path, const struct stat*, int, struct FTW*) { return std::remove(path); };
+  if (nftw(dir.c_str(), rm, 16, FTW_DEPTH | FTW_PHYS) != 0 && errno != ENOENT)
+    throw std::runtime_error("cannot remove " + dir + ": " + std::strerror(errno));
 }
 
 }  // namespace farm

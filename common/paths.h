@@ -21,4 +21,8 @@ std::string first_executable(const std::vector<std::string>& candidates, std::ve
 std::string find_companion(const std::string& name, const std::string& given, const std::string& relative,
                            const std::string& built, const std::string& flag);
 
+// Removes a folder tree (a missing one is fine) with POSIX nftw, never std::filesystem::remove_all,
+// which crashes the GPU build (see paths.cpp); throws std::runtime_error naming the path.
+void remove_tree(const std::string& dir);
+
 }  // namespace farm

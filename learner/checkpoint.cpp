@@ -50,16 +50,6 @@ void sync_tree(const fs::path& root) {
 
 }  // namespace
 
-// Plain POSIX nftw, not std::filesystem::remove_all: the learner of the GPU build path (g++ 13
-// against a host's CUDA LibTorch) died with SIGSEGV at its second checkpoint, the first that
-// removes a previous one, where remove_all was called (and again when an evaluation's kept
-// networks were dropped); with nftw the same build checkpoints, resumes and evaluates.
-void remove_tree(const std::string& dir) {
-  auto rm = [](const char* path, const struct stat*, int, struct FTW*) { return std::remove(path); };
-  if (nftw(dir.c_str(), rm, 16, FTW_DEPTH | FTW_PHYS) != 0 && errno != ENOENT)
-    throw std::runtime_error("cannot remove " + dir + ": " + std::strerror(errno));
-}
-
 void write_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
                       const std::function<void(const std::string& tmp_dir)>& write_parts) {
   const fs::path final_dir(dir), tmp = final_dir.string() + ".tmp", old = final_dir.string() + ".old";

@@ -8,6 +8,7 @@
 
 #include "farm_config.pb.h"
 #include "ingest.h"
+#include "paths.h"  // remove_tree
 
 namespace farm {
 
@@ -17,9 +18,6 @@ bool checkpoint_exists(const std::string& dir);
 // added, and the folder is renamed over DIR (the previous one is kept as DIR.old until then).
 void write_checkpoint(const std::string& dir, const config::CheckpointManifest& manifest,
                       const std::function<void(const std::string& tmp_dir)>& write_parts);
-// Removes a folder tree (a missing one is fine) with POSIX nftw, never std::filesystem::remove_all,
-// which crashes the GPU build (see checkpoint.cpp); throws std::runtime_error naming the path.
-void remove_tree(const std::string& dir);
 // DIR, or DIR.old where a crash between the two renames of a save left only that.
 std::string usable_checkpoint(const std::string& dir);
 // The manifest of the usable checkpoint in DIR; throws std::runtime_error naming the file when it

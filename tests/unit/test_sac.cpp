@@ -1,5 +1,6 @@
 #include "compute.h"
 #include "divergence.h"
+#include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "rng_state.h"
 #include "sac.h"
 
@@ -42,7 +43,7 @@ std::vector<torch::Tensor> copies(const std::vector<torch::Tensor>& ts) {
 
 std::string temp_dir(const std::string& name) {
   const auto d = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  std::filesystem::remove_all(d);
+  farm::remove_tree(d.string());
   return d.string();
 }
 
@@ -278,7 +279,7 @@ TEST(Sac, SaveLoadRoundTrip) {
   const auto ac = a.critic_parameters(), bc = b.critic_parameters();
   for (size_t i = 0; i < ac.size(); ++i) EXPECT_TRUE(torch::equal(ac[i], bc[i])) << i;
   EXPECT_NEAR(a.alpha(), b.alpha(), 0);
-  std::filesystem::remove_all(dir);
+  farm::remove_tree(dir);
 }
 
 // |a - b| relative to b's norm, over a network's parameter tensors.
@@ -388,7 +389,7 @@ TEST(SacCuda, GraphStateSurvivesSaveLoad) {
   }
   EXPECT_LE(relative_difference(loaded_graph.actor_parameters(), loaded_eager.actor_parameters()), kTol);
   EXPECT_LE(relative_difference(graph.critic_parameters(), loaded_eager.critic_parameters()), kTol);
-  std::filesystem::remove_all(dir);
+  farm::remove_tree(dir);
 }
 
 // update_n(n, next) is n calls of update(next()): same batches in the same order, same figures,
@@ -475,7 +476,7 @@ TEST(Sac, LoadRejectsOtherShapesNamingFile) {
   expect_error(other_obs);
   expect_error(other_q);
   Sac missing(small_config(), 3, 1, 1);
-  std::filesystem::remove_all(dir);
+  farm::remove_tree(dir);
   expect_error(missing);
 }
 
