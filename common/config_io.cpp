@@ -63,11 +63,10 @@ config::ExperimentConfig parse_config_from_bus(const std::string& text, const st
   try {
     cfg = parse_config_text(text, source);
   } catch (const ConfigError& e) {
-    // The sender's program knows a field this one does not: the two were built from different sources.
+    // The sender knows a field this program does not: a newer build. Said first, so a cut message keeps it.
     if (std::string(e.what()).find("has no field named") == std::string::npos) throw;
-    throw ConfigError(std::string(e.what()) +
-                      " (the sender was built from newer sources than this program: rebuild or update this host's "
-                      "farm programs)");
+    throw ConfigError(
+        source + " was written by a newer build than this program (update this host's farm programs): " + e.what());
   }
   const std::vector<std::string> paths = output_path_fields(cfg);
   if (!paths.empty())

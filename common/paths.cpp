@@ -57,7 +57,10 @@ std::string find_companion(const std::string& name, const std::string& given, co
 // networks were dropped; and test_sac's checkpoint tests in that build); with nftw the same build checkpoints, resumes
 // and evaluates.
 void remove_tree(const std::string& dir) {
-  auto rm = [](const char* path, const struct stat*, int, struct FTW*) { return std::remove(path); };
+  // An entry gone meanwhile is removed all the same; the walk goes on past it.
+  auto rm = [](const char* path, const struct stat*, int, struct FTW*) {
+    return std::remove(path) == 0 || errno == ENOENT ? 0 : -1;
+  };
   if (nftw(dir.c_str(), rm, 16, FTW_DEPTH | FTW_PHYS) != 0 && errno != ENOENT)
     throw std::runtime_error("cannot remove " + dir + ": " + std::strerror(errno));
 }

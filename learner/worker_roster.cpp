@@ -45,19 +45,25 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
 // A worker that could not run a spec has joined no experiment. Its error is the user's only clue
 // (a worker built before a config field the learner's config sets, say), so it is logged when it
 // names this learner's experiment: in the worker's words "cannot run experiment 'ID': ...", or, from
-// an older worker, the spec's parse error "ExperimentSpec(ID):...". Once per worker session and
-// error; the error is cut and the workers noted are bounded (a heartbeat is network input).
+// an older worker, the spec's parse error "ExperimentSpec(ID):...". Once per worker id and error
+// (a worker restarted over and over has a new session each time); the text is cut, its control
+// characters replaced, and the lines bounded (a heartbeat is network input).
 void WorkerRoster::note_rejection(const farm::msg::WorkerStatus& s) {
   const std::string& e = s.last_error();
   if (e.rfind("cannot run experiment '" + experiment_id_ + "'", 0) != 0 &&
       e.find("ExperimentSpec(" + experiment_id_ + ")") == std::string::npos)
     return;
   constexpr size_t kMaxError = 500;
+  auto printable = [](std::string t) {
+    for (char& c : t)
+      if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+    return t;
+  };
   const std::string text =
-      e.size() > kMaxError ? e.substr(0, kMaxError) + "... (" + std::to_string(e.size()) + " bytes)" : e;
-  const std::string key = s.worker_id().substr(0, 100) + "#" + std::to_string(s.worker_session()) + "#" + text;
-  if (rejected_.size() >= kMaxRejectionsNoted || !rejected_.insert(key).second) return;
-  log_("worker " + s.worker_id().substr(0, 100) + " on " + s.host().substr(0, 100) + " cannot join: " + text +
+      printable(e.size() > kMaxError ? e.substr(0, kMaxError) + "... (" + std::to_string(e.size()) + " bytes)" : e);
+  const std::string id = printable(s.worker_id().substr(0, 100));
+  if (rejected_.size() >= kMaxRejectionsNoted || !rejected_.insert(id + "#" + text).second) return;
+  log_("worker " + id + " on " + printable(s.host().substr(0, 100)) + " cannot join: " + text +
        (rejected_.size() == kMaxRejectionsNoted ? " (no more such lines)" : ""));
 }
 

@@ -46,7 +46,7 @@ class WorkerRoster {
   std::map<std::string, View> views_;
   std::set<std::string> foreign_;  // other experiments already noted (bounded: kMaxForeignNoted)
   static constexpr size_t kMaxForeignNoted = 16;
-  std::set<std::string> rejected_;  // workers that could not run our spec, noted (bounded)
+  std::set<std::string> rejected_;  // "worker#error" of those that could not run our spec (bounded)
   static constexpr size_t kMaxRejectionsNoted = 64;
   void note_rejection(const farm::msg::WorkerStatus& s);
 };

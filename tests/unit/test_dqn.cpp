@@ -13,6 +13,7 @@
 
 #include "dqn.h"
 #include "mlp.h"
+#include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 
 using namespace farm;
 
@@ -176,5 +177,5 @@ TEST(DqnCheckpoint, SaveLoadRoundTripAndSizeMismatch) {
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("dqn.pt"), std::string::npos) << e.what();
   }
-  std::filesystem::remove_all(dir);
+  farm::remove_tree(dir);
 }

@@ -99,8 +99,8 @@ TEST(WorkerRoster, OnlyWorkersOfItsExperimentCount) {
 
 // A worker that cannot run the learner's spec (an older build that lacks a config field, a task it
 // does not know) has joined no experiment, so its heartbeats are not the learner's; its error is
-// still what the learner's user must see, once per worker session and error. Errors about another
-// experiment's spec are that learner's to report.
+// still what the learner's user must see, once per worker and error (a restart does not repeat it). Errors about
+// another experiment's spec are that learner's to report.
 TEST(WorkerRoster, AWorkerThatCannotRunTheSpecIsReportedOnce) {
   Lines l;
   farm::WorkerRoster roster(5.0, l.log(), "exp_a");
@@ -113,6 +113,10 @@ TEST(WorkerRoster, AWorkerThatCannotRunTheSpecIsReportedOnce) {
   ASSERT_EQ(l.lines.size(), 1u);
   EXPECT_EQ(l.lines[0], "worker local-2 on vm cannot join: " + rejected.last_error());
   EXPECT_EQ(roster.live_count(2.0), 0) << "it runs nothing, so it is not counted";
+  farm::msg::WorkerStatus restarted = rejected;
+  restarted.worker_session(43);
+  EXPECT_FALSE(roster.heard(restarted, 2.5));
+  EXPECT_EQ(l.lines.size(), 1u) << "the same worker restarted with the same error";
   // A worker of an older build words its error without the prefix; the spec's name is in it.
   farm::msg::WorkerStatus old = status(0, "error");
   old.worker_id("old-1");
@@ -133,6 +137,12 @@ TEST(WorkerRoster, AWorkerThatCannotRunTheSpecIsReportedOnce) {
   EXPECT_FALSE(roster.heard(longer, 5.0));
   ASSERT_EQ(l.lines.size(), 3u);
   EXPECT_LT(l.lines[2].size(), 700u);
+  farm::msg::WorkerStatus forged = status(0, "error");
+  forged.worker_id("nl-1");
+  forged.last_error("cannot run experiment 'exp_a': x\n[learner] forged line");
+  EXPECT_FALSE(roster.heard(forged, 5.5));
+  ASSERT_EQ(l.lines.size(), 4u);
+  EXPECT_EQ(l.lines[3], "worker nl-1 on vm cannot join: cannot run experiment 'exp_a': x?[learner] forged line");
   for (int i = 0; i < 1000; ++i) {
     farm::msg::WorkerStatus many = rejected;
     many.worker_id("w" + std::to_string(i));
