@@ -54,8 +54,8 @@ std::string find_companion(const std::string& name, const std::string& given, co
 // Plain POSIX nftw, not std::filesystem::remove_all: the learner of the GPU build path (g++ 13
 // against a host's CUDA LibTorch) died with SIGSEGV at its second checkpoint, the first that
 // removes a previous one, where remove_all was called (and again when an evaluation's kept
-// networks were dropped; and test_sac's checkpoint tests in that build); with nftw the same build checkpoints, resumes
-// and evaluates.
+// networks were dropped, and in test_sac's checkpoint tests); with nftw the same build
+// checkpoints, resumes and evaluates.
 void remove_tree(const std::string& dir) {
   // An entry gone meanwhile is removed all the same; the walk goes on past it.
   auto rm = [](const char* path, const struct stat*, int, struct FTW*) {
