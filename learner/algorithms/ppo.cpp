@@ -349,8 +349,9 @@ void Ppo::load(const std::string& dir) {
       torch::NoGradGuard g;
       s.log_std.copy_(ls);
     }
-    nm = nm.contiguous();
-    nm2 = nm2.contiguous();
+    // Loaded onto s.device: the normalizer's moments are read on the host, not from GPU memory.
+    nm = nm.to(torch::kCPU).contiguous();
+    nm2 = nm2.to(torch::kCPU).contiguous();
     s.norm.set_state(nc.item<double>(), {nm.data_ptr<double>(), nm.data_ptr<double>() + s.obs_dim},
                      {nm2.data_ptr<double>(), nm2.data_ptr<double>() + s.obs_dim});
     s.set_lr(lr.item<double>());

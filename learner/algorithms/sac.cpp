@@ -255,6 +255,7 @@ void Sac::load(const std::string& dir) {
     if (!root.try_read("meta", meta)) throw fail("no 'meta'");
     std::vector<int64_t> want{s.obs_dim, s.act_dim};
     want.insert(want.end(), s.hidden.begin(), s.hidden.end());
+    meta = meta.to(torch::kCPU).contiguous();  // loaded onto s.device: read on the host, not from GPU memory
     const int64_t* m = meta.data_ptr<int64_t>();
     const std::vector<int64_t> got(m, m + meta.numel());
     if (got != want) throw fail("networks are obs,act,hidden = " + sizes_str(got) + ", expected " + sizes_str(want));

@@ -4,12 +4,15 @@
 // the LibTorch actor for each activation, and a short fit that must move the policy toward the
 // better action).
 #include <gtest/gtest.h>
+#include <torch/cuda.h>
+#include <unistd.h>
 
 #include "config.h"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <map>
 #include <numeric>
 #include <random>
@@ -21,6 +24,7 @@
 #include "gae.h"
 #include "mlp.h"
 #include "obs_normalizer.h"
+#include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "ppo.h"
 #include "ppo_algorithm.h"
 #include "rollout_storage.h"
@@ -343,6 +347,23 @@ TEST(RolloutStorage, DropsVersionsBeyondTheWindowAndCountsStepsByVersion) {
   EXPECT_EQ(s.advantages, (std::vector<float>{2, 1, 2}));
   EXPECT_EQ(s.current, (std::vector<uint8_t>{0, 0, 1}));
   EXPECT_EQ(st.steps(), 1);
+}
+
+// Only where a GPU and a CUDA LibTorch are there: a checkpoint is read back onto the GPU (a GPU
+// run's --resume). Its tensors land on the device; what is read on the host (the normalizer's
+// moments) is copied back first, not read from GPU memory (which crashed the load).
+TEST(PpoCuda, CheckpointLoadsBackOntoTheGpu) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  config::PpoConfig c;
+  c.set_device("cuda");
+  Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
+  const auto dir = std::filesystem::temp_directory_path() / ("ppo_cuda_" + std::to_string(::getpid()));
+  a.save(dir.string());
+  b.load(dir.string());
+  const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
+  EXPECT_EQ(pb.params, pa.params);
+  EXPECT_EQ(pb.log_std, pa.log_std);
+  farm::remove_tree(dir.string());
 }
 
 TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
