@@ -358,6 +358,7 @@ TEST(PpoCuda, CheckpointLoadsBackOntoTheGpu) {
   c.set_device("cuda");
   Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
   const auto dir = std::filesystem::temp_directory_path() / ("ppo_cuda_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
   a.save(dir.string());
   b.load(dir.string());
   const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
