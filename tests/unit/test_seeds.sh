@@ -84,6 +84,9 @@ grep -q "stop.target_eval_return, which the config does not set" <<< "$err" || f
 # worst terrain's share that the learner logged for each evaluation. A policy written after its
 # table is measured again, and a measurement that cannot run leaves the old table in place.
 cp "$SRC/deploy/configs/mclari_sac_terrain.txtpb" "$T/mcl.txtpb"
+# Older than the tables below: a file's time has the clock's coarse tick, so a table written within
+# the tick of this copy would not be "after what it names" and would be measured again.
+touch -d '3 hours ago' "$T/mcl.txtpb"
 R="$T/c/seed1"; mkdir -p "$R/best" "$R/checkpoint" "$T/c/logs"
 printf 'elapsed_s,env_steps,eval_return\n1500,80000,100\n' > "$R/learner.csv"
 touch -d '2 hours ago' "$R/best" "$R/checkpoint"
