@@ -298,6 +298,7 @@ int64_t Ppo::updates() const { return impl_->updates; }
 
 void Ppo::save(const std::string& dir) const {
   const Impl& s = *impl_;
+  std::filesystem::create_directories(dir);  // as Sac::save: the folder need not exist yet
   torch::serialize::OutputArchive ar;
   torch::serialize::OutputArchive actor, critic, optim;
   s.actor->save(actor);

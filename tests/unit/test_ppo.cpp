@@ -367,6 +367,20 @@ TEST(PpoCuda, CheckpointLoadsBackOntoTheGpu) {
   farm::remove_tree(dir.string());
 }
 
+TEST(Ppo, SaveMakesItsFolderAndLoadsBack) {
+  config::PpoConfig c;
+  Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
+  const auto root = std::filesystem::temp_directory_path() / ("ppo_save_" + std::to_string(::getpid()));
+  const auto dir = root / "not" / "yet";
+  ASSERT_FALSE(std::filesystem::exists(dir));
+  a.save(dir.string());
+  b.load(dir.string());
+  const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
+  EXPECT_EQ(pb.params, pa.params);
+  EXPECT_EQ(pb.log_std, pa.log_std);
+  farm::remove_tree(root.string());
+}
+
 TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
   config::PpoConfig c;
   c.set_initial_log_std(0.3);  // wide: many samples land beyond [-1, 1] and are clamped
