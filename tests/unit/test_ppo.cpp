@@ -349,6 +349,21 @@ TEST(RolloutStorage, DropsVersionsBeyondTheWindowAndCountsStepsByVersion) {
   EXPECT_EQ(st.steps(), 1);
 }
 
+namespace {
+// Saves a fresh Ppo of config c into dir (a folder under root), loads it into another of a
+// different seed and expects the same exported policy; removes root.
+void expect_save_load_round_trip(const config::PpoConfig& c, const std::filesystem::path& root,
+                                 const std::filesystem::path& dir) {
+  Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
+  a.save(dir.string());
+  b.load(dir.string());
+  const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
+  EXPECT_EQ(pb.params, pa.params);
+  EXPECT_EQ(pb.log_std, pa.log_std);
+  farm::remove_tree(root.string());
+}
+}  // namespace
+
 // Only where a GPU and a CUDA LibTorch are there: a checkpoint is read back onto the GPU (a GPU
 // run's --resume). Its tensors land on the device; what is read on the host (the normalizer's
 // moments) is copied back first, not read from GPU memory (which crashed the load).
@@ -356,29 +371,16 @@ TEST(PpoCuda, CheckpointLoadsBackOntoTheGpu) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   config::PpoConfig c;
   c.set_device("cuda");
-  Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
   const auto dir = std::filesystem::temp_directory_path() / ("ppo_cuda_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  a.save(dir.string());
-  b.load(dir.string());
-  const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
-  EXPECT_EQ(pb.params, pa.params);
-  EXPECT_EQ(pb.log_std, pa.log_std);
-  farm::remove_tree(dir.string());
+  expect_save_load_round_trip(c, dir, dir);
 }
 
+// Ppo::save makes the folder it is given, as Sac::save and Dqn::save do.
 TEST(Ppo, SaveMakesItsFolderAndLoadsBack) {
-  config::PpoConfig c;
-  Ppo a(c, 3, 2, 5), b(c, 3, 2, 9);
   const auto root = std::filesystem::temp_directory_path() / ("ppo_save_" + std::to_string(::getpid()));
   const auto dir = root / "not" / "yet";
   ASSERT_FALSE(std::filesystem::exists(dir));
-  a.save(dir.string());
-  b.load(dir.string());
-  const PolicyParams pa = a.export_policy(0), pb = b.export_policy(0);
-  EXPECT_EQ(pb.params, pa.params);
-  EXPECT_EQ(pb.log_std, pa.log_std);
-  farm::remove_tree(root.string());
+  expect_save_load_round_trip(config::PpoConfig(), root, dir);
 }
 
 TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
