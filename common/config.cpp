@@ -20,6 +20,9 @@ using namespace config_checks;  // Collector, Validator, Section, num
 
 namespace {
 
+// sac.max_step_scale at most: a batch 64 times the seed's 256 is past what helps on any host here.
+constexpr int kMaxSacStepScale = 64;
+
 // Task sections: the ranges their tasks (robots/) can run with.
 
 void check_pendulum(const Section& s, const config::PendulumConfig& p) {
@@ -229,6 +232,8 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.check(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < sac.log_std_max");
   s.positive("max_updates_per_step", c.max_updates_per_step());
   s.positive("publish_every_updates", c.publish_every_updates());
+  s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxSacStepScale, "max_step_scale",
+          "expected 1 to " + num(kMaxSacStepScale) + ", got " + num(c.max_step_scale()));
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",

@@ -1,5 +1,7 @@
 #include "off_policy.h"
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 #include "dqn.h"
@@ -24,11 +26,16 @@ class SacAlgorithm final : public OffPolicy {
   int64_t updates() const override { return sac_.updates(); }
   void save(const std::string& dir) const override { sac_.save(dir); }
   void load(const std::string& dir) override { sac_.load(dir); }
-  int batch_size() const override { return cfg_.batch_size(); }
+  int batch_size() const override { return cfg_.batch_size() * step_scale_; }
   int64_t buffer_size() const override { return cfg_.buffer_size(); }
   int64_t learning_starts() const override { return cfg_.learning_starts(); }
   double max_updates_per_step() const override { return cfg_.max_updates_per_step(); }
   int publish_every_updates() const override { return cfg_.publish_every_updates(); }
+  int max_step_scale() const override { return cfg_.max_step_scale(); }
+  void set_step_scale(int s) override {
+    step_scale_ = s;
+    sac_.scale_learning_rates(std::sqrt(double(s)));
+  }
   double gamma() const override { return cfg_.gamma(); }
   std::string describe() const override { return "SAC " + sac_.export_policy(0).layout.describe() + " actor"; }
 
@@ -36,6 +43,7 @@ class SacAlgorithm final : public OffPolicy {
   static OffPolicyStats figures(const SacStats& s) { return {s.critic_loss, s.actor_loss, s.alpha}; }
   config::SacConfig cfg_;
   Sac sac_;
+  int step_scale_ = 1;
 };
 
 class DqnAlgorithm final : public OffPolicy {
@@ -71,6 +79,17 @@ class DqnAlgorithm final : public OffPolicy {
 };
 
 }  // namespace
+
+int next_step_scale(int current, double r, int most) {
+  int cap = 1;  // the largest power of 2 at most `most`
+  while (cap <= most / 2) cap *= 2;
+  int fit = 1;  // the largest power of 2 at most r, within cap
+  while (fit < cap && 2.0 * fit <= r) fit *= 2;
+  current = std::clamp(current, 1, cap);
+  if (fit > current) return fit;
+  if (r < 0.8 * current) return fit;
+  return current;
+}
 
 std::unique_ptr<OffPolicy> make_sac(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
   if (spec.num_actions > 0) {

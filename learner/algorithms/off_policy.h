@@ -53,6 +53,11 @@ class OffPolicy {
   virtual int64_t learning_starts() const = 0;
   virtual double max_updates_per_step() const = 0;
   virtual int publish_every_updates() const = 0;
+  // A larger step when the data outrun the updates (sac.max_step_scale): the most the driver may
+  // scale it by, and the scale to take from now on (SAC: batch_size() times s, learning rates
+  // times sqrt(s)). An algorithm without it keeps 1.
+  virtual int max_step_scale() const { return 1; }
+  virtual void set_step_scale(int /*s*/) {}
   // Multi-step returns: replay rows are folded to this many steps (fold_n_step) before they are
   // stored; 1 keeps one-step rows.
   virtual int n_step() const { return 1; }
@@ -68,6 +73,12 @@ std::unique_ptr<OffPolicy> make_dqn(const config::ExperimentConfig& cfg, const r
 // The adapter of cfg.algorithm(), looked up in the algorithm registry (registry.cpp). Throws
 // std::invalid_argument when the algorithm is unknown, not off-policy, or does not fit the task.
 std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+// sac.max_step_scale's rule, from the scale in use and r, the updates the data allowed over the
+// last window per update made (max_updates_per_step x env steps received / updates made): up to
+// the largest power of 2 at most r, down to it once r falls below 0.8 of the scale in use (the
+// margin keeps a scale from flapping on a ratio near a power of 2), never past `most` nor below 1.
+int next_step_scale(int current, double r, int most);
 
 class Algorithm;
 // The replay-buffer driver (off_policy_algorithm.cpp) running an adapter in the learner.

@@ -65,6 +65,7 @@ class OffPolicyAlgorithm final : public Algorithm {
     while (n < kUpdatesPerGroup && can_update(farm, n)) ++n;
     const bool updated = n > 0;
     if (updated) train_steps(n);
+    if (algo_->max_step_scale() > 1) adapt_step(farm);
     if (updates_since_publish_ >= algo_->publish_every_updates()) publish_weights(farm);
     double wait = 0;
     if (!updated) {
@@ -92,7 +93,7 @@ class OffPolicyAlgorithm final : public Algorithm {
       << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
       << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
       << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers " << f.workers
-      << f.waiting_note;
+      << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
     farm.log(o.str());
     std::ostringstream row;
     row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates() << ','
@@ -173,6 +174,34 @@ class OffPolicyAlgorithm final : public Algorithm {
     batches_since_publish_ = 0;
   }
 
+  // sac.max_step_scale: once a window of kStepWindowSeconds from the first update on, the updates
+  // the data allowed in it (the pacing's max_updates_per_step x env steps received) per update made
+  // set the step scale for the next window (next_step_scale).
+  void adapt_step(Farm& farm) {
+    const double t = now_seconds();
+    const int64_t updates = algo_->updates();
+    const uint64_t env_steps = farm.env_steps();
+    if (updates == 0) return;
+    if (step_window_start_ < 0 || t - step_window_start_ >= kStepWindowSeconds) {
+      if (step_window_start_ >= 0 && updates > step_window_updates_) {
+        const double allowed = algo_->max_updates_per_step() * double(env_steps - step_window_env_steps_);
+        const double r = allowed / double(updates - step_window_updates_);
+        const int next = next_step_scale(step_scale_, r, algo_->max_step_scale());
+        if (next != step_scale_) {
+          step_scale_ = next;
+          algo_->set_step_scale(next);
+          farm.log(algo_name_ + " step x" + std::to_string(next) + " from update " + std::to_string(updates) +
+                   ": batch " + std::to_string(algo_->batch_size()) + ", learning rates x" +
+                   fmt("%.2f", std::sqrt(double(next))) + " (the last " + fmt("%.1f", t - step_window_start_) +
+                   " s' data allowed " + fmt("%.2f", r) + " updates per update made)");
+        }
+      }
+      step_window_start_ = t;
+      step_window_updates_ = updates;
+      step_window_env_steps_ = env_steps;
+    }
+  }
+
   // Whether one more update may run after `ahead` more than have run so far.
   bool can_update(const Farm& farm, int ahead) const {
     const int64_t done = algo_->updates() + ahead;
@@ -216,6 +245,11 @@ class OffPolicyAlgorithm final : public Algorithm {
   uint64_t version_ = 0;  // the next version to publish
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
+  static constexpr double kStepWindowSeconds = 1.0;
+  int step_scale_ = 1;
+  double step_window_start_ = -1;
+  int64_t step_window_updates_ = 0;
+  uint64_t step_window_env_steps_ = 0;
 };
 
 }  // namespace

@@ -113,6 +113,16 @@ std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& 
   return out;
 }
 
+void Sac::scale_learning_rates(double factor) {
+  if (!(factor > 0) || !std::isfinite(factor))
+    throw std::invalid_argument("sac: learning-rate scale must be a finite number > 0, got " + std::to_string(factor));
+  if (factor == impl_->lr_scale) return;
+  impl_->lr_scale = factor;
+  impl_->apply_learning_rates();
+}
+
+double Sac::learning_rate_scale() const { return impl_->lr_scale; }
+
 SacStats Sac::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
   if (s.use_graph()) return s.graph_update(host_batch);
@@ -280,7 +290,9 @@ void Sac::load(const std::string& dir) {
     s.critic_opt->load(critic_opt);
     s.alpha_opt->load(alpha_opt);
     s.updates = updates.item<int64_t>();
-    s.drop_graph();  // the optimizer state tensors a CUDA graph was captured with were replaced
+    // The saved optimizers carry the learning rates they ran with; this run's are its own. Drops
+    // the CUDA graph too: the optimizer state tensors it was captured with were replaced.
+    s.apply_learning_rates();
   } catch (const c10::Error& e) {
     throw fail(e.what_without_backtrace());
   }

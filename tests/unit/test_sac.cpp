@@ -1,6 +1,10 @@
+#include "algorithm.h"
 #include "compute.h"
+#include "config.h"
 #include "divergence.h"
+#include "meter.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
+#include "registry.h"
 #include "rng_state.h"
 #include "sac.h"
 
@@ -361,6 +365,38 @@ TEST(SacCuda, GraphHonoursTheActorOrder) {
   EXPECT_GT(other, 10 * same) << "the graph's actor is as near the other order's as its own";
 }
 
+// A learning-rate scale set between updates reaches the captured graph (its fused Adam holds the
+// rate as a constant, so the graph is captured again) as it reaches the eager update. The batch
+// keeps its size here, which alone would not make a new capture: a graph kept from before the
+// scale would move the networks by the old rate and part from the eager instance.
+TEST(SacCuda, GraphFollowsALearningRateScale) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = small_config();
+  cfg.set_device("cuda");
+  cfg.set_cuda_tf32(false);
+  auto eager_cfg = cfg;
+  eager_cfg.set_cuda_graph(false);
+  Sac graph(cfg, 3, 2, 5), eager(eager_cfg, 3, 2, 5);
+  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  constexpr double kTol = 1e-3;
+  int k = 0;
+  for (; k < 10; ++k) {
+    graph.update(random_batch(64, 3, 2, 600 + k));
+    eager.update(random_batch(64, 3, 2, 600 + k));
+  }
+  for (const double scale : {4.0, 1.0}) {
+    graph.scale_learning_rates(scale);
+    eager.scale_learning_rates(scale);
+    for (const int stop = k + 10; k < stop; ++k) {
+      const SacStats g = graph.update(random_batch(64, 3, 2, 600 + k));
+      const SacStats e = eager.update(random_batch(64, 3, 2, 600 + k));
+      expect_stats_near(g, e, kTol, k);
+    }
+    EXPECT_LE(relative_difference(graph.critic_parameters(), eager.critic_parameters()), kTol) << "scale " << scale;
+    EXPECT_LE(relative_difference(graph.actor_parameters(), eager.actor_parameters()), kTol) << "scale " << scale;
+  }
+}
+
 // The optimizer state of graph updates goes through save/load: into an eager instance, and into a
 // graph instance that must capture again, both then update as the saved one does.
 TEST(SacCuda, GraphStateSurvivesSaveLoad) {
@@ -504,6 +540,131 @@ TEST(Sac, ExportPolicyLayout) {
   EXPECT_EQ(p.params[1], w0[0][1].item<float>());
   EXPECT_EQ(p.params[3], w0[1][0].item<float>());
   EXPECT_EQ(p.params[3 * 32], params[1][0].item<float>());
+}
+
+// The summed size of the critics' step in one update on `batch`, with LibTorch's generator at a
+// fixed state so two instances draw the same policy noise.
+double critic_step_size(Sac& sac, const SampledBatch& batch) {
+  const auto before = copies(sac.critic_parameters());
+  torch::manual_seed(8);
+  sac.update(batch);
+  const auto after = sac.critic_parameters();
+  double sum = 0;
+  for (size_t i = 0; i < after.size(); ++i) sum += (after[i] - before[i]).abs().sum().item<double>();
+  return sum;
+}
+
+// Adam's step is proportional to its learning rate at the same moments, so from the same state the
+// scaled instance's critics move by the scale's multiple; a loaded checkpoint written at another
+// scale does not bring its learning rates along.
+TEST(Sac, LearningRateScaleScalesTheStepAndOutlivesLoad) {
+  const auto cfg = small_config();
+  const auto batch = random_batch(32, 3, 2, 500);
+  Sac plain(cfg, 3, 2, 5), scaled(cfg, 3, 2, 5);
+  scaled.scale_learning_rates(4.0);
+  EXPECT_EQ(scaled.learning_rate_scale(), 4.0);
+  EXPECT_NEAR(critic_step_size(scaled, batch) / critic_step_size(plain, batch), 4.0, 1e-3);
+
+  for (int k = 0; k < 4; ++k) scaled.update(random_batch(32, 3, 2, 510 + k));
+  const std::string dir = temp_dir("sac_lr_scale");
+  scaled.save(dir);
+  Sac own(cfg, 3, 2, 6), twice(cfg, 3, 2, 6);
+  twice.scale_learning_rates(2.0);
+  own.load(dir);
+  twice.load(dir);
+  EXPECT_EQ(own.learning_rate_scale(), 1.0);
+  EXPECT_EQ(twice.learning_rate_scale(), 2.0);
+  EXPECT_NEAR(critic_step_size(twice, batch) / critic_step_size(own, batch), 2.0, 1e-3);
+  farm::remove_tree(dir);
+
+  EXPECT_THROW(plain.scale_learning_rates(0.0), std::invalid_argument);
+  EXPECT_THROW(plain.scale_learning_rates(NAN), std::invalid_argument);
+}
+
+TEST(SacStepScale, FollowsTheDataWithAMarginAndBounds) {
+  struct Case {
+    int current;
+    double r;
+    int most, want;
+  } cases[] = {
+      {1, 1.0, 4, 1}, {1, 1.99, 4, 1},   {1, 2.0, 4, 2}, {1, 4.7, 4, 4}, {1, 9.0, 4, 4},  // up to powers of 2
+      {1, 9.0, 6, 4}, {1, 40.0, 64, 32}, {1, 5.0, 1, 1},                                  // within `most`
+      {4, 3.5, 4, 4}, {4, 3.1, 4, 2},    {4, 0.9, 4, 1}, {2, 1.7, 4, 2}, {2, 1.5, 4, 1},  // down below 0.8
+      {4, 0.0, 4, 1}, {8, 50.0, 4, 4},                                                    // none, and past most
+  };
+  for (const auto& c : cases)
+    EXPECT_EQ(next_step_scale(c.current, c.r, c.most), c.want)
+        << "current " << c.current << ", r " << c.r << ", most " << c.most;
+}
+
+// What the replay driver sees of the farm: env steps as the test sets them, the log kept.
+class StepScaleFarm final : public Farm {
+ public:
+  void publish(const PolicyParams&, uint32_t) override {}
+  std::vector<LiveWorker> live_workers() const override { return {}; }
+  double first_worker_heard() const override { return 0; }
+  FarmFigures figures() const override { return {}; }
+  uint64_t env_steps() const override { return env_steps_; }
+  double elapsed() const override { return 0; }
+  bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
+  void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
+  void log(const std::string& line) const override { lines_.push_back(line); }
+  void csv_row(const std::string&) override {}
+  uint64_t env_steps_ = 0;
+  mutable std::vector<std::string> lines_;
+};
+
+// The driver's side of sac.max_step_scale: while the env steps received allow far more updates
+// than it makes, the step grows to the configured most; once no data comes, it falls back.
+TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
+  auto cfg = parse_config_text(
+      "experiment_id: \"step_scale\" algorithm: \"sac\" eval { every_seconds: 1000 }\n"
+      "sac { hidden: [8, 8] batch_size: 16 learning_starts: 64 max_updates_per_step: 1 max_step_scale: 4 }\n",
+      "step_scale.txtpb");
+  robots::TaskSpec spec;
+  spec.name = "step_scale";
+  spec.obs_dim = 3;
+  spec.act_dim = 1;
+  spec.max_episode_steps = 100;
+  auto algo = make_algorithm(cfg, spec);
+  StepScaleFarm farm;
+  algo->start(farm);
+  const int rows = 256;
+  Transitions t;
+  t.n = rows;
+  t.obs.assign(rows * 3, 0.5f);
+  t.actions.assign(rows, 0.1f);
+  t.rewards.assign(rows, 1.f);
+  t.next_obs.assign(rows * 3, 0.4f);
+  t.terminated.assign(rows, 0);
+  std::vector<uint8_t> truncated(rows, 0);
+  Batch b;
+  b.num_steps = 1;
+  b.num_envs = rows;
+  b.truncated = truncated.data();
+  b.rows = &t;
+  ASSERT_TRUE(algo->take(b));
+
+  auto run_for = [&](double seconds, uint64_t steps_per_pass) {
+    const double end = now_seconds() + seconds;
+    while (now_seconds() < end) {
+      farm.env_steps_ += steps_per_pass;
+      algo->train(farm, true);
+    }
+  };
+  auto logged = [&](const std::string& what) {
+    return std::any_of(farm.lines_.begin(), farm.lines_.end(),
+                       [&](const std::string& l) { return l.find(what) != std::string::npos; });
+  };
+  run_for(2.5, 1000000);  // data for a million updates a pass: the step grows to x4
+  EXPECT_TRUE(logged("sac step x4 from update")) << ::testing::PrintToString(farm.lines_);
+  EXPECT_TRUE(logged("batch 64, learning rates x2.00")) << ::testing::PrintToString(farm.lines_);
+  EXPECT_FALSE(logged("sac step x8"));
+  const size_t grown = farm.lines_.size();
+  run_for(2.5, 0);  // no more data; the backlog keeps it updating, but the data allow nothing new
+  ASSERT_GT(farm.lines_.size(), grown) << ::testing::PrintToString(farm.lines_);
+  EXPECT_NE(farm.lines_.back().find("sac step x1 from update"), std::string::npos) << farm.lines_.back();
+  EXPECT_NE(farm.lines_.back().find("batch 16, learning rates x1.00"), std::string::npos) << farm.lines_.back();
 }
 
 // A resumed learner draws what the uninterrupted one would have drawn next: the replay sampler's
