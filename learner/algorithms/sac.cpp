@@ -208,6 +208,7 @@ PolicyParams Sac::export_policy(uint64_t version) const {
 
 int64_t Sac::updates() const { return impl_->updates; }
 bool Sac::uses_cuda_graph() const { return impl_->use_graph(); }
+bool Sac::on_gpu() const { return impl_->device.is_cuda(); }
 int Sac::obs_dim() const { return impl_->obs_dim; }
 int Sac::act_dim() const { return impl_->act_dim; }
 const std::vector<int>& Sac::hidden() const { return impl_->hidden; }

@@ -69,6 +69,7 @@ class Sac {
   // built against a CUDA LibTorch. Same arithmetic as the eager path, a few hundred kernel launches
   // fewer per update.
   bool uses_cuda_graph() const;
+  bool on_gpu() const;  // the networks train on a CUDA device
   int obs_dim() const;
   int act_dim() const;
   const std::vector<int>& hidden() const;

@@ -3,8 +3,8 @@
 #include "config.h"
 #include "divergence.h"
 #include "meter.h"
+#include "off_policy.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
-#include "registry.h"
 #include "rng_state.h"
 #include "sac.h"
 
@@ -614,19 +614,70 @@ class StepScaleFarm final : public Farm {
   mutable std::vector<std::string> lines_;
 };
 
-// The driver's side of sac.max_step_scale: while the env steps received allow far more updates
-// than it makes, the step grows to the configured most; once no data comes, it falls back.
-TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
-  auto cfg = parse_config_text(
+// SAC's adapter as it is, but with the step scale it would have on a GPU (its own keeps the seed's
+// step on the CPU), so that the driver's side runs here.
+class StepScaleOnAnyDevice final : public OffPolicy {
+ public:
+  StepScaleOnAnyDevice(std::unique_ptr<OffPolicy> sac, int most) : sac_(std::move(sac)), most_(most) {}
+  std::string name() const override { return sac_->name(); }
+  OffPolicyStats update(const SampledBatch& b) override { return sac_->update(b); }
+  std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next) override {
+    return sac_->update_n(n, next);
+  }
+  PolicyParams export_policy(uint64_t v) const override { return sac_->export_policy(v); }
+  int64_t updates() const override { return sac_->updates(); }
+  void save(const std::string& dir) const override { sac_->save(dir); }
+  void load(const std::string& dir) override { sac_->load(dir); }
+  int batch_size() const override { return sac_->batch_size(); }
+  int64_t buffer_size() const override { return sac_->buffer_size(); }
+  int64_t learning_starts() const override { return sac_->learning_starts(); }
+  double max_updates_per_step() const override { return sac_->max_updates_per_step(); }
+  int publish_every_updates() const override { return sac_->publish_every_updates(); }
+  int max_step_scale() const override { return most_; }
+  void set_step_scale(int s) override { sac_->set_step_scale(s); }
+  double gamma() const override { return sac_->gamma(); }
+  std::string describe() const override { return sac_->describe(); }
+
+ private:
+  std::unique_ptr<OffPolicy> sac_;
+  int most_;
+};
+
+config::ExperimentConfig step_scale_config() {
+  return parse_config_text(
       "experiment_id: \"step_scale\" algorithm: \"sac\" eval { every_seconds: 1000 }\n"
       "sac { hidden: [8, 8] batch_size: 16 learning_starts: 64 max_updates_per_step: 1 max_step_scale: 4 }\n",
       "step_scale.txtpb");
+}
+
+robots::TaskSpec step_scale_spec() {
   robots::TaskSpec spec;
   spec.name = "step_scale";
   spec.obs_dim = 3;
   spec.act_dim = 1;
   spec.max_episode_steps = 100;
-  auto algo = make_algorithm(cfg, spec);
+  return spec;
+}
+
+// On the CPU a batch four times as large costs nearly four times the time, so SAC's adapter keeps
+// the seed's step there whatever sac.max_step_scale says, and its start line says so.
+TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
+  auto cfg = step_scale_config();
+  cfg.mutable_sac()->set_device("cpu");
+  const auto sac = make_sac(cfg, step_scale_spec());
+  EXPECT_EQ(sac->max_step_scale(), 1);
+  EXPECT_NE(sac->describe().find("the seed's step (sac.max_step_scale is for a GPU learner)"), std::string::npos)
+      << sac->describe();
+  sac->set_step_scale(4);  // the driver never asks it here; if asked, the batch follows
+  EXPECT_EQ(sac->batch_size(), 64);
+}
+
+// The driver's side of sac.max_step_scale: while the env steps received allow far more updates
+// than it makes, the step grows to the configured most; once no data comes, it falls back.
+TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
+  const auto cfg = step_scale_config();
+  const auto spec = step_scale_spec();
+  auto algo = make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 4), cfg, spec);
   StepScaleFarm farm;
   algo->start(farm);
   const int rows = 256;
