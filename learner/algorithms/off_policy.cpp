@@ -34,6 +34,7 @@ class SacAlgorithm final : public OffPolicy {
   // On a GPU only: there a batch of 1024 costs little more than one of 256, while on a CPU it
   // costs 2.3-3.4 times as much (sac.max_step_scale).
   int max_step_scale() const override { return sac_.on_gpu() ? cfg_.max_step_scale() : 1; }
+  int step_scale() const override { return step_scale_; }
   void set_step_scale(int s) override {
     step_scale_ = s;
     sac_.scale_learning_rates(std::sqrt(double(s)));

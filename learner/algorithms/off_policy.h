@@ -54,9 +54,10 @@ class OffPolicy {
   virtual double max_updates_per_step() const = 0;
   virtual int publish_every_updates() const = 0;
   // A larger step when the data outrun the updates (sac.max_step_scale): the most the driver may
-  // scale it by, and the scale to take from now on (SAC: batch_size() times s, learning rates
-  // times sqrt(s)). An algorithm without it keeps 1.
+  // scale it by, the scale in use, and the scale to take from now on (SAC: batch_size() times s,
+  // learning rates times sqrt(s)). An algorithm without it keeps 1.
   virtual int max_step_scale() const { return 1; }
+  virtual int step_scale() const { return 1; }
   virtual void set_step_scale(int /*s*/) {}
   // Multi-step returns: replay rows are folded to this many steps (fold_n_step) before they are
   // stored; 1 keeps one-step rows.

@@ -93,7 +93,7 @@ class OffPolicyAlgorithm final : public Algorithm {
       << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
       << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
       << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers " << f.workers
-      << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
+      << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(algo_->step_scale()) : "") << f.waiting_note;
     farm.log(o.str());
     std::ostringstream row;
     row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << algo_->updates() << ','
@@ -186,9 +186,8 @@ class OffPolicyAlgorithm final : public Algorithm {
       if (step_window_start_ >= 0 && updates > step_window_updates_) {
         const double allowed = algo_->max_updates_per_step() * double(env_steps - step_window_env_steps_);
         const double r = allowed / double(updates - step_window_updates_);
-        const int next = next_step_scale(step_scale_, r, algo_->max_step_scale());
-        if (next != step_scale_) {
-          step_scale_ = next;
+        const int next = next_step_scale(algo_->step_scale(), r, algo_->max_step_scale());
+        if (next != algo_->step_scale()) {
           algo_->set_step_scale(next);
           farm.log(algo_name_ + " step x" + std::to_string(next) + " from update " + std::to_string(updates) +
                    ": batch " + std::to_string(algo_->batch_size()) + ", learning rates x" +
@@ -246,7 +245,6 @@ class OffPolicyAlgorithm final : public Algorithm {
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
   static constexpr double kStepWindowSeconds = 1.0;
-  int step_scale_ = 1;
   double step_window_start_ = -1;
   int64_t step_window_updates_ = 0;
   uint64_t step_window_env_steps_ = 0;

@@ -1,0 +1,159 @@
+// sac.max_step_scale: the rule that picks the step scale, SAC's adapter keeping the seed's step on
+// the CPU, and the replay driver growing and shrinking the step against the env steps a farm
+// reports (learner/algorithms/off_policy.cpp, off_policy_algorithm.cpp).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "algorithm.h"
+#include "config.h"
+#include "meter.h"
+#include "off_policy.h"
+
+namespace farm {
+namespace {
+
+TEST(SacStepScale, FollowsTheDataWithAMarginAndBounds) {
+  struct Case {
+    int current;
+    double r;
+    int most, want;
+  } cases[] = {
+      {1, 1.0, 4, 1}, {1, 1.99, 4, 1},   {1, 2.0, 4, 2}, {1, 4.7, 4, 4}, {1, 9.0, 4, 4},  // up to powers of 2
+      {1, 9.0, 6, 4}, {1, 40.0, 64, 32}, {1, 5.0, 1, 1},                                  // within `most`
+      {4, 3.5, 4, 4}, {4, 3.1, 4, 2},    {4, 0.9, 4, 1}, {2, 1.7, 4, 2}, {2, 1.5, 4, 1},  // down below 0.8
+      {4, 0.0, 4, 1}, {8, 50.0, 4, 4},                                                    // none, and past most
+  };
+  for (const auto& c : cases)
+    EXPECT_EQ(next_step_scale(c.current, c.r, c.most), c.want)
+        << "current " << c.current << ", r " << c.r << ", most " << c.most;
+}
+
+// What the replay driver sees of the farm: env steps as the test sets them, the log kept.
+class StepScaleFarm final : public Farm {
+ public:
+  void publish(const PolicyParams&, uint32_t) override {}
+  std::vector<LiveWorker> live_workers() const override { return {}; }
+  double first_worker_heard() const override { return 0; }
+  FarmFigures figures() const override { return {}; }
+  uint64_t env_steps() const override { return env_steps_; }
+  double elapsed() const override { return 0; }
+  bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
+  void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
+  void log(const std::string& line) const override { lines_.push_back(line); }
+  void csv_row(const std::string&) override {}
+  uint64_t env_steps_ = 0;
+  mutable std::vector<std::string> lines_;
+};
+
+// SAC's adapter as it is, but with the step scale it would have on a GPU (its own keeps the seed's
+// step on the CPU), so that the driver's side runs here.
+class StepScaleOnAnyDevice final : public OffPolicy {
+ public:
+  StepScaleOnAnyDevice(std::unique_ptr<OffPolicy> sac, int most) : sac_(std::move(sac)), most_(most) {}
+  std::string name() const override { return sac_->name(); }
+  OffPolicyStats update(const SampledBatch& b) override { return sac_->update(b); }
+  std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next) override {
+    return sac_->update_n(n, next);
+  }
+  PolicyParams export_policy(uint64_t v) const override { return sac_->export_policy(v); }
+  int64_t updates() const override { return sac_->updates(); }
+  void save(const std::string& dir) const override { sac_->save(dir); }
+  void load(const std::string& dir) override { sac_->load(dir); }
+  int batch_size() const override { return sac_->batch_size(); }
+  int64_t buffer_size() const override { return sac_->buffer_size(); }
+  int64_t learning_starts() const override { return sac_->learning_starts(); }
+  double max_updates_per_step() const override { return sac_->max_updates_per_step(); }
+  int publish_every_updates() const override { return sac_->publish_every_updates(); }
+  int max_step_scale() const override { return most_; }
+  int step_scale() const override { return sac_->step_scale(); }
+  void set_step_scale(int s) override { sac_->set_step_scale(s); }
+  double gamma() const override { return sac_->gamma(); }
+  std::string describe() const override { return sac_->describe(); }
+
+ private:
+  std::unique_ptr<OffPolicy> sac_;
+  int most_;
+};
+
+config::ExperimentConfig step_scale_config() {
+  return parse_config_text(
+      "experiment_id: \"step_scale\" algorithm: \"sac\" eval { every_seconds: 1000 }\n"
+      "sac { hidden: [8, 8] batch_size: 16 learning_starts: 64 max_updates_per_step: 1 max_step_scale: 4 }\n",
+      "step_scale.txtpb");
+}
+
+robots::TaskSpec step_scale_spec() {
+  robots::TaskSpec spec;
+  spec.name = "step_scale";
+  spec.obs_dim = 3;
+  spec.act_dim = 1;
+  spec.max_episode_steps = 100;
+  return spec;
+}
+
+// On the CPU a batch four times as large costs nearly four times the time, so SAC's adapter keeps
+// the seed's step there whatever sac.max_step_scale says, and its start line says so.
+TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
+  auto cfg = step_scale_config();
+  cfg.mutable_sac()->set_device("cpu");
+  const auto sac = make_sac(cfg, step_scale_spec());
+  EXPECT_EQ(sac->max_step_scale(), 1);
+  EXPECT_NE(sac->describe().find("the seed's step (sac.max_step_scale is for a GPU learner)"), std::string::npos)
+      << sac->describe();
+  sac->set_step_scale(4);  // the driver never asks it here; if asked, the batch follows
+  EXPECT_EQ(sac->batch_size(), 64);
+}
+
+// The driver's side of sac.max_step_scale: while the env steps received allow far more updates
+// than it makes, the step grows to the configured most; once no data comes, it falls back.
+TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
+  const auto cfg = step_scale_config();
+  const auto spec = step_scale_spec();
+  auto algo = make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 4), cfg, spec);
+  StepScaleFarm farm;
+  algo->start(farm);
+  const int rows = 256;
+  Transitions t;
+  t.n = rows;
+  t.obs.assign(rows * 3, 0.5f);
+  t.actions.assign(rows, 0.1f);
+  t.rewards.assign(rows, 1.f);
+  t.next_obs.assign(rows * 3, 0.4f);
+  t.terminated.assign(rows, 0);
+  std::vector<uint8_t> truncated(rows, 0);
+  Batch b;
+  b.num_steps = 1;
+  b.num_envs = rows;
+  b.truncated = truncated.data();
+  b.rows = &t;
+  ASSERT_TRUE(algo->take(b));
+
+  auto run_for = [&](double seconds, uint64_t steps_per_pass) {
+    const double end = now_seconds() + seconds;
+    while (now_seconds() < end) {
+      farm.env_steps_ += steps_per_pass;
+      algo->train(farm, true);
+    }
+  };
+  auto logged = [&](const std::string& what) {
+    return std::any_of(farm.lines_.begin(), farm.lines_.end(),
+                       [&](const std::string& l) { return l.find(what) != std::string::npos; });
+  };
+  run_for(2.5, 1000000);  // data for a million updates a pass: the step grows to x4
+  EXPECT_TRUE(logged("sac step x4 from update")) << ::testing::PrintToString(farm.lines_);
+  EXPECT_TRUE(logged("batch 64, learning rates x2.00")) << ::testing::PrintToString(farm.lines_);
+  EXPECT_FALSE(logged("sac step x8"));
+  const size_t grown = farm.lines_.size();
+  run_for(2.5, 0);  // no more data; the backlog keeps it updating, but the data allow nothing new
+  ASSERT_GT(farm.lines_.size(), grown) << ::testing::PrintToString(farm.lines_);
+  EXPECT_NE(farm.lines_.back().find("sac step x1 from update"), std::string::npos) << farm.lines_.back();
+  EXPECT_NE(farm.lines_.back().find("batch 16, learning rates x1.00"), std::string::npos) << farm.lines_.back();
+}
+
+}  // namespace
+}  // namespace farm
