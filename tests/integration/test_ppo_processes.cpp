@@ -33,15 +33,16 @@ int count(const std::string& text, const std::regex& re) {
   return int(std::distance(std::sregex_iterator(text.begin(), text.end(), re), std::sregex_iterator()));
 }
 
-// A swing-up that stays up scores about 1 per step (250 steps); a policy that never swings up
-// scores well below 100. The threshold sits between, with margin on both sides.
+// A swing-up that stays up scores about 1 per step (250 steps); the untrained policy about 10, and
+// one that only now and then gets the pole up 40-60. The target sits well above those.
 constexpr double kTargetReturn = 150.0;
-constexpr double kSwingsUpReturn = 100.0;
+constexpr double kLearnedReturn = 50.0;
 
 TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(61)), run = d + "/run";
-  write_file(d + "/cfg.txtpb", config("it_cartpole_ppo", "target_eval_return: 150 max_seconds: 480"));
+  write_file(d + "/cfg.txtpb", config("it_cartpole_ppo", "target_eval_return: " + std::to_string(int(kTargetReturn)) +
+                                                             " max_seconds: 480"));
   Proc& learner =
       set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-a", "--log-every", "5"}, "worker-a");
@@ -58,10 +59,14 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   std::smatch m;
   ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(final eval return\s+(-?[0-9.]+))"))) << summary;
   // The final, larger evaluation is of the policy after one more fit, on the steps held at the stop,
-  // which can move it either way (a CI run: v31 met the target at 158.9 over 16 episodes, min 157.6;
-  // the last fit's v32 made 118.0 over 32, upright 47 % of the time): it must still swing up.
-  EXPECT_GE(std::stod(m[1]), kSwingsUpReturn) << summary;
+  // and one PPO fit moves this task's evaluation by tens either way (one run's fits 15-19: 109, 123,
+  // 105, 108, 159; CI runs' last fits moved a final from the target's 158.9 to 118.0, another's to
+  // 91.2). What the run keeps is its best (RUN/best, checked next); the final must still be a
+  // learned policy, far above the untrained one.
+  EXPECT_GE(std::stod(m[1]), kLearnedReturn) << summary;
   EXPECT_EQ(best_policy_problem(run, summary, "ppo"), "");  // the best evaluation's networks, kept
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(best eval return\s+(-?[0-9.]+))"))) << summary;
+  EXPECT_GE(std::stod(m[1]), kTargetReturn) << summary;  // and they met the target
   ASSERT_TRUE(std::regex_search(
       summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+), stale (\d+))")))
       << summary;
