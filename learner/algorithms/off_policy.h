@@ -77,8 +77,9 @@ std::unique_ptr<OffPolicy> make_off_policy(const config::ExperimentConfig& cfg, 
 
 // sac.max_step_scale's rule, from the scale in use and r, the updates the data allowed over the
 // last window per update made (max_updates_per_step x env steps received / updates made): up to
-// the largest power of 2 at most r, down to it once r falls below 0.8 of the scale in use (the
-// margin keeps a scale from flapping on a ratio near a power of 2), never past `most` nor below 1.
+// the power of 2 nearest r on a log scale (s where r is s / sqrt(2) or more), down to it once r
+// falls below 0.8 s / sqrt(2) for the scale s in use (the margin keeps a scale from flapping on a
+// ratio near a band's edge), never past `most` nor below 1.
 int next_step_scale(int current, double r, int most);
 
 class Algorithm;

@@ -23,10 +23,26 @@ TEST(SacStepScale, FollowsTheDataWithAMarginAndBounds) {
     double r;
     int most, want;
   } cases[] = {
-      {1, 1.0, 4, 1}, {1, 1.99, 4, 1},   {1, 2.0, 4, 2}, {1, 4.7, 4, 4}, {1, 9.0, 4, 4},  // up to powers of 2
-      {1, 9.0, 6, 4}, {1, 40.0, 64, 32}, {1, 5.0, 1, 1},                                  // within `most`
-      {4, 3.5, 4, 4}, {4, 3.1, 4, 2},    {4, 0.9, 4, 1}, {2, 1.7, 4, 2}, {2, 1.5, 4, 1},  // down below 0.8
-      {4, 0.0, 4, 1}, {8, 50.0, 4, 4},                                                    // none, and past most
+      // Up to the power of 2 nearest r on a log scale: s for r from s / sqrt(2) on.
+      {1, 1.0, 4, 1},
+      {1, 1.41, 4, 1},
+      {1, 1.42, 4, 2},
+      {1, 2.8, 4, 2},
+      {1, 2.9, 4, 4},
+      {1, 9.0, 4, 4},
+      {1, 9.0, 6, 4},
+      {1, 40.0, 64, 32},
+      {1, 46.0, 64, 64},
+      {1, 5.0, 1, 1},  // within `most`
+      // Down only below 0.8 s / sqrt(2): x4 holds where r is 3-4 (a floor took x2 there).
+      {4, 3.1, 4, 4},
+      {4, 2.3, 4, 4},
+      {4, 2.2, 4, 2},
+      {4, 0.9, 4, 1},
+      {2, 1.2, 4, 2},
+      {2, 1.1, 4, 1},
+      {4, 0.0, 4, 1},
+      {8, 50.0, 4, 4},  // none, and past most
   };
   for (const auto& c : cases)
     EXPECT_EQ(next_step_scale(c.current, c.r, c.most), c.want)
