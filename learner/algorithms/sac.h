@@ -61,8 +61,8 @@ class Sac {
   PolicyParams export_policy(uint64_t version) const;
 
   int64_t updates() const;
-  // The actor's and critics' learning rates as sac.actor_lr and sac.critic_lr times `factor` (the
-  // temperature's stays), from the next update on; kept over load(). factor must be > 0.
+  // The actor's, critics' and temperature's learning rates as sac.actor_lr, sac.critic_lr and
+  // sac.alpha_lr times `factor`, from the next update on; kept over load(). factor must be > 0.
   void scale_learning_rates(double factor);
   double learning_rate_scale() const;
   // True when updates replay a captured CUDA graph: a CUDA device, sac.cuda_graph, and a learner

@@ -191,10 +191,11 @@ struct Sac::Impl {
   std::unique_ptr<torch::optim::Adam> actor_opt, critic_opt, alpha_opt;
   int64_t updates = 0;
   double lr_scale = 1.0;  // Sac::scale_learning_rates
-  // The actor's and critics' Adam learning rates from cfg and lr_scale; a CUDA graph captured
-  // with others is dropped (its fused Adam holds the learning rate as a constant).
+  // The actor's, critics' and temperature's Adam learning rates from cfg and lr_scale; a CUDA graph
+  // captured with others is dropped (its fused Adam holds the learning rate as a constant).
   void apply_learning_rates() {
-    for (auto [opt, lr] : {std::pair{actor_opt.get(), cfg.actor_lr()}, std::pair{critic_opt.get(), cfg.critic_lr()}})
+    for (auto [opt, lr] : {std::pair{actor_opt.get(), cfg.actor_lr()}, std::pair{critic_opt.get(), cfg.critic_lr()},
+                           std::pair{alpha_opt.get(), cfg.alpha_lr()}})
       for (auto& group : opt->param_groups())
         static_cast<torch::optim::AdamOptions&>(group.options()).lr(lr * lr_scale);
     drop_graph();

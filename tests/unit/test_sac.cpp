@@ -542,20 +542,27 @@ TEST(Sac, ExportPolicyLayout) {
   EXPECT_EQ(p.params[3 * 32], params[1][0].item<float>());
 }
 
-// The summed size of the critics' step in one update on `batch`, with LibTorch's generator at a
-// fixed state so two instances draw the same policy noise.
-double critic_step_size(Sac& sac, const SampledBatch& batch) {
+// The sizes of one update's steps on `batch`: the critics' (summed over their parameters) and the
+// temperature's (log alpha), with LibTorch's generator at a fixed state so two instances draw the
+// same policy noise.
+struct StepSizes {
+  double critics, temperature;
+};
+StepSizes step_sizes(Sac& sac, const SampledBatch& batch) {
   const auto before = copies(sac.critic_parameters());
+  const double log_alpha = std::log(sac.alpha());
   torch::manual_seed(8);
   sac.update(batch);
   const auto after = sac.critic_parameters();
   double sum = 0;
   for (size_t i = 0; i < after.size(); ++i) sum += (after[i] - before[i]).abs().sum().item<double>();
-  return sum;
+  return {sum, std::abs(std::log(sac.alpha()) - log_alpha)};
 }
 
 // Adam's step is proportional to its learning rate at the same moments, so from the same state the
-// scaled instance's critics move by the scale's multiple; a loaded checkpoint written at another
+// scaled instance's critics and temperature move by the scale's multiple (the temperature's falls
+// by at most about alpha_lr per update, so a larger step that left it out would hold a run's
+// temperature schedule to the seed's count of updates); a loaded checkpoint written at another
 // scale does not bring its learning rates along.
 TEST(Sac, LearningRateScaleScalesTheStepAndOutlivesLoad) {
   const auto cfg = small_config();
@@ -563,7 +570,10 @@ TEST(Sac, LearningRateScaleScalesTheStepAndOutlivesLoad) {
   Sac plain(cfg, 3, 2, 5), scaled(cfg, 3, 2, 5);
   scaled.scale_learning_rates(4.0);
   EXPECT_EQ(scaled.learning_rate_scale(), 4.0);
-  EXPECT_NEAR(critic_step_size(scaled, batch) / critic_step_size(plain, batch), 4.0, 1e-3);
+  const StepSizes at4 = step_sizes(scaled, batch), at1 = step_sizes(plain, batch);
+  ASSERT_GT(at1.temperature, 0.0);
+  EXPECT_NEAR(at4.critics / at1.critics, 4.0, 1e-3);
+  EXPECT_NEAR(at4.temperature / at1.temperature, 4.0, 1e-3);
 
   for (int k = 0; k < 4; ++k) scaled.update(random_batch(32, 3, 2, 510 + k));
   const std::string dir = temp_dir("sac_lr_scale");
@@ -574,7 +584,9 @@ TEST(Sac, LearningRateScaleScalesTheStepAndOutlivesLoad) {
   twice.load(dir);
   EXPECT_EQ(own.learning_rate_scale(), 1.0);
   EXPECT_EQ(twice.learning_rate_scale(), 2.0);
-  EXPECT_NEAR(critic_step_size(twice, batch) / critic_step_size(own, batch), 2.0, 1e-3);
+  const StepSizes at2 = step_sizes(twice, batch), own1 = step_sizes(own, batch);
+  EXPECT_NEAR(at2.critics / own1.critics, 2.0, 1e-3);
+  EXPECT_NEAR(at2.temperature / own1.temperature, 2.0, 1e-3);
   farm::remove_tree(dir);
 
   EXPECT_THROW(plain.scale_learning_rates(0.0), std::invalid_argument);
