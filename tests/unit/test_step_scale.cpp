@@ -23,26 +23,14 @@ TEST(SacStepScale, FollowsTheDataWithAMarginAndBounds) {
     double r;
     int most, want;
   } cases[] = {
-      // Up to the power of 2 nearest r on a log scale: s for r from s / sqrt(2) on.
-      {1, 1.0, 4, 1},
-      {1, 1.41, 4, 1},
-      {1, 1.42, 4, 2},
-      {1, 2.8, 4, 2},
-      {1, 2.9, 4, 4},
-      {1, 9.0, 4, 4},
-      {1, 9.0, 6, 4},
-      {1, 40.0, 64, 32},
-      {1, 46.0, 64, 64},
-      {1, 5.0, 1, 1},  // within `most`
+      // clang-format off
+      // Up to the power of 2 nearest r on a log scale: s for r from s / sqrt(2) on; within `most`.
+      {1, 1.0, 4, 1}, {1, 1.41, 4, 1}, {1, 1.42, 4, 2}, {1, 2.8, 4, 2}, {1, 2.9, 4, 4}, {1, 9.0, 4, 4},
+      {1, 9.0, 6, 4}, {1, 40.0, 64, 32}, {1, 46.0, 64, 64}, {1, 5.0, 1, 1},
       // Down only below 0.8 s / sqrt(2): x4 holds where r is 3-4 (a floor took x2 there).
-      {4, 3.1, 4, 4},
-      {4, 2.3, 4, 4},
-      {4, 2.2, 4, 2},
-      {4, 0.9, 4, 1},
-      {2, 1.2, 4, 2},
-      {2, 1.1, 4, 1},
-      {4, 0.0, 4, 1},
-      {8, 50.0, 4, 4},  // none, and past most
+      {4, 3.1, 4, 4}, {4, 2.3, 4, 4}, {4, 2.2, 4, 2}, {4, 0.9, 4, 1}, {2, 1.2, 4, 2}, {2, 1.1, 4, 1},
+      {4, 0.0, 4, 1}, {8, 50.0, 4, 4},  // none, and past most
+      // clang-format on
   };
   for (const auto& c : cases)
     EXPECT_EQ(next_step_scale(c.current, c.r, c.most), c.want)
