@@ -91,16 +91,15 @@ class DqnAlgorithm final : public OffPolicy {
 }  // namespace
 
 int next_step_scale(int current, double r, int most) {
-  constexpr double kSqrt2 = 1.4142135623730951;
   int cap = 1;  // the largest power of 2 at most `most`
   while (cap <= most / 2) cap *= 2;
   // The power of 2 nearest r on a log scale (s for r from s / sqrt(2) to s * sqrt(2)), within cap:
   // a floor would take x2 where r is 3-4, which leaves half of what a step of x4 would use.
   int fit = 1;
-  while (fit < cap && 2.0 * fit <= kSqrt2 * r) fit *= 2;
+  while (fit < cap && 2.0 * fit <= M_SQRT2 * r) fit *= 2;
   current = std::clamp(current, 1, cap);
   if (fit > current) return fit;
-  if (r < 0.8 * current / kSqrt2) return fit;  // down only past a margin below the step's band
+  if (r < 0.8 * current / M_SQRT2) return fit;  // down only past a margin below the step's band
   return current;
 }
 
