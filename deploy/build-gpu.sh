@@ -29,6 +29,11 @@ fi
 targets=(bench_sac bench_ppo)
 [ "$with_dds" = ON ] && targets+=(farm-learner)
 [ -n "${FARM_GPU_TARGETS:-}" ] && read -r -a targets <<<"$FARM_GPU_TARGETS"
+# A CUDA compiler for the SAC graph's fused kernels: CUDACXX, else nvcc on PATH, else the toolkit's
+# usual place; without one the graph keeps torch's ops (the build says so).
+if [ -z "${CUDACXX:-}" ] && ! command -v nvcc >/dev/null && [ -x /usr/local/cuda/bin/nvcc ]; then
+  export CUDACXX=/usr/local/cuda/bin/nvcc
+fi
 gen=()
 command -v ninja >/dev/null && gen=(-G Ninja)
 cmake -S "$root" -B "$build" "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \

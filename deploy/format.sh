@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Formats the project's C++ files (tracked and new, not ignored) with clang-format and the
+# Formats the project's C++ and CUDA files (tracked and new, not ignored) with clang-format and the
 # .clang-format at the root. --check changes nothing and fails, naming the files, where the format
 # differs (CI runs it).
 set -euo pipefail
@@ -16,7 +16,7 @@ if [ -z "$CLANG_FORMAT" ]; then
   echo "format: clang-format not found (deploy/install-deps.sh installs it)" >&2
   exit 2
 fi
-mapfile -t files < <(git ls-files --cached --others --exclude-standard -- '*.cpp' '*.h' | while read -r f; do
+mapfile -t files < <(git ls-files --cached --others --exclude-standard -- '*.cpp' '*.h' '*.cu' | while read -r f; do
   [ -f "$f" ] && echo "$f"; done)
 if [ "$check" = 0 ]; then
   "$CLANG_FORMAT" -i --style=file "${files[@]}"

@@ -18,10 +18,10 @@ class SacAlgorithm final : public OffPolicy {
   std::string name() const override { return "sac"; }
   OffPolicyStats update(const SampledBatch& b) override { return figures(sac_.update(b)); }
   std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next_batch) override {
-    std::vector<OffPolicyStats> out;
-    for (const SacStats& s : sac_.update_n(n, next_batch)) out.push_back(figures(s));
-    return out;
+    return all_figures(sac_.update_n(n, next_batch));
   }
+  int64_t updates_in_flight() const override { return sac_.updates_in_flight(); }
+  std::vector<OffPolicyStats> finish_updates() override { return all_figures(sac_.finish_updates()); }
   PolicyParams export_policy(uint64_t v) const override { return sac_.export_policy(v); }
   int64_t updates() const override { return sac_.updates(); }
   void save(const std::string& dir) const override { sac_.save(dir); }
@@ -46,11 +46,19 @@ class SacAlgorithm final : public OffPolicy {
       step = sac_.on_gpu()
                  ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
                  : ", the seed's step (sac.max_step_scale is for a GPU learner)";
+    if (sac_.uses_cuda_graph())
+      step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
 
  private:
   static OffPolicyStats figures(const SacStats& s) { return {s.critic_loss, s.actor_loss, s.alpha}; }
+  static std::vector<OffPolicyStats> all_figures(const std::vector<SacStats>& stats) {
+    std::vector<OffPolicyStats> out;
+    out.reserve(stats.size());
+    for (const SacStats& s : stats) out.push_back(figures(s));
+    return out;
+  }
   config::SacConfig cfg_;
   Sac sac_;
   int step_scale_ = 1;

@@ -33,14 +33,20 @@ class OffPolicy {
   // What OffPolicyStats::alpha holds, as messages name it (DQN: "epsilon").
   virtual std::string alpha_name() const { return "alpha"; }
   virtual OffPolicyStats update(const SampledBatch& batch) = 0;
-  // n updates on the batches next_batch() returns, in order, and their figures. An adapter whose
-  // updates can be queued on a device (SAC's CUDA graph) overrides this; the default calls update().
+  // n updates on the batches next_batch() returns, in order, and the figures of the updates that
+  // have run, oldest first. An adapter whose updates can be queued on a device (SAC's CUDA graph)
+  // overrides this and may return before the last of them have run: their figures come with a
+  // later call or with finish_updates(). The default calls update() n times.
   virtual std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next_batch) {
     std::vector<OffPolicyStats> out;
     out.reserve(n);
     for (int i = 0; i < n; ++i) out.push_back(update(next_batch()));
     return out;
   }
+  // Updates counted in updates() whose figures update_n has not returned yet.
+  virtual int64_t updates_in_flight() const { return 0; }
+  // Waits for those and returns their figures, oldest first.
+  virtual std::vector<OffPolicyStats> finish_updates() { return {}; }
   virtual PolicyParams export_policy(uint64_t version) const = 0;
   virtual int64_t updates() const = 0;
   // Environment steps received so far (DQN's exploration schedule follows it).

@@ -81,7 +81,10 @@ class OffPolicyAlgorithm final : public Algorithm {
     return wait;
   }
 
-  void hold_workers(Farm& farm) override { farm.publish(algo_->export_policy(version()), 1); }
+  void hold_workers(Farm& farm) override {
+    settle();
+    farm.publish(algo_->export_policy(version()), 1);
+  }
 
   void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) override {
     const double upd_rate = updates_meter_.rate();
@@ -143,6 +146,7 @@ class OffPolicyAlgorithm final : public Algorithm {
   }
 
   void save_networks(const std::string& dir) const override {
+    settle();
     std::filesystem::create_directories(std::filesystem::path(dir) / algo_->name());
     algo_->save((std::filesystem::path(dir) / algo_->name()).string());
   }
@@ -167,6 +171,7 @@ class OffPolicyAlgorithm final : public Algorithm {
 
  private:
   void publish_weights(Farm& farm) {
+    settle();
     algo_->set_env_steps(int64_t(farm.env_steps()));  // DQN's exploration schedule
     farm.publish(algo_->export_policy(version_), 0);
     ++version_;
@@ -209,20 +214,31 @@ class OffPolicyAlgorithm final : public Algorithm {
     return double(done) < algo_->max_updates_per_step() * double(farm.env_steps()) + 1;
   }
 
+  // On a GPU update_n returns while its last updates still run, so that the device works while
+  // this thread reads the bus; their figures come with the next group, or with settle().
   void train_steps(int n) {
-    const auto stats = algo_->update_n(n, [this] { return replay_.sample(algo_->batch_size(), rng_); });
-    const int64_t first = algo_->updates() - int64_t(stats.size()) + 1;
+    check(algo_->update_n(n, [this] { return replay_.sample(algo_->batch_size(), rng_); }));
+    updates_since_publish_ += n;
+  }
+
+  // The figures of updates that have run, oldest first: a non-finite one stops the run.
+  void check(const std::vector<OffPolicyStats>& stats) const {
+    const int64_t first = algo_->updates() - algo_->updates_in_flight() - int64_t(stats.size()) + 1;
     for (size_t k = 0; k < stats.size(); ++k)
       require_finite_update(algo_name_, first + int64_t(k),
                             {{"critic loss", stats[k].critic_loss},
                              {"actor loss", stats[k].actor_loss},
                              {alpha_name_.c_str(), stats[k].alpha}});
     if (!stats.empty()) last_stats_ = stats.back();
-    updates_since_publish_ += int(stats.size());
     updates_meter_.add(stats.size());
   }
 
+  // Waits for the updates still running and checks their figures: before any weights leave the
+  // learner (to the workers, to an evaluation, to a checkpoint), as the divergence guard promises.
+  void settle() const { check(algo_->finish_updates()); }
+
   void ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    settle();
     EvalAsk ask;
     ask.label = label;
     ask.episodes = episodes;
@@ -239,8 +255,8 @@ class OffPolicyAlgorithm final : public Algorithm {
   const std::vector<std::string> metric_names_;
   ReplayBuffer replay_;
   std::mt19937_64 rng_;
-  OffPolicyStats last_stats_{};
-  Meter updates_meter_;
+  mutable OffPolicyStats last_stats_{};  // check() runs from const save_networks() too
+  mutable Meter updates_meter_;
   uint64_t version_ = 0;  // the next version to publish
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;

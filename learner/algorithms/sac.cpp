@@ -123,6 +123,9 @@ void Sac::scale_learning_rates(double factor) {
 
 double Sac::learning_rate_scale() const { return impl_->lr_scale; }
 
+int64_t Sac::updates_in_flight() const { return impl_->updates_in_flight(); }
+std::vector<SacStats> Sac::finish_updates() { return impl_->finish_updates(); }
+
 SacStats Sac::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
   if (s.use_graph()) return s.graph_update(host_batch);
@@ -208,6 +211,7 @@ PolicyParams Sac::export_policy(uint64_t version) const {
 
 int64_t Sac::updates() const { return impl_->updates; }
 bool Sac::uses_cuda_graph() const { return impl_->use_graph(); }
+bool Sac::uses_fused_kernels() const { return impl_->use_fused_kernels(); }
 bool Sac::on_gpu() const { return impl_->device.is_cuda(); }
 int Sac::obs_dim() const { return impl_->obs_dim; }
 int Sac::act_dim() const { return impl_->act_dim; }
@@ -256,6 +260,10 @@ void Sac::save(const std::string& dir) const {
 
 void Sac::load(const std::string& dir) {
   Impl& s = *impl_;
+  // Queued replays finish before their tensors are replaced; their figures belong to the state
+  // being replaced and go with it.
+  s.settle_graph();
+  s.ready.clear();
   const std::string file = dir + "/sac.pt";
   auto fail = [&](const std::string& what) { return std::runtime_error("sac checkpoint " + file + ": " + what); };
   try {

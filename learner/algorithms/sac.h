@@ -50,11 +50,18 @@ class Sac {
 
   // One gradient step of temperature, critics and actor, then the polyak target update.
   SacStats update(const SampledBatch& batch);
-  // n updates in a row, each on the batch next_batch() returns, and their figures in order: the
-  // same as n calls of update(next_batch()). With a CUDA graph the replays are queued on the GPU
-  // and next_batch() samples the following batch on the host while the queued ones run, so the
-  // GPU does not wait for the host between updates; the figures come back at the end.
+  // n updates in a row, each on the batch next_batch() returns: the same as n calls of
+  // update(next_batch()). Returns the figures of the updates that have run, oldest first. Without
+  // a CUDA graph those are these n. With one, the replays are queued on the GPU and next_batch()
+  // samples the following batch on the host while the queued ones run; the call returns without
+  // waiting for the last of them, so the GPU keeps working while the caller does other host work
+  // (the learner: the bus), and their figures come with a later call or finish_updates().
+  // updates() counts them from the moment they are queued.
   std::vector<SacStats> update_n(int n, const std::function<SampledBatch()>& next_batch);
+  // Updates queued by update_n whose figures have not been returned yet.
+  int64_t updates_in_flight() const;
+  // Waits for those and returns their figures, oldest first (none without a CUDA graph).
+  std::vector<SacStats> finish_updates();
 
   // The actor as the workers run it: layout {obs, hidden..., 2*act} relu, squashed-Gaussian head,
   // no observation normalizer.
@@ -69,6 +76,9 @@ class Sac {
   // built against a CUDA LibTorch. Same arithmetic as the eager path, a few hundred kernel launches
   // fewer per update.
   bool uses_cuda_graph() const;
+  // True when that graph takes the fused kernels (sac.cuda_fused_kernels, a learner built with a
+  // CUDA compiler) for the policy's sample, the critics' target and the actor's loss.
+  bool uses_fused_kernels() const;
   bool on_gpu() const;  // the networks train on a CUDA device
   int obs_dim() const;
   int act_dim() const;

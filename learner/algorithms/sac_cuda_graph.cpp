@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <deque>
 #include <stdexcept>
 #include <tuple>
 
@@ -16,10 +17,19 @@
 #include <c10/cuda/CUDAGuard.h>
 #include <c10/cuda/CUDAStream.h>
 #endif
+#ifdef FARM_CUDA_KERNELS
+#include "sac_cuda_kernels.h"
+#endif
 
 namespace farm {
 
 using namespace sac_detail;
+
+#ifdef FARM_CUDA_KERNELS
+constexpr bool kFusedKernelsBuilt = true;
+#else
+constexpr bool kFusedKernelsBuilt = false;
+#endif
 
 #ifdef FARM_CUDA_GRAPHS
 namespace {
@@ -63,6 +73,116 @@ struct GraphAdam {
   double lr, beta1, beta2, eps;
 };
 
+#ifdef FARM_CUDA_KERNELS
+// The fused kernels (sac_cuda_kernels.h) as autograd functions, on the current CUDA stream (in
+// backward, the stream of the forward, as autograd runs it).
+void launched(cudaError_t e, const char* what) {
+  if (e != cudaSuccess)
+    throw std::runtime_error(std::string("sac fused kernel ") + what + ": " + cudaGetErrorString(e));
+}
+
+cudaStream_t current_stream() { return c10::cuda::getCurrentCUDAStream().stream(); }
+
+// Float32 on CUDA, contiguous, of `rows` rows (a view made contiguous where it is not).
+torch::Tensor kernel_input(const torch::Tensor& t, int64_t rows, const char* what) {
+  if (!t.is_cuda() || t.scalar_type() != torch::kFloat || (t.dim() > 0 && t.size(0) != rows))
+    throw std::invalid_argument(std::string("sac fused kernel: ") + what + " must be a float32 CUDA tensor of " +
+                                std::to_string(rows) + " rows");
+  return t.contiguous();
+}
+
+// Impl::sample's tanh-squashed Gaussian from the actor's output [B, 2A] and the drawn noise [B, A]:
+// (action [B, A], log_prob [B]) in one kernel, its gradient to the output in one more.
+struct SquashedSample : torch::autograd::Function<SquashedSample> {
+  static torch::autograd::variable_list forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& out_in,
+                                                const torch::Tensor& noise_in, double lo, double hi) {
+    const int64_t B = out_in.size(0), A = noise_in.size(1);
+    const auto out = kernel_input(out_in, B, "actor output"), noise = kernel_input(noise_in, B, "noise");
+    if (out.size(1) != 2 * A) throw std::invalid_argument("sac fused kernel: actor output is not [B, 2 * act]");
+    auto action = torch::empty({B, A}, out.options());
+    auto log_prob = torch::empty({B}, out.options());
+    launched(sac_kernels::squashed_sample_forward(out.data_ptr<float>(), noise.data_ptr<float>(),
+                                                  action.data_ptr<float>(), log_prob.data_ptr<float>(), int(B), int(A),
+                                                  float(lo), float(hi), current_stream()),
+             "squashed_sample_forward");
+    ctx->set_materialize_grads(false);
+    ctx->save_for_backward({out, noise, action});
+    ctx->saved_data["lo"] = lo;
+    ctx->saved_data["hi"] = hi;
+    return {action, log_prob};
+  }
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const torch::Tensor &out = saved[0], &noise = saved[1], &action = saved[2];
+    const int64_t B = out.size(0), A = noise.size(1);
+    torch::Tensor g_action = grads[0], g_log_prob = grads[1];
+    if (g_action.defined() && (g_action.dim() != 2 || g_action.stride(1) != 1)) g_action = g_action.contiguous();
+    if (g_log_prob.defined()) g_log_prob = kernel_input(g_log_prob, B, "log_prob gradient");
+    auto g_out = torch::empty_like(out);
+    launched(
+        sac_kernels::squashed_sample_backward(
+            out.data_ptr<float>(), noise.data_ptr<float>(), action.data_ptr<float>(),
+            g_action.defined() ? g_action.data_ptr<float>() : nullptr, g_action.defined() ? int(g_action.stride(0)) : 0,
+            g_log_prob.defined() ? g_log_prob.data_ptr<float>() : nullptr, g_out.data_ptr<float>(), int(B), int(A),
+            float(ctx->saved_data["lo"].toDouble()), float(ctx->saved_data["hi"].toDouble()), current_stream()),
+        "squashed_sample_backward");
+    return {g_out, torch::Tensor(), torch::Tensor(), torch::Tensor()};
+  }
+};
+
+// The actor's loss mean(alpha * log_prob - min(q[0], q[1])) from q [2, B], log_prob [B] and the
+// temperature alpha [1] (held fixed): one reduction kernel, its gradient in one more.
+struct ActorObjective : torch::autograd::Function<ActorObjective> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_in,
+                               const torch::Tensor& log_prob_in, const torch::Tensor& alpha_in) {
+    const int64_t B = log_prob_in.size(0);
+    const auto q = kernel_input(q_in, 2, "q"), log_prob = kernel_input(log_prob_in, B, "log_prob");
+    const auto alpha = kernel_input(alpha_in, 1, "alpha");
+    if (q.size(1) != B) throw std::invalid_argument("sac fused kernel: q is not [2, B]");
+    auto loss = torch::empty({}, q.options());
+    launched(
+        sac_kernels::actor_objective_forward(q.data_ptr<float>(), log_prob.data_ptr<float>(), alpha.data_ptr<float>(),
+                                             loss.data_ptr<float>(), int(B), current_stream()),
+        "actor_objective_forward");
+    ctx->save_for_backward({q, alpha});
+    return loss;
+  }
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const torch::Tensor &q = saved[0], &alpha = saved[1];
+    const int64_t B = q.size(1);
+    const auto g_loss = kernel_input(grads[0].reshape({1}), 1, "loss gradient");
+    auto g_q = torch::empty_like(q);
+    auto g_log_prob = torch::empty({B}, q.options());
+    launched(sac_kernels::actor_objective_backward(q.data_ptr<float>(), alpha.data_ptr<float>(),
+                                                   g_loss.data_ptr<float>(), g_q.data_ptr<float>(),
+                                                   g_log_prob.data_ptr<float>(), int(B), current_stream()),
+             "actor_objective_backward");
+    return {g_q, g_log_prob, torch::Tensor()};
+  }
+};
+
+// The critics' target r + gamma * (1 - done) * (min(next_q[0], next_q[1]) - alpha * next_log_prob).
+torch::Tensor fused_soft_target(const torch::Tensor& next_q_in, const torch::Tensor& next_log_prob_in,
+                                const torch::Tensor& alpha_in, const torch::Tensor& rewards_in,
+                                const torch::Tensor& terminated_in, double gamma) {
+  const int64_t B = rewards_in.size(0);
+  const auto next_q = kernel_input(next_q_in, 2, "next_q"),
+             next_log_prob = kernel_input(next_log_prob_in, B, "log_prob");
+  const auto alpha = kernel_input(alpha_in, 1, "alpha"), rewards = kernel_input(rewards_in, B, "rewards");
+  const auto terminated = kernel_input(terminated_in, B, "terminated");
+  if (next_q.size(1) != B) throw std::invalid_argument("sac fused kernel: next_q is not [2, B]");
+  auto target = torch::empty({B}, rewards.options());
+  launched(sac_kernels::soft_target(next_q.data_ptr<float>(), next_log_prob.data_ptr<float>(), alpha.data_ptr<float>(),
+                                    rewards.data_ptr<float>(), terminated.data_ptr<float>(), float(gamma),
+                                    target.data_ptr<float>(), int(B), current_stream()),
+           "soft_target");
+  return target;
+}
+#endif  // FARM_CUDA_KERNELS
+
 }  // namespace
 
 // One update captured as a CUDA graph. Its inputs are static device tensors that each update
@@ -70,7 +190,9 @@ struct GraphAdam {
 // is a static tensor of the six figures, read back with one copy. Replays can be queued
 // (graph_update_n): each queued update stages its batch in a pinned buffer of its own and reads
 // its figures back into a pinned slot of its own, and the stream's order keeps every copy between
-// the replays it belongs to. The policy's sampling noise is
+// the replays it belongs to. The slots are a ring: a replay's slot is used again only after the
+// event recorded behind its figures' copy has passed, so replays may still be running when
+// graph_update_n returns, and the next call queues behind them. The policy's sampling noise is
 // drawn inside the graph from the default CUDA generator, which graph capture registers: each
 // replay advances the generator's philox offset by what the captured kernels consume, so a replay
 // draws the same numbers the eager ops would from the same generator state.
@@ -89,6 +211,11 @@ struct Sac::Impl::CudaGraph {
   // Replays queued at most before the host waits for them (pinned input and output slots).
   static constexpr int kSlots = 16;
 
+  ~CudaGraph() {
+    // Nothing queued may outlive the pinned slots and the graph's memory it uses.
+    if (!in_flight.empty()) c10::cuda::getCurrentCUDAStream(device_index).synchronize();
+  }
+
   CudaGraph(Impl& s, int64_t batch)
       : batch(batch),
         device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
@@ -98,7 +225,8 @@ struct Sac::Impl::CudaGraph {
         capture_stream(c10::cuda::getStreamFromPool(false, device_index)),
         target_stream(c10::cuda::getStreamFromPool(false, device_index)),
         alpha_stream(c10::cuda::getStreamFromPool(false, device_index)),
-        actor_stream(c10::cuda::getStreamFromPool(false, device_index)) {
+        actor_stream(c10::cuda::getStreamFromPool(false, device_index)),
+        fused(s.use_fused_kernels()) {
     const int64_t o = s.obs_dim, a = s.act_dim;
     widths = {o, a, 1, 1, o};
     const auto f32 = torch::TensorOptions().dtype(torch::kFloat);
@@ -176,7 +304,7 @@ struct Sac::Impl::CudaGraph {
     torch::Tensor pi_action, log_prob;
     {
       c10::cuda::CUDAStreamGuard on(sampled_on);
-      std::tie(pi_action, log_prob) = sample(s, obs);
+      std::tie(pi_action, log_prob) = sample(s, obs, fused);
     }
 
     torch::Tensor target;
@@ -185,11 +313,16 @@ struct Sac::Impl::CudaGraph {
       torch::NoGradGuard no_grad;
       // Main joins this stream before either step reads its count (and so does the actor's branch).
       torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count, actor_adam.step_count}, 1);
-      auto [next_action, next_log_prob] = sample(s, next_obs);
+      auto [next_action, next_log_prob] = sample(s, next_obs, fused);
       if (beside) events[8].record(target_stream);  // the actor's weights read: its Adam step waits
       const auto next_q = s.critic_target->forward(next_obs, next_action);
-      auto soft_v = torch::min(next_q[0], next_q[1]).sub_(next_log_prob * alpha);
-      target = torch::addcmul(rewards, soft_v, 1.0 - terminated, s.cfg.gamma());
+#ifdef FARM_CUDA_KERNELS
+      if (fused) target = fused_soft_target(next_q, next_log_prob, alpha, rewards, terminated, s.cfg.gamma());
+#endif
+      if (!target.defined()) {
+        auto soft_v = torch::min(next_q[0], next_q[1]).sub_(next_log_prob * alpha);
+        target = torch::addcmul(rewards, soft_v, 1.0 - terminated, s.cfg.gamma());
+      }
     }
 
     torch::Tensor alpha_loss, entropy;
@@ -207,7 +340,10 @@ struct Sac::Impl::CudaGraph {
     torch::Tensor actor_loss;
     auto actor_step = [&] {
       const auto q_pi = s.critic->forward(obs, pi_action);
-      actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
+#ifdef FARM_CUDA_KERNELS
+      if (fused) actor_loss = ActorObjective::apply(q_pi, log_prob, alpha);
+#endif
+      if (!actor_loss.defined()) actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
       const auto grad = flat_grad(actor_loss, s.actor_p);
       if (beside) {
         events[7].record(actor_stream);  // the critics' weights read; main waits before their step
@@ -251,10 +387,20 @@ struct Sac::Impl::CudaGraph {
   // Impl::sample's draw and log-density in fewer kernels, for the graph's critical path: the
   // Gaussian term takes the drawn noise itself, which (pre_tanh - mean) / std recomputes up to
   // rounding (with a zero gradient either way), and the squash term reuses the action instead of a
-  // second tanh. Same noise draw, same values up to float rounding.
-  static std::pair<torch::Tensor, torch::Tensor> sample(Impl& s, const torch::Tensor& obs) {
+  // second tanh. Same noise draw, same values up to float rounding. `fused`: the same formulas as
+  // one kernel (and one for their gradient) after the noise draw.
+  static std::pair<torch::Tensor, torch::Tensor> sample(Impl& s, const torch::Tensor& obs, bool fused) {
     static const double kHalfLog2Pi = 0.5 * std::log(2.0 * M_PI);
     const auto out = s.actor->forward(obs);
+#ifdef FARM_CUDA_KERNELS
+    if (fused) {
+      const auto noise = torch::randn({out.size(0), s.act_dim}, out.options().requires_grad(false));
+      const auto r = SquashedSample::apply(out, noise, s.cfg.log_std_min(), s.cfg.log_std_max());
+      return {r[0], r[1]};
+    }
+#else
+    (void)fused;
+#endif
     const auto mean = out.narrow(1, 0, s.act_dim);
     const auto log_std = out.narrow(1, s.act_dim, s.act_dim).clamp(s.cfg.log_std_min(), s.cfg.log_std_max());
     const auto noise = torch::randn_like(mean);
@@ -290,6 +436,13 @@ struct Sac::Impl::CudaGraph {
   std::array<at::cuda::CUDAEvent, 10> events;
   std::unique_ptr<at::cuda::CUDAGraph> graph;
   int warmups_left = kWarmupUpdates;
+  // sac.cuda_fused_kernels in a build that has them.
+  bool fused;
+  // Queued replays whose figures have not been read, oldest first (their slots), each with the
+  // event recorded behind its figures' copy; the slot the next queued replay takes.
+  std::deque<int> in_flight;
+  std::array<at::cuda::CUDAEvent, kSlots> done;
+  int next_slot = 0;
 };
 #endif  // FARM_CUDA_GRAPHS
 
@@ -301,8 +454,11 @@ bool Sac::Impl::use_graph() const {
 #endif
 }
 
+bool Sac::Impl::use_fused_kernels() const { return use_graph() && cfg.cuda_fused_kernels() && kFusedKernelsBuilt; }
+
 SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
 #ifdef FARM_CUDA_GRAPHS
+  settle_graph();  // one update at a time uses slot 0: nothing may be queued
   const int64_t b = host_batch.obs.size(0);
   if (!graph || graph->batch != b) {
     graph.reset();  // its private memory pool goes before the next graph's
@@ -345,46 +501,51 @@ SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
 }
 
 std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<SampledBatch()>& next_batch) {
-  std::vector<SacStats> stats;
-  stats.reserve(std::max(n, 0));
+  std::vector<SacStats> stats = std::move(ready);
+  ready.clear();
+  stats.reserve(stats.size() + std::max(n, 0));
 #ifdef FARM_CUDA_GRAPHS
-  int queued = 0;  // replays whose figures are in slots 0 .. queued-1, not yet read
-  auto collect = [&] {
-    if (queued == 0) return;
-    c10::cuda::getCurrentCUDAStream(graph->device_index).synchronize();
-    for (int k = 0; k < queued; ++k) stats.push_back(graph->figures(k));
-    queued = 0;
-  };
   try {
     for (int i = 0; i < n; ++i) {
       const SampledBatch b = next_batch();  // on the host, while the queued replays run
       if (!graph || !graph->graph || graph->batch != b.obs.size(0)) {
-        // Warm-ups, the capture, a new batch size: one at a time, after what is queued.
-        if (graph) {
-          c10::cuda::CUDAGuard device_guard(graph->device_index);
-          collect();
-        }
-        stats.push_back(graph_update(b));
+        // Warm-ups, the capture, a new batch size: one at a time, after what is queued (whose
+        // figures graph_update's settle_graph puts in `ready`).
+        const SacStats one = graph_update(b);
+        stats.insert(stats.end(), ready.begin(), ready.end());
+        ready.clear();
+        stats.push_back(one);
         continue;
       }
       CudaGraph& g = *graph;
       c10::cuda::CUDAGuard device_guard(g.device_index);
-      if (queued == CudaGraph::kSlots) collect();
-      g.stage(b, queued);
+      if (int(g.in_flight.size()) == CudaGraph::kSlots) {  // the ring is full: its oldest is next_slot
+        g.done[g.in_flight.front()].synchronize();
+        stats.push_back(g.figures(g.in_flight.front()));
+        g.in_flight.pop_front();
+      }
+      const int slot = g.next_slot;
+      g.stage(b, slot);
       g.graph->replay();
-      g.queue_figures(queued);
-      ++queued;
+      g.queue_figures(slot);
+      g.done[slot].record(c10::cuda::getCurrentCUDAStream(g.device_index));
+      g.in_flight.push_back(slot);
+      g.next_slot = (slot + 1) % CudaGraph::kSlots;
       ++updates;
     }
   } catch (...) {
     // A batch that failed to sample or stage: what is queued still runs; wait for it, so that
     // no copy from a pinned slot is pending when the next call writes that slot.
-    if (graph && queued > 0) c10::cuda::getCurrentCUDAStream(graph->device_index).synchronize();
+    settle_graph();
     throw;
   }
+  // The figures of the replays that have run, without waiting for the others.
   if (graph) {
-    c10::cuda::CUDAGuard device_guard(graph->device_index);
-    collect();
+    CudaGraph& g = *graph;
+    while (!g.in_flight.empty() && g.done[g.in_flight.front()].query()) {
+      stats.push_back(g.figures(g.in_flight.front()));
+      g.in_flight.pop_front();
+    }
   }
 #else
   (void)n;
@@ -392,6 +553,32 @@ std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<Sampl
   throw std::logic_error("sac: CUDA graph update in a build without CUDA");
 #endif
   return stats;
+}
+
+int64_t Sac::Impl::updates_in_flight() const {
+#ifdef FARM_CUDA_GRAPHS
+  return int64_t(ready.size()) + (graph ? int64_t(graph->in_flight.size()) : 0);
+#else
+  return int64_t(ready.size());
+#endif
+}
+
+std::vector<SacStats> Sac::Impl::finish_updates() {
+  settle_graph();
+  std::vector<SacStats> stats = std::move(ready);
+  ready.clear();
+  return stats;
+}
+
+void Sac::Impl::settle_graph() {
+#ifdef FARM_CUDA_GRAPHS
+  if (!graph || graph->in_flight.empty()) return;
+  CudaGraph& g = *graph;
+  c10::cuda::CUDAGuard device_guard(g.device_index);
+  c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
+  for (const int slot : g.in_flight) ready.push_back(g.figures(slot));
+  g.in_flight.clear();
+#endif
 }
 
 // Construction order matters: the seed must be set before the networks are initialized.
@@ -402,6 +589,7 @@ void Sac::Impl::CudaGraphDeleter::operator()(CudaGraph* g) const { delete g; }
 
 void Sac::Impl::drop_graph() {
 #ifdef FARM_CUDA_GRAPHS
+  settle_graph();
   graph.reset();
 #endif
 }

@@ -210,9 +210,16 @@ struct Sac::Impl {
   std::unique_ptr<CudaGraph, CudaGraphDeleter> graph;
 #endif
   bool use_graph() const;
+  bool use_fused_kernels() const;  // in the graph: sac.cuda_fused_kernels where they are built
   SacStats graph_update(const SampledBatch& host_batch);
   std::vector<SacStats> graph_update_n(int n, const std::function<SampledBatch()>& next_batch);
-  void drop_graph();  // the next update on CUDA captures anew
+  int64_t updates_in_flight() const;
+  std::vector<SacStats> finish_updates();
+  // Waits for the queued replays; their figures go to `ready` (returned first by the next
+  // graph_update_n or finish_updates), and no pinned slot or graph memory is in use after it.
+  void settle_graph();
+  std::vector<SacStats> ready;
+  void drop_graph();  // the next update on CUDA captures anew (after settle_graph)
 };
 
 }  // namespace farm

@@ -1,16 +1,18 @@
-// SAC learner throughput on the pendulum shapes (obs 3, act 1). The learner's update rate bounds
-// the whole farm, so this is the number to watch when touching sac.cpp or the replay buffer.
+// SAC learner throughput, by default on the pendulum shapes (obs 3, act 1; 64-64 and 256-256
+// networks). The learner's update rate bounds the whole farm, so this is the number to watch when
+// touching sac.cpp or the replay buffer.
 //   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]
-//             [--actor-on-previous-critic]
+//             [--actor-on-previous-critic] [--obs N --act N --hidden H[,H...]]
+// --obs/--act/--hidden measure one other shape instead (Kaya: --obs 21 --act 6 --hidden 128,128).
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
-// On CUDA each size is measured three times in the same run: eager (sac.cuda_graph false), as
-// CUDA graph replays one update at a time, and as the learner runs them (the default): groups of
-// kUpdatesPerGroup queued replays (Sac::update_n). Before that a check runs N updates (default 200) of
-// both paths from the same start on the same batches and compares figures and parameters; a
-// mismatch beyond float tolerance makes the exit status 1.
-// Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread on a shared machine (see
-// configure_compute in compute.h).
+// On CUDA each size is measured four times in the same run: eager (sac.cuda_graph false), as
+// CUDA graph replays one update at a time of torch's ops (sac.cuda_fused_kernels false) and with
+// the fused kernels (the default), and as the learner runs them: groups of kUpdatesPerGroup queued
+// replays (Sac::update_n), each returning without waiting for its last replays. Before that a check runs N updates
+// (default 200) of both paths from the same start on the same batches and compares figures and parameters; a mismatch
+// beyond float tolerance makes the exit status 1. Run with OMP_WAIT_POLICY=PASSIVE when measuring more than one thread
+// on a shared machine (see configure_compute in compute.h).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -36,6 +38,9 @@ bool g_tf32 = farm::config::SacConfig().cuda_tf32();
 // sac.actor_on_previous_critic for every SAC of the run (--actor-on-previous-critic): on CUDA the
 // actor's and the critics' steps as parallel branches of the graph.
 bool g_beside = farm::config::SacConfig().actor_on_previous_critic();
+// The shapes measured: observation and action sizes, and the hidden layers of each network.
+int g_obs = 3, g_act = 1;
+std::vector<std::vector<int>> g_hidden{{64, 64}, {256, 256}};
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -75,7 +80,10 @@ Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds,
     return b;
   };
   auto run = [&] {
-    if (group > 0) return int64_t(sac.update_n(group, sampler).size());
+    if (group > 0) {
+      sac.update_n(group, sampler);  // may return while its last replays run: counted when queued
+      return int64_t(group);
+    }
     sac.update(sampler());
     return int64_t(1);
   };
@@ -83,12 +91,15 @@ Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds,
   // steady state.
   const auto warm = Clock::now();
   while (seconds_since(warm) < std::min(0.5, seconds / 4)) run();
+  sac.finish_updates();
   r = Rate{};
   const auto t0 = Clock::now();
   while (r.elapsed < seconds) {
     r.n += run();
     r.elapsed = seconds_since(t0);
   }
+  sac.finish_updates();  // the queued ones too have run
+  r.elapsed = seconds_since(t0);
   return r;
 }
 
@@ -136,7 +147,7 @@ double figure_diff(const farm::SacStats& g, const farm::SacStats& e, const char*
 // max(1, |eager|)), and those of all updates within 1e-2; the parameters' drift is printed.
 bool check_graph(const std::vector<int>& hidden, int batch, const std::string& device, int updates,
                  farm::ReplayBuffer& buf, std::mt19937_64& rng) {
-  constexpr int kObs = 3, kAct = 1;
+  const int kObs = g_obs, kAct = g_act;
   std::vector<farm::SampledBatch> batches;
   for (int i = 0; i < updates; ++i) batches.push_back(buf.sample(batch, rng));
   farm::config::SacConfig cfg;
@@ -207,6 +218,15 @@ int main(int argc, char** argv) {
       g_tf32 = !std::strcmp(argv[i], "--tf32");
     } else if (!std::strcmp(argv[i], "--actor-on-previous-critic")) {
       g_beside = true;
+    } else if (!std::strcmp(argv[i], "--obs") && has_value) {
+      g_obs = std::atoi(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--act") && has_value) {
+      g_act = std::atoi(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--hidden") && has_value) {
+      std::vector<int> h;
+      std::stringstream list(argv[++i]);
+      for (std::string t; std::getline(list, t, ',');) h.push_back(std::atoi(t.c_str()));
+      g_hidden = {h};
     } else if (!std::strcmp(argv[i], "--threads") && has_value) {
       threads.clear();
       std::stringstream list(argv[++i]);
@@ -214,13 +234,20 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32] [--actor-on-previous-critic]\n",
+                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32] [--actor-on-previous-critic] "
+                   "[--obs N --act N --hidden H[,H...]]\n",
                    argv[0]);
       return 2;
     }
   }
+  bool shape_ok = g_obs > 0 && g_act > 0 && batch > 0;
+  for (int h : g_hidden.front()) shape_ok = shape_ok && h > 0;
+  if (!shape_ok) {
+    std::fprintf(stderr, "%s: --obs, --act, --batch and every --hidden size must be positive integers\n", argv[0]);
+    return 2;
+  }
 
-  constexpr int kObs = 3, kAct = 1;
+  const int kObs = g_obs, kAct = g_act;
   farm::ReplayBuffer buf(100000, kObs, kAct);
   std::mt19937_64 rng(1);
   fill(buf, buf.capacity(), rng);
@@ -233,10 +260,10 @@ int main(int argc, char** argv) {
               g_beside ? "beside the critics' (against them before their step)" : "after the critics'");
   if (cuda && check_updates > 0) {
     farm::configure_compute(threads.empty() ? 1 : threads[0]);
-    ok = check_graph({256, 256}, batch, device, check_updates, buf, rng);
+    ok = check_graph(g_hidden.back(), batch, device, check_updates, buf, rng);
   }
 
-  for (const std::vector<int>& hidden : {std::vector<int>{64, 64}, std::vector<int>{256, 256}}) {
+  for (const std::vector<int>& hidden : g_hidden) {
     for (int n_threads : threads) {
       farm::configure_compute(n_threads);
       farm::config::SacConfig cfg;
@@ -259,15 +286,30 @@ int main(int argc, char** argv) {
         print_rate(" eager", net, batch, device, n_threads, eager);
       }
       cfg.set_cuda_graph(true);
+      cfg.set_cuda_fused_kernels(false);
+      Rate torch_ops;
+      {
+        farm::Sac sac(cfg, kObs, kAct, 1);
+        if (!sac.uses_cuda_graph()) {
+          std::printf("sac update (%s, %s cuda graph): not in this build (CPU LibTorch)\n", net.c_str(),
+                      device.c_str());
+          continue;
+        }
+        torch_ops = measure(sac, buf, batch, seconds, rng);
+        print_rate(" cuda graph of torch's ops", net, batch, device, n_threads, torch_ops);
+      }
+      cfg.set_cuda_fused_kernels(true);
       farm::Sac sac(cfg, kObs, kAct, 1);
-      if (!sac.uses_cuda_graph()) {
-        std::printf("sac update (%s, %s cuda graph): not in this build (CPU LibTorch)\n", net.c_str(), device.c_str());
+      if (!sac.uses_fused_kernels()) {
+        std::printf("sac update (%s, %s): no fused kernels in this build (no CUDA compiler)\n", net.c_str(),
+                    device.c_str());
         continue;
       }
       graph = measure(sac, buf, batch, seconds, rng);
       print_rate(" cuda graph", net, batch, device, n_threads, graph);
-      std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx\n", net.c_str(), batch, device.c_str(),
-                  (graph.n / graph.elapsed) / (eager.n / eager.elapsed));
+      std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx, fused kernels / torch's ops = %.2fx\n",
+                  net.c_str(), batch, device.c_str(), (graph.n / graph.elapsed) / (eager.n / eager.elapsed),
+                  (graph.n / graph.elapsed) / (torch_ops.n / torch_ops.elapsed));
       // The learner's path: groups of queued replays (off_policy_algorithm.cpp), a fresh SAC.
       farm::Sac grouped(cfg, kObs, kAct, 1);
       const Rate queued = measure(grouped, buf, batch, seconds, rng, farm::kUpdatesPerGroup);

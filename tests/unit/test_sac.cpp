@@ -449,29 +449,64 @@ TEST(Sac, UpdateNIsUpdatesInARow) {
 }
 
 // Only where a GPU and a CUDA LibTorch are there: queued graph replays (groups that take in the
-// warm-ups and the capture, and one longer than the pinned slots) compute what one update at a
-// time computes, kernel for kernel.
+// warm-ups and the capture, and ones longer than the pinned slots) compute what one update at a
+// time computes, kernel for kernel. A group may return before its last replays have run: every
+// update is then either returned or in flight, and finish_updates() gives the rest, in order.
 TEST(SacCuda, QueuedUpdatesMatchOneAtATime) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   const auto cfg = cuda_config();
   Sac one(cfg, 3, 2, 5), queued(cfg, 3, 2, 5);
   if (!one.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
   std::vector<SacStats> want;
-  for (int k = 0; k < 45; ++k) want.push_back(one.update(random_batch(64, 3, 2, 500 + k)));
+  for (int k = 0; k < 80; ++k) want.push_back(one.update(random_batch(64, 3, 2, 500 + k)));
   int k = 0;
   auto next = [&] { return random_batch(64, 3, 2, 500 + k++); };
   std::vector<SacStats> got;
-  for (int n : {6, 1, 38}) {
+  int asked = 0;
+  for (int n : {6, 1, 38, 8, 27}) {
     const auto part = queued.update_n(n, next);
-    EXPECT_EQ(int(part.size()), n);
+    asked += n;
     got.insert(got.end(), part.begin(), part.end());
+    EXPECT_EQ(int64_t(got.size()) + queued.updates_in_flight(), asked);
+    EXPECT_LE(queued.updates_in_flight(), 16);  // the pinned slots
   }
+  const auto rest = queued.finish_updates();
+  got.insert(got.end(), rest.begin(), rest.end());
+  EXPECT_EQ(queued.updates_in_flight(), 0);
+  EXPECT_TRUE(queued.finish_updates().empty());
   ASSERT_EQ(got.size(), want.size());
-  EXPECT_EQ(queued.updates(), 45);
+  EXPECT_EQ(queued.updates(), 80);
   for (size_t i = 0; i < want.size(); ++i) expect_stats_near(got[i], want[i], 1e-6, int(i));
   EXPECT_LE(relative_difference(queued.actor_parameters(), one.actor_parameters()), 1e-6);
   EXPECT_LE(relative_difference(queued.critic_parameters(), one.critic_parameters()), 1e-6);
   EXPECT_LE(relative_difference(queued.target_critic_parameters(), one.target_critic_parameters()), 1e-6);
+}
+
+// Only where a GPU, a CUDA LibTorch and a CUDA compiler are there: the fused kernels (the policy's
+// sample and its gradient, the critics' target, the actor's loss) compute in the graph what torch's
+// ops compute there, from the same start on the same batches and noise. The log std bounds clamp
+// part of the actor's output, where the gradient must stop; every figure and parameter depends on
+// all four kernels. Full FP32, so only the kernels' float rounding differs.
+TEST(SacCuda, FusedKernelsMatchTorchOps) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  auto cfg = cuda_config();
+  cfg.set_cuda_tf32(false);
+  cfg.set_log_std_min(-0.3);
+  cfg.set_log_std_max(0.2);
+  auto ops_cfg = cfg;
+  ops_cfg.set_cuda_fused_kernels(false);
+  Sac fused(cfg, 3, 2, 5), ops(ops_cfg, 3, 2, 5);
+  if (!fused.uses_fused_kernels()) GTEST_SKIP() << "built without a CUDA compiler (no fused kernels)";
+  EXPECT_TRUE(ops.uses_cuda_graph());
+  EXPECT_FALSE(ops.uses_fused_kernels());
+  for (int k = 0; k < 40; ++k) {
+    const SacStats f = fused.update(random_batch(64, 3, 2, 700 + k));
+    const SacStats o = ops.update(random_batch(64, 3, 2, 700 + k));
+    expect_stats_near(f, o, 1e-4, k);
+  }
+  EXPECT_LE(relative_difference(fused.actor_parameters(), ops.actor_parameters()), 1e-4);
+  EXPECT_LE(relative_difference(fused.critic_parameters(), ops.critic_parameters()), 1e-4);
+  EXPECT_LE(relative_difference(fused.target_critic_parameters(), ops.target_critic_parameters()), 1e-4);
 }
 
 TEST(Sac, CriticHiddenSizesItsOwnLayers) {

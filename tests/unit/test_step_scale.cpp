@@ -1,9 +1,13 @@
 // sac.max_step_scale: the rule that picks the step scale, SAC's adapter keeping the seed's step on
 // the CPU, and the replay driver growing and shrinking the step against the env steps a farm
-// reports (learner/algorithms/off_policy.cpp, off_policy_algorithm.cpp).
+// reports (learner/algorithms/off_policy.cpp, off_policy_algorithm.cpp). And the driver's side of
+// updates that are still running on a GPU when update_n returns: their figures are checked before
+// any weights leave the learner.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
+#include <deque>
 #include <functional>
 #include <memory>
 #include <string>
@@ -40,7 +44,7 @@ TEST(SacStepScale, FollowsTheDataWithAMarginAndBounds) {
 // What the replay driver sees of the farm: env steps as the test sets them, the log kept.
 class StepScaleFarm final : public Farm {
  public:
-  void publish(const PolicyParams&, uint32_t) override {}
+  void publish(const PolicyParams&, uint32_t) override { ++published_; }
   std::vector<LiveWorker> live_workers() const override { return {}; }
   double first_worker_heard() const override { return 0; }
   FarmFigures figures() const override { return {}; }
@@ -51,18 +55,38 @@ class StepScaleFarm final : public Farm {
   void log(const std::string& line) const override { lines_.push_back(line); }
   void csv_row(const std::string&) override {}
   uint64_t env_steps_ = 0;
+  int published_ = 0;
   mutable std::vector<std::string> lines_;
 };
 
-// SAC's adapter as it is, but with the step scale it would have on a GPU (its own keeps the seed's
-// step on the CPU), so that the driver's side runs here.
+// SAC's adapter as it is, but with what it would do on a GPU, so that the driver's side runs here:
+// the step scale (its own keeps the seed's step on the CPU), and, with `held` > 0, update_n
+// returning before the figures of its last `held` updates are in (they come with the next call or
+// finish_updates(), as a CUDA graph's queued replays do). Update `nan_at` (counted from 1) has a
+// critic loss of NaN.
 class StepScaleOnAnyDevice final : public OffPolicy {
  public:
-  StepScaleOnAnyDevice(std::unique_ptr<OffPolicy> sac, int most) : sac_(std::move(sac)), most_(most) {}
+  StepScaleOnAnyDevice(std::unique_ptr<OffPolicy> sac, int most, int held = 0, int64_t nan_at = 0)
+      : sac_(std::move(sac)), most_(most), held_(held), nan_at_(nan_at) {}
   std::string name() const override { return sac_->name(); }
   OffPolicyStats update(const SampledBatch& b) override { return sac_->update(b); }
   std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next) override {
-    return sac_->update_n(n, next);
+    for (const OffPolicyStats& f : sac_->update_n(n, next)) {
+      in_flight_.push_back(f);
+      if (++made_ == nan_at_) in_flight_.back().critic_loss = NAN;
+    }
+    std::vector<OffPolicyStats> out;
+    while (int(in_flight_.size()) > held_) {
+      out.push_back(in_flight_.front());
+      in_flight_.pop_front();
+    }
+    return out;
+  }
+  int64_t updates_in_flight() const override { return int64_t(in_flight_.size()); }
+  std::vector<OffPolicyStats> finish_updates() override {
+    std::vector<OffPolicyStats> out(in_flight_.begin(), in_flight_.end());
+    in_flight_.clear();
+    return out;
   }
   PolicyParams export_policy(uint64_t v) const override { return sac_->export_policy(v); }
   int64_t updates() const override { return sac_->updates(); }
@@ -81,7 +105,9 @@ class StepScaleOnAnyDevice final : public OffPolicy {
 
  private:
   std::unique_ptr<OffPolicy> sac_;
-  int most_;
+  int most_, held_;
+  int64_t nan_at_, made_ = 0;
+  std::deque<OffPolicyStats> in_flight_;
 };
 
 config::ExperimentConfig step_scale_config() {
@@ -99,6 +125,25 @@ robots::TaskSpec step_scale_spec() {
   spec.max_episode_steps = 100;
   return spec;
 }
+
+// One env step of `rows` envs (step_scale_spec's shapes), as a batch the driver takes.
+struct OneStep {
+  explicit OneStep(int rows) : truncated(rows, 0) {
+    t.n = rows;
+    t.obs.assign(rows * 3, 0.5f);
+    t.actions.assign(rows, 0.1f);
+    t.rewards.assign(rows, 1.f);
+    t.next_obs.assign(rows * 3, 0.4f);
+    t.terminated.assign(rows, 0);
+    batch.num_steps = 1;
+    batch.num_envs = rows;
+    batch.truncated = truncated.data();
+    batch.rows = &t;
+  }
+  Transitions t;
+  std::vector<uint8_t> truncated;
+  Batch batch;
+};
 
 // On the CPU a batch four times as large costs nearly four times the time, so SAC's adapter keeps
 // the seed's step there whatever sac.max_step_scale says, and its start line says so.
@@ -121,21 +166,7 @@ TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
   auto algo = make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 4), cfg, spec);
   StepScaleFarm farm;
   algo->start(farm);
-  const int rows = 256;
-  Transitions t;
-  t.n = rows;
-  t.obs.assign(rows * 3, 0.5f);
-  t.actions.assign(rows, 0.1f);
-  t.rewards.assign(rows, 1.f);
-  t.next_obs.assign(rows * 3, 0.4f);
-  t.terminated.assign(rows, 0);
-  std::vector<uint8_t> truncated(rows, 0);
-  Batch b;
-  b.num_steps = 1;
-  b.num_envs = rows;
-  b.truncated = truncated.data();
-  b.rows = &t;
-  ASSERT_TRUE(algo->take(b));
+  ASSERT_TRUE(algo->take(OneStep(256).batch));
 
   auto run_for = [&](double seconds, uint64_t steps_per_pass) {
     const double end = now_seconds() + seconds;
@@ -157,6 +188,35 @@ TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
   ASSERT_GT(farm.lines_.size(), grown) << ::testing::PrintToString(farm.lines_);
   EXPECT_NE(farm.lines_.back().find("sac step x1 from update"), std::string::npos) << farm.lines_.back();
   EXPECT_NE(farm.lines_.back().find("batch 16, learning rates x1.00"), std::string::npos) << farm.lines_.back();
+}
+
+// A group of updates may return while its last ones still run on the GPU. A diverged update among
+// those must stop the run before the next publish sends its weights to the workers (the driver
+// waits for them and checks their figures first), naming the update, though update_n never
+// returned its figures.
+TEST(OffPolicyDriver, ChecksUpdatesStillRunningBeforeWeightsLeave) {
+  auto cfg = step_scale_config();
+  cfg.mutable_sac()->set_max_step_scale(1);
+  cfg.mutable_sac()->set_publish_every_updates(4);
+  const auto spec = step_scale_spec();
+  // Groups of kUpdatesPerGroup (8): the second group's updates 9-13 come back, 14-16 are held.
+  auto algo =
+      make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 1, 3, 15), cfg, spec);
+  StepScaleFarm farm;
+  farm.env_steps_ = 1000000;
+  algo->start(farm);
+  EXPECT_EQ(farm.published_, 1);
+  ASSERT_TRUE(algo->take(OneStep(128).batch));
+  algo->train(farm, true);  // updates 1-8, publish after 6-8 are checked
+  EXPECT_EQ(algo->updates(), 8);
+  EXPECT_EQ(farm.published_, 2);
+  try {
+    algo->train(farm, true);
+    ADD_FAILURE() << "update 15's NaN critic loss reached a publish";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("diverged at update 15"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(farm.published_, 2);
 }
 
 }  // namespace

@@ -1,0 +1,141 @@
+// The fused kernels of sac_cuda_kernels.h. Each is a handful of float operations per row, so one
+// thread takes one batch row (and its A action components); what they save is the launches and
+// round trips through memory of the dozen or so kernels that torch's ops would take for the same
+// formulas, which is what a small network's update waits for on a GPU.
+#include "sac_cuda_kernels.h"
+
+namespace farm::sac_kernels {
+namespace {
+
+constexpr int kThreads = 256;
+constexpr float kHalfLog2Pi = 0.91893853320467274178f;  // log(2 pi) / 2
+constexpr float kSquashEps = 1e-6f;
+
+int blocks_for(int n) { return (n + kThreads - 1) / kThreads; }
+
+// torch's clamp and min propagate NaN (fminf and fmaxf would drop it): a diverged actor's or
+// critic's NaN must reach the figures that the divergence guard reads.
+__device__ __forceinline__ float clamp_nan(float x, float lo, float hi) { return x < lo ? lo : (x > hi ? hi : x); }
+__device__ __forceinline__ float min_nan(float a, float b) {
+  if (a != a) return a;
+  if (b != b) return b;
+  return a < b ? a : b;
+}
+
+__global__ void squashed_sample_forward_k(const float* __restrict__ out, const float* __restrict__ noise,
+                                          float* __restrict__ action, float* __restrict__ log_prob, int B, int A,
+                                          float lo, float hi) {
+  const int b = blockIdx.x * blockDim.x + threadIdx.x;
+  if (b >= B) return;
+  const float* o = out + size_t(b) * 2 * A;
+  const float* n = noise + size_t(b) * A;
+  float* act = action + size_t(b) * A;
+  float lp = 0.f;
+  for (int j = 0; j < A; ++j) {
+    const float ls = clamp_nan(o[A + j], lo, hi);
+    const float a = tanhf(fmaf(expf(ls), n[j], o[j]));
+    act[j] = a;
+    lp += -0.5f * n[j] * n[j] - kHalfLog2Pi - ls - logf(1.f - a * a + kSquashEps);
+  }
+  log_prob[b] = lp;
+}
+
+__global__ void squashed_sample_backward_k(const float* __restrict__ out, const float* __restrict__ noise,
+                                           const float* __restrict__ action, const float* __restrict__ g_action,
+                                           int ld_g_action, const float* __restrict__ g_log_prob,
+                                           float* __restrict__ g_out, int B, int A, float lo, float hi) {
+  const int b = blockIdx.x * blockDim.x + threadIdx.x;
+  if (b >= B) return;
+  const float* o = out + size_t(b) * 2 * A;
+  const float* n = noise + size_t(b) * A;
+  const float* act = action + size_t(b) * A;
+  float* g = g_out + size_t(b) * 2 * A;
+  const float g_lp = g_log_prob ? g_log_prob[b] : 0.f;
+  for (int j = 0; j < A; ++j) {
+    const float a = act[j];
+    // log_prob holds -log(1 - a^2 + eps): d/da = 2a / (1 - a^2 + eps); tanh' = 1 - a^2.
+    float g_a = g_lp * 2.f * a / (1.f - a * a + kSquashEps);
+    if (g_action) g_a += g_action[size_t(b) * ld_g_action + j];
+    const float g_pre = g_a * (1.f - a * a);
+    const float x = o[A + j];
+    const float ls = clamp_nan(x, lo, hi);
+    g[j] = g_pre;
+    // d pre / d ls = exp(ls) * noise; d log_prob / d ls = -1 (the noise held fixed).
+    g[A + j] = (x >= lo && x <= hi) ? g_pre * expf(ls) * n[j] - g_lp : 0.f;
+  }
+}
+
+__global__ void soft_target_k(const float* __restrict__ next_q, const float* __restrict__ next_log_prob,
+                              const float* __restrict__ alpha, const float* __restrict__ rewards,
+                              const float* __restrict__ terminated, float gamma, float* __restrict__ target, int B) {
+  const int b = blockIdx.x * blockDim.x + threadIdx.x;
+  if (b >= B) return;
+  const float soft_v = min_nan(next_q[b], next_q[B + b]) - next_log_prob[b] * alpha[0];
+  target[b] = rewards[b] + gamma * soft_v * (1.f - terminated[b]);
+}
+
+// One block: the batch is at most a few thousand rows.
+__global__ void actor_objective_forward_k(const float* __restrict__ q, const float* __restrict__ log_prob,
+                                          const float* __restrict__ alpha, float* __restrict__ loss, int B) {
+  __shared__ float partial[kThreads];
+  const float a = alpha[0];
+  float s = 0.f;
+  for (int b = threadIdx.x; b < B; b += blockDim.x) s += a * log_prob[b] - min_nan(q[b], q[B + b]);
+  partial[threadIdx.x] = s;
+  __syncthreads();
+  for (int stride = blockDim.x / 2; stride > 0; stride /= 2) {
+    if (threadIdx.x < stride) partial[threadIdx.x] += partial[threadIdx.x + stride];
+    __syncthreads();
+  }
+  if (threadIdx.x == 0) loss[0] = partial[0] / float(B);
+}
+
+__global__ void actor_objective_backward_k(const float* __restrict__ q, const float* __restrict__ alpha,
+                                           const float* __restrict__ g_loss, float* __restrict__ g_q,
+                                           float* __restrict__ g_log_prob, int B) {
+  const int b = blockIdx.x * blockDim.x + threadIdx.x;
+  if (b >= B) return;
+  const float g = g_loss[0] / float(B);
+  g_log_prob[b] = g * alpha[0];
+  // d/dq of -min(q0, q1): torch's min gives a tie half to each side, and with a NaN the whole to both.
+  const float q0 = q[b], q1 = q[B + b];
+  g_q[b] = q0 == q1 ? -0.5f * g : (q0 > q1 ? 0.f : -g);
+  g_q[B + b] = q0 == q1 ? -0.5f * g : (q1 > q0 ? 0.f : -g);
+}
+
+}  // namespace
+
+cudaError_t squashed_sample_forward(const float* out, const float* noise, float* action, float* log_prob, int B, int A,
+                                    float lo, float hi, cudaStream_t stream) {
+  squashed_sample_forward_k<<<blocks_for(B), kThreads, 0, stream>>>(out, noise, action, log_prob, B, A, lo, hi);
+  return cudaGetLastError();
+}
+
+cudaError_t squashed_sample_backward(const float* out, const float* noise, const float* action, const float* g_action,
+                                     int ld_g_action, const float* g_log_prob, float* g_out, int B, int A, float lo,
+                                     float hi, cudaStream_t stream) {
+  squashed_sample_backward_k<<<blocks_for(B), kThreads, 0, stream>>>(out, noise, action, g_action, ld_g_action,
+                                                                     g_log_prob, g_out, B, A, lo, hi);
+  return cudaGetLastError();
+}
+
+cudaError_t soft_target(const float* next_q, const float* next_log_prob, const float* alpha, const float* rewards,
+                        const float* terminated, float gamma, float* target, int B, cudaStream_t stream) {
+  soft_target_k<<<blocks_for(B), kThreads, 0, stream>>>(next_q, next_log_prob, alpha, rewards, terminated, gamma,
+                                                        target, B);
+  return cudaGetLastError();
+}
+
+cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* loss, int B,
+                                    cudaStream_t stream) {
+  actor_objective_forward_k<<<1, kThreads, 0, stream>>>(q, log_prob, alpha, loss, B);
+  return cudaGetLastError();
+}
+
+cudaError_t actor_objective_backward(const float* q, const float* alpha, const float* g_loss, float* g_q,
+                                     float* g_log_prob, int B, cudaStream_t stream) {
+  actor_objective_backward_k<<<blocks_for(B), kThreads, 0, stream>>>(q, alpha, g_loss, g_q, g_log_prob, B);
+  return cudaGetLastError();
+}
+
+}  // namespace farm::sac_kernels

@@ -1,0 +1,40 @@
+// Fused CUDA kernels for the SAC update's graph (sac_cuda_graph.cpp, sac.cuda_fused_kernels): each
+// replaces a run of small elementwise or reduction kernels on the update's critical path with one.
+// Built only with a CUDA compiler next to a CUDA LibTorch (learner/algorithms/CMakeLists.txt,
+// FARM_CUDA_KERNELS). Plain pointers and sizes, no Torch: the callers check shapes, strides and
+// devices; every launcher enqueues on `stream` and returns the launch's error.
+#pragma once
+
+#include <cuda_runtime_api.h>
+
+namespace farm::sac_kernels {
+
+// The tanh-squashed Gaussian sample from the actor's output `out` [B, 2A] (mean, then the
+// unclamped log std) and standard normal `noise` [B, A]: action [B, A] = tanh(mean + exp(ls) *
+// noise) with ls = clamp(log std, lo, hi), and log_prob [B] = sum over A of
+// -noise^2 / 2 - log(2 pi) / 2 - ls - log(1 - action^2 + 1e-6). All contiguous.
+cudaError_t squashed_sample_forward(const float* out, const float* noise, float* action, float* log_prob, int B, int A,
+                                    float lo, float hi, cudaStream_t stream);
+
+// Its gradient: g_out [B, 2A] from g_action [B, A] (row stride ld_g_action; null for zero) and
+// g_log_prob [B] (null for zero), with the noise held fixed (the reparameterization) and the clamp
+// passing the gradient where lo <= log std <= hi, as torch's clamp does.
+cudaError_t squashed_sample_backward(const float* out, const float* noise, const float* action, const float* g_action,
+                                     int ld_g_action, const float* g_log_prob, float* g_out, int B, int A, float lo,
+                                     float hi, cudaStream_t stream);
+
+// The critics' target [B]: rewards + gamma * (1 - terminated) * (min(next_q[0], next_q[1]) -
+// alpha[0] * next_log_prob), next_q [2, B].
+cudaError_t soft_target(const float* next_q, const float* next_log_prob, const float* alpha, const float* rewards,
+                        const float* terminated, float gamma, float* target, int B, cudaStream_t stream);
+
+// The actor's loss: loss[0] = mean over B of alpha[0] * log_prob - min(q[0], q[1]), q [2, B].
+cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* loss, int B,
+                                    cudaStream_t stream);
+
+// Its gradient for an upstream g_loss[0]: g_q [2, B] (to the smaller critic, half each on a tie, as
+// torch::min gives it) and g_log_prob [B].
+cudaError_t actor_objective_backward(const float* q, const float* alpha, const float* g_loss, float* g_q,
+                                     float* g_log_prob, int B, cudaStream_t stream);
+
+}  // namespace farm::sac_kernels
