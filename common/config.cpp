@@ -257,6 +257,8 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   s.positive("max_updates_per_step", c.max_updates_per_step());
   s.positive("publish_every_updates", c.publish_every_updates());
   s.at_least("n_step", c.n_step(), 1);
+  s.check(valid_device_name(c.device()), "device",
+          "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
 }
 
 void check_ppo(const Section& s, const config::PpoConfig& c) {

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Builds the learner (farm-learner, bench_sac, bench_ppo) against a CUDA LibTorch on a GPU host; the
-# config's sac.device or ppo.device ("cpu" by default, "cuda" or "cuda:N") picks where it trains.
+# Builds the learner (farm-learner, bench_sac, bench_dqn, bench_ppo) against a CUDA LibTorch on a GPU host; the
+# config's sac.device, dqn.device or ppo.device ("cpu" by default, "cuda", "cuda:N" or "auto") picks
+# where it trains.
 #
 #   deploy/build-gpu.sh [BUILD_DIR]          (default: build-gpu)
 #
@@ -8,7 +9,7 @@
 #   (python3 -c 'import torch; print(torch.utils.cmake_prefix_path)').
 # Other dependencies: installed (deploy/install-deps.sh), or, on a host where nothing can be
 #   installed, a folder made by deploy/make-gpu-kit.sh on a Debian machine, given as FARM_GPU_KIT.
-# FARM_WITH_DDS=OFF builds only the learner core and bench_sac (no Fast DDS needed).
+# FARM_WITH_DDS=OFF builds only the learner core and the benchmarks (no Fast DDS needed).
 # FARM_GPU_TARGETS="bench_sac test_sac" builds just those targets instead of the default ones.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -26,7 +27,7 @@ if [ -n "${FARM_GPU_KIT:-}" ]; then
          -DProtobuf_LIBRARY="$kit/lib/libprotobuf.so" -DFASTDDSGEN="$kit/bin/fastddsgen"
          -DCMAKE_BUILD_RPATH="$kit/lib")
 fi
-targets=(bench_sac bench_ppo)
+targets=(bench_sac bench_dqn bench_ppo)
 [ "$with_dds" = ON ] && targets+=(farm-learner)
 [ -n "${FARM_GPU_TARGETS:-}" ] && read -r -a targets <<<"$FARM_GPU_TARGETS"
 # A CUDA compiler for the SAC graph's fused kernels: CUDACXX, else nvcc on PATH, else the toolkit's
@@ -39,4 +40,4 @@ command -v ninja >/dev/null && gen=(-G Ninja)
 cmake -S "$root" -B "$build" "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \
   -DFARM_WITH_DDS="$with_dds" "${args[@]}"
 cmake --build "$build" -j "$(nproc)" --target "${targets[@]}"
-echo "built: ${targets[*]} in $build (set sac { device: \"cuda\" } or ppo { device: \"cuda\" } in the experiment config)"
+echo "built: ${targets[*]} in $build (set sac, dqn or ppo { device: \"cuda\" } in the experiment config)"

@@ -2,12 +2,19 @@
 #include "archive_io.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <stdexcept>
 
+#include "compute.h"
 #include "config.h"
+
+#ifdef FARM_CUDA_GRAPHS
+#include "cuda_graph_update.h"
+#endif
 
 namespace farm {
 
@@ -58,14 +65,56 @@ double dqn_epsilon(const config::DqnConfig& c, int64_t env_steps) {
   return c.exploration_initial_eps() + progress * (c.exploration_final_eps() - c.exploration_initial_eps());
 }
 
+namespace {
+
+// The update's loss, Q and target means, from the Q networks on a batch already on their device:
+// Huber loss on the double-DQN (or plain) target, gradients clipped to max_grad_norm as
+// torch::nn::utils::clip_grad_norm_ clips them but without reading the norm back to the host (so
+// a CUDA graph can hold it), then `step` with the clipped gradients. Returns [loss, q mean, target
+// mean] as one device tensor.
+template <class Step>
+torch::Tensor dqn_step(QNet& online, QNet& target_net, const config::DqnConfig& cfg, const SampledBatch& b,
+                       const std::vector<torch::Tensor>& params, Step&& step) {
+  const auto actions = b.actions.reshape({-1, 1}).round().to(torch::kLong);
+  torch::Tensor target;
+  {
+    torch::NoGradGuard no_grad;
+    const auto next_target = target_net->forward(b.next_obs);
+    const auto next_online = cfg.double_q() ? online->forward(b.next_obs) : next_target;
+    target = dqn_target(b.rewards, b.terminated, next_online, next_target, cfg.gamma(), cfg.double_q(), b.horizon);
+  }
+  const auto q = online->forward(b.obs).gather(1, actions).squeeze(1);
+  const auto loss = torch::smooth_l1_loss(q, target);
+  auto grads = torch::autograd::grad({loss}, params);
+  torch::NoGradGuard no_grad;
+  std::vector<torch::Tensor> norms;
+  norms.reserve(grads.size());
+  for (const auto& g : grads) norms.push_back(g.norm());
+  const auto total = torch::stack(norms).norm();
+  const auto coef = (cfg.max_grad_norm() / (total + 1e-6)).clamp_max(1.0);
+  for (auto& g : grads) g.mul_(coef);
+  step(grads);
+  return torch::stack({loss.detach(), q.detach().mean(), target.mean()});
+}
+
+}  // namespace
+
 struct Dqn::Impl {
   Impl(const config::DqnConfig& c, int obs, int actions)
-      : cfg(c), obs_dim(obs), num_actions(actions), hidden(dqn_hidden(c)), online(sizes()), target(sizes()) {
+      : cfg(c),
+        obs_dim(obs),
+        num_actions(actions),
+        hidden(dqn_hidden(c)),
+        device(learner_device(c.device(), "dqn.device")),
+        online(sizes()),
+        target(sizes()) {
     check_config(c);  // the loader's checks, for a config built in code
     if (obs < 1 || actions < 2) {
       throw std::invalid_argument("dqn: needs obs_dim >= 1 and >= 2 discrete actions, got " + std::to_string(obs) +
                                   " and " + std::to_string(actions));
     }
+    online->to(device);
+    target->to(device);
     copy_target();
     for (auto& p : target->parameters()) p.requires_grad_(false);
     opt = std::make_unique<torch::optim::Adam>(online->parameters(), torch::optim::AdamOptions(cfg.learning_rate()));
@@ -82,12 +131,36 @@ struct Dqn::Impl {
     for (size_t i = 0; i < src.size(); ++i) dst[i].copy_(src[i]);
   }
 
+  // The batch on the networks' device (a copy per field on a GPU).
+  SampledBatch on_device(const SampledBatch& b) const {
+    if (device.is_cpu()) return b;
+    auto to = [&](const torch::Tensor& t) { return t.defined() ? t.to(device) : t; };
+    return {to(b.obs), to(b.actions), to(b.rewards), to(b.terminated), to(b.next_obs), to(b.horizon)};
+  }
+  // After an update: the target copy every target_update_updates updates.
+  void count_update() {
+    ++updates;
+    if (updates % cfg.target_update_updates() == 0) copy_target();
+  }
+
   config::DqnConfig cfg;
   int obs_dim, num_actions;
   std::vector<int> hidden;
+  torch::Device device;
   QNet online, target;
   std::unique_ptr<torch::optim::Adam> opt;
   int64_t updates = 0;
+
+  bool use_graph() const;
+  DqnStats graph_update(const SampledBatch& host_batch);
+  void drop_graph();  // after load(): the optimizer state it was captured with is replaced
+#ifdef FARM_CUDA_GRAPHS
+  struct Graph;
+  struct GraphDeleter {
+    void operator()(Graph* g) const;
+  };
+  std::unique_ptr<Graph, GraphDeleter> graph;
+#endif
 };
 
 static const config::DqnConfig& seeded(const config::DqnConfig& cfg, uint64_t seed) {
@@ -101,30 +174,142 @@ Dqn::~Dqn() = default;
 Dqn::Dqn(Dqn&&) noexcept = default;
 Dqn& Dqn::operator=(Dqn&&) noexcept = default;
 
-DqnStats Dqn::update(const SampledBatch& batch) {
+DqnStats Dqn::update(const SampledBatch& host_batch) {
   Impl& s = *impl_;
-  const auto actions = batch.actions.reshape({-1, 1}).round().to(torch::kLong);
-  torch::Tensor target;
-  {
-    torch::NoGradGuard no_grad;
-    const auto next_target = s.target->forward(batch.next_obs);
-    const auto next_online = s.cfg.double_q() ? s.online->forward(batch.next_obs) : next_target;
-    target = dqn_target(batch.rewards, batch.terminated, next_online, next_target, s.cfg.gamma(), s.cfg.double_q(),
-                        batch.horizon);
-  }
-  const auto q = s.online->forward(batch.obs).gather(1, actions).squeeze(1);
-  const auto loss = torch::smooth_l1_loss(q, target);
-  s.opt->zero_grad();
-  loss.backward();
-  torch::nn::utils::clip_grad_norm_(s.online->parameters(), s.cfg.max_grad_norm());
-  s.opt->step();
-  ++s.updates;
-  if (s.updates % s.cfg.target_update_updates() == 0) s.copy_target();
+  if (s.use_graph()) return s.graph_update(host_batch);
+  const auto params = s.online->parameters();
+  const auto figures = dqn_step(s.online, s.target, s.cfg, s.on_device(host_batch), params,
+                                [&](const std::vector<torch::Tensor>& grads) {
+                                  for (size_t i = 0; i < params.size(); ++i) params[i].mutable_grad() = grads[i];
+                                  s.opt->step();
+                                })
+                           .to(torch::kCPU, torch::kDouble);  // one copy back on a GPU
+  s.count_update();
+  const double* f = figures.data_ptr<double>();
   DqnStats st;
-  st.loss = loss.item<double>();
-  st.q_mean = q.mean().item<double>();
-  st.target_mean = target.mean().item<double>();
+  st.loss = f[0];
+  st.q_mean = f[1];
+  st.target_mean = f[2];
   return st;
+}
+
+bool Dqn::uses_cuda_graph() const { return impl_->use_graph(); }
+bool Dqn::on_gpu() const { return impl_->device.is_cuda(); }
+
+#ifdef FARM_CUDA_GRAPHS
+// One update captured as a CUDA graph, as SAC's (sac_cuda_graph.cpp, which says more): static
+// device inputs that each update overwrites from one pinned host buffer, the figures read back
+// with one copy, Adam as GraphAdam, warm-ups and capture as run_graph_update does them. The
+// target copy stays outside the graph, queued after the replay every target_update_updates
+// updates.
+struct Dqn::Impl::Graph {
+  static constexpr int kWarmupUpdates = 3;  // before the capture (run_graph_update)
+
+  Graph(Impl& s, int64_t batch)
+      : batch(batch),
+        device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
+        params(s.online->parameters()),
+        adam(*s.opt, params),
+        capture_stream(c10::cuda::getStreamFromPool(false, device_index)) {
+    const int64_t o = s.obs_dim;
+    widths = {o, 1, 1, 1, o, 1};
+    const auto f32 = torch::TensorOptions().dtype(torch::kFloat);
+    int64_t n = 0;
+    for (int64_t w : widths) n += batch * w;
+    host_in = torch::empty({n}, f32.pinned_memory(true));
+    dev_in = torch::empty({n}, f32.device(s.device));
+    std::array<torch::Tensor*, 6> views{&in.obs, &in.actions, &in.rewards, &in.terminated, &in.next_obs, &in.horizon};
+    int64_t offset = 0;
+    for (size_t i = 0; i < views.size(); ++i) {
+      const int64_t k = batch * widths[i];
+      *views[i] = widths[i] == 1 ? dev_in.narrow(0, offset, k) : dev_in.narrow(0, offset, k).view({batch, widths[i]});
+      offset += k;
+    }
+    host_out = torch::empty({3}, f32.pinned_memory(true));
+  }
+
+  // The sampled batch into the pinned buffer, then one copy to the static inputs on the current
+  // stream. A batch without a horizon spans one step a row.
+  void stage(const SampledBatch& b) {
+    const std::array<const torch::Tensor*, 6> fields{&b.obs,        &b.actions,  &b.rewards,
+                                                     &b.terminated, &b.next_obs, &b.horizon};
+    float* dst = host_in.data_ptr<float>();
+    for (size_t i = 0; i < fields.size(); ++i) {
+      const int64_t n = batch * widths[i];
+      if (!fields[i]->defined() && i == 5) {
+        std::fill(dst, dst + n, 1.f);
+      } else {
+        const torch::Tensor t = fields[i]->to(torch::kCPU, torch::kFloat).contiguous();
+        if (t.numel() != n)
+          throw std::invalid_argument("dqn update: batch field " + std::to_string(i) + " has " +
+                                      std::to_string(t.numel()) + " values, expected " + std::to_string(n));
+        std::memcpy(dst, t.data_ptr<float>(), sizeof(float) * n);
+      }
+      dst += n;
+    }
+    dev_in.copy_(host_in, /*non_blocking=*/true);
+  }
+
+  void body(Impl& s) {
+    adam.advance_device_steps();
+    out = dqn_step(s.online, s.target, s.cfg, in, params,
+                   [&](const std::vector<torch::Tensor>& grads) { adam.step(grads); });
+  }
+
+  int64_t batch;
+  c10::DeviceIndex device_index;
+  std::array<int64_t, 6> widths;
+  std::vector<torch::Tensor> params;
+  GraphAdam adam;
+  c10::cuda::CUDAStream capture_stream;
+  torch::Tensor host_in, dev_in, host_out, out;
+  SampledBatch in;
+  std::unique_ptr<at::cuda::CUDAGraph> graph;
+  int warmups_left = kWarmupUpdates;
+};
+
+void Dqn::Impl::GraphDeleter::operator()(Graph* g) const { delete g; }
+#endif
+
+bool Dqn::Impl::use_graph() const {
+#ifdef FARM_CUDA_GRAPHS
+  return device.is_cuda() && cfg.cuda_graph();
+#else
+  return false;
+#endif
+}
+
+DqnStats Dqn::Impl::graph_update(const SampledBatch& host_batch) {
+#ifdef FARM_CUDA_GRAPHS
+  const int64_t b = host_batch.obs.size(0);
+  if (!graph || graph->batch != b) {
+    graph.reset();  // its private memory pool goes before the next graph's
+    graph.reset(new Graph(*this, b));
+  }
+  Graph& g = *graph;
+  c10::cuda::CUDAGuard device_guard(g.device_index);
+  g.stage(host_batch);
+  run_graph_update(g.graph, g.warmups_left, g.device_index, g.capture_stream, [&] { g.body(*this); });
+  g.host_out.copy_(g.out, /*non_blocking=*/true);
+  g.adam.advance_host_steps();
+  count_update();  // the target copy, where due, queued after the replay
+  c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
+  const float* f = g.host_out.data_ptr<float>();
+  DqnStats st;
+  st.loss = f[0];
+  st.q_mean = f[1];
+  st.target_mean = f[2];
+  return st;
+#else
+  (void)host_batch;
+  throw std::logic_error("dqn: CUDA graph update in a build without CUDA");
+#endif
+}
+
+void Dqn::Impl::drop_graph() {
+#ifdef FARM_CUDA_GRAPHS
+  graph.reset();
+#endif
 }
 
 double Dqn::epsilon() const { return dqn_epsilon(impl_->cfg, env_steps_); }
@@ -140,8 +325,8 @@ PolicyParams Dqn::export_policy(uint64_t version) const {
   p.layout.sizes.push_back(s.num_actions);
   p.epsilon = float(epsilon());
   for (const auto& layer : s.online->layers) {
-    const auto w = layer->weight.detach().contiguous();
-    const auto b = layer->bias.detach().contiguous();
+    const auto w = layer->weight.detach().to(torch::kCPU).contiguous();
+    const auto b = layer->bias.detach().to(torch::kCPU).contiguous();
     p.params.insert(p.params.end(), w.data_ptr<float>(), w.data_ptr<float>() + w.numel());
     p.params.insert(p.params.end(), b.data_ptr<float>(), b.data_ptr<float>() + b.numel());
   }
@@ -155,7 +340,7 @@ const std::vector<int>& Dqn::hidden() const { return impl_->hidden; }
 
 torch::Tensor Dqn::q_values(const torch::Tensor& obs) const {
   torch::NoGradGuard no_grad;
-  return impl_->online->forward(obs);
+  return impl_->online->forward(obs.to(impl_->device)).to(obs.device());
 }
 
 std::vector<torch::Tensor> Dqn::online_parameters() const { return impl_->online->parameters(); }
@@ -192,23 +377,26 @@ void Dqn::load(const std::string& dir) {
   const std::string file = dir + "/dqn.pt";
   try {
     torch::serialize::InputArchive root;
-    root.load_from(file);
+    root.load_from(file, s.device);  // whatever device wrote it
     torch::Tensor meta;
     root.read("meta", meta);
     std::vector<int64_t> want{s.obs_dim, s.num_actions};
     want.insert(want.end(), s.hidden.begin(), s.hidden.end());
-    const auto m = meta.to(torch::kInt64).contiguous();
+    const auto m = meta.to(torch::kCPU, torch::kInt64).contiguous();
     if (std::vector<int64_t>(m.data_ptr<int64_t>(), m.data_ptr<int64_t>() + m.numel()) != want) {
       throw std::runtime_error("dqn checkpoint " + file +
                                ": network sizes (obs, actions, hidden...) differ from this config");
     }
     // Into fresh networks first, so a failed read leaves this instance as it was.
     QNet online(s.sizes()), target(s.sizes());
+    online->to(s.device);
+    target->to(s.device);
     torch::serialize::InputArchive a, b, o;
     root.read("online", a);
     root.read("target", b);
     online->load(a);
     target->load(b);
+    s.drop_graph();  // captured with the optimizer state that the load replaces
     torch::NoGradGuard no_grad;
     auto copy = [](QNet& from, QNet& to) {
       auto src = from->parameters(), dst = to->parameters();

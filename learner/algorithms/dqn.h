@@ -58,11 +58,15 @@ class Dqn {
   PolicyParams export_policy(uint64_t version) const;
 
   int64_t updates() const;
+  // True when updates replay a captured CUDA graph: dqn.device a GPU, dqn.cuda_graph, and a
+  // learner built against a CUDA LibTorch.
+  bool uses_cuda_graph() const;
+  bool on_gpu() const;  // the Q networks train on a CUDA device
   int obs_dim() const;
   int num_actions() const;
   const std::vector<int>& hidden() const;
 
-  // Q values [B, A] of the online network; no gradient.
+  // Q values [B, A] of the online network, on obs's device; no gradient.
   torch::Tensor q_values(const torch::Tensor& obs) const;
   // Per layer weight [out, in], bias [out].
   std::vector<torch::Tensor> online_parameters() const;

@@ -88,7 +88,10 @@ class DqnAlgorithm final : public OffPolicy {
   double gamma() const override { return cfg_.gamma(); }
   std::string describe() const override {
     return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
-           " Q network" + (cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "");
+           " Q network" + (cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "") +
+           (dqn_.uses_cuda_graph() ? ", CUDA graph"
+            : dqn_.on_gpu()        ? ", on the GPU"
+                                   : "");
   }
 
  private:

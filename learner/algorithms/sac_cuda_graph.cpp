@@ -17,6 +17,9 @@
 #include <c10/cuda/CUDAGuard.h>
 #include <c10/cuda/CUDAStream.h>
 #endif
+#ifdef FARM_CUDA_GRAPHS
+#include "cuda_graph_update.h"
+#endif
 #ifdef FARM_CUDA_KERNELS
 #include "sac_cuda_kernels.h"
 #endif
@@ -33,45 +36,6 @@ constexpr bool kFusedKernelsBuilt = false;
 
 #ifdef FARM_CUDA_GRAPHS
 namespace {
-
-// Adam as torch::optim::Adam computes it (no weight decay, no amsgrad), but in one fused kernel that
-// reads the step count from a device tensor: a captured graph replays the same kernels with the
-// same arguments, so a host-side step count (and with it the bias correction) would be frozen at
-// its value during capture. The moment estimates are the torch::optim::Adam state tensors
-// themselves, whose host step count is advanced after each replay, so save(), load() and the eager
-// path see the same optimizer state either way.
-struct GraphAdam {
-  GraphAdam(torch::optim::Adam& opt, const torch::Tensor& param) : param(param) {
-    // The state appears at the first step. One step with a zero gradient creates it and leaves the
-    // parameter exactly as it was (p - step_size * 0 / eps), then the count is put back to 0.
-    if (opt.state().empty()) {
-      torch::Tensor p = param;
-      p.mutable_grad() = torch::zeros_like(param);
-      opt.step();
-      p.mutable_grad() = torch::Tensor();
-      static_cast<torch::optim::AdamParamState&>(*opt.state().begin()->second).step(0);
-    }
-    state = &static_cast<torch::optim::AdamParamState&>(*opt.state().begin()->second);
-    const auto& o = static_cast<const torch::optim::AdamOptions&>(opt.param_groups()[0].options());
-    if (o.weight_decay() != 0 || o.amsgrad())
-      throw std::logic_error("sac cuda graph: Adam with weight decay or amsgrad is not supported");
-    lr = o.lr();
-    beta1 = std::get<0>(o.betas());
-    beta2 = std::get<1>(o.betas());
-    eps = o.eps();
-    step_count = torch::full({}, double(state->step()), param.options().dtype(torch::kFloat));
-  }
-  // Graph-safe: only device work. step_count must have been advanced for this step (the update
-  // does that off its critical path).
-  void step(const torch::Tensor& grad) {
-    torch::NoGradGuard no_grad;
-    at::_fused_adam_({param}, {grad}, {state->exp_avg()}, {state->exp_avg_sq()}, {}, {step_count}, lr, beta1, beta2,
-                     /*weight_decay=*/0.0, eps, /*amsgrad=*/false, /*maximize=*/false);
-  }
-  torch::Tensor param, step_count;
-  torch::optim::AdamParamState* state;
-  double lr, beta1, beta2, eps;
-};
 
 #ifdef FARM_CUDA_KERNELS
 // The fused kernels (sac_cuda_kernels.h) as autograd functions, on the current CUDA stream (in
@@ -219,9 +183,9 @@ struct Sac::Impl::CudaGraph {
   CudaGraph(Impl& s, int64_t batch)
       : batch(batch),
         device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
-        actor_adam(*s.actor_opt, s.actor_p.flat),
-        critic_adam(*s.critic_opt, s.critic_p.flat),
-        alpha_adam(*s.alpha_opt, s.log_alpha),
+        actor_adam(*s.actor_opt, {s.actor_p.flat}),
+        critic_adam(*s.critic_opt, {s.critic_p.flat}),
+        alpha_adam(*s.alpha_opt, {s.log_alpha}),
         capture_stream(c10::cuda::getStreamFromPool(false, device_index)),
         target_stream(c10::cuda::getStreamFromPool(false, device_index)),
         alpha_stream(c10::cuda::getStreamFromPool(false, device_index)),
@@ -267,7 +231,7 @@ struct Sac::Impl::CudaGraph {
   // host's Adam step counts (save() writes them) advanced as the device's were.
   void queue_figures(int slot) {
     host_out[slot].copy_(out, /*non_blocking=*/true);
-    for (GraphAdam* a : {&actor_adam, &critic_adam, &alpha_adam}) a->state->step(a->state->step() + 1);
+    for (GraphAdam* a : {&actor_adam, &critic_adam, &alpha_adam}) a->advance_host_steps();
   }
 
   // Slot `slot`'s figures; only after the stream has been synchronized past their copy.
@@ -312,7 +276,7 @@ struct Sac::Impl::CudaGraph {
       c10::cuda::CUDAStreamGuard on_side(target_stream);
       torch::NoGradGuard no_grad;
       // Main joins this stream before either step reads its count (and so does the actor's branch).
-      torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count, actor_adam.step_count}, 1);
+      torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count[0], actor_adam.step_count[0]}, 1);
       auto [next_action, next_log_prob] = sample(s, next_obs, fused);
       if (beside) events[8].record(target_stream);  // the actor's weights read: its Adam step waits
       const auto next_q = s.critic_target->forward(next_obs, next_action);
@@ -331,8 +295,8 @@ struct Sac::Impl::CudaGraph {
       c10::cuda::CUDAStreamGuard on_side(alpha_stream);
       alpha_loss = sac_temperature_loss(s.log_alpha, log_prob, s.target_entropy);
       const auto grad = torch::autograd::grad({alpha_loss}, {s.log_alpha})[0];
-      alpha_adam.step_count.add_(1);
-      alpha_adam.step(grad);
+      alpha_adam.advance_device_steps();
+      alpha_adam.step({grad});
       torch::NoGradGuard no_grad;
       entropy = log_prob.mean().neg();
     }
@@ -349,7 +313,7 @@ struct Sac::Impl::CudaGraph {
         events[7].record(actor_stream);  // the critics' weights read; main waits before their step
         events[8].block(actor_stream);
       }
-      actor_adam.step(grad);
+      actor_adam.step({grad});
     };
     if (beside) {
       c10::cuda::CUDAStreamGuard on_side(actor_stream);
@@ -361,7 +325,7 @@ struct Sac::Impl::CudaGraph {
     const auto critic_loss = torch::mse_loss(q, target.unsqueeze(0).expand_as(q));
     const auto critic_grad = flat_grad(critic_loss, s.critic_p);
     if (beside) events[7].block(main);
-    critic_adam.step(critic_grad);
+    critic_adam.step({critic_grad});
 
     torch::Tensor q_mean;
     order_after(events[3], main, target_stream);
@@ -467,29 +431,7 @@ SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
   CudaGraph& g = *graph;
   c10::cuda::CUDAGuard device_guard(g.device_index);
   g.stage(host_batch, 0);
-
-  if (g.graph) {
-    g.graph->replay();
-  } else {
-    // Warm-up and capture run on a side stream (capture cannot use the default stream); the
-    // synchronizations keep it ordered with the default stream, where replays go.
-    torch::cuda::synchronize(g.device_index);
-    {
-      c10::cuda::CUDAStreamGuard stream_guard(g.capture_stream);
-      if (g.warmups_left > 0) {
-        --g.warmups_left;
-        g.body(*this);
-      } else {
-        auto graph_ptr = std::make_unique<at::cuda::CUDAGraph>();
-        graph_ptr->capture_begin();
-        g.body(*this);
-        graph_ptr->capture_end();
-        g.graph = std::move(graph_ptr);
-      }
-    }
-    torch::cuda::synchronize(g.device_index);
-    if (g.graph) g.graph->replay();  // capture recorded the update without running it
-  }
+  run_graph_update(g.graph, g.warmups_left, g.device_index, g.capture_stream, [&] { g.body(*this); });
   g.queue_figures(0);
   c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
   ++updates;

@@ -215,6 +215,11 @@ TEST(Config, LearnerDeviceDefaultsToCpuAndIsChecked) {
   e = error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  device: \"automatic\"\n}\n");
   EXPECT_NE(e.find("ppo.device"), std::string::npos) << e;
   EXPECT_NE(e.find("\"auto\""), std::string::npos) << e;
+  EXPECT_EQ(parse_config_text("experiment_id: \"a\"\n", "exp.txtpb").dqn().device(), "cpu");
+  e = error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  device: \"cuda:x\"\n}\n");
+  EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
+  EXPECT_NE(e.find("dqn.device"), std::string::npos) << e;
+  EXPECT_NE(e.find("\"cuda:x\""), std::string::npos) << e;
 }
 
 // Every task section is range-checked where the config is read, so the error names the file, the
