@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <random>
 #include <sstream>
+#include <stdexcept>
+#include <string>
 
 #include "algorithm.h"
 #include "divergence.h"
@@ -59,6 +61,7 @@ class OffPolicyAlgorithm final : public Algorithm {
   }
 
   double train(Farm& farm, bool got_data) override {
+    if (!diverged_.empty()) throw std::runtime_error(diverged_);
     // One group of updates between looks at the bus: on a GPU the algorithm queues them back to
     // back (OffPolicy::update_n).
     int n = 0;
@@ -222,20 +225,31 @@ class OffPolicyAlgorithm final : public Algorithm {
   }
 
   // The figures of updates that have run, oldest first: a non-finite one stops the run.
+  // A divergence found is kept: whoever catches the error (a periodic checkpoint logs its failure
+  // and goes on), every later train(), publish, evaluation and checkpoint throws it again, though
+  // the figures that showed it have been read.
   void check(const std::vector<OffPolicyStats>& stats) const {
     const int64_t first = algo_->updates() - algo_->updates_in_flight() - int64_t(stats.size()) + 1;
-    for (size_t k = 0; k < stats.size(); ++k)
-      require_finite_update(algo_name_, first + int64_t(k),
-                            {{"critic loss", stats[k].critic_loss},
-                             {"actor loss", stats[k].actor_loss},
-                             {alpha_name_.c_str(), stats[k].alpha}});
+    try {
+      for (size_t k = 0; k < stats.size(); ++k)
+        require_finite_update(algo_name_, first + int64_t(k),
+                              {{"critic loss", stats[k].critic_loss},
+                               {"actor loss", stats[k].actor_loss},
+                               {alpha_name_.c_str(), stats[k].alpha}});
+    } catch (const std::runtime_error& e) {
+      diverged_ = e.what();
+      throw;
+    }
     if (!stats.empty()) last_stats_ = stats.back();
     updates_meter_.add(stats.size());
   }
 
   // Waits for the updates still running and checks their figures: before any weights leave the
   // learner (to the workers, to an evaluation, to a checkpoint), as the divergence guard promises.
-  void settle() const { check(algo_->finish_updates()); }
+  void settle() const {
+    if (!diverged_.empty()) throw std::runtime_error(diverged_);
+    check(algo_->finish_updates());
+  }
 
   void ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
     settle();
@@ -257,7 +271,8 @@ class OffPolicyAlgorithm final : public Algorithm {
   std::mt19937_64 rng_;
   mutable OffPolicyStats last_stats_{};  // check() runs from const save_networks() too
   mutable Meter updates_meter_;
-  uint64_t version_ = 0;  // the next version to publish
+  mutable std::string diverged_;  // the divergence error, once one was found (check())
+  uint64_t version_ = 0;          // the next version to publish
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
   static constexpr double kStepWindowSeconds = 1.0;

@@ -261,8 +261,9 @@ void Sac::save(const std::string& dir) const {
 void Sac::load(const std::string& dir) {
   Impl& s = *impl_;
   // Queued replays finish before their tensors are replaced; their figures belong to the state
-  // being replaced and go with it.
-  s.settle_graph();
+  // being replaced and go with it. The graph goes too, before the optimizers' state it holds is
+  // replaced: also where the load fails half way (the next update captures anew).
+  s.drop_graph();
   s.ready.clear();
   const std::string file = dir + "/sac.pt";
   auto fail = [&](const std::string& what) { return std::runtime_error("sac checkpoint " + file + ": " + what); };

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <deque>
 #include <stdexcept>
@@ -176,8 +177,14 @@ struct Sac::Impl::CudaGraph {
   static constexpr int kSlots = 16;
 
   ~CudaGraph() {
-    // Nothing queued may outlive the pinned slots and the graph's memory it uses.
-    if (!in_flight.empty()) c10::cuda::getCurrentCUDAStream(device_index).synchronize();
+    // Nothing queued may outlive the pinned slots and the graph's memory it uses. A sticky CUDA
+    // error (the reason this is being unwound, maybe) is said, not thrown from a destructor.
+    if (in_flight.empty()) return;
+    try {
+      c10::cuda::getCurrentCUDAStream(device_index).synchronize();
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "[learner] sac: waiting for queued CUDA graph replays failed: %s\n", e.what());
+    }
   }
 
   CudaGraph(Impl& s, int64_t batch)
@@ -477,7 +484,9 @@ std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<Sampl
     }
   } catch (...) {
     // A batch that failed to sample or stage: what is queued still runs; wait for it, so that
-    // no copy from a pinned slot is pending when the next call writes that slot.
+    // no copy from a pinned slot is pending when the next call writes that slot. The figures
+    // already read go back to `ready`, before those of the queued ones, for the next call.
+    ready.insert(ready.begin(), stats.begin(), stats.end());
     settle_graph();
     throw;
   }

@@ -8,10 +8,13 @@
 #include <algorithm>
 #include <cmath>
 #include <deque>
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "algorithm.h"
 #include "config.h"
@@ -190,23 +193,31 @@ TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
   EXPECT_NE(farm.lines_.back().find("batch 16, learning rates x1.00"), std::string::npos) << farm.lines_.back();
 }
 
+// The replay driver over SAC whose groups return with their last 3 updates' figures still out (as
+// on a GPU), update `nan_at` NaN, publishing every `publish_every` updates; started, with data for
+// a million updates and one batch taken.
+std::unique_ptr<Algorithm> driver_with_updates_held(int64_t nan_at, int publish_every, StepScaleFarm& farm) {
+  auto cfg = step_scale_config();
+  cfg.mutable_sac()->set_max_step_scale(1);
+  cfg.mutable_sac()->set_publish_every_updates(publish_every);
+  const auto spec = step_scale_spec();
+  auto algo =
+      make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 1, 3, nan_at), cfg, spec);
+  farm.env_steps_ = 1000000;
+  algo->start(farm);
+  EXPECT_TRUE(algo->take(OneStep(128).batch));
+  return algo;
+}
+
 // A group of updates may return while its last ones still run on the GPU. A diverged update among
 // those must stop the run before the next publish sends its weights to the workers (the driver
 // waits for them and checks their figures first), naming the update, though update_n never
 // returned its figures.
 TEST(OffPolicyDriver, ChecksUpdatesStillRunningBeforeWeightsLeave) {
-  auto cfg = step_scale_config();
-  cfg.mutable_sac()->set_max_step_scale(1);
-  cfg.mutable_sac()->set_publish_every_updates(4);
-  const auto spec = step_scale_spec();
-  // Groups of kUpdatesPerGroup (8): the second group's updates 9-13 come back, 14-16 are held.
-  auto algo =
-      make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 1, 3, 15), cfg, spec);
   StepScaleFarm farm;
-  farm.env_steps_ = 1000000;
-  algo->start(farm);
+  // Groups of kUpdatesPerGroup (8): the second group's updates 9-13 come back, 14-16 are held.
+  auto algo = driver_with_updates_held(15, 4, farm);
   EXPECT_EQ(farm.published_, 1);
-  ASSERT_TRUE(algo->take(OneStep(128).batch));
   algo->train(farm, true);  // updates 1-8, publish after 6-8 are checked
   EXPECT_EQ(algo->updates(), 8);
   EXPECT_EQ(farm.published_, 2);
@@ -217,6 +228,30 @@ TEST(OffPolicyDriver, ChecksUpdatesStillRunningBeforeWeightsLeave) {
     EXPECT_NE(std::string(e.what()).find("diverged at update 15"), std::string::npos) << e.what();
   }
   EXPECT_EQ(farm.published_, 2);
+}
+
+// A divergence that a periodic checkpoint finds (the farm logs a failed checkpoint and goes on)
+// stays found: the next train() and the next weights for the workers throw it again, though its
+// figures have been read, and nothing is published.
+TEST(OffPolicyDriver, ADivergenceACheckpointFoundStopsWhatFollows) {
+  StepScaleFarm farm;
+  // The first group's updates 1-5 come back, 6-8 (update 7 NaN) are held.
+  auto algo = driver_with_updates_held(7, 100, farm);
+  algo->train(farm, true);
+  EXPECT_EQ(algo->updates(), 8);
+  const auto dir = std::filesystem::temp_directory_path() / ("diverged_ckpt_" + std::to_string(::getpid()));
+  EXPECT_THROW(algo->save(dir.string()), std::runtime_error);
+  EXPECT_FALSE(std::filesystem::exists(dir));
+  for (int k = 0; k < 2; ++k) {
+    try {
+      algo->train(farm, true);
+      ADD_FAILURE() << "train() went on after update 7's NaN critic loss";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("diverged at update 7"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_THROW(algo->hold_workers(farm), std::runtime_error);
+  EXPECT_EQ(farm.published_, 1);
 }
 
 }  // namespace
