@@ -20,6 +20,13 @@ class SacAlgorithm final : public OffPolicy {
   std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next_batch) override {
     return all_figures(sac_.update_n(n, next_batch));
   }
+  std::optional<torch::Device> replay_device() const override {
+    if (cfg_.replay_on_device() && sac_.uses_cuda_graph()) return sac_.device();
+    return std::nullopt;
+  }
+  std::vector<OffPolicyStats> update_n_from(int n, const DeviceReplay& replay) override {
+    return all_figures(sac_.update_n_from(n, batch_size(), replay));
+  }
   int64_t updates_in_flight() const override { return sac_.updates_in_flight(); }
   std::vector<OffPolicyStats> finish_updates() override { return all_figures(sac_.finish_updates()); }
   PolicyParams export_policy(uint64_t v) const override { return sac_.export_policy(v); }
@@ -48,6 +55,7 @@ class SacAlgorithm final : public OffPolicy {
                  : ", the seed's step (sac.max_step_scale is for a GPU learner)";
     if (sac_.uses_cuda_graph())
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
+    if (replay_device()) step += ", minibatches drawn on the GPU";
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
 

@@ -6,9 +6,12 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "device_replay.h"
 #include "farm_config.pb.h"
 #include "mlp.h"
 #include "replay_buffer.h"
@@ -42,6 +45,14 @@ class OffPolicy {
     out.reserve(n);
     for (int i = 0; i < n; ++i) out.push_back(update(next_batch()));
     return out;
+  }
+  // Where the adapter's updates draw their minibatches themselves, on the device they run on (SAC's
+  // CUDA graph with sac.replay_on_device): that device, on which the driver keeps a DeviceReplay
+  // copy of its buffer and calls update_n_from instead of update_n. None: the host samples.
+  virtual std::optional<torch::Device> replay_device() const { return std::nullopt; }
+  // n updates as update_n's, each on batch_size() rows drawn from `replay`.
+  virtual std::vector<OffPolicyStats> update_n_from(int /*n*/, const DeviceReplay& /*replay*/) {
+    throw std::logic_error(name() + ": no updates from a replay on the device");
   }
   // Updates counted in updates() whose figures update_n has not returned yet.
   virtual int64_t updates_in_flight() const { return 0; }

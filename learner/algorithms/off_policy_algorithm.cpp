@@ -30,7 +30,10 @@ class OffPolicyAlgorithm final : public Algorithm {
         alpha_name_(algo_->alpha_name()),
         metric_names_(spec.metric_names),
         replay_(algo_->buffer_size(), spec.obs_dim, spec.act_dim),
-        rng_(cfg_.seed() * 7919 + 17) {}
+        rng_(cfg_.seed() * 7919 + 17) {
+    if (const auto device = algo_->replay_device())
+      device_replay_ = std::make_unique<DeviceReplay>(algo_->buffer_size(), spec.obs_dim, spec.act_dim, *device);
+  }
 
   std::string describe() const override { return algo_->describe(); }
 
@@ -56,6 +59,9 @@ class OffPolicyAlgorithm final : public Algorithm {
       fold_n_step(b.num_steps, b.num_envs, b.truncated, rows, algo_->gamma(), algo_->n_step());
       replay_.add_n(rows.n, rows.obs.data(), rows.actions.data(), rows.rewards.data(), rows.terminated.data(),
                     rows.next_obs.data(), rows.horizon.data());
+      if (device_replay_)
+        device_replay_->add_n(rows.n, rows.obs.data(), rows.actions.data(), rows.rewards.data(), rows.terminated.data(),
+                              rows.next_obs.data());
     }
     return true;
   }
@@ -161,6 +167,7 @@ class OffPolicyAlgorithm final : public Algorithm {
   void load(const std::string& dir) override {
     algo_->load((std::filesystem::path(dir) / algo_->name()).string());
     replay_.load((std::filesystem::path(dir) / "replay.pt").string());
+    if (device_replay_) device_replay_->load_from(replay_);
   }
 
   std::string resumed(const config::CheckpointManifest& m, uint64_t env_steps) override {
@@ -219,8 +226,12 @@ class OffPolicyAlgorithm final : public Algorithm {
 
   // On a GPU update_n returns while its last updates still run, so that the device works while
   // this thread reads the bus; their figures come with the next group, or with settle().
+  // With a replay on the device the updates draw their batches there (sac.replay_on_device).
   void train_steps(int n) {
-    check(algo_->update_n(n, [this] { return replay_.sample(algo_->batch_size(), rng_); }));
+    if (device_replay_)
+      check(algo_->update_n_from(n, *device_replay_));
+    else
+      check(algo_->update_n(n, [this] { return replay_.sample(algo_->batch_size(), rng_); }));
     updates_since_publish_ += n;
   }
 
@@ -269,7 +280,8 @@ class OffPolicyAlgorithm final : public Algorithm {
   const std::vector<std::string> metric_names_;
   ReplayBuffer replay_;
   std::mt19937_64 rng_;
-  mutable OffPolicyStats last_stats_{};  // check() runs from const save_networks() too
+  std::unique_ptr<DeviceReplay> device_replay_;  // the same rows on the updates' device, where they draw
+  mutable OffPolicyStats last_stats_{};          // check() runs from const save_networks() too
   mutable Meter updates_meter_;
   mutable std::string diverged_;  // the divergence error, once one was found (check())
   uint64_t version_ = 0;          // the next version to publish

@@ -119,6 +119,11 @@ SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {
   return b;
 }
 
+SampledBatch ReplayBuffer::stored() const {
+  return {obs_.narrow(0, 0, size_),        actions_.narrow(0, 0, size_),  rewards_.narrow(0, 0, size_),
+          terminated_.narrow(0, 0, size_), next_obs_.narrow(0, 0, size_), horizon_.narrow(0, 0, size_)};
+}
+
 void ReplayBuffer::save(const std::string& file) const {
   const std::string tmp = file + ".tmp";
   {

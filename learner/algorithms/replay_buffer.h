@@ -39,6 +39,10 @@ class ReplayBuffer {
 
   // Uniform over the stored rows, with replacement. Throws std::logic_error when empty.
   SampledBatch sample(int batch_size, std::mt19937_64& rng) const;
+  // The stored rows [0, size()) as views of the storage (not copies), at their ring positions;
+  // the row the next add writes is next_row(). For a copy kept elsewhere (DeviceReplay).
+  SampledBatch stored() const;
+  int64_t next_row() const { return next_; }
 
   // Binary snapshot of the stored rows and the ring position. save() writes FILE.tmp then renames,
   // so a crash never leaves a half-written file under the real name.

@@ -1,6 +1,7 @@
 #include "sac.h"
 #include "archive_io.h"
 #include "compute.h"
+#include "device_replay.h"
 #include "sac_impl.h"
 
 #include <array>
@@ -113,6 +114,17 @@ std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& 
   return out;
 }
 
+std::vector<SacStats> Sac::update_n_from(int n, int64_t batch, const DeviceReplay& replay) {
+  if (replay.device().type() != impl_->device.type())
+    throw std::invalid_argument("sac: minibatches drawn on " + replay.device().str() + " for networks on " +
+                                impl_->device.str());
+  if (impl_->use_graph()) return impl_->graph_update_n_from(n, batch, replay);
+  std::vector<SacStats> out;
+  out.reserve(n);
+  for (int i = 0; i < n; ++i) out.push_back(update(replay.sample(batch)));
+  return out;
+}
+
 void Sac::scale_learning_rates(double factor) {
   if (!(factor > 0) || !std::isfinite(factor))
     throw std::invalid_argument("sac: learning-rate scale must be a finite number > 0, got " + std::to_string(factor));
@@ -213,6 +225,7 @@ int64_t Sac::updates() const { return impl_->updates; }
 bool Sac::uses_cuda_graph() const { return impl_->use_graph(); }
 bool Sac::uses_fused_kernels() const { return impl_->use_fused_kernels(); }
 bool Sac::on_gpu() const { return impl_->device.is_cuda(); }
+torch::Device Sac::device() const { return impl_->device; }
 int Sac::obs_dim() const { return impl_->obs_dim; }
 int Sac::act_dim() const { return impl_->act_dim; }
 const std::vector<int>& Sac::hidden() const { return impl_->hidden; }

@@ -17,6 +17,8 @@
 
 namespace farm {
 
+class DeviceReplay;
+
 // One update's numbers. critic_loss is sb3's 0.5 * (mse(Q1) + mse(Q2)); alpha is the temperature
 // the losses used (the one before this update's own alpha step); entropy is -mean log_prob of the
 // policy's samples on the batch; q_mean averages both critics on the batch's (obs, action).
@@ -58,6 +60,11 @@ class Sac {
   // (the learner: the bus), and their figures come with a later call or finish_updates().
   // updates() counts them from the moment they are queued.
   std::vector<SacStats> update_n(int n, const std::function<SampledBatch()>& next_batch);
+  // n updates as update_n's, each on `batch` rows drawn from `replay` (on this Sac's device) as
+  // DeviceReplay::sample draws them. With a CUDA graph the draw is inside the graph, so the host
+  // only queues replays; `replay` must outlive the updates queued from it. Throws
+  // std::invalid_argument when `replay` is on another device.
+  std::vector<SacStats> update_n_from(int n, int64_t batch, const DeviceReplay& replay);
   // Updates queued by update_n whose figures have not been returned yet.
   int64_t updates_in_flight() const;
   // Waits for those and returns their figures, oldest first (none without a CUDA graph).
@@ -80,6 +87,7 @@ class Sac {
   // CUDA compiler) for the policy's sample, the critics' target and the actor's loss.
   bool uses_fused_kernels() const;
   bool on_gpu() const;  // the networks train on a CUDA device
+  torch::Device device() const;
   int obs_dim() const;
   int act_dim() const;
   const std::vector<int>& hidden() const;

@@ -151,7 +151,9 @@ torch::Tensor fused_soft_target(const torch::Tensor& next_q_in, const torch::Ten
 }  // namespace
 
 // One update captured as a CUDA graph. Its inputs are static device tensors that each update
-// overwrites with the sampled batch (one pinned host buffer, one host-to-device copy); its output
+// overwrites with the sampled batch (one pinned host buffer, one host-to-device copy), or, for a
+// graph built on a DeviceReplay (graph_update_n_from), that its first two kernels fill with rows
+// drawn from the replay on the GPU (draw_batch), so the host only launches replays; its output
 // is a static tensor of the six figures, read back with one copy. Replays can be queued
 // (graph_update_n): each queued update stages its batch in a pinned buffer of its own and reads
 // its figures back into a pinned slot of its own, and the stream's order keeps every copy between
@@ -187,8 +189,9 @@ struct Sac::Impl::CudaGraph {
     }
   }
 
-  CudaGraph(Impl& s, int64_t batch)
+  CudaGraph(Impl& s, int64_t batch, const DeviceReplay* replay)
       : batch(batch),
+        drawn_from(replay),
         device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
         actor_adam(*s.actor_opt, {s.actor_p.flat}),
         critic_adam(*s.critic_opt, {s.critic_p.flat}),
@@ -262,6 +265,7 @@ struct Sac::Impl::CudaGraph {
   // order (obs, then next_obs), which is what fixes their philox offsets.
   void body(Impl& s) {
     const c10::cuda::CUDAStream main = c10::cuda::getCurrentCUDAStream(device_index);
+    if (drawn_from) draw_batch();
     // sac.actor_on_previous_critic: the actor's step (from its sample on obs to its Adam step) as a
     // branch of its own beside the critics' step. Backward ops run on the streams of their forward
     // ops, so the sample must be on that branch too. The branch reads the critics' weights
@@ -355,6 +359,31 @@ struct Sac::Impl::CudaGraph {
                          entropy.reshape({1}), q_mean.reshape({1}), alpha.reshape({1})});
   }
 
+  // sac.replay_on_device: the minibatch drawn from the replay's rows on the device into the static
+  // inputs, as DeviceReplay::sample draws it (u from the default generator, then the rows at
+  // DeviceReplay::indices(u)): the graph's first kernels, on the current stream.
+  void draw_batch() {
+    const auto u = torch::rand({batch}, torch::TensorOptions().dtype(torch::kDouble).device(dev_in.device()));
+#ifdef FARM_CUDA_KERNELS
+    if (fused) {
+      launched(sac_kernels::gather_rows(drawn_from->rows().data_ptr<float>(), u.data_ptr<double>(),
+                                        reinterpret_cast<const long long*>(drawn_from->fill().data_ptr<int64_t>()),
+                                        dev_in.data_ptr<float>(), int(batch), int(widths[0]), int(widths[1]),
+                                        current_stream()),
+               "gather_rows");
+      return;
+    }
+#endif
+    torch::NoGradGuard no_grad;
+    const auto picked = drawn_from->rows().index_select(0, drawn_from->indices(u));
+    const std::array<torch::Tensor*, 5> views{&obs, &actions, &rewards, &terminated, &next_obs};
+    int64_t col = 0;
+    for (size_t i = 0; i < views.size(); ++i) {
+      views[i]->copy_(picked.narrow(1, col, widths[i]).reshape(views[i]->sizes()));
+      col += widths[i];
+    }
+  }
+
   // Impl::sample's draw and log-density in fewer kernels, for the graph's critical path: the
   // Gaussian term takes the drawn noise itself, which (pre_tanh - mean) / std recomputes up to
   // rounding (with a zero gradient either way), and the squash term reuses the action instead of a
@@ -398,6 +427,7 @@ struct Sac::Impl::CudaGraph {
 
   static constexpr int64_t kFigures = 6;
   int64_t batch;
+  const DeviceReplay* drawn_from;  // where the graph draws its batch; null: staged from the host
   c10::DeviceIndex device_index;
   std::array<int64_t, 5> widths;
   std::array<torch::Tensor, kSlots> host_in, host_out;
@@ -428,39 +458,55 @@ bool Sac::Impl::use_graph() const {
 bool Sac::Impl::use_fused_kernels() const { return use_graph() && cfg.cuda_fused_kernels() && kFusedKernelsBuilt; }
 
 SacStats Sac::Impl::graph_update(const SampledBatch& host_batch) {
+  return graph_update_one({host_batch.obs.size(0), nullptr, host_batch});
+}
+
+SacStats Sac::Impl::graph_update_one(const GraphInput& in) {
 #ifdef FARM_CUDA_GRAPHS
   settle_graph();  // one update at a time uses slot 0: nothing may be queued
-  const int64_t b = host_batch.obs.size(0);
-  if (!graph || graph->batch != b) {
+  if (!graph || graph->batch != in.batch || graph->drawn_from != in.replay) {
     graph.reset();  // its private memory pool goes before the next graph's
-    graph.reset(new CudaGraph(*this, b));
+    graph.reset(new CudaGraph(*this, in.batch, in.replay));
   }
   CudaGraph& g = *graph;
   c10::cuda::CUDAGuard device_guard(g.device_index);
-  g.stage(host_batch, 0);
+  if (!in.replay) g.stage(in.host, 0);
   run_graph_update(g.graph, g.warmups_left, g.device_index, g.capture_stream, [&] { g.body(*this); });
   g.queue_figures(0);
   c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
   ++updates;
   return g.figures(0);
 #else
-  (void)host_batch;
+  (void)in;
   throw std::logic_error("sac: CUDA graph update in a build without CUDA");
 #endif
 }
 
 std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<SampledBatch()>& next_batch) {
+  return queue_graph_updates(n, [&] {
+    SampledBatch b = next_batch();  // on the host, while the queued replays run
+    const int64_t rows = b.obs.size(0);
+    return GraphInput{rows, nullptr, std::move(b)};
+  });
+}
+
+std::vector<SacStats> Sac::Impl::graph_update_n_from(int n, int64_t batch, const DeviceReplay& replay) {
+  if (replay.size() == 0) throw std::logic_error("sac: no rows to draw minibatches from (the replay is empty)");
+  return queue_graph_updates(n, [&] { return GraphInput{batch, &replay, {}}; });
+}
+
+std::vector<SacStats> Sac::Impl::queue_graph_updates(int n, const std::function<GraphInput()>& next) {
   std::vector<SacStats> stats = std::move(ready);
   ready.clear();
   stats.reserve(stats.size() + std::max(n, 0));
 #ifdef FARM_CUDA_GRAPHS
   try {
     for (int i = 0; i < n; ++i) {
-      const SampledBatch b = next_batch();  // on the host, while the queued replays run
-      if (!graph || !graph->graph || graph->batch != b.obs.size(0)) {
-        // Warm-ups, the capture, a new batch size: one at a time, after what is queued (whose
-        // figures graph_update's settle_graph puts in `ready`).
-        const SacStats one = graph_update(b);
+      const GraphInput in = next();
+      if (!graph || !graph->graph || graph->batch != in.batch || graph->drawn_from != in.replay) {
+        // Warm-ups, the capture, a new batch size or source: one at a time, after what is queued
+        // (whose figures graph_update_one's settle_graph puts in `ready`).
+        const SacStats one = graph_update_one(in);
         stats.insert(stats.end(), ready.begin(), ready.end());
         ready.clear();
         stats.push_back(one);
@@ -474,7 +520,7 @@ std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<Sampl
         g.in_flight.pop_front();
       }
       const int slot = g.next_slot;
-      g.stage(b, slot);
+      if (!in.replay) g.stage(in.host, slot);
       g.graph->replay();
       g.queue_figures(slot);
       g.done[slot].record(c10::cuda::getCurrentCUDAStream(g.device_index));
@@ -500,7 +546,7 @@ std::vector<SacStats> Sac::Impl::graph_update_n(int n, const std::function<Sampl
   }
 #else
   (void)n;
-  (void)next_batch;
+  (void)next;
   throw std::logic_error("sac: CUDA graph update in a build without CUDA");
 #endif
   return stats;

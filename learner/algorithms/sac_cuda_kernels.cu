@@ -103,7 +103,38 @@ __global__ void actor_objective_backward_k(const float* __restrict__ q, const fl
   g_q[B + b] = q0 == q1 ? -0.5f * g : (q1 > q0 ? 0.f : -g);
 }
 
+// One thread per float of the batch: neighbouring threads read neighbouring floats of a row.
+__global__ void gather_rows_k(const float* __restrict__ rows, const double* __restrict__ u,
+                              const long long* __restrict__ fill, float* __restrict__ out, int B, int O, int A) {
+  const int W = 2 * O + A + 2;
+  const long long t = (long long)blockIdx.x * blockDim.x + threadIdx.x;
+  if (t >= (long long)B * W) return;
+  const int b = int(t / W), c = int(t % W);
+  const long long n = fill[0];
+  long long row = (long long)(u[b] * double(n));
+  if (row > n - 1) row = n - 1;
+  const float v = rows[row * W + c];
+  const long long plane = (long long)B;
+  if (c < O)
+    out[(long long)b * O + c] = v;
+  else if (c < O + A)
+    out[plane * O + (long long)b * A + (c - O)] = v;
+  else if (c == O + A)
+    out[plane * (O + A) + b] = v;
+  else if (c == O + A + 1)
+    out[plane * (O + A + 1) + b] = v;
+  else
+    out[plane * (O + A + 2) + (long long)b * O + (c - O - A - 2)] = v;
+}
+
 }  // namespace
+
+cudaError_t gather_rows(const float* rows, const double* u, const long long* fill, float* out, int B, int O, int A,
+                        cudaStream_t stream) {
+  const long long n = (long long)B * (2 * O + A + 2);
+  gather_rows_k<<<int((n + kThreads - 1) / kThreads), kThreads, 0, stream>>>(rows, u, fill, out, B, O, A);
+  return cudaGetLastError();
+}
 
 cudaError_t squashed_sample_forward(const float* out, const float* noise, float* action, float* log_prob, int B, int A,
                                     float lo, float hi, cudaStream_t stream) {

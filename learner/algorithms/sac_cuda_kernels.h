@@ -37,4 +37,11 @@ cudaError_t actor_objective_forward(const float* q, const float* log_prob, const
 cudaError_t actor_objective_backward(const float* q, const float* alpha, const float* g_loss, float* g_q,
                                      float* g_log_prob, int B, cudaStream_t stream);
 
+// A replay minibatch drawn inside the graph (sac.replay_on_device): row b is
+// rows[min(floor(u[b] * fill[0]), fill[0] - 1)] of the packed rows [*, 2O + A + 2] (obs | action |
+// reward | terminated | next_obs, DeviceReplay), written field by field into `out`: obs [B, O],
+// then actions [B, A], rewards [B], terminated [B] and next_obs [B, O], each contiguous.
+cudaError_t gather_rows(const float* rows, const double* u, const long long* fill, float* out, int B, int O, int A,
+                        cudaStream_t stream);
+
 }  // namespace farm::sac_kernels

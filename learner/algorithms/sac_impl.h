@@ -13,6 +13,7 @@
 
 #include "compute.h"
 #include "config.h"
+#include "device_replay.h"
 #include "sac.h"
 
 namespace farm {
@@ -213,6 +214,16 @@ struct Sac::Impl {
   bool use_fused_kernels() const;  // in the graph: sac.cuda_fused_kernels where they are built
   SacStats graph_update(const SampledBatch& host_batch);
   std::vector<SacStats> graph_update_n(int n, const std::function<SampledBatch()>& next_batch);
+  std::vector<SacStats> graph_update_n_from(int n, int64_t batch, const DeviceReplay& replay);
+  // One graph update's input: `batch` rows of `host` staged through a pinned slot, or (replay set)
+  // drawn from `replay` inside the graph. A graph is built for one (batch, replay) pair.
+  struct GraphInput {
+    int64_t batch = 0;
+    const DeviceReplay* replay = nullptr;
+    SampledBatch host;
+  };
+  SacStats graph_update_one(const GraphInput& in);
+  std::vector<SacStats> queue_graph_updates(int n, const std::function<GraphInput()>& next);
   int64_t updates_in_flight() const;
   std::vector<SacStats> finish_updates();
   // Waits for the queued replays; their figures go to `ready` (returned first by the next

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "compute.h"
+#include "device_replay.h"
 #include "off_policy.h"
 #include "replay_buffer.h"
 #include "sac.h"
@@ -70,8 +71,10 @@ struct Rate {
 // group 0: one update() per sampled batch. group G > 0: update_n(G, sampler), as the learner's
 // replay driver calls it (8 updates per group); on a CUDA graph the G replays are queued and each
 // next batch is sampled while the GPU runs the ones before it, so "sampling" is then host time
-// that the GPU need not wait for.
-Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds, std::mt19937_64& rng, int group = 0) {
+// that the GPU need not wait for. With `drawn_on` (a DeviceReplay on the GPU) the groups are
+// update_n_from's: each replay draws its own batch there, and the host samples nothing.
+Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds, std::mt19937_64& rng, int group = 0,
+             const farm::DeviceReplay* drawn_on = nullptr) {
   Rate r;
   auto sampler = [&] {
     const auto ts = Clock::now();
@@ -80,6 +83,10 @@ Rate measure(farm::Sac& sac, farm::ReplayBuffer& buf, int batch, double seconds,
     return b;
   };
   auto run = [&] {
+    if (group > 0 && drawn_on) {
+      sac.update_n_from(group, batch, *drawn_on);
+      return int64_t(group);
+    }
     if (group > 0) {
       sac.update_n(group, sampler);  // may return while its last replays run: counted when queued
       return int64_t(group);
@@ -317,6 +324,14 @@ int main(int argc, char** argv) {
       std::printf("sac update (%s, batch %d, %s): cuda graph 8 queued / eager = %.2fx, / one at a time = %.2fx\n",
                   net.c_str(), batch, device.c_str(), (queued.n / queued.elapsed) / (eager.n / eager.elapsed),
                   (queued.n / queued.elapsed) / (graph.n / graph.elapsed));
+      // The same with the batches drawn on the GPU inside the graph (sac.replay_on_device).
+      farm::DeviceReplay on_gpu(buf.capacity(), kObs, kAct, grouped.device());
+      on_gpu.load_from(buf);
+      farm::Sac drawing(cfg, kObs, kAct, 1);
+      const Rate drawn = measure(drawing, buf, batch, seconds, rng, farm::kUpdatesPerGroup, &on_gpu);
+      print_rate(" cuda graph, 8 queued, batches drawn on the GPU", net, batch, device, n_threads, drawn);
+      std::printf("sac update (%s, batch %d, %s): drawn on the GPU / sampled on the host (8 queued) = %.2fx\n",
+                  net.c_str(), batch, device.c_str(), (drawn.n / drawn.elapsed) / (queued.n / queued.elapsed));
       std::fflush(stdout);
     }
   }

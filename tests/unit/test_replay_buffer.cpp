@@ -1,5 +1,7 @@
 #include "replay_buffer.h"
 
+#include "device_replay.h"
+
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -234,6 +236,85 @@ TEST(ReplayBuffer, HorizonIsStoredSampledAndSaved) {
     EXPECT_NE(std::string(e.what()).find("format 01"), std::string::npos) << e.what();
   }
   std::remove(file.c_str());
+}
+
+// DeviceReplay on the CPU here (and on a GPU where there is one): the copy holds the host
+// buffer's rows at the host's ring positions through blocks that straddle the ring's end and one
+// larger than the capacity, and rebuilds them from the host buffer.
+std::vector<torch::Device> replay_devices() {
+  std::vector<torch::Device> d{torch::kCPU};
+  if (torch::cuda::is_available()) d.emplace_back(torch::kCUDA, 0);
+  return d;
+}
+
+void add_block(ReplayBuffer& host, DeviceReplay& dev, int from, int to) {
+  Rows r = make_rows(from, to);
+  host.add_n(to - from, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data());
+  dev.add_n(to - from, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data());
+}
+
+// Row i of the copy against row i of the host buffer (obs | action | reward | terminated | next_obs).
+void expect_same_rows(const ReplayBuffer& host, const DeviceReplay& dev) {
+  ASSERT_EQ(dev.size(), host.size());
+  EXPECT_EQ(dev.fill().cpu().item<int64_t>(), host.size());
+  const SampledBatch s = host.stored();
+  const auto want = torch::cat({s.obs, s.actions, s.rewards.unsqueeze(1), s.terminated.unsqueeze(1), s.next_obs}, 1);
+  EXPECT_TRUE(torch::equal(dev.rows().narrow(0, 0, dev.size()).cpu(), want));
+}
+
+TEST(DeviceReplay, KeepsTheHostRowsAtTheirPositions) {
+  for (const auto& device : replay_devices()) {
+    SCOPED_TRACE(device.str());
+    ReplayBuffer host(16, kObs, kAct);
+    DeviceReplay dev(16, kObs, kAct, device);
+    EXPECT_EQ(dev.width(), 2 * kObs + kAct + 2);
+    add_block(host, dev, 0, 11);
+    expect_same_rows(host, dev);
+    add_block(host, dev, 11, 30);  // wraps
+    expect_same_rows(host, dev);
+    add_block(host, dev, 30, 75);  // more than the capacity in one block
+    expect_same_rows(host, dev);
+    add_block(host, dev, 75, 78);
+    expect_same_rows(host, dev);
+    EXPECT_EQ(host.next_row(), 78 % 16);
+
+    DeviceReplay rebuilt(16, kObs, kAct, device);
+    rebuilt.load_from(host);
+    expect_same_rows(host, rebuilt);
+    // The next rows land where the host's do.
+    add_block(host, rebuilt, 78, 83);
+    expect_same_rows(host, rebuilt);
+    EXPECT_THROW(DeviceReplay(8, kObs, kAct, device).load_from(host), std::invalid_argument);
+  }
+}
+
+// Drawn rows are whole stored transitions, cover every stored row, only stored rows (the ring
+// not yet full: rows past size() are never drawn), and follow torch's generator.
+TEST(DeviceReplay, SamplesStoredRowsUniformly) {
+  for (const auto& device : replay_devices()) {
+    SCOPED_TRACE(device.str());
+    ReplayBuffer host(64, kObs, kAct);
+    DeviceReplay dev(64, kObs, kAct, device);
+    EXPECT_THROW(dev.sample(4), std::logic_error);
+    add_block(host, dev, 0, 20);
+    torch::manual_seed(3);
+    const SampledBatch b = dev.sample(4000);
+    SampledBatch on_host{b.obs.cpu(), b.actions.cpu(), b.rewards.cpu(), b.terminated.cpu(), b.next_obs.cpu(), {}};
+    const auto ids = check_rows(on_host);
+    std::set<int> want;
+    for (int k = 0; k < 20; ++k) want.insert(k);
+    EXPECT_EQ(std::set<int>(ids.begin(), ids.end()), want);
+    for (int k = 0; k < 20; ++k) {  // 200 expected each: a binomial's 6 sigma is 85
+      EXPECT_GT(ids.count(k), 115u) << k;
+      EXPECT_LT(ids.count(k), 285u) << k;
+    }
+    // The indices are floor(u * size) of torch's uniform draw, the largest u included.
+    const auto u =
+        torch::tensor({0.0, 0.049999, 0.05, 0.999999999}, torch::TensorOptions().dtype(torch::kDouble)).to(device);
+    EXPECT_TRUE(torch::equal(dev.indices(u).cpu(), torch::tensor({0, 0, 1, 19}, torch::kLong)));
+    torch::manual_seed(3);
+    EXPECT_TRUE(torch::equal(dev.sample(4000).obs.cpu(), b.obs.cpu()));
+  }
 }
 
 }  // namespace

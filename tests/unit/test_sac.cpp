@@ -1,4 +1,5 @@
 #include "compute.h"
+#include "device_replay.h"
 #include "divergence.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "rng_state.h"
@@ -507,6 +508,86 @@ TEST(SacCuda, FusedKernelsMatchTorchOps) {
   EXPECT_LE(relative_difference(fused.actor_parameters(), ops.actor_parameters()), 1e-4);
   EXPECT_LE(relative_difference(fused.critic_parameters(), ops.critic_parameters()), 1e-4);
   EXPECT_LE(relative_difference(fused.target_critic_parameters(), ops.target_critic_parameters()), 1e-4);
+}
+
+// A DeviceReplay of `rows` random transitions (obs 3, act 2) on `device`, with its host twin.
+void fill_replays(ReplayBuffer& host, DeviceReplay& dev, int rows, uint64_t seed) {
+  const SampledBatch r = random_batch(rows, 3, 2, seed);
+  const auto term = r.terminated.to(torch::kUInt8).contiguous();
+  host.add_n(rows, r.obs.data_ptr<float>(), r.actions.data_ptr<float>(), r.rewards.data_ptr<float>(),
+             term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>());
+  dev.add_n(rows, r.obs.data_ptr<float>(), r.actions.data_ptr<float>(), r.rewards.data_ptr<float>(),
+            term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>());
+}
+
+// The rows of `host` at indices [B] (int64, CPU), as ReplayBuffer::sample lays them out.
+SampledBatch rows_at(const ReplayBuffer& host, const torch::Tensor& idx) {
+  const SampledBatch s = host.stored();
+  return {s.obs.index_select(0, idx),        s.actions.index_select(0, idx),  s.rewards.index_select(0, idx),
+          s.terminated.index_select(0, idx), s.next_obs.index_select(0, idx), {}};
+}
+
+// Updates from a replay kept where the networks train draw each batch as DeviceReplay::sample does
+// (a uniform draw from torch's generator, then the policy's noise): the same figures and weights as
+// update() on the host rows at those indices.
+TEST(Sac, UpdatesFromADeviceReplayDrawTheirRowsFirst) {
+  const auto cfg = small_config();
+  Sac from_replay(cfg, 3, 2, 5), on_rows(cfg, 3, 2, 5);
+  ReplayBuffer host(500, 3, 2);
+  DeviceReplay dev(500, 3, 2, torch::kCPU);
+  fill_replays(host, dev, 300, 17);
+  torch::manual_seed(23);
+  const auto got = from_replay.update_n_from(5, 64, dev);
+  torch::manual_seed(23);
+  for (int k = 0; k < 5; ++k) {
+    const auto u = torch::rand({64}, torch::TensorOptions().dtype(torch::kDouble));
+    const SacStats want = on_rows.update(rows_at(host, (u * 300).to(torch::kLong)));
+    expect_stats_near(got[k], want, 1e-6, k);
+  }
+  EXPECT_EQ(from_replay.updates(), 5);
+  EXPECT_LE(relative_difference(from_replay.actor_parameters(), on_rows.actor_parameters()), 1e-6);
+  EXPECT_LE(relative_difference(from_replay.critic_parameters(), on_rows.critic_parameters()), 1e-6);
+}
+
+// Only where a GPU and a CUDA LibTorch are there: a graph that draws its own batches from a replay
+// on the GPU (sac.replay_on_device), queued as the learner queues them, computes what the eager
+// update computes drawing the same rows, with torch's ops and with the fused kernels (the gather).
+TEST(SacCuda, GraphDrawsItsBatchesAsTheEagerUpdateDoes) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  for (const bool fused : {false, true}) {
+    SCOPED_TRACE(fused ? "fused kernels" : "torch's ops");
+    auto cfg = cuda_config();
+    cfg.set_cuda_tf32(false);
+    cfg.set_cuda_fused_kernels(fused);
+    Sac graph(cfg, 3, 2, 5), eager(without_graph(cfg), 3, 2, 5);
+    if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+    if (fused && !graph.uses_fused_kernels()) GTEST_SKIP() << "built without a CUDA compiler (no fused kernels)";
+    ReplayBuffer host(4000, 3, 2);
+    DeviceReplay dev(4000, 3, 2, torch::Device(torch::kCUDA, 0));
+    fill_replays(host, dev, 1000, 31);
+    std::vector<SacStats> got;
+    torch::manual_seed(41);
+    for (int n : {6, 1, 38, 8, 27}) {
+      const auto part = graph.update_n_from(n, 64, dev);
+      got.insert(got.end(), part.begin(), part.end());
+      EXPECT_LE(graph.updates_in_flight(), 16);
+    }
+    const auto rest = graph.finish_updates();
+    got.insert(got.end(), rest.begin(), rest.end());
+    torch::manual_seed(41);
+    const auto want = eager.update_n_from(80, 64, dev);
+    ASSERT_EQ(got.size(), want.size());
+    for (size_t i = 0; i < want.size(); ++i) expect_stats_near(got[i], want[i], 1e-4, int(i));
+    EXPECT_LE(relative_difference(graph.actor_parameters(), eager.actor_parameters()), 1e-4);
+    EXPECT_LE(relative_difference(graph.critic_parameters(), eager.critic_parameters()), 1e-4);
+    EXPECT_LE(relative_difference(graph.target_critic_parameters(), eager.target_critic_parameters()), 1e-4);
+    // Rows added between groups are drawn by the replays queued after them.
+    fill_replays(host, dev, 3000, 37);
+    EXPECT_EQ(dev.size(), 4000);
+    const auto more = graph.update_n_from(8, 64, dev);
+    const auto last = graph.finish_updates();
+    EXPECT_EQ(more.size() + last.size(), 8u);
+  }
 }
 
 TEST(Sac, CriticHiddenSizesItsOwnLayers) {
