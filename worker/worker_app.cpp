@@ -224,6 +224,10 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
         " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
         " steps per batch");
+    // Said now, not after the first collect: the beat thread re-sends the last status the loop
+    // built, which was the one of a worker waiting for a spec, so a long first collect (mCLARI's:
+    // 6-8 s) kept the learner from counting this worker until it ended.
+    heartbeat(true);
   } catch (const std::exception& e) {
     // Named for the experiment: the learner reports it (WorkerRoster), this worker having joined none.
     last_error_ = "cannot run experiment '" + s.experiment_id() + "': " + e.what();
