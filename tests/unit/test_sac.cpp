@@ -545,6 +545,11 @@ TEST(Sac, UpdatesFromADeviceReplayDrawTheirRowsFirst) {
     expect_stats_near(got[k], want, 1e-6, k);
   }
   EXPECT_EQ(from_replay.updates(), 5);
+  if (torch::cuda::is_available()) {  // networks on the CPU cannot draw from rows on a GPU
+    DeviceReplay on_gpu(500, 3, 2, torch::Device(torch::kCUDA, 0));
+    fill_replays(host, on_gpu, 10, 19);
+    EXPECT_THROW(from_replay.update_n_from(1, 64, on_gpu), std::invalid_argument);
+  }
   EXPECT_LE(relative_difference(from_replay.actor_parameters(), on_rows.actor_parameters()), 1e-6);
   EXPECT_LE(relative_difference(from_replay.critic_parameters(), on_rows.critic_parameters()), 1e-6);
 }
