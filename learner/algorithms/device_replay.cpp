@@ -28,17 +28,13 @@ DeviceReplay::DeviceReplay(int64_t capacity, int obs_dim, int act_dim, torch::De
 void DeviceReplay::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
                          const uint8_t* terminated, const float* next_obs) {
   if (n <= 0) return;
-  int64_t src = 0;  // rows overwritten within this same call are not copied (ReplayBuffer::add_n)
-  if (n > capacity_) {
-    src = n - capacity_;
-    next_ = (next_ + src) % capacity_;
-    n = capacity_;
-  }
+  const RingPlacement at = place_in_ring(capacity_, next_, n);
+  n = at.first + at.rest;
   const int w = width(), o = obs_dim_, a = act_dim_;
   auto packed = torch::empty({n, w}, torch::TensorOptions().dtype(torch::kFloat).pinned_memory(rows_.is_cuda()));
   float* p = packed.data_ptr<float>();
   for (int64_t i = 0; i < n; ++i, p += w) {
-    const int64_t r = src + i;
+    const int64_t r = at.skip + i;
     std::memcpy(p, obs + r * o, sizeof(float) * o);
     std::memcpy(p + o, actions + r * a, sizeof(float) * a);
     p[o + a] = rewards[r];
@@ -47,10 +43,9 @@ void DeviceReplay::add_n(int64_t n, const float* obs, const float* actions, cons
   }
   // One copy, or two where the ring wraps; the pinned source stays alive until they are done
   // (LibTorch's host allocator holds a block behind its pending copies).
-  const int64_t first = std::min(n, capacity_ - next_);
-  rows_.narrow(0, next_, first).copy_(packed.narrow(0, 0, first), /*non_blocking=*/true);
-  if (n > first) rows_.narrow(0, 0, n - first).copy_(packed.narrow(0, first, n - first), /*non_blocking=*/true);
-  next_ = (next_ + n) % capacity_;
+  rows_.narrow(0, at.at, at.first).copy_(packed.narrow(0, 0, at.first), /*non_blocking=*/true);
+  if (at.rest > 0) rows_.narrow(0, 0, at.rest).copy_(packed.narrow(0, at.first, at.rest), /*non_blocking=*/true);
+  next_ = at.next_after;
   size_ = std::min(capacity_, size_ + n);
   fill_.fill_(size_);
 }
@@ -77,15 +72,20 @@ torch::Tensor DeviceReplay::indices(const torch::Tensor& u) const {
 
 SampledBatch DeviceReplay::sample(int64_t batch) const {
   if (size_ == 0) throw std::logic_error("DeviceReplay::sample: the buffer is empty");
-  const auto u = torch::rand({batch}, torch::TensorOptions().dtype(torch::kDouble).device(rows_.device()));
+  SampledBatch b = draw(torch::rand({batch}, torch::TensorOptions().dtype(torch::kDouble).device(rows_.device())));
+  for (torch::Tensor* t : {&b.obs, &b.actions, &b.rewards, &b.terminated, &b.next_obs}) *t = t->contiguous();
+  return b;
+}
+
+SampledBatch DeviceReplay::draw(const torch::Tensor& u) const {
   const auto picked = rows_.index_select(0, indices(u));
   const int o = obs_dim_, a = act_dim_;
   SampledBatch b;
-  b.obs = picked.narrow(1, 0, o).contiguous();
-  b.actions = picked.narrow(1, o, a).contiguous();
-  b.rewards = picked.select(1, o + a).contiguous();
-  b.terminated = picked.select(1, o + a + 1).contiguous();
-  b.next_obs = picked.narrow(1, o + a + 2, o).contiguous();
+  b.obs = picked.narrow(1, 0, o);
+  b.actions = picked.narrow(1, o, a);
+  b.rewards = picked.select(1, o + a);
+  b.terminated = picked.select(1, o + a + 1);
+  b.next_obs = picked.narrow(1, o + a + 2, o);
   return b;
 }
 

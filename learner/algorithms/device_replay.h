@@ -46,6 +46,8 @@ class DeviceReplay {
   // torch::rand draws it), split into contiguous fields on the device; horizon undefined (1).
   // Throws std::logic_error when empty.
   SampledBatch sample(int64_t batch) const;
+  // The rows at indices(u) (one gather), its fields as views of them: device work only (graph-safe).
+  SampledBatch draw(const torch::Tensor& u) const;
 
  private:
   int64_t capacity_;

@@ -71,22 +71,26 @@ void ReplayBuffer::add(const float* obs, const float* action, float reward, bool
   ++total_added_;
 }
 
+RingPlacement place_in_ring(int64_t capacity, int64_t next, int64_t n) {
+  RingPlacement p{};
+  p.skip = std::max<int64_t>(0, n - capacity);
+  p.at = (next + p.skip) % capacity;
+  const int64_t kept = n - p.skip;
+  p.first = std::min(kept, capacity - p.at);
+  p.rest = kept - p.first;
+  p.next_after = (p.at + kept) % capacity;
+  return p;
+}
+
 void ReplayBuffer::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
                          const uint8_t* terminated, const float* next_obs, const float* horizon) {
   if (n <= 0) return;
   total_added_ += n;
-  // Rows that would be overwritten within this same call are never copied.
-  int64_t src = 0;
-  if (n > capacity_) {
-    src = n - capacity_;
-    next_ = (next_ + src) % capacity_;
-    n = capacity_;
-  }
-  const int64_t first = std::min(n, capacity_ - next_);
-  copy_rows(next_, src, first, obs, actions, rewards, terminated, next_obs, horizon);
-  if (n > first) copy_rows(0, src + first, n - first, obs, actions, rewards, terminated, next_obs, horizon);
-  next_ = (next_ + n) % capacity_;
-  size_ = std::min(capacity_, size_ + n);
+  const RingPlacement p = place_in_ring(capacity_, next_, n);
+  copy_rows(p.at, p.skip, p.first, obs, actions, rewards, terminated, next_obs, horizon);
+  if (p.rest > 0) copy_rows(0, p.skip + p.first, p.rest, obs, actions, rewards, terminated, next_obs, horizon);
+  next_ = p.next_after;
+  size_ = std::min(capacity_, size_ + p.first + p.rest);
 }
 
 SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {

@@ -18,6 +18,15 @@ struct SampledBatch {
   torch::Tensor obs, actions, rewards, terminated, next_obs, horizon;
 };
 
+// Where add_n's n rows land in a ring of `capacity` rows whose next row is `next`: the first `skip`
+// rows are left out (a later row of the same call would overwrite them), the others go to rows
+// [at, at + first) and then [0, rest), and the ring's next row is next_after. ReplayBuffer and its
+// device copy (DeviceReplay) place rows by it, so both hold the same rows at the same positions.
+struct RingPlacement {
+  int64_t skip, at, first, rest, next_after;
+};
+RingPlacement place_in_ring(int64_t capacity, int64_t next, int64_t n);
+
 class ReplayBuffer {
  public:
   // Storage is reserved up front but not touched, so a large capacity costs memory only as it

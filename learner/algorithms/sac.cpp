@@ -120,10 +120,7 @@ std::vector<SacStats> Sac::update_n_from(int n, int64_t batch, const DeviceRepla
     throw std::invalid_argument("sac: minibatches drawn on " + replay.device().str() + " for networks on " +
                                 impl_->device.str());
   if (impl_->use_graph()) return impl_->graph_update_n_from(n, batch, replay);
-  std::vector<SacStats> out;
-  out.reserve(n);
-  for (int i = 0; i < n; ++i) out.push_back(update(replay.sample(batch)));
-  return out;
+  return update_n(n, [&] { return replay.sample(batch); });
 }
 
 void Sac::scale_learning_rates(double factor) {

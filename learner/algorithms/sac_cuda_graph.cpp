@@ -361,7 +361,7 @@ struct Sac::Impl::CudaGraph {
 
   // sac.replay_on_device: the minibatch drawn from the replay's rows on the device into the static
   // inputs, as DeviceReplay::sample draws it (u from the default generator, then the rows at
-  // DeviceReplay::indices(u)): the graph's first kernels, on the current stream.
+  // DeviceReplay::indices(u), DeviceReplay::draw): the graph's first kernels, on the current stream.
   void draw_batch() {
     const auto u = torch::rand({batch}, torch::TensorOptions().dtype(torch::kDouble).device(dev_in.device()));
 #ifdef FARM_CUDA_KERNELS
@@ -375,13 +375,10 @@ struct Sac::Impl::CudaGraph {
     }
 #endif
     torch::NoGradGuard no_grad;
-    const auto picked = drawn_from->rows().index_select(0, drawn_from->indices(u));
-    const std::array<torch::Tensor*, 5> views{&obs, &actions, &rewards, &terminated, &next_obs};
-    int64_t col = 0;
-    for (size_t i = 0; i < views.size(); ++i) {
-      views[i]->copy_(picked.narrow(1, col, widths[i]).reshape(views[i]->sizes()));
-      col += widths[i];
-    }
+    const SampledBatch b = drawn_from->draw(u);
+    for (auto [to, from] : {std::pair{&obs, &b.obs}, std::pair{&actions, &b.actions}, std::pair{&rewards, &b.rewards},
+                            std::pair{&terminated, &b.terminated}, std::pair{&next_obs, &b.next_obs}})
+      to->copy_(*from);
   }
 
   // Impl::sample's draw and log-density in fewer kernels, for the graph's critical path: the
