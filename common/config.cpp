@@ -234,6 +234,7 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.positive("publish_every_updates", c.publish_every_updates());
   s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxSacStepScale, "max_step_scale",
           "expected 1 to " + num(kMaxSacStepScale) + ", got " + num(c.max_step_scale()));
+  s.at_least("n_step", c.n_step(), 1);
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",

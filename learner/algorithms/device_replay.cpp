@@ -7,8 +7,8 @@
 
 namespace farm {
 
-DeviceReplay::DeviceReplay(int64_t capacity, int obs_dim, int act_dim, torch::Device device)
-    : capacity_(capacity), obs_dim_(obs_dim), act_dim_(act_dim) {
+DeviceReplay::DeviceReplay(int64_t capacity, int obs_dim, int act_dim, torch::Device device, double gamma)
+    : capacity_(capacity), obs_dim_(obs_dim), act_dim_(act_dim), gamma_(gamma) {
   if (capacity <= 0 || obs_dim <= 0 || act_dim <= 0)
     throw std::invalid_argument("DeviceReplay: expected positive sizes, got capacity " + std::to_string(capacity) +
                                 ", obs_dim " + std::to_string(obs_dim) + ", act_dim " + std::to_string(act_dim));
@@ -26,7 +26,7 @@ DeviceReplay::DeviceReplay(int64_t capacity, int obs_dim, int act_dim, torch::De
 }
 
 void DeviceReplay::add_n(int64_t n, const float* obs, const float* actions, const float* rewards,
-                         const uint8_t* terminated, const float* next_obs) {
+                         const uint8_t* terminated, const float* next_obs, const float* horizon) {
   if (n <= 0) return;
   const RingPlacement at = place_in_ring(capacity_, next_, n);
   n = at.first + at.rest;
@@ -38,7 +38,8 @@ void DeviceReplay::add_n(int64_t n, const float* obs, const float* actions, cons
     std::memcpy(p, obs + r * o, sizeof(float) * o);
     std::memcpy(p + o, actions + r * a, sizeof(float) * a);
     p[o + a] = rewards[r];
-    p[o + a + 1] = terminated[r] ? 1.f : 0.f;
+    const float done = terminated[r] ? 1.f : 0.f;
+    p[o + a + 1] = horizon ? fold_horizon(done, horizon[r], gamma_) : done;
     std::memcpy(p + o + a + 2, next_obs + r * o, sizeof(float) * o);
   }
   // One copy, or two where the ring wraps; the pinned source stays alive until they are done
@@ -56,7 +57,7 @@ void DeviceReplay::load_from(const ReplayBuffer& host) {
         "DeviceReplay::load_from: the host buffer has capacity " + std::to_string(host.capacity()) + ", obs_dim " +
         std::to_string(host.obs_dim()) + ", act_dim " + std::to_string(host.act_dim()) + ", this copy " +
         std::to_string(capacity_) + ", " + std::to_string(obs_dim_) + ", " + std::to_string(act_dim_));
-  const SampledBatch s = host.stored();
+  const SampledBatch s = fold_horizon(host.stored(), gamma_);
   if (host.size() > 0)
     rows_.narrow(0, 0, host.size())
         .copy_(torch::cat({s.obs, s.actions, s.rewards.unsqueeze(1), s.terminated.unsqueeze(1), s.next_obs}, 1));

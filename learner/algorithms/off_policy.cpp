@@ -47,10 +47,11 @@ class SacAlgorithm final : public OffPolicy {
     sac_.scale_learning_rates(std::sqrt(double(s)));
   }
   double gamma() const override { return cfg_.gamma(); }
+  int n_step() const override { return cfg_.n_step(); }
   std::string describe() const override {
-    std::string step;
+    std::string step = cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "";
     if (cfg_.max_step_scale() > 1)
-      step = sac_.on_gpu()
+      step += sac_.on_gpu()
                  ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
                  : ", the seed's step (sac.max_step_scale is for a GPU learner)";
     if (sac_.uses_cuda_graph())

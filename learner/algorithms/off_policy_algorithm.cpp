@@ -32,7 +32,8 @@ class OffPolicyAlgorithm final : public Algorithm {
         replay_(algo_->buffer_size(), spec.obs_dim, spec.act_dim),
         rng_(cfg_.seed() * 7919 + 17) {
     if (const auto device = algo_->replay_device())
-      device_replay_ = std::make_unique<DeviceReplay>(algo_->buffer_size(), spec.obs_dim, spec.act_dim, *device);
+      device_replay_ = std::make_unique<DeviceReplay>(algo_->buffer_size(), spec.obs_dim, spec.act_dim, *device,
+                                                     algo_->gamma());
   }
 
   std::string describe() const override { return algo_->describe(); }
@@ -61,7 +62,7 @@ class OffPolicyAlgorithm final : public Algorithm {
                     rows.next_obs.data(), rows.horizon.data());
       if (device_replay_)
         device_replay_->add_n(rows.n, rows.obs.data(), rows.actions.data(), rows.rewards.data(), rows.terminated.data(),
-                              rows.next_obs.data());
+                              rows.next_obs.data(), rows.horizon.data());
     }
     return true;
   }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cassert>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -121,6 +122,31 @@ SampledBatch ReplayBuffer::sample(int batch_size, std::mt19937_64& rng) const {
     std::memcpy(next_obs + int64_t(i) * obs_dim_, next_obs_p_ + j * obs_dim_, obs_bytes);
   }
   return b;
+}
+
+float fold_horizon(float terminated, float horizon, double gamma) {
+  if (horizon == 1.f) return terminated;
+  return float(1.0 - std::pow(gamma, double(horizon) - 1.0) * (1.0 - double(terminated)));
+}
+
+SampledBatch fold_horizon(const SampledBatch& b, double gamma) {
+  if (!b.horizon.defined()) return b;
+  SampledBatch out = b;
+  out.horizon = torch::Tensor();
+  if (b.terminated.device().is_cpu() && b.horizon.device().is_cpu()) {
+    // The host path of every update: a loop over B floats, not a few tensor ops' dispatch.
+    const auto t = b.terminated.to(torch::kFloat).contiguous(), h = b.horizon.to(torch::kFloat).contiguous();
+    if (t.numel() != h.numel())
+      throw std::invalid_argument("fold_horizon: " + std::to_string(t.numel()) + " terminated flags but " +
+                                  std::to_string(h.numel()) + " horizons");
+    out.terminated = torch::empty_like(t);
+    const float *tp = t.data_ptr<float>(), *hp = h.data_ptr<float>();
+    float* op = out.terminated.data_ptr<float>();
+    for (int64_t i = 0; i < t.numel(); ++i) op[i] = fold_horizon(tp[i], hp[i], gamma);
+  } else {
+    out.terminated = 1.0 - torch::pow(gamma, b.horizon - 1.0) * (1.0 - b.terminated);
+  }
+  return out;
 }
 
 SampledBatch ReplayBuffer::stored() const {

@@ -18,6 +18,14 @@ struct SampledBatch {
   torch::Tensor obs, actions, rewards, terminated, next_obs, horizon;
 };
 
+// A row's horizon h folded into its terminated flag, for targets of the form r + gamma * (1 - t) * v
+// (SAC's critics, sac.n_step): t = 1 - gamma^(h-1) * (1 - terminated), so gamma * (1 - t) is
+// gamma^h * (1 - terminated). h = 1 leaves terminated exactly as it is.
+float fold_horizon(float terminated, float horizon, double gamma);
+// The batch with its horizon so folded into a new terminated tensor, horizon left undefined; the
+// batch as it is where horizon is undefined.
+SampledBatch fold_horizon(const SampledBatch& b, double gamma);
+
 // Where add_n's n rows land in a ring of `capacity` rows whose next row is `next`: the first `skip`
 // rows are left out (a later row of the same call would overwrite them), the others go to rows
 // [at, at + first) and then [0, rest), and the ring's next row is next_after. ReplayBuffer and its

@@ -107,7 +107,10 @@ Sac::Sac(Sac&&) noexcept = default;
 Sac& Sac::operator=(Sac&&) noexcept = default;
 
 std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& next_batch) {
-  if (impl_->use_graph()) return impl_->graph_update_n(n, next_batch);
+  if (impl_->use_graph()) {
+    const double gamma = impl_->cfg.gamma();
+    return impl_->graph_update_n(n, [&] { return fold_horizon(next_batch(), gamma); });
+  }
   std::vector<SacStats> out;
   out.reserve(n);
   for (int i = 0; i < n; ++i) out.push_back(update(next_batch()));
@@ -136,8 +139,11 @@ double Sac::learning_rate_scale() const { return impl_->lr_scale; }
 int64_t Sac::updates_in_flight() const { return impl_->updates_in_flight(); }
 std::vector<SacStats> Sac::finish_updates() { return impl_->finish_updates(); }
 
-SacStats Sac::update(const SampledBatch& host_batch) {
+SacStats Sac::update(const SampledBatch& sampled) {
   Impl& s = *impl_;
+  // Multi-step rows (sac.n_step): their horizon folded into `terminated`, so that the one target
+  // r + gamma * (1 - terminated) * v below (and in the graph) bootstraps with gamma^h.
+  const SampledBatch host_batch = fold_horizon(sampled, s.cfg.gamma());
   if (s.use_graph()) return s.graph_update(host_batch);
   SacStats st;
   // On the CPU these are the same tensors; on a GPU, one copy of the minibatch per update.

@@ -50,7 +50,8 @@ class Sac {
   Sac(Sac&&) noexcept;
   Sac& operator=(Sac&&) noexcept;
 
-  // One gradient step of temperature, critics and actor, then the polyak target update.
+  // One gradient step of temperature, critics and actor, then the polyak target update. A row
+  // with a horizon h (multi-step returns, sac.n_step) bootstraps with gamma^h (fold_horizon).
   SacStats update(const SampledBatch& batch);
   // n updates in a row, each on the batch next_batch() returns: the same as n calls of
   // update(next_batch()). Returns the figures of the updates that have run, oldest first. Without

@@ -325,7 +325,7 @@ int main(int argc, char** argv) {
                   net.c_str(), batch, device.c_str(), (queued.n / queued.elapsed) / (eager.n / eager.elapsed),
                   (queued.n / queued.elapsed) / (graph.n / graph.elapsed));
       // The same with the batches drawn on the GPU inside the graph (sac.replay_on_device).
-      farm::DeviceReplay on_gpu(buf.capacity(), kObs, kAct, grouped.device());
+      farm::DeviceReplay on_gpu(buf.capacity(), kObs, kAct, grouped.device(), cfg.gamma());
       on_gpu.load_from(buf);
       farm::Sac drawing(cfg, kObs, kAct, 1);
       const Rate drawn = measure(drawing, buf, batch, seconds, rng, farm::kUpdatesPerGroup, &on_gpu);

@@ -292,6 +292,8 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "exp.txtpb:4:3: field 'ppo.eval_every_fits': expected >= 0 (0: only at the end), got -1");
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  n_step: 0\n}\n"),
             "exp.txtpb:4:3: field 'dqn.n_step': expected >= 1, got 0");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"sac\"\nsac {\n  n_step: 0\n}\n"),
+            "exp.txtpb:4:3: field 'sac.n_step': expected >= 1, got 0");
   // The asynchronous mode fits data of recent versions: a window of 0 would use none of it.
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  mode: \"async\"\n}\n"),
             "exp.txtpb:4:3: field 'ppo.mode': \"async\" fits data of recent versions: needs ppo.max_policy_lag >= 1, "

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -266,7 +267,7 @@ TEST(DeviceReplay, KeepsTheHostRowsAtTheirPositions) {
   for (const auto& device : replay_devices()) {
     SCOPED_TRACE(device.str());
     ReplayBuffer host(16, kObs, kAct);
-    DeviceReplay dev(16, kObs, kAct, device);
+    DeviceReplay dev(16, kObs, kAct, device, 0.99);
     EXPECT_EQ(dev.width(), 2 * kObs + kAct + 2);
     add_block(host, dev, 0, 11);
     expect_same_rows(host, dev);
@@ -278,13 +279,47 @@ TEST(DeviceReplay, KeepsTheHostRowsAtTheirPositions) {
     expect_same_rows(host, dev);
     EXPECT_EQ(host.next_row(), 78 % 16);
 
-    DeviceReplay rebuilt(16, kObs, kAct, device);
+    DeviceReplay rebuilt(16, kObs, kAct, device, 0.99);
     rebuilt.load_from(host);
     expect_same_rows(host, rebuilt);
     // The next rows land where the host's do.
     add_block(host, rebuilt, 78, 83);
     expect_same_rows(host, rebuilt);
-    EXPECT_THROW(DeviceReplay(8, kObs, kAct, device).load_from(host), std::invalid_argument);
+    EXPECT_THROW(DeviceReplay(8, kObs, kAct, device, 0.99).load_from(host), std::invalid_argument);
+  }
+}
+
+// sac.n_step: gamma * (1 - fold_horizon(t, h)) is gamma^h * (1 - t); horizon 1 is t itself. The
+// device copy keeps multi-step rows so folded, from add_n and from load_from alike.
+TEST(DeviceReplay, FoldsEachRowsHorizonIntoItsTerminatedFlag) {
+  for (const float t : {0.f, 1.f}) {
+    EXPECT_EQ(fold_horizon(t, 1.f, 0.9), t);
+    for (const float h : {2.f, 3.f, 5.f})
+      EXPECT_NEAR(0.9 * (1.0 - fold_horizon(t, h, 0.9)), std::pow(0.9, h) * (1.0 - t), 1e-6) << t << " " << h;
+  }
+  for (const auto& device : replay_devices()) {
+    SCOPED_TRACE(device.str());
+    ReplayBuffer host(16, kObs, kAct);
+    DeviceReplay dev(16, kObs, kAct, device, 0.9);
+    Rows r = make_rows(0, 12);
+    std::vector<float> horizon(12);
+    for (int k = 0; k < 12; ++k) horizon[k] = float(1 + k % 4);
+    host.add_n(12, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data(), horizon.data());
+    dev.add_n(12, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data(), horizon.data());
+    DeviceReplay rebuilt(16, kObs, kAct, device, 0.9);
+    rebuilt.load_from(host);
+    for (const DeviceReplay* d : {&dev, &rebuilt}) {
+      const auto done = d->rows().narrow(0, 0, 12).select(1, kObs + kAct + 1).cpu();
+      for (int k = 0; k < 12; ++k) {
+        const double want = 1.0 - std::pow(0.9, horizon[k] - 1) * (1.0 - r.term[k]);
+        EXPECT_NEAR(done[k].item<float>(), want, 1e-6) << "row " << k;
+      }
+    }
+    // Without horizons the column is the flag.
+    DeviceReplay plain(16, kObs, kAct, device, 0.9);
+    plain.add_n(12, r.obs.data(), r.act.data(), r.rew.data(), r.term.data(), r.next_obs.data());
+    const auto flags = plain.rows().narrow(0, 0, 12).select(1, kObs + kAct + 1).cpu();
+    for (int k = 0; k < 12; ++k) EXPECT_EQ(flags[k].item<float>(), float(r.term[k])) << "row " << k;
   }
 }
 
@@ -294,7 +329,7 @@ TEST(DeviceReplay, SamplesStoredRowsUniformly) {
   for (const auto& device : replay_devices()) {
     SCOPED_TRACE(device.str());
     ReplayBuffer host(64, kObs, kAct);
-    DeviceReplay dev(64, kObs, kAct, device);
+    DeviceReplay dev(64, kObs, kAct, device, 0.99);
     EXPECT_THROW(dev.sample(4), std::logic_error);
     add_block(host, dev, 0, 20);
     torch::manual_seed(3);

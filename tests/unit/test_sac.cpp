@@ -430,6 +430,31 @@ TEST(SacCuda, GraphStateSurvivesSaveLoad) {
   farm::remove_tree(dir);
 }
 
+// sac.n_step: a row spanning h steps bootstraps with gamma^h. From the same start on the same
+// rows: rows of horizon 3 step as the one-step rows whose `terminated` is 1 - gamma^2 (worked out
+// here, so gamma * (1 - terminated) = gamma^3), and not as the same rows taken as one step each.
+TEST(Sac, MultiStepRowsBootstrapWithGammaToTheirHorizon) {
+  const auto cfg = small_config();
+  Sac three(cfg, 3, 2, 5), folded(cfg, 3, 2, 5), one(cfg, 3, 2, 5);
+  SampledBatch b = random_batch(64, 3, 2, 900);
+  b.horizon = torch::full({64}, 3.f);
+  three.update(b);
+  SampledBatch by_hand = random_batch(64, 3, 2, 900);
+  const double g = cfg.gamma();
+  by_hand.terminated = 1.f - float(g * g) * (1.f - by_hand.terminated);
+  folded.update(by_hand);
+  SampledBatch as_one = random_batch(64, 3, 2, 900);
+  as_one.horizon = torch::ones({64});
+  one.update(as_one);
+  EXPECT_LT(relative_difference(three.critic_parameters(), folded.critic_parameters()), 1e-6);
+  EXPECT_GT(relative_difference(three.critic_parameters(), one.critic_parameters()), 1e-6);
+  // Horizon 1 everywhere is the one-step update exactly.
+  Sac plain(cfg, 3, 2, 5);
+  plain.update(random_batch(64, 3, 2, 900));
+  EXPECT_TRUE(all_equal(plain.critic_parameters(), one.critic_parameters()));
+  EXPECT_TRUE(all_equal(plain.actor_parameters(), one.actor_parameters()));
+}
+
 // update_n(n, next) is n calls of update(next()): same batches in the same order, same figures,
 // same parameters after them. On the CPU the same arithmetic runs, so they agree exactly.
 TEST(Sac, UpdateNIsUpdatesInARow) {
@@ -510,31 +535,35 @@ TEST(SacCuda, FusedKernelsMatchTorchOps) {
   EXPECT_LE(relative_difference(fused.target_critic_parameters(), ops.target_critic_parameters()), 1e-4);
 }
 
-// A DeviceReplay of `rows` random transitions (obs 3, act 2) on `device`, with its host twin.
+// A DeviceReplay of `rows` random transitions (obs 3, act 2) on `device`, with its host twin;
+// horizons 1, 2, 3, 1, ... (multi-step rows, sac.n_step 3).
 void fill_replays(ReplayBuffer& host, DeviceReplay& dev, int rows, uint64_t seed) {
   const SampledBatch r = random_batch(rows, 3, 2, seed);
   const auto term = r.terminated.to(torch::kUInt8).contiguous();
+  std::vector<float> horizon(rows);
+  for (int k = 0; k < rows; ++k) horizon[k] = float(1 + k % 3);
   host.add_n(rows, r.obs.data_ptr<float>(), r.actions.data_ptr<float>(), r.rewards.data_ptr<float>(),
-             term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>());
+             term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>(), horizon.data());
   dev.add_n(rows, r.obs.data_ptr<float>(), r.actions.data_ptr<float>(), r.rewards.data_ptr<float>(),
-            term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>());
+            term.data_ptr<uint8_t>(), r.next_obs.data_ptr<float>(), horizon.data());
 }
 
 // The rows of `host` at indices [B] (int64, CPU), as ReplayBuffer::sample lays them out.
 SampledBatch rows_at(const ReplayBuffer& host, const torch::Tensor& idx) {
   const SampledBatch s = host.stored();
   return {s.obs.index_select(0, idx),        s.actions.index_select(0, idx),  s.rewards.index_select(0, idx),
-          s.terminated.index_select(0, idx), s.next_obs.index_select(0, idx), {}};
+          s.terminated.index_select(0, idx), s.next_obs.index_select(0, idx), s.horizon.index_select(0, idx)};
 }
 
 // Updates from a replay kept where the networks train draw each batch as DeviceReplay::sample does
 // (a uniform draw from torch's generator, then the policy's noise): the same figures and weights as
-// update() on the host rows at those indices.
+// update() on the host rows at those indices, multi-step rows bootstrapping alike (the copy keeps
+// their horizons folded into `terminated`, the host a column of its own).
 TEST(Sac, UpdatesFromADeviceReplayDrawTheirRowsFirst) {
   const auto cfg = small_config();
   Sac from_replay(cfg, 3, 2, 5), on_rows(cfg, 3, 2, 5);
   ReplayBuffer host(500, 3, 2);
-  DeviceReplay dev(500, 3, 2, torch::kCPU);
+  DeviceReplay dev(500, 3, 2, torch::kCPU, 0.99);
   fill_replays(host, dev, 300, 17);
   torch::manual_seed(23);
   const auto got = from_replay.update_n_from(5, 64, dev);
@@ -546,7 +575,7 @@ TEST(Sac, UpdatesFromADeviceReplayDrawTheirRowsFirst) {
   }
   EXPECT_EQ(from_replay.updates(), 5);
   if (torch::cuda::is_available()) {  // networks on the CPU cannot draw from rows on a GPU
-    DeviceReplay on_gpu(500, 3, 2, torch::Device(torch::kCUDA, 0));
+    DeviceReplay on_gpu(500, 3, 2, torch::Device(torch::kCUDA, 0), 0.99);
     fill_replays(host, on_gpu, 10, 19);
     EXPECT_THROW(from_replay.update_n_from(1, 64, on_gpu), std::invalid_argument);
   }
@@ -568,7 +597,7 @@ TEST(SacCuda, GraphDrawsItsBatchesAsTheEagerUpdateDoes) {
     if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
     if (fused && !graph.uses_fused_kernels()) GTEST_SKIP() << "built without a CUDA compiler (no fused kernels)";
     ReplayBuffer host(4000, 3, 2);
-    DeviceReplay dev(4000, 3, 2, torch::Device(torch::kCUDA, 0));
+    DeviceReplay dev(4000, 3, 2, torch::Device(torch::kCUDA, 0), 0.99);
     fill_replays(host, dev, 1000, 31);
     std::vector<SacStats> got;
     torch::manual_seed(41);

@@ -161,6 +161,18 @@ TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
   EXPECT_EQ(sac->batch_size(), 64);
 }
 
+// sac.n_step reaches the replay driver (which folds the rows it stores, fold_n_step) and the
+// start line; 1, the seed's, says nothing.
+TEST(SacStepScale, MultiStepReturnsAreTheAdaptersToAsk) {
+  auto cfg = step_scale_config();
+  EXPECT_EQ(make_sac(cfg, step_scale_spec())->n_step(), 1);
+  EXPECT_EQ(make_sac(cfg, step_scale_spec())->describe().find("-step returns"), std::string::npos);
+  cfg.mutable_sac()->set_n_step(3);
+  const auto sac = make_sac(cfg, step_scale_spec());
+  EXPECT_EQ(sac->n_step(), 3);
+  EXPECT_NE(sac->describe().find(", 3-step returns"), std::string::npos) << sac->describe();
+}
+
 // The driver's side of sac.max_step_scale: while the env steps received allow far more updates
 // than it makes, the step grows to the configured most; once no data comes, it falls back.
 TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
