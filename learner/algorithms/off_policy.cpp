@@ -52,8 +52,8 @@ class SacAlgorithm final : public OffPolicy {
     std::string step = cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "";
     if (cfg_.max_step_scale() > 1)
       step += sac_.on_gpu()
-                 ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
-                 : ", the seed's step (sac.max_step_scale is for a GPU learner)";
+                  ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
+                  : ", the seed's step (sac.max_step_scale is for a GPU learner)";
     if (sac_.uses_cuda_graph())
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_device()) step += ", minibatches drawn on the GPU";

@@ -32,8 +32,8 @@ class OffPolicyAlgorithm final : public Algorithm {
         replay_(algo_->buffer_size(), spec.obs_dim, spec.act_dim),
         rng_(cfg_.seed() * 7919 + 17) {
     if (const auto device = algo_->replay_device())
-      device_replay_ = std::make_unique<DeviceReplay>(algo_->buffer_size(), spec.obs_dim, spec.act_dim, *device,
-                                                     algo_->gamma());
+      device_replay_ =
+          std::make_unique<DeviceReplay>(algo_->buffer_size(), spec.obs_dim, spec.act_dim, *device, algo_->gamma());
   }
 
   std::string describe() const override { return algo_->describe(); }
