@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# Time to goal over seeds and worker counts: for each seed, CONFIG with its `seed:` line set and its
+# top-level `stop { }` replaced, one tests/bench/bench_workers.sh run per count (in the order given),
+# then one table: per seed the time to goal, updates/s and update-to-data of each count, and each
+# later count's time over the first count's, with how many seeds are within a bound of it.
+#   tests/bench/bench_seeds.sh LEARNER_BIN WORKER_BIN CONFIG "1 2 3 4 5" "2 15" [OUT_DIR]
+# Environment (and bench_workers.sh's: PARALLEL, CPUS_PER_RUN, GPUS, DOMAIN):
+#   STOP='...'        the stop { } body (default: eval_goal { metric: "success" at_least: 0.95 }
+#                     max_seconds: 150)
+#   SET_BLOCK=sac     a top-level block of CONFIG that SET_LINES go into (e.g. "sac", "eval")
+#   SET_LINES='...'   lines added at the start of that block, e.g. 'n_step: 3' (a field the block
+#                     already sets is an error of the config loader: set fields it does not)
+#   RATIO_AT_MOST=0.5 the bound the ratios are counted against
+# A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound.
+set -euo pipefail
+if [ $# -lt 5 ]; then
+  sed -n '2,14p' "$0" >&2
+  exit 2
+fi
+learner=$1 worker=$2 config=$3 seeds=$4 counts=$5
+out=${6:-/tmp/farm_bench_seeds}
+stop=${STOP:-'eval_goal { metric: "success" at_least: 0.95 } max_seconds: 150'}
+block=${SET_BLOCK:-} lines=${SET_LINES:-} bound=${RATIO_AT_MOST:-0.5}
+here=$(cd "$(dirname "$0")" && pwd)
+[ -r "$config" ] || { echo "bench_seeds: cannot read config $config" >&2; exit 2; }
+grep -q '^seed:' "$config" || { echo "bench_seeds: $config has no top-level 'seed:' line to set" >&2; exit 2; }
+grep -q '^stop {' "$config" || { echo "bench_seeds: $config has no top-level 'stop {' block to replace" >&2; exit 2; }
+if [ -n "$lines" ] && ! grep -q "^$block {" "$config"; then
+  echo "bench_seeds: SET_LINES given but $config has no top-level '${block:-SET_BLOCK} {' block" >&2
+  exit 2
+fi
+read -r -a seed_list <<<"$seeds"
+read -r -a count_list <<<"$counts"
+[ ${#seed_list[@]} -gt 0 ] && [ ${#count_list[@]} -gt 0 ] || { echo "bench_seeds: no seeds or no counts" >&2; exit 2; }
+for s in "${seed_list[@]}"; do
+  [[ $s =~ ^[0-9]+$ ]] || { echo "bench_seeds: seed '$s' is not a whole number" >&2; exit 2; }
+done
+mkdir -p "$out"
+domain=${DOMAIN:-120}
+for s in "${seed_list[@]}"; do
+  cfg="$out/seed$s.txtpb"
+  # The seed line, the stop block (from its opening line to the first closing brace at column 0),
+  # and the added lines just inside SET_BLOCK's opening line.
+  awk -v seed="$s" -v stop="$stop" -v block="$block" -v lines="$lines" '
+    /^seed:/ { print "seed: " seed; next }
+    /^stop \{/ { skipping = 1; if ($0 ~ /\}[[:space:]]*$/) skipping = 0; print "stop { " stop " }"; next }
+    skipping { if ($0 ~ /^\}/) skipping = 0; next }
+    { print }
+    block != "" && $0 ~ ("^" block " \\{") { n = split(lines, l, "\n"); for (i = 1; i <= n; i++) print "  " l[i] }
+  ' "$config" >"$cfg"
+  echo "== seed $s: $cfg"
+  DOMAIN=$domain bash "$here/bench_workers.sh" "$learner" "$worker" "$cfg" "$counts" "$out/seed$s" |
+    tee "$out/seed$s.txt"
+  domain=$((domain + ${#count_list[@]}))
+  [ $((domain + ${#count_list[@]})) -le 232 ] || domain=20
+done
+
+# The table, from bench_workers.sh's rows: workers, time to goal, wall, env steps, updates,
+# updates/s, UTD, ...
+echo
+header="| seed |"
+rule="|---|"
+for c in "${count_list[@]}"; do header+=" $c workers |"; rule+="---|"; done
+for c in "${count_list[@]:1}"; do header+=" $c / ${count_list[0]} |"; rule+="---|"; done
+echo "$header"
+echo "$rule"
+declare -A within=()
+for s in "${seed_list[@]}"; do
+  row="| $s |" first="" ratios=""
+  for c in "${count_list[@]}"; do
+    read -r t ups utd < <(awk -v c="$c" '$1 == c && $2 != "time" { print $2, $6, $7; exit }' "$out/seed$s.txt") || true
+    t=${t:--} ups=${ups:-?} utd=${utd:-?}
+    row+=" $t s, $ups upd/s, UTD $utd |"
+    if [ "$c" = "${count_list[0]}" ]; then
+      first=$t
+    else
+      # Printed to two places, counted against the bound unrounded.
+      r=$(awk -v a="$t" -v b="$first" 'BEGIN { if (a == "-" || b == "-" || b + 0 <= 0) print "-"; else printf "%.2f", a / b }')
+      ratios+=" $r |"
+      if [ "$r" != "-" ] && awk -v a="$t" -v b="$first" -v m="$bound" 'BEGIN { exit !(a / b <= m) }'; then
+        within[$c]=$((${within[$c]:-0} + 1))
+      fi
+    fi
+  done
+  echo "$row$ratios"
+done
+for c in "${count_list[@]:1}"; do
+  echo "$c workers within $bound of ${count_list[0]} workers' time: ${within[$c]:-0} of ${#seed_list[@]} seeds"
+done
