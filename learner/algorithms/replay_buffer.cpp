@@ -139,8 +139,10 @@ SampledBatch fold_horizon(const SampledBatch& b, double gamma) {
     if (t.numel() != h.numel())
       throw std::invalid_argument("fold_horizon: " + std::to_string(t.numel()) + " terminated flags but " +
                                   std::to_string(h.numel()) + " horizons");
-    out.terminated = torch::empty_like(t);
     const float *tp = t.data_ptr<float>(), *hp = h.data_ptr<float>();
+    // One-step rows (every horizon 1: n_step 1, the default) keep their flags, with no new tensor.
+    if (std::all_of(hp, hp + h.numel(), [](float x) { return x == 1.f; })) return out;
+    out.terminated = torch::empty_like(t);
     float* op = out.terminated.data_ptr<float>();
     for (int64_t i = 0; i < t.numel(); ++i) op[i] = fold_horizon(tp[i], hp[i], gamma);
   } else {

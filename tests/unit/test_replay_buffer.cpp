@@ -1,6 +1,7 @@
 #include "replay_buffer.h"
 
 #include "device_replay.h"
+#include "rng_state.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -350,6 +351,31 @@ TEST(DeviceReplay, SamplesStoredRowsUniformly) {
     torch::manual_seed(3);
     EXPECT_TRUE(torch::equal(dev.sample(4000).obs.cpu(), b.obs.cpu()));
   }
+}
+
+// A resumed learner draws what the uninterrupted one would have drawn next: the replay sampler's
+// generator and LibTorch's CPU generator go through the checkpoint manifest and come back.
+TEST(RngState, RoundTripsThroughTheManifest) {
+  std::mt19937_64 sampler(5);
+  torch::manual_seed(9);
+  sampler();
+  torch::rand({3});
+  config::CheckpointManifest m;
+  rng_to_manifest(&sampler, m);
+  ASSERT_TRUE(m.has_sampler_rng_state());
+  ASSERT_FALSE(m.torch_rng_state().empty());
+  const uint64_t next = sampler();
+  const torch::Tensor next_t = torch::rand({4});
+
+  std::mt19937_64 other(123);
+  torch::manual_seed(77);  // as a fresh learner seeds itself from the experiment
+  rng_from_manifest(m, &other);
+  EXPECT_EQ(other(), next);
+  EXPECT_TRUE(torch::equal(torch::rand({4}), next_t));
+
+  config::CheckpointManifest bad = m;
+  bad.set_sampler_rng_state("not a generator state");
+  EXPECT_THROW(rng_from_manifest(bad, &other), std::runtime_error);
 }
 
 }  // namespace
