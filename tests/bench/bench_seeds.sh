@@ -11,10 +11,13 @@
 #   SET_LINES='...'   lines added at the start of that block, e.g. 'n_step: 3' (a field the block
 #                     already sets is an error of the config loader: set fields it does not)
 #   RATIO_AT_MOST=0.5 the bound the ratios are counted against
-# A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound.
+#   REPORT_ONLY=1     no runs: the table from the runs already in OUT_DIR
+# A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
+# the table: each count's median time to goal (and the median ratio) over the seeds that reached
+# it, then each run's evaluations from its learner's log (the goal's metric at the time asked).
 set -euo pipefail
 if [ $# -lt 5 ]; then
-  sed -n '2,14p' "$0" >&2
+  sed -n '2,18p' "$0" >&2
   exit 2
 fi
 learner=$1 worker=$2 config=$3 seeds=$4 counts=$5
@@ -38,6 +41,10 @@ done
 mkdir -p "$out"
 domain=${DOMAIN:-120}
 for s in "${seed_list[@]}"; do
+  if [ "${REPORT_ONLY:-0}" = 1 ]; then
+    [ -r "$out/seed$s.txt" ] || { echo "bench_seeds: REPORT_ONLY but no run of seed $s in $out (seed$s.txt)" >&2; exit 2; }
+    continue
+  fi
   cfg="$out/seed$s.txtpb"
   # The seed line, the stop block (from its opening line to the first closing brace at column 0),
   # and the added lines just inside SET_BLOCK's opening line.
@@ -64,18 +71,21 @@ for c in "${count_list[@]}"; do header+=" $c workers |"; rule+="---|"; done
 for c in "${count_list[@]:1}"; do header+=" $c / ${count_list[0]} |"; rule+="---|"; done
 echo "$header"
 echo "$rule"
-declare -A within=()
+declare -A within=() times=() ratio_of=()
 for s in "${seed_list[@]}"; do
   row="| $s |" first="" ratios=""
   for c in "${count_list[@]}"; do
     read -r t ups utd < <(awk -v c="$c" '$1 == c && $2 != "time" { print $2, $6, $7; exit }' "$out/seed$s.txt") || true
     t=${t:--} ups=${ups:-?} utd=${utd:-?}
     row+=" $t s, $ups upd/s, UTD $utd |"
+    times[$c]+="$t"$'\n'
     if [ "$c" = "${count_list[0]}" ]; then
       first=$t
     else
-      # Printed to two places, counted against the bound unrounded.
-      r=$(awk -v a="$t" -v b="$first" 'BEGIN { if (a == "-" || b == "-" || b + 0 <= 0) print "-"; else printf "%.2f", a / b }')
+      # Printed to two places, kept unrounded for the median, counted against the bound unrounded.
+      r=$(awk -v a="$t" -v b="$first" 'BEGIN { if (a == "-" || b == "-" || b + 0 <= 0) print "-"; else print a / b }')
+      ratio_of[$c]+="$r"$'\n'
+      [ "$r" = "-" ] || r=$(printf '%.2f' "$r")
       ratios+=" $r |"
       if [ "$r" != "-" ] && awk -v a="$t" -v b="$first" -v m="$bound" 'BEGIN { exit !(a / b <= m) }'; then
         within[$c]=$((${within[$c]:-0} + 1))
@@ -84,6 +94,40 @@ for s in "${seed_list[@]}"; do
   done
   echo "$row$ratios"
 done
+median() {  # FORMAT; numbers on stdin, one per line ("-" skipped): their median, or "-"
+  sort -n | awk -v f="$1" '$1 != "-" && $1 != "" { v[n++] = $1 }
+    END { if (!n) print "-"; else printf f, (n % 2) ? v[(n - 1) / 2] : (v[n / 2 - 1] + v[n / 2]) / 2 }'
+}
+row="| median |" ratios=""
+for c in "${count_list[@]}"; do
+  row+=" $(printf '%s' "${times[$c]}" | median %.1f) s |"
+done
+for c in "${count_list[@]:1}"; do
+  ratios+=" $(printf '%s' "${ratio_of[$c]}" | median %.2f) |"
+done
+echo "$row$ratios"
 for c in "${count_list[@]:1}"; do
   echo "$c workers within $bound of ${count_list[0]} workers' time: ${within[$c]:-0} of ${#seed_list[@]} seeds"
+done
+
+# Each run's evaluations, from its learner's log: the goal's metric (else the mean return) and
+# the time the evaluation was asked.
+metric=$(sed -n 's/.*metric: *"\([a-z_]*\)".*/\1/p' <<<"$stop")
+metric=${metric:-mean return}
+echo
+echo "evaluations ($metric at the time asked):"
+for s in "${seed_list[@]}"; do
+  for c in "${count_list[@]}"; do
+    log="$out/seed$s/w$c/learner.log"
+    evals=""
+    if [ -r "$log" ]; then
+      evals=$(awk -v m="$metric" '/\] eval: / {
+          v = ""; tm = ""
+          if (match($0, m " -?[0-9.]+")) v = substr($0, RSTART + length(m) + 1, RLENGTH - length(m) - 1)
+          if (match($0, ", [0-9.]+ s\)$")) tm = substr($0, RSTART + 2, RLENGTH - 5)
+          if (v != "") printf " %s@%s", v, tm
+        }' "$log")
+    fi
+    echo "seed $s, $c workers:${evals:- none}"
+  done
 done

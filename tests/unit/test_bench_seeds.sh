@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# tests/bench/bench_seeds.sh REPORT_ONLY=1: its table from runs already made (bench_workers.sh
+# rows and learner logs): each ratio, the count within the bound (a run that missed the goal is
+# not), the medians over the seeds that reached the goal, each run's evaluations, and the errors.
+# usage: test_bench_seeds.sh SOURCE_DIR
+set -euo pipefail
+SRC=$1
+T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+cp "$SRC/deploy/configs/kaya_sac.txtpb" "$T/kaya.txtpb"
+row() {  # SEED COUNT TIME UPDATES_PER_S UTD: one bench_workers.sh row (its format)
+  printf '%8d %14s %10s %12s %10s %10s %8s %9s %9s  %s\n' "$2" "$3" 40.0 200000 50000 "$4" "$5" 0/0 0/0 \
+    "evaluation goal reached" >>"$T/out/seed$1.txt"
+}
+mkdir -p "$T/out"
+for s in 1 2 3 4; do
+  printf '%8s %14s\n' workers "time to goal" >"$T/out/seed$s.txt"
+done
+row 1 2 35.1 1131 0.2477; row 1 15 5.0 2460 0.0815
+row 2 2 25.0 1228 0.2463; row 2 15 12.5 2561 0.0860   # exactly half: within
+row 3 2 30.0 1090 0.2471; row 3 15 25.1 2784 0.0949
+row 4 2 40.1 1372 0.2482; row 4 15 - 2577 0.0613       # stopped on a limit
+mkdir -p "$T/out/seed1/w2"
+cat >"$T/out/seed1/w2/learner.log" <<'LOG'
+[learner] eval: mean return 9.7 over 30 deterministic episodes, success 0.000, time_s 8.1 (policy v38, 1200 updates, 5.0 s)
+[learner] sac step x4 from update 3008
+[learner] eval: mean return 13.0 over 30 deterministic episodes, success 0.967, time_s 6.7 (policy v829, 26304 updates, 35.1 s)
+LOG
+bs() { REPORT_ONLY=1 bash "$SRC/tests/bench/bench_seeds.sh" /nonexistent/learner /nonexistent/worker "$@"; }
+out=$(bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "report: exit non-zero: $out"
+echo "$out"
+grep -qF "| 1 | 35.1 s, 1131 upd/s, UTD 0.2477 | 5.0 s, 2460 upd/s, UTD 0.0815 | 0.14 |" <<<"$out" || fail "seed 1 row"
+grep -qF "| 2 | 25.0 s, 1228 upd/s, UTD 0.2463 | 12.5 s, 2561 upd/s, UTD 0.0860 | 0.50 |" <<<"$out" || fail "seed 2 row"
+grep -qF "| 3 | 30.0 s, 1090 upd/s, UTD 0.2471 | 25.1 s, 2784 upd/s, UTD 0.0949 | 0.84 |" <<<"$out" || fail "seed 3 row"
+grep -qF "| 4 | 40.1 s, 1372 upd/s, UTD 0.2482 | - s, 2577 upd/s, UTD 0.0613 | - |" <<<"$out" || fail "seed 4 row"
+# Medians: 2 workers over four seeds (30.0 and 35.1), 15 workers over the three that reached the
+# goal, the ratio over those three (0.14, 0.50, 0.84).
+grep -qF "| median | 32.5 s | 12.5 s | 0.50 |" <<<"$out" || fail "median row"
+grep -qF "15 workers within 0.5 of 2 workers' time: 2 of 4 seeds" <<<"$out" || fail "count within"
+grep -qF "evaluations (success at the time asked):" <<<"$out" || fail "evaluations header"
+grep -qxF "seed 1, 2 workers: 0.000@5.0 0.967@35.1" <<<"$out" || fail "seed 1 evaluations"
+grep -qxF "seed 2, 15 workers: none" <<<"$out" || fail "a run without a log"
+# A tighter bound counts fewer seeds.
+out=$(RATIO_AT_MOST=0.2 bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "bound: $out"
+grep -qF "15 workers within 0.2 of 2 workers' time: 1 of 4 seeds" <<<"$out" || fail "RATIO_AT_MOST 0.2: $out"
+# Errors name what is wrong and exit 2.
+set +e
+err=$(bs "$T/kaya.txtpb" "1 5" "2 15" "$T/out" 2>&1); rc=$?
+set -e
+[ $rc = 2 ] && grep -qF "no run of seed 5 in $T/out" <<<"$err" || fail "missing seed: rc $rc: $err"
+set +e
+err=$(bs "$T/kaya.txtpb" "1 x" "2 15" "$T/out" 2>&1); rc=$?
+set -e
+[ $rc = 2 ] && grep -qF "seed 'x' is not a whole number" <<<"$err" || fail "bad seed: rc $rc: $err"
+echo "bench_seeds report: ok"
