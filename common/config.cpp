@@ -391,6 +391,8 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   ws.check(w.steps_per_batch() > 0 && w.steps_per_batch() <= kMaxStepsPerBatch, "steps_per_batch",
            "expected 1.." + std::to_string(kMaxStepsPerBatch) + ", got " + num(w.steps_per_batch()));
   ws.positive("max_batches_per_version", w.max_batches_per_version());
+  ws.check(w.nice() >= 0 && w.nice() <= 19, "nice",
+           "expected 0..19 (a worker may lower its priority, not raise it), got " + num(w.nice()));
 
   root.check(!c.run_root().empty(), "run_root", "expected a directory path");
   root.positive("checkpoint_every_seconds", c.checkpoint_every_seconds());

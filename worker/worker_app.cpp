@@ -3,10 +3,16 @@
 // answers run in worker_evals.cpp.
 #include "worker_app.h"
 
+#include <sys/resource.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -189,6 +195,42 @@ void WorkerApp::on_spec(const farm::msg::ExperimentSpec& s) {
   join(s);
 }
 
+namespace {
+
+// worker.nice: every thread this process has now (the rollout's, the bus's, the heartbeat's) goes
+// to at least that nice value; threads made later inherit it from the thread that makes them.
+// Linux keeps a nice value per thread, so one setpriority() call would lower the calling thread
+// alone. Returns what the join line says of it; a thread that cannot be lowered is named there.
+std::string lower_priority(int nice) {
+  if (nice <= 0) return "";
+  namespace fs = std::filesystem;
+  int lowered = 0, kept = 0;
+  std::string failed;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/proc/self/task", ec)) {
+    const id_t tid = id_t(std::strtoul(e.path().filename().c_str(), nullptr, 10));
+    errno = 0;
+    const int now = getpriority(PRIO_PROCESS, tid);
+    if (errno != 0) continue;  // the thread ended meanwhile
+    if (now >= nice) {
+      ++kept;
+      continue;
+    }
+    if (setpriority(PRIO_PROCESS, tid, nice) == 0)
+      ++lowered;
+    else if (errno != ESRCH && failed.empty())
+      failed = "thread " + std::to_string(tid) + ": " + std::strerror(errno);
+  }
+  if (ec) return ", nice not set (/proc/self/task: " + ec.message() + ")";
+  std::string note =
+      ", nice " + std::to_string(nice) + " (worker.nice) on " + std::to_string(lowered + kept) + " threads";
+  if (kept > 0) note += ", " + std::to_string(kept) + " of them already at it or above";
+  if (!failed.empty()) note += "; not lowered: " + failed;
+  return note;
+}
+
+}  // namespace
+
 void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
   drain_sender(false);  // batches of an earlier join keep their session; the numbering restarts below
   try {
@@ -221,9 +263,10 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
     batches_on_version_ = 0;
     batch_quota_ = 0;
     last_error_.clear();
+    const std::string nice_note = lower_priority(cfg.worker().nice());
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
         " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
-        " steps per batch");
+        " steps per batch" + nice_note);
     // Said now, not after the first collect: the beat thread re-sends the last status the loop
     // built, which was the one of a worker waiting for a spec, so a long first collect (mCLARI's:
     // 6-8 s) kept the learner from counting this worker until it ended.

@@ -4,7 +4,8 @@
 #   2. A learner and two workers: each evaluation is split into two parts, one asked of each
 #      worker, answered (asked == answered, lost 0, invalid 0) and reported as one; then the worker
 #      holding a part is SIGKILLed: the part is counted lost, asked again of the other worker and
-#      answered there, and the run finishes.
+#      answered there, and the run finishes. Its workers run at worker.nice 7: every thread of
+#      each (the evaluation thread, made after the join, too) at that nice value.
 #   tests/integration/test_worker_evaluations.sh LEARNER WORKER
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2")
@@ -17,7 +18,7 @@ config() {
 experiment_id: "it_worker_evals_$1"
 task { name: "pendulum" }
 sac { hidden: 32 hidden: 32 learning_starts: 100 batch_size: 64 publish_every_updates: 5 }
-worker { envs_per_worker: 4 steps_per_batch: 25 max_batches_per_version: 4 }
+worker { envs_per_worker: 4 steps_per_batch: 25 max_batches_per_version: 4 nice: 7 }
 # Evaluations of 8,000 episodes, 4,000 a worker, take 2-7 s a part here: long enough to kill one
 # while it holds a part (parts of 750 took 0.2-0.8 s here, and the kill once came after the answer).
 eval { episodes: $2 every_seconds: 2 final_episodes: 20 answer_timeout_seconds: 60 }
@@ -50,6 +51,19 @@ pids+=($w1 $w2)
 # Both workers answer before the kill.
 for w in ev-1 ev-2; do
   wait_text "$dir/two.log" "answered by $w " 60 || fail "no evaluation answered by $w within 60 s"
+done
+# worker.nice: each worker's threads, its evaluation thread among them, at nice 7 (this shell's own
+# nice, if higher, is what they keep); the join line says so.
+base=$(nice)
+want=$((base > 7 ? base : 7))
+for w in ev-1:$w1 ev-2:$w2; do
+  pid=${w#*:} nices=""
+  for t in /proc/$pid/task/*/stat; do nices+="$(sed 's/.*) //' "$t" 2>/dev/null | awk '{print $17}') "; done
+  n=$(wc -w <<<"$nices")
+  [ "$n" -ge 3 ] && [ -z "$(tr ' ' '\n' <<<"$nices" | grep -v "^$want\$" | grep -v '^$')" ] ||
+    fail "${w%%:*}: its $n threads' nice values are '$nices', not all $want (worker.nice 7)"
+  grep -q "joined experiment .*, nice 7 (worker.nice) on [0-9]* threads" "$dir/${w%%:*}.log" ||
+    fail "${w%%:*}: the join line does not give its nice: $(grep joined "$dir/${w%%:*}.log")"
 done
 # Each evaluation is split over the two workers (eval.min_episodes_per_worker: 4 by default): 4,000
 # episodes each, asked of both, reported once as 8,000.

@@ -156,6 +156,28 @@ TEST(Config, WorkerSizesAreBounded) {
                farm::ConfigError);
 }
 
+// worker.nice lowers a worker's priority; a config (one off the bus included) may not ask a worker
+// to raise it, nor name a value setpriority() would clamp.
+TEST(Config, WorkerNiceIsAPriorityToLowerTo) {
+  EXPECT_EQ(farm::parse_config_text("experiment_id: \"w\"\n", "w").worker().nice(), 0);
+  EXPECT_EQ(farm::parse_config_text("experiment_id: \"w\"\nworker { nice: 10 }\n", "w").worker().nice(), 10);
+  for (const char* v : {"-5", "20"}) {
+    try {
+      farm::parse_config_from_bus(std::string("experiment_id: \"w\"\nworker {\n  nice: ") + v + "\n}\n",
+                                  "ExperimentSpec(w)");
+      ADD_FAILURE() << "nice " << v << " accepted";
+    } catch (const farm::ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("ExperimentSpec(w):3:"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("nice"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(std::string("expected 0..19 (a worker may lower its priority, not raise "
+                                                       "it), got ") +
+                                           v),
+                std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 // A config from the bus may not name a file for the receiving host to write.
 TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
   const std::string text = "experiment_id: \"m\"\ntask { name: \"mclari\" mclari { hfield_png: \"/etc/cron.d/x\" } }\n";
