@@ -14,7 +14,8 @@
 #   REPORT_ONLY=1     no runs: the table from the runs already in OUT_DIR
 # A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
 # the table: each count's median time to goal (and the median ratio) over the seeds that reached
-# it, then each run's evaluations from its learner's log (the goal's metric at the time asked).
+# it, then each run's evaluations from its learner's log (the goal's metric at the time asked), then
+# per count the updates made when the goal's evaluation was asked.
 set -euo pipefail
 if [ $# -lt 5 ]; then
   sed -n '2,18p' "$0" >&2
@@ -130,4 +131,25 @@ for s in "${seed_list[@]}"; do
     fi
     echo "seed $s, $c workers:${evals:- none}"
   done
+done
+
+# The updates made when the goal's evaluation was asked (its learner's `eval:` line at the time to
+# goal), per count in the seeds' order: whether more workers reached the goal with fewer updates or
+# only with more updates per second. "-" where a run missed the goal or its log has no such line.
+echo
+echo "updates when the goal's evaluation was asked:"
+for c in "${count_list[@]}"; do
+  list="" vals=""
+  for s in "${seed_list[@]}"; do
+    t=$(awk -v c="$c" '$1 == c && $2 != "time" { print $2; exit }' "$out/seed$s.txt" 2>/dev/null || true)
+    log="$out/seed$s/w$c/learner.log" u="-"
+    if [ -n "$t" ] && [ "$t" != "-" ] && [ -r "$log" ]; then
+      u=$(awk -v t="$t" '/\] eval: / && index($0, ", " t " s)") {
+          if (match($0, "[0-9]+ updates, ")) u = substr($0, RSTART, RLENGTH - 10) }
+        END { print (u == "" ? "-" : u) }' "$log")
+    fi
+    list+=" $u"
+    vals+="$u"$'\n'
+  done
+  echo "$c workers:$list (median $(printf '%s' "$vals" | median %.0f))"
 done

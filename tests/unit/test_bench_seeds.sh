@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # tests/bench/bench_seeds.sh REPORT_ONLY=1: its table from runs already made (bench_workers.sh
 # rows and learner logs): each ratio, the count within the bound (a run that missed the goal is
-# not), the medians over the seeds that reached the goal, each run's evaluations, and the errors.
+# not), the medians over the seeds that reached the goal, each run's evaluations, the updates at
+# each run's goal evaluation, and the errors.
 # usage: test_bench_seeds.sh SOURCE_DIR
 set -euo pipefail
 SRC=$1
@@ -26,6 +27,12 @@ cat >"$T/out/seed1/w2/learner.log" <<'LOG'
 [learner] sac step x4 from update 3008
 [learner] eval: mean return 13.0 over 30 deterministic episodes, success 0.967, time_s 6.7 (policy v829, 26304 updates, 35.1 s)
 LOG
+mkdir -p "$T/out/seed1/w15"
+cat >"$T/out/seed1/w15/learner.log" <<'LOG'
+[learner] eval: mean return 2.0 over 30 deterministic episodes, success 0.500, time_s 9.0 (policy v20, 1500 updates, 2.5 s)
+[learner] eval: mean return 12.0 over 30 deterministic episodes, success 0.967, time_s 6.0 (policy v430, 13864 updates, 5.0 s)
+[learner] final: mean return 12.5 over 100 deterministic episodes, success 0.980, time_s 6.0 (policy v431, 14100 updates, 6.1 s)
+LOG
 bs() { REPORT_ONLY=1 bash "$SRC/tests/bench/bench_seeds.sh" /nonexistent/learner /nonexistent/worker "$@"; }
 out=$(bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "report: exit non-zero: $out"
 echo "$out"
@@ -40,6 +47,12 @@ grep -qF "15 workers within 0.5 of 2 workers' time: 2 of 4 seeds" <<<"$out" || f
 grep -qF "evaluations (success at the time asked):" <<<"$out" || fail "evaluations header"
 grep -qxF "seed 1, 2 workers: 0.000@5.0 0.967@35.1" <<<"$out" || fail "seed 1 evaluations"
 grep -qxF "seed 2, 15 workers: none" <<<"$out" || fail "a run without a log"
+grep -qxF "seed 1, 15 workers: 0.500@2.5 0.967@5.0" <<<"$out" || fail "seed 1 evaluations, 15 workers"
+# The updates at the goal's evaluation (the one asked at the time to goal, not the final one), per
+# count in the seeds' order: "-" where a run has no log or missed the goal (seed 4, 15 workers).
+grep -qF "updates when the goal's evaluation was asked:" <<<"$out" || fail "updates header"
+grep -qxF "2 workers: 26304 - - - (median 26304)" <<<"$out" || fail "updates at the goal, 2 workers"
+grep -qxF "15 workers: 13864 - - - (median 13864)" <<<"$out" || fail "updates at the goal, 15 workers"
 # A tighter bound counts fewer seeds.
 out=$(RATIO_AT_MOST=0.2 bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "bound: $out"
 grep -qF "15 workers within 0.2 of 2 workers' time: 1 of 4 seeds" <<<"$out" || fail "RATIO_AT_MOST 0.2: $out"
