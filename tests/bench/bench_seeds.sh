@@ -72,12 +72,13 @@ for c in "${count_list[@]}"; do header+=" $c workers |"; rule+="---|"; done
 for c in "${count_list[@]:1}"; do header+=" $c / ${count_list[0]} |"; rule+="---|"; done
 echo "$header"
 echo "$rule"
-declare -A within=() times=() ratio_of=()
+declare -A within=() times=() ratio_of=() time_at=()
 for s in "${seed_list[@]}"; do
   row="| $s |" first="" ratios=""
   for c in "${count_list[@]}"; do
     read -r t ups utd < <(awk -v c="$c" '$1 == c && $2 != "time" { print $2, $6, $7; exit }' "$out/seed$s.txt") || true
     t=${t:--} ups=${ups:-?} utd=${utd:-?}
+    time_at["$s $c"]=$t
     row+=" $t s, $ups upd/s, UTD $utd |"
     times[$c]+="$t"$'\n'
     if [ "$c" = "${count_list[0]}" ]; then
@@ -141,9 +142,8 @@ echo "updates when the goal's evaluation was asked:"
 for c in "${count_list[@]}"; do
   list="" vals=""
   for s in "${seed_list[@]}"; do
-    t=$(awk -v c="$c" '$1 == c && $2 != "time" { print $2; exit }' "$out/seed$s.txt" 2>/dev/null || true)
-    log="$out/seed$s/w$c/learner.log" u="-"
-    if [ -n "$t" ] && [ "$t" != "-" ] && [ -r "$log" ]; then
+    t=${time_at["$s $c"]} log="$out/seed$s/w$c/learner.log" u="-"
+    if [ "$t" != "-" ] && [ -r "$log" ]; then
       u=$(awk -v t="$t" '/\] eval: / && index($0, ", " t " s)") {
           if (match($0, "[0-9]+ updates, ")) u = substr($0, RSTART, RLENGTH - 10) }
         END { print (u == "" ? "-" : u) }' "$log")
