@@ -56,9 +56,11 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
     group.snapshot.clear();
   }
   // As many parts as there are workers ready now, each of at least min_episodes_per_worker
-  // episodes; part k resets its episodes from seed + k (part 0: the seed one worker would get), and
-  // its first episode is numbered after the parts before it (a task's evaluation conditions go
-  // round the whole evaluation, not each part).
+  // episodes; every part has the evaluation's seed and its first episode numbered after the parts
+  // before it, and a worker resets episode k of the evaluation from (seed, k) (evaluate_policy): the
+  // evaluation is the same episodes however many parts it is split into (2 workers or 15 are
+  // evaluated on the same maps), and a task's evaluation conditions go round the whole evaluation,
+  // not each part.
   const int min_each = cfg_.eval().min_episodes_per_worker();
   const int ready = int(eval_ready_workers(group.asked_at).size());
   const int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
@@ -74,7 +76,7 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
     r.episodes = ask.episodes / parts + (k < ask.episodes % parts ? 1 : 0);
     r.first_episode = first;
     first += r.episodes;
-    r.seed = seed + uint64_t(k);
+    r.seed = seed;
     r.ask = ask;
     sent = send_evaluation(r) && sent;
     evals_out_.push_back(std::move(r));

@@ -188,7 +188,7 @@ std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> t
                                            uint32_t first_episode) {
   if (episodes <= 0) return {};
   Policy policy(params);
-  VecEnv env(std::move(task), episodes, seed);
+  VecEnv env(std::move(task), episodes, seed, first_episode);
   check_fits(policy, env.spec());
   const int max_steps = env.spec().max_episode_steps;
   if (max_steps <= 0) {

@@ -90,9 +90,11 @@ class Rollout {
 // (tanh(mean)), and returns their records ordered by env. Throws std::invalid_argument if the
 // policy does not fit the task or the task has no time limit. cancel, if given and set, ends it
 // between two steps with an empty result.
-// first_episode: the index of the first of them in a larger evaluation; where the task has
-// evaluation conditions (robots::Task::eval_conditions), episode k starts in condition
-// (first_episode + k) mod their number.
+// first_episode: the index of the first of them in a larger evaluation of the same seed. Episode k
+// is episode first_episode + k of that evaluation: reset as that episode is (VecEnv's env
+// first_episode + k), so an evaluation split into parts runs the episodes it would run whole,
+// however many parts answer it; where the task has evaluation conditions
+// (robots::Task::eval_conditions), it starts in condition (first_episode + k) mod their number.
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
                                            int episodes, uint64_t seed, const std::atomic<bool>* cancel = nullptr,
                                            uint32_t first_episode = 0);

@@ -15,7 +15,8 @@ EpisodeRecord& EpisodeEnds::add(int obs_dim, float** final_obs) {
   return records_[size_++];
 }
 
-VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed) : task_(std::move(task)) {
+VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed, uint64_t first_index)
+    : task_(std::move(task)) {
   if (!task_) throw std::invalid_argument("VecEnv: no task");
   if (num_envs <= 0) {
     throw std::invalid_argument("VecEnv: num_envs must be > 0, got " + std::to_string(num_envs));
@@ -28,7 +29,7 @@ VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t 
   seed_state_.resize(num_envs);
   for (int i = 0; i < num_envs; ++i) {
     states_.push_back(task_->make_state());
-    seed_state_[i] = mix_seed(seed, uint64_t(i));
+    seed_state_[i] = mix_seed(seed, first_index + uint64_t(i));
   }
   obs_.assign(size_t(num_envs) * obs_dim_, 0.f);
 }

@@ -52,9 +52,10 @@ class EpisodeEnds {
 
 class VecEnv {
  public:
-  // Env i's reset seeds come from its own generator seeded with mix_seed(seed, i). Envs are
+  // Env i's reset seeds come from its own generator seeded with mix_seed(seed, first_index + i):
+  // envs first_index.. of a larger set made from the same seed (evaluate_policy's parts). Envs are
   // not reset here: call reset_all() before the first step.
-  VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed);
+  VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed, uint64_t first_index = 0);
 
   const robots::Task& task() const { return *task_; }
   const robots::TaskSpec& spec() const { return task_->spec(); }

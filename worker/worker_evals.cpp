@@ -77,7 +77,8 @@ void WorkerApp::answer_error(const farm::msg::EvaluationRequest& q, const std::s
 }
 
 // The evaluation thread: one job at a time, on evaluation envs made for it (evaluate_policy: one env
-// per episode, reset from the request's seed), never the training envs.
+// per episode, reset from the request's seed and the episode's number in the whole evaluation),
+// never the training envs.
 void WorkerApp::eval_thread_main() {
   while (true) {
     EvalJob job;

@@ -277,12 +277,31 @@ TEST(EvaluatePolicy, SpreadsEpisodesOverTheTasksConditions) {
     for (int k = 0; k < 4; ++k)
       EXPECT_EQ(int(records[k].metrics[terrain]), int((first + k) % 6)) << "first " << first << ", episode " << k;
   }
-  // A task without conditions resets as before: the pendulum's episodes from seed 31 are the same
-  // whatever first_episode says.
+}
+
+TEST(EvaluatePolicy, APartRunsTheEpisodesOfTheWholeEvaluation) {
+  // An evaluation split into parts (the learner's eval.min_episodes_per_worker: one part per
+  // worker, each with the evaluation's seed and its first episode's number) runs the episodes it
+  // would run whole: 2 workers and 15 are evaluated on the same starts (maps, for Kaya).
   auto pend = pendulum(20);
-  const auto a = evaluate_policy(pend, random_policy(8), 3, 31, nullptr, 0);
-  const auto b = evaluate_policy(pend, random_policy(8), 3, 31, nullptr, 5);
-  for (int k = 0; k < 3; ++k) EXPECT_EQ(a[k].episode_return, b[k].episode_return);
+  const auto whole = evaluate_policy(pend, random_policy(8), 7, 31, nullptr, 0);
+  ASSERT_EQ(whole.size(), 7u);
+  std::vector<EpisodeRecord> parts;
+  for (auto [first, n] : {std::pair{0u, 3}, std::pair{3u, 2}, std::pair{5u, 2}}) {
+    const auto part = evaluate_policy(pend, random_policy(8), n, 31, nullptr, first);
+    parts.insert(parts.end(), part.begin(), part.end());
+  }
+  ASSERT_EQ(parts.size(), whole.size());
+  for (size_t k = 0; k < whole.size(); ++k) EXPECT_EQ(parts[k].episode_return, whole[k].episode_return) << k;
+  // Not the first episodes again, and another seed's are others.
+  EXPECT_NE(parts[3].episode_return, whole[0].episode_return);
+  EXPECT_NE(evaluate_policy(pend, random_policy(8), 1, 32, nullptr, 0)[0].episode_return, whole[0].episode_return);
+  // VecEnv likewise: env 0 of the envs from index 3 is env 3 of the set.
+  VecEnv all(pendulum(), 5, 9), from3(pendulum(), 2, 9, 3);
+  all.reset_all();
+  from3.reset_all();
+  EXPECT_EQ(row(from3.obs(0), 3), row(all.obs(3), 3));
+  EXPECT_EQ(row(from3.obs(1), 3), row(all.obs(4), 3));
 }
 
 }  // namespace
