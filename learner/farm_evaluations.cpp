@@ -137,7 +137,9 @@ bool FarmService::send_evaluation(EvalRequest& r) {
       (group.parts > 1 ? ", part " + std::to_string(r.part) + " of " + std::to_string(group.parts) + ", " +
                              std::to_string(r.ask.episodes) + " in all"
                        : std::string()) +
-      (r.attempt > 1 ? ", second try" : "") + ") asked of worker " + r.worker_id);
+      (r.attempt > 1 ? ", second try" : "") + ", #" + std::to_string(r.first_episode) + "-" +
+      std::to_string(r.first_episode + r.episodes - 1) + " of seed " + std::to_string(r.seed) + ") asked of worker " +
+      r.worker_id);
   return true;
 }
 

@@ -69,10 +69,14 @@ done
 # episodes each, asked of both, reported once as 8,000.
 wait_text "$dir/two.log" "complete: 8000 episodes from 2 workers" 60 ||
   fail "no evaluation reported as 8000 episodes from 2 workers: $(grep 'asked of worker' "$dir/two.log" | head -4)"
-first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "4000 episodes, part 1 of 2, 8000 in all)")
-grep -q "(eval, policy v[0-9]*, 4000 episodes, part 2 of 2, 8000 in all) asked of worker ev-" <<<"$first" &&
-  [ "$(grep -o 'asked of worker ev-[12]' <<<"$first" | sort -u | wc -l)" = 2 ] ||
+first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "4000 episodes, part 1 of 2, 8000 in all, #0-3999 of seed ")
+grep -q "(eval, policy v[0-9]*, 4000 episodes, part 2 of 2, 8000 in all, #4000-7999 of seed [0-9]*) asked of worker ev-" \
+  <<<"$first" && [ "$(grep -o 'asked of worker ev-[12]' <<<"$first" | sort -u | wc -l)" = 2 ] ||
   fail "no evaluation asked as two parts of 4000 of the two workers: $first"
+# Both parts carry the evaluation's seed (episode k of it is reset from that seed and k on any
+# worker), so the split runs the episodes one worker would run whole.
+[ "$(grep -o ' of seed [0-9]*)' <<<"$first" | sort -u | wc -l)" = 1 ] ||
+  fail "the two parts of one evaluation carry different seeds: $first"
 # The next request: its worker is killed as soon as it says it has it.
 asked=$(grep -c "asked of worker" "$dir/two.log")
 for _ in $(seq 150); do [ "$(grep -c "asked of worker" "$dir/two.log")" -gt "$asked" ] && break; sleep 0.1; done
@@ -95,8 +99,8 @@ if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
   grep -q "evaluation $id (policy v[0-9]*) asked of $victim lost: its worker is no longer live; asked again" \
     "$dir/two.log" || fail "request $id not counted lost when $victim died"
   # The second try is the first one asked after the loss (it may wait for a live worker first).
-  retry=$(sed -n "/evaluation $id (policy v[0-9]*) asked of $victim lost/,\$p" "$dir/two.log" | grep -m1 "second try) asked of" |
-    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes[^)]*, second try) asked of worker \(ev-[12]\)$/\1 \2/p')
+  retry=$(sed -n "/evaluation $id (policy v[0-9]*) asked of $victim lost/,\$p" "$dir/two.log" | grep -m1 "second try, #[^)]*) asked of" |
+    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes[^)]*, second try, #[^)]*) asked of worker \(ev-[12]\)$/\1 \2/p')
   [ "${retry#* }" = "$other" ] || fail "the lost request was not asked again of $other: '$retry'"
   grep -q "evaluation ${retry%% *} answered by $other " "$dir/two.log" || fail "the second try was not answered"
 fi
