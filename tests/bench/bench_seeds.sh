@@ -14,8 +14,9 @@
 #   REPORT_ONLY=1     no runs: the table from the runs already in OUT_DIR
 # A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
 # the table: each count's median time to goal (and the median ratio) over the seeds that reached
-# it, then each run's evaluations from its learner's log (the goal's metric at the time asked), then
-# per count the updates made when the goal's evaluation was asked.
+# it, a sign test of the ratios against the bound, then each run's evaluations from its learner's
+# log (the goal's metric at the time asked), then per count the updates made when the goal's
+# evaluation was asked.
 set -euo pipefail
 if [ $# -lt 5 ]; then
   sed -n '2,18p' "$0" >&2
@@ -110,6 +111,16 @@ done
 echo "$row$ratios"
 for c in "${count_list[@]:1}"; do
   echo "$c workers within $bound of ${count_list[0]} workers' time: ${within[$c]:-0} of ${#seed_list[@]} seeds"
+done
+# A sign test of the seeds' ratios against the bound: were the median ratio above it, a seed would
+# fall within it with probability at most one half, so K or more of N within has probability at
+# most P(Binomial(N, 1/2) >= K) (one-sided; a run that missed the goal counts as not within).
+for c in "${count_list[@]:1}"; do
+  awk -v k="${within[$c]:-0}" -v n="${#seed_list[@]}" -v c="$c" -v f="${count_list[0]}" -v b="$bound" 'BEGIN {
+    p = 0
+    for (i = k; i <= n; i++) { t = 1; for (j = 1; j <= i; j++) t *= (n - i + j) / j; p += t }
+    printf "%s workers: median ratio to %s workers at most %s by a sign test over %d seeds: %d within, p = %.4f\n", c, f, b, n, k, p / 2 ^ n
+  }'
 done
 
 # Each run's evaluations, from its learner's log: the goal's metric (else the mean return) and

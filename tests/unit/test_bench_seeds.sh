@@ -44,6 +44,9 @@ grep -qF "| 4 | 40.1 s, 1372 upd/s, UTD 0.2482 | - s, 2577 upd/s, UTD 0.0613 | -
 # goal, the ratio over those three (0.14, 0.50, 0.84).
 grep -qF "| median | 32.5 s | 12.5 s | 0.50 |" <<<"$out" || fail "median row"
 grep -qF "15 workers within 0.5 of 2 workers' time: 2 of 4 seeds" <<<"$out" || fail "count within"
+# The sign test: 2 or more of 4 within has probability 11/16 where a seed is within with 1/2.
+grep -qxF "15 workers: median ratio to 2 workers at most 0.5 by a sign test over 4 seeds: 2 within, p = 0.6875" \
+  <<<"$out" || fail "sign test"
 grep -qF "evaluations (success at the time asked):" <<<"$out" || fail "evaluations header"
 grep -qxF "seed 1, 2 workers: 0.000@5.0 0.967@35.1" <<<"$out" || fail "seed 1 evaluations"
 grep -qxF "seed 2, 15 workers: none" <<<"$out" || fail "a run without a log"
@@ -56,6 +59,7 @@ grep -qxF "15 workers: 13864 - - - (median 13864)" <<<"$out" || fail "updates at
 # A tighter bound counts fewer seeds.
 out=$(RATIO_AT_MOST=0.2 bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "bound: $out"
 grep -qF "15 workers within 0.2 of 2 workers' time: 1 of 4 seeds" <<<"$out" || fail "RATIO_AT_MOST 0.2: $out"
+grep -qF "at most 0.2 by a sign test over 4 seeds: 1 within, p = 0.9375" <<<"$out" || fail "sign test, 0.2: $out"
 # Errors name what is wrong and exit 2.
 set +e
 err=$(bs "$T/kaya.txtpb" "1 5" "2 15" "$T/out" 2>&1); rc=$?
