@@ -1,6 +1,8 @@
 #include "config.h"
 #include "config_validator.h"
 #include "task_spec.h"
+#include "terms/mjcf_bundle.h"
+#include "terms/terms_check.h"
 
 #include <google/protobuf/io/tokenizer.h>
 #include <google/protobuf/text_format.h>
@@ -212,6 +214,7 @@ void check_task(const Section& s, const config::TaskConfig& t) {
   if (n == "a1") check_legged(s.nest(n, t.a1()), t.a1());
   if (n == "honey_badger") check_legged(s.nest(n, t.honey_badger()), t.honey_badger());
   if (n == "silver_badger") check_legged(s.nest(n, t.silver_badger()), t.silver_badger());
+  if (n == "terms") robots::terms::check_terms(s.nest(n, t.terms()), t.terms());
 }
 
 // Algorithm sections.
@@ -410,7 +413,8 @@ void check_in_code(const Msg& msg, const std::string& path, Check check) {
 
 }  // namespace
 
-config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source) {
+config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
+                                           const std::string& folder) {
   config::ExperimentConfig cfg;
   pb::TextFormat::Parser parser;
   Collector errors(source);
@@ -421,8 +425,24 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
     throw ConfigError(errors.first().empty() ? source + ": cannot parse config" : errors.first());
   }
   Validator v(source, &tree);
+  // A task of terms names its model by a path relative to the config file: the model's files are
+  // read here, once, and travel in the config from then on.
+  const auto& given = cfg.task().terms();
+  if (!folder.empty() && cfg.task().name() == "terms" && given.model_files_size() == 0 && !given.model().empty()) {
+    auto* terms = cfg.mutable_task()->mutable_terms();
+    const Section t = Section(v, cfg, "").nest("task", cfg.task()).nest("terms", cfg.task().terms());
+    try {
+      robots::terms::read_model_folder(folder + "/" + terms->model(), terms);
+    } catch (const robots::terms::ModelError& e) {
+      t.fail("model", e.what());
+    }
+  }
   validate(cfg, v);
   return cfg;
+}
+
+config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source) {
+  return parse_config_text(text, source, "");
 }
 
 void check_config(const config::PendulumConfig& c) { check_in_code(c, "task.pendulum", check_pendulum); }

@@ -38,6 +38,10 @@ config::ExperimentConfig load_config_file(const std::string& path);
 // the names `algorithm` may take.
 std::vector<std::string> algorithm_sections();
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source);
+// The same for the text of a config file in `folder`: a task of terms' model (task.terms.model,
+// relative to that folder) is read with the files it names into task.terms.model_files.
+config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
+                                           const std::string& folder);
 
 // Fields that name a file the process building the task writes (today task.mclari.hfield_png):
 // the set ones, by path ("task.mclari.hfield_png"), and a way to clear them all.

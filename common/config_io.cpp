@@ -80,7 +80,8 @@ config::ExperimentConfig load_config_file(const std::string& path) {
   if (!in) throw ConfigError(path + ": cannot open config file");
   std::stringstream ss;
   ss << in.rdbuf();
-  return parse_config_text(ss.str(), path);
+  const size_t slash = path.find_last_of('/');
+  return parse_config_text(ss.str(), path, slash == std::string::npos ? "." : path.substr(0, slash));
 }
 
 std::string config_to_text(const config::ExperimentConfig& cfg) {

@@ -63,13 +63,14 @@ class Validator {
   }
 
   // Location trees of nested messages, found by identity of the message object.
-  void nest(const pb::Message& parent, const std::string& field, const pb::Message& child) {
+  // index: the entry of a repeated message field (-1 for a singular one).
+  void nest(const pb::Message& parent, const std::string& field, const pb::Message& child, int index = -1) {
     const Node p = node_for(parent);
     const pb::FieldDescriptor* fd = parent.GetDescriptor()->FindFieldByName(field);
     Node n{&child, nullptr, {}};
     if (p.tree && fd) {
-      n.tree = p.tree->GetTreeForNested(fd, -1);
-      n.at = p.tree->GetLocation(fd, -1);
+      n.tree = p.tree->GetTreeForNested(fd, index);
+      n.at = p.tree->GetLocation(fd, index);
     }
     nodes_.push_back(n);
   }
@@ -91,7 +92,7 @@ class Validator {
   std::vector<Node> nodes_;
 };
 
-std::string num(double v) {
+inline std::string num(double v) {
   std::ostringstream o;
   o << v;
   return o.str();
@@ -107,6 +108,12 @@ class Section {
   Section nest(const std::string& field, const pb::Message& child) const {
     v_.nest(msg_, field, child);
     return Section(v_, child, path_of(field));
+  }
+  // Entry `index` of the repeated message field `field`, e.g. terms.nest_at("reward", 2, r): its
+  // path reads "task.terms.reward[2]".
+  Section nest_at(const std::string& field, int index, const pb::Message& child) const {
+    v_.nest(msg_, field, child, index);
+    return Section(v_, child, path_of(field) + "[" + std::to_string(index) + "]");
   }
   std::string path_of(const std::string& field) const { return path_.empty() ? field : path_ + "." + field; }
 

@@ -5,6 +5,8 @@
 
 #include <stdexcept>
 
+#include "terms/terms_spec.h"
+
 namespace farm::robots {
 
 namespace {
@@ -66,6 +68,7 @@ TaskSpec task_spec(const config::TaskConfig& cfg) {
   if (n == "a1") return legged(n, cfg.a1(), false, false);
   if (n == "honey_badger") return legged(n, cfg.honey_badger(), false, true);
   if (n == "silver_badger") return legged(n, cfg.silver_badger(), true, true);
+  if (n == "terms") return terms::task_spec(cfg.terms());
   throw std::invalid_argument("no task spec for task '" + n + "'");
 }
 

@@ -8,6 +8,7 @@ PACKAGES=(
   libmujoco-dev libqhull-dev                        # MuJoCo 2.2.2 (its CMake target needs qhull)
   libgl-dev libopengl-dev libglx-dev                # ... and OpenGL (find_dependency in mujocoConfig.cmake)
   libeigen3-dev libprotobuf-dev protobuf-compiler
+  libtinyxml2-dev libmuparser-dev                   # the task of terms: its MJCF scan and reward expressions
   libtorch-dev libopenblas0-pthread                 # without OpenBLAS LibTorch is ~6x slower
   libgtest-dev libbenchmark-dev
   zlib1g-dev python3-matplotlib                   # mCLARI height-field PNG, sweep plots

@@ -24,12 +24,14 @@ for d in eigen3 google mujoco fastdds fastrtps fastcdr foonathan_memory gtest gm
   cp -a /usr/include/$d "$kit/include/"
 done
 cp -a /usr/include/libqhull_r "$kit/include/" 2>/dev/null || true
+# The task of terms' MJCF scan (tinyxml2) and reward expressions (muparser).
+cp -a /usr/include/tinyxml2.h /usr/include/muParser*.h "$kit/include/"
 # Multiarch headers (fastcdr/config.h, fastrtps/config.h).
 cp -a /usr/include/x86_64-linux-gnu/fastcdr /usr/include/x86_64-linux-gnu/fastrtps "$kit/include/" 2>/dev/null || true
 # Shared libraries with their soname links; GoogleTest is static.
 for pat in 'libprotobuf.so*' 'libprotoc.so*' 'libmujoco.so*' 'libccd.so*' 'liblodepng.so*' \
            'libqhull_r.so*' 'libtinyxml2.so*' 'libfastrtps.so*' 'libfastcdr.so*' \
-           'libfoonathan_memory*.so*' 'libgtest*.a' 'libgmock*.a'; do
+           'libfoonathan_memory*.so*' 'libgtest*.a' 'libgmock*.a' 'libmuparser.so*'; do
   cp -a $arch/$pat "$kit/lib/" 2>/dev/null || true
 done
 cp /usr/bin/protoc "$kit/bin/protoc"
@@ -81,6 +83,8 @@ set($1_FOUND TRUE)
 EOF
 }
 imported mujoco mujoco::mujoco "$(readlink $arch/libmujoco.so)" ""
+imported tinyxml2 tinyxml2::tinyxml2 "$(readlink $arch/libtinyxml2.so)" ""
+imported muparser muparser::muparser "$(readlink $arch/libmuparser.so)" ""
 imported fastcdr fastcdr "$(readlink $arch/libfastcdr.so)" ""
 imported fastrtps fastrtps "$(readlink $arch/libfastrtps.so)" "fastcdr"
 sed -i '1a include("${CMAKE_CURRENT_LIST_DIR}/../fastcdr/fastcdrConfig.cmake")' "$kit/cmake/fastrtps/fastrtpsConfig.cmake"

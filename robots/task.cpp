@@ -9,6 +9,7 @@
 #include "mobile/mobile_task.h"
 #include "pendulum/pendulum_task.h"
 #include "quadruped/quadruped_task.h"
+#include "terms/terms_task.h"
 
 namespace farm::robots {
 
@@ -37,6 +38,7 @@ const Registration kTasks[] = {
     {"a1", &quadruped::make_a1_task},
     {"honey_badger", &quadruped::make_honey_badger_task},
     {"silver_badger", &quadruped::make_silver_badger_task},
+    {"terms", &terms::make_terms_task},
 };
 
 }  // namespace

@@ -1,0 +1,16 @@
+// The loader's checks of task.terms (common/config.cpp calls them for a task named "terms").
+#pragma once
+
+#include "farm_config.pb.h"
+
+namespace farm::config_checks {
+class Section;
+}
+
+namespace farm::robots::terms {
+
+// Every range, term name, term parameter and model name of the section; the model bundle too
+// (model_files filled). Fails through the Section: FILE:LINE:COL and the field's path.
+void check_terms(const config_checks::Section& s, const config::TermsConfig& c);
+
+}  // namespace farm::robots::terms

@@ -1,0 +1,342 @@
+// The library of terms. Each term is one function; terms_catalogue.def lists it by name, with what
+// its `names` select and the parameters it reads (checked by the loader, terms_check.cpp).
+#include "terms/terms_library.h"
+
+#include <muParser.h>
+#include <mujoco/mujoco.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace farm::robots::terms {
+
+void body_velocity(const mjModel* m, const mjData* d, int body, bool local, double ang[3], double lin[3]) {
+  mjtNum res[6];
+  mj_objectVelocity(m, d, mjOBJ_BODY, body, res, local ? 1 : 0);
+  for (int i = 0; i < 3; ++i) {
+    ang[i] = res[i];
+    lin[i] = res[3 + i];
+  }
+}
+
+void projected_gravity(const mjData* d, int body, double out[3]) {
+  // R^T (0, 0, -1): minus the third row of the body's rotation matrix.
+  const mjtNum* r = d->xmat + 9 * body;
+  out[0] = -r[6];
+  out[1] = -r[7];
+  out[2] = -r[8];
+}
+
+void body_contact_force(const mjModel* m, const mjData* d, const std::vector<int>& geoms, double out[3]) {
+  out[0] = out[1] = out[2] = 0;
+  for (int c = 0; c < d->ncon; ++c) {
+    const mjContact& con = d->contact[c];
+    const bool g1 = std::find(geoms.begin(), geoms.end(), con.geom1) != geoms.end();
+    const bool g2 = std::find(geoms.begin(), geoms.end(), con.geom2) != geoms.end();
+    if (g1 == g2) continue;  // neither, or both (a body touching itself)
+    mjtNum f6[6];
+    mj_contactForce(m, d, c, f6);
+    // f6 is in the contact frame (rows of con.frame); to the world: frame^T f. The force acts on
+    // geom2 along the normal: on geom1's body it is the opposite.
+    double w[3] = {0, 0, 0};
+    for (int i = 0; i < 3; ++i)
+      for (int k = 0; k < 3; ++k) w[i] += con.frame[3 * k + i] * f6[k];
+    const double sign = g2 ? 1.0 : -1.0;
+    for (int i = 0; i < 3; ++i) out[i] += sign * w[i];
+  }
+}
+
+bool body_touches_other(const mjModel* m, const mjData* d, int body) {
+  for (int c = 0; c < d->ncon; ++c) {
+    const int b1 = m->geom_bodyid[d->contact[c].geom1], b2 = m->geom_bodyid[d->contact[c].geom2];
+    if ((b1 == body) != (b2 == body)) return true;
+  }
+  return false;
+}
+
+namespace {
+
+// Contact forces above this (N) count as a touch (legged_gym's contact threshold).
+constexpr double kTouchForce = 1.0;
+// legged_gym's collision term counts bodies with contact force above this (N).
+constexpr double kCollisionForce = 0.1;
+
+bool local(const std::string& frame) { return frame == "local"; }
+
+// Observation terms: raw values; the task applies offset, scale, noise and clip.
+
+void obs_joint_pos(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = c.d->qpos[c.m->jnt_qposadr[b.ids[i]]];
+}
+void obs_joint_pos_rel(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) {
+    const int a = c.m->jnt_qposadr[b.ids[i]];
+    out[i] = c.d->qpos[a] - c.task.default_qpos()[a];
+  }
+}
+void obs_joint_vel(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = c.d->qvel[c.m->jnt_dofadr[b.ids[i]]];
+}
+void obs_qpos(const Ctx& c, const ObsBinding& b, double* out) {
+  for (int i = b.cfg->skip(); i < c.m->nq; ++i) out[i - b.cfg->skip()] = c.d->qpos[i];
+}
+void obs_qvel(const Ctx& c, const ObsBinding& b, double* out) {
+  for (int i = b.cfg->skip(); i < c.m->nv; ++i) out[i - b.cfg->skip()] = c.d->qvel[i];
+}
+void obs_body_pos(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i)
+    for (int k = 0; k < 3; ++k) out[3 * i + k] = c.d->xpos[3 * b.ids[i] + k];
+}
+void obs_body_height(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = c.d->xpos[3 * b.ids[i] + 2];
+}
+void obs_body_quat(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i)
+    for (int k = 0; k < 4; ++k) out[4 * i + k] = c.d->xquat[4 * b.ids[i] + k];
+}
+void obs_body_lin_vel(const Ctx& c, const ObsBinding& b, double* out) {
+  double ang[3];
+  for (size_t i = 0; i < b.ids.size(); ++i) body_velocity(c.m, c.d, b.ids[i], local(b.cfg->frame()), ang, out + 3 * i);
+}
+void obs_body_ang_vel(const Ctx& c, const ObsBinding& b, double* out) {
+  double lin[3];
+  for (size_t i = 0; i < b.ids.size(); ++i) body_velocity(c.m, c.d, b.ids[i], local(b.cfg->frame()), out + 3 * i, lin);
+}
+void obs_projected_gravity(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) projected_gravity(c.d, b.ids[i], out + 3 * i);
+}
+void obs_sensor(const Ctx& c, const ObsBinding& b, double* out) {
+  int k = 0;
+  for (int s : b.ids)
+    for (int i = 0; i < c.m->sensor_dim[s]; ++i) out[k++] = c.d->sensordata[c.m->sensor_adr[s] + i];
+}
+void obs_last_action(const Ctx& c, const ObsBinding&, double* out) {
+  std::copy(c.s.last_action.begin(), c.s.last_action.end(), out);
+}
+void obs_command(const Ctx& c, const ObsBinding&, double* out) {
+  std::copy(c.s.command.begin(), c.s.command.end(), out);
+}
+void obs_contact(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = body_touches_other(c.m, c.d, b.ids[i]) ? 1.0 : 0.0;
+}
+
+// Reward terms: the value before the weight.
+
+double rew_alive(const Ctx&, const RewardBinding&) { return 1.0; }
+double rew_forward_progress(const Ctx& c, const RewardBinding& b) {
+  const int ax = b.cfg->axis(), body = b.ids[0];
+  return (c.d->xpos[3 * body + ax] - c.s.xpos_before[3 * body + ax]) / c.task.agent_dt();
+}
+// A slide joint's displacement over the step, per second: Gymnasium's x_velocity of its planar
+// models (HalfCheetah, Hopper, Walker2d: qpos[0] after minus before, over dt). The first joint named.
+double rew_joint_progress(const Ctx& c, const RewardBinding& b) {
+  const int a = c.m->jnt_qposadr[b.ids[0]];
+  return (c.d->qpos[a] - c.s.qpos_before[a]) / c.task.agent_dt();
+}
+double rew_body_velocity(const Ctx& c, const RewardBinding& b) {
+  double ang[3], lin[3];
+  body_velocity(c.m, c.d, b.ids[0], local(b.cfg->frame()), ang, lin);
+  return lin[b.cfg->axis()];
+}
+double rew_ctrl_cost(const Ctx& c, const RewardBinding&) {
+  double s = 0;
+  for (double a : c.s.action) s += a * a;
+  return s;
+}
+double rew_torque_cost(const Ctx& c, const RewardBinding&) {
+  double s = 0;
+  for (int i = 0; i < c.m->nu; ++i) s += c.d->actuator_force[i] * c.d->actuator_force[i];
+  return s;
+}
+double rew_action_rate(const Ctx& c, const RewardBinding&) {
+  double s = 0;
+  for (size_t i = 0; i < c.s.action.size(); ++i) s += std::pow(c.s.action[i] - c.s.last_action[i], 2);
+  return s;
+}
+double rew_upright(const Ctx& c, const RewardBinding& b) { return c.d->xmat[9 * b.ids[0] + 8]; }
+double rew_height(const Ctx& c, const RewardBinding& b) {
+  return std::pow(c.d->xpos[3 * b.ids[0] + 2] - b.cfg->target(), 2);
+}
+double rew_lin_vel_tracking(const Ctx& c, const RewardBinding& b) {
+  double ang[3], lin[3];
+  body_velocity(c.m, c.d, b.ids[0], true, ang, lin);
+  const double e = std::pow(c.s.command[0] - lin[0], 2) + std::pow(c.s.command[1] - lin[1], 2);
+  return std::exp(-e / b.cfg->sigma());
+}
+double rew_ang_vel_tracking(const Ctx& c, const RewardBinding& b) {
+  double ang[3], lin[3];
+  body_velocity(c.m, c.d, b.ids[0], true, ang, lin);
+  return std::exp(-std::pow(c.s.command[2] - ang[2], 2) / b.cfg->sigma());
+}
+double rew_lin_vel_z(const Ctx& c, const RewardBinding& b) {
+  double ang[3], lin[3];
+  body_velocity(c.m, c.d, b.ids[0], true, ang, lin);
+  return lin[2] * lin[2];
+}
+double rew_ang_vel_xy(const Ctx& c, const RewardBinding& b) {
+  double ang[3], lin[3];
+  body_velocity(c.m, c.d, b.ids[0], true, ang, lin);
+  return ang[0] * ang[0] + ang[1] * ang[1];
+}
+double rew_orientation(const Ctx& c, const RewardBinding& b) {
+  double g[3];
+  projected_gravity(c.d, b.ids[0], g);
+  return g[0] * g[0] + g[1] * g[1];
+}
+double rew_joint_limits(const Ctx& c, const RewardBinding& b) {
+  // legged_gym's dof_pos_limits: how far each joint is outside the middle `target` share of its range.
+  double s = 0;
+  for (int j : b.ids) {
+    const double lo = c.m->jnt_range[2 * j], hi = c.m->jnt_range[2 * j + 1];
+    const double mid = 0.5 * (lo + hi), half = 0.5 * (hi - lo) * b.cfg->target();
+    const double q = c.d->qpos[c.m->jnt_qposadr[j]];
+    s += std::max(0.0, (mid - half) - q) + std::max(0.0, q - (mid + half));
+  }
+  return s;
+}
+double rew_joint_vel_cost(const Ctx& c, const RewardBinding& b) {
+  double s = 0;
+  for (int j : b.ids) s += std::pow(c.d->qvel[c.m->jnt_dofadr[j]], 2);
+  return s;
+}
+double rew_joint_acc(const Ctx& c, const RewardBinding& b) {
+  double s = 0;
+  const double dt = c.task.agent_dt();
+  for (int j : b.ids) {
+    const int a = c.m->jnt_dofadr[j];
+    s += std::pow((c.s.last_qvel[a] - c.d->qvel[a]) / dt, 2);
+  }
+  return s;
+}
+double rew_contact_forces(const Ctx& c, const RewardBinding& b) {
+  double s = 0, f[3];
+  for (size_t i = 0; i < b.ids.size(); ++i) {
+    body_contact_force(c.m, c.d, c.task.body_geoms(b.ids[i]), f);
+    s += std::max(0.0, std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) - b.cfg->threshold());
+  }
+  return s;
+}
+double rew_collision(const Ctx& c, const RewardBinding& b) {
+  double n = 0, f[3];
+  for (int body : b.ids) {
+    body_contact_force(c.m, c.d, c.task.body_geoms(body), f);
+    n += std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) > kCollisionForce ? 1 : 0;
+  }
+  return n;
+}
+double rew_feet_air_time(const Ctx& c, const RewardBinding& b) {
+  // legged_gym's feet_air_time: on the step a foot lands, the time it spent in the air beyond
+  // `threshold`; only under a moving command. A contact counts on its step and the one after.
+  auto& air = c.s.air_time[b.slot];
+  auto& last = c.s.last_contact[b.slot];
+  const double dt = c.task.agent_dt();
+  double r = 0, f[3];
+  for (size_t i = 0; i < b.ids.size(); ++i) {
+    body_contact_force(c.m, c.d, c.task.body_geoms(b.ids[i]), f);
+    const bool contact = f[2] > kTouchForce;
+    const bool filt = contact || last[i];
+    const bool first = air[i] > 0 && filt;
+    air[i] += dt;
+    r += (air[i] - b.cfg->threshold()) * (first ? 1 : 0);
+    if (filt) air[i] = 0;
+    last[i] = contact;
+  }
+  return std::hypot(c.s.command[0], c.s.command[1]) > 0.1 ? r : 0.0;
+}
+double rew_expression(const Ctx& c, const RewardBinding& b) { return c.s.parsers[b.slot]->Eval(); }
+
+// Termination terms.
+
+bool end_body_contact(const Ctx& c, const TerminationBinding& b) {
+  for (int body : b.ids)
+    if (body_touches_other(c.m, c.d, body)) return true;
+  return false;
+}
+bool end_height(const Ctx& c, const TerminationBinding& b) {
+  const double z = c.d->xpos[3 * b.ids[0] + 2];
+  return !(z >= b.cfg->min() && z <= b.cfg->max());
+}
+bool end_orientation(const Ctx& c, const TerminationBinding& b) { return c.d->xmat[9 * b.ids[0] + 8] < b.cfg->min(); }
+bool end_non_finite(const Ctx& c, const TerminationBinding& b) {
+  for (int i = 0; i < c.m->nv; ++i)
+    if (!std::isfinite(c.d->qvel[i]) || std::abs(c.d->qvel[i]) > b.cfg->max()) return true;
+  for (int i = 0; i < c.m->nq; ++i)
+    if (!std::isfinite(c.d->qpos[i])) return true;
+  return false;
+}
+
+template <typename Fn>
+struct Entry {
+  const char* name;
+  Fn fn;
+};
+const Entry<ObsFn> kObs[] = {
+#define OBS(name, names, size, params) {#name, &obs_##name},
+#include "terms/terms_catalogue.def"
+#undef OBS
+};
+const Entry<RewardFn> kRewards[] = {
+#define REWARD(name, names, params) {#name, &rew_##name},
+#include "terms/terms_catalogue.def"
+#undef REWARD
+};
+const Entry<TerminationFn> kTerminations[] = {
+#define TERMINATION(name, names, params) {#name, &end_##name},
+#include "terms/terms_catalogue.def"
+#undef TERMINATION
+};
+
+template <typename Fn, size_t N>
+Fn lookup(const Entry<Fn> (&table)[N], const std::string& name, const char* what) {
+  for (const auto& e : table)
+    if (name == e.name) return e.fn;
+  throw std::invalid_argument(std::string("unknown ") + what + " term '" + name + "'");
+}
+
+Names names_of(const std::vector<TermInfo>& list, const std::string& name) {
+  for (const auto& t : list)
+    if (name == t.name) return t.names;
+  return Names::None;
+}
+
+}  // namespace
+
+void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel* m, int root, Bound& out) {
+  out.targets = action_targets(cfg, info);
+  const int act_dim = int(out.targets.size());
+  if (cfg.action().type() == "position") {
+    for (int j : out.targets) {
+      out.target_dofs.push_back(m->jnt_dofadr[j]);
+      out.target_qpos.push_back(m->jnt_qposadr[j]);
+      int act = -1;
+      for (int a = 0; a < m->nu; ++a)
+        if (m->actuator_trntype[a] == mjTRN_JOINT && m->actuator_trnid[2 * a] == j) act = a;
+      if (act < 0) throw std::invalid_argument("task.terms.action: joint " + info.joints[j].name + " has no actuator");
+      out.target_actuator.push_back(act);
+    }
+  }
+  for (const auto& o : cfg.observation()) {
+    ObsBinding b{&o, lookup(kObs, o.term(), "observation"), {}, observation_size(o, info, root, act_dim)};
+    const Names k = names_of(observation_terms(), o.term());
+    if (k != Names::None) b.ids = select(k, o.names(), info, root);
+    out.obs.push_back(std::move(b));
+  }
+  for (int i = 0; i < cfg.reward_size(); ++i) {
+    const auto& r = cfg.reward(i);
+    RewardBinding b{&r, lookup(kRewards, r.term(), "reward"), {}, i};
+    const Names k = names_of(reward_terms(), r.term());
+    if (k != Names::None) b.ids = select(k, r.names(), info, root);
+    out.rewards.push_back(std::move(b));
+  }
+  for (const auto& t : cfg.termination()) {
+    TerminationBinding b{&t, lookup(kTerminations, t.term(), "termination"), {}};
+    const Names k = names_of(termination_terms(), t.term());
+    if (k != Names::None) b.ids = select(k, t.names(), info, root);
+    out.terminations.push_back(std::move(b));
+  }
+  out.body_geoms.assign(m->nbody, {});
+  for (int g = 0; g < m->ngeom; ++g) out.body_geoms[m->geom_bodyid[g]].push_back(g);
+}
+
+}  // namespace farm::robots::terms

@@ -1,0 +1,70 @@
+// The term functions of the task of terms and how a config's entries bind to them. Each term is one
+// function over the step's context; terms_catalogue.def registers it by name.
+#pragma once
+
+#include <vector>
+
+#include "terms/terms_spec.h"
+#include "terms/terms_task.h"
+
+struct mjModel_;
+struct mjData_;
+
+namespace farm::robots::terms {
+
+struct Ctx {
+  const mjModel_* m;
+  const mjData_* d;
+  TermsState& s;
+  const TermsTask& task;
+};
+
+struct ObsBinding;
+struct RewardBinding;
+struct TerminationBinding;
+using ObsFn = void (*)(const Ctx&, const ObsBinding&, double* out);
+using RewardFn = double (*)(const Ctx&, const RewardBinding&);
+using TerminationFn = bool (*)(const Ctx&, const TerminationBinding&);
+
+struct ObsBinding {
+  const config::ObsTerm* cfg;
+  ObsFn fn;
+  std::vector<int> ids;  // joints, bodies or sensors selected by names
+  int size = 0;
+};
+struct RewardBinding {
+  const config::RewardTerm* cfg;
+  RewardFn fn;
+  std::vector<int> ids;
+  int slot = 0;  // index among the task's reward terms (its state slots)
+};
+struct TerminationBinding {
+  const config::TerminationTerm* cfg;
+  TerminationFn fn;
+  std::vector<int> ids;
+};
+
+struct Bound {
+  std::vector<int> targets;          // driven joints ("position") or actuators ("actuator")
+  std::vector<int> target_dofs;      // "position": each joint's dof address
+  std::vector<int> target_qpos;      // "position": each joint's qpos address
+  std::vector<int> target_actuator;  // "position": the actuator driving each joint
+  std::vector<ObsBinding> obs;
+  std::vector<RewardBinding> rewards;
+  std::vector<TerminationBinding> terminations;
+  std::vector<std::vector<int>> body_geoms;  // geoms of each body (contact terms)
+};
+
+// Binds the config's terms to the model: the functions by name, the names to ids. Throws
+// std::invalid_argument for a name the library lacks.
+void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel_* m, int root, Bound& out);
+
+// Library helpers the terms share (public for tests).
+void body_velocity(const mjModel_* m, const mjData_* d, int body, bool local, double ang[3], double lin[3]);
+void projected_gravity(const mjData_* d, int body, double out[3]);
+// Net contact force on a body (world frame, summed over its contacts).
+void body_contact_force(const mjModel_* m, const mjData_* d, const std::vector<int>& geoms, double out[3]);
+// True when a geom of the body touches a geom of another body.
+bool body_touches_other(const mjModel_* m, const mjData_* d, int body);
+
+}  // namespace farm::robots::terms
