@@ -298,7 +298,7 @@ ModelInfo scan_model(const config::TermsConfig& cfg) {
   };
 
   ModelInfo info;
-  info.bodies.push_back("");
+  info.bodies.push_back("world");  // MuJoCo names body 0 so
   const std::function<void(const x::XMLElement*, const std::string&)> body = [&](const x::XMLElement* b,
                                                                                  const std::string& inherited) {
     const std::string cls = b->Attribute("childclass") ? b->Attribute("childclass") : inherited;

@@ -55,7 +55,7 @@ struct SensorInfo {
   int dim = 0;
 };
 struct ModelInfo {
-  std::vector<std::string> bodies;  // the world (body 0) first, named ""
+  std::vector<std::string> bodies;  // the world (body 0, "world") first
   std::vector<JointInfo> joints;
   std::vector<std::string> geoms;
   std::vector<std::string> actuators;

@@ -2,7 +2,8 @@
 // determinism test over all its registered environments: the suite is instantiated over
 // task_names(), so a robot added to the registry is checked with no edit here. Each task is built
 // from a TaskConfig that names it and sets nothing else (the config defaults), plus the option
-// variants listed in variant_cases() that change the action space.
+// variants listed in variant_cases() that change the action space. The task of terms ("terms") has
+// no default model: it is checked with every shipped config of it in deploy/configs/ instead.
 //
 // What is checked, per task:
 //   - the same seed gives bit-identical observations, rewards and ends, across two Task instances
@@ -21,6 +22,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <filesystem>
 #include <memory>
 #include <ostream>
 #include <random>
@@ -29,6 +31,7 @@
 #include <string>
 #include <vector>
 
+#include "config.h"
 #include "task.h"
 
 namespace farm::robots {
@@ -44,6 +47,7 @@ void PrintTo(const TaskCase& c, std::ostream* os) { *os << c.label; }
 std::vector<TaskCase> default_cases() {
   std::vector<TaskCase> cases;
   for (const auto& name : task_names()) {
+    if (name == "terms") continue;  // terms_cases()
     TaskCase c{name, {}};
     c.config.set_name(name);
     cases.push_back(c);
@@ -59,6 +63,18 @@ std::vector<TaskCase> variant_cases() {
   kaya.config.set_name("kaya");
   kaya.config.mutable_kaya()->mutable_scene()->set_discrete_actions(false);
   return {jetbot, kaya};
+}
+
+// Every shipped config of the task of terms, loaded as the learner loads it (its model read into it).
+std::vector<TaskCase> terms_cases() {
+  std::vector<TaskCase> cases;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
+    if (e.path().extension() != ".txtpb") continue;
+    const auto cfg = load_config_file(e.path().string());
+    if (cfg.task().name() == "terms") cases.push_back({"terms_" + e.path().stem().string(), cfg.task()});
+  }
+  std::sort(cases.begin(), cases.end(), [](const TaskCase& a, const TaskCase& b) { return a.label < b.label; });
+  return cases;
 }
 
 // Entries past the end of every output buffer; they must keep the sentinel.
@@ -366,6 +382,8 @@ TEST_P(TaskConformance, DiscreteIndicesOutOfRangeAreRefused) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Registered, TaskConformance, ::testing::ValuesIn(default_cases()),
+                         [](const auto& info) { return info.param.label; });
+INSTANTIATE_TEST_SUITE_P(TermsConfigs, TaskConformance, ::testing::ValuesIn(terms_cases()),
                          [](const auto& info) { return info.param.label; });
 INSTANTIATE_TEST_SUITE_P(Variants, TaskConformance, ::testing::ValuesIn(variant_cases()),
                          [](const auto& info) { return info.param.label; });
