@@ -221,7 +221,7 @@ void check_bundle(const config::TermsConfig& cfg) {
   for (const auto& f : cfg.model_files()) {
     if (!path_inside_folder(f.path()) || normalize(f.path()) != f.path())
       throw ModelError("task.terms.model_files: '" + f.path() +
-                       "' is an absolute path, leaves its folder or is not in normal form; refused");
+                       "' is an absolute path or leaves its folder, or is not in normal form; refused");
     if (!bases.insert(base_name(f.path())).second)
       throw ModelError("task.terms.model_files: two files named '" + base_name(f.path()) +
                        "' (MuJoCo's virtual file system keys files by their base name)");

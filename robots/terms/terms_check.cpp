@@ -96,7 +96,8 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
   try {
     check_bundle(c);
   } catch (const ModelError& e) {
-    s.fail(c.model_files_size() > 0 && c.model().empty() ? "model_files" : "model", e.what());
+    const bool files = std::string(e.what()).rfind("task.terms.model_files", 0) == 0;
+    s.fail(files ? "model_files" : "model", e.what());
   }
   ModelInfo m;
   try {

@@ -4,7 +4,9 @@
 # no file appears; a learner whose own config names one writes none (it builds no task) and says
 # so, publishes the spec without it, and its worker joins. Sizes are bounded before anything is allocated: a spec
 # asking for a million steps per batch is refused, and so are --envs and --threads beyond their
-# bounds; an experiment id that would name another folder is refused.
+# bounds; an experiment id that would name another folder is refused. A task of terms' model from the
+# bus is never a path: a forged spec whose model, or one of its model files, names an absolute path
+# or '..' is refused by the worker before anything is read, naming the path.
 #   tests/integration/test_bus_config.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
@@ -53,5 +55,30 @@ out=$(timeout 10 "$worker" --threads 5000 2>&1); rc=$?
 printf 'experiment_id: ".."\ntask { name: "pendulum" }\n' >"$dir/dots.txtpb"
 out=$(timeout 20 "$learner" --config "$dir/dots.txtpb" --run-dir "$dir/dots" 2>&1); rc=$?
 [ $rc = 2 ] && grep -q "is not a name for a run folder" <<<"$out" || fail "experiment_id \"..\": rc $rc, '$out'"
+
+# 5. A task of terms whose bundled model names a path on the worker's host: the model file itself
+#    (a real MJCF on this host, absolute) and a bundled file under '..'.
+for n in 1 2; do
+  if [ $n = 1 ]; then
+    model="$src/deploy/configs/models/half_cheetah/half_cheetah.xml" file="$model"
+  else
+    model="robot.xml" file="../robot.xml"
+  fi
+  cat >"$dir/terms$n.txtpb" <<EOF
+experiment_id: "it_terms$n"
+task { name: "terms" terms {
+  model: "$model"
+  model_files { path: "$file" data: "<mujoco><worldbody><body><joint name='j' type='slide'/><geom size='0.1'/></body></worldbody><actuator><motor joint='j'/></actuator></mujoco>" }
+  observation { term: "qpos" }
+} }
+EOF
+  "$intruder" --domain $((domain + 3 + n)) --experiment it_terms$n --id impostor-t$n --obs 1 --act 1 --seconds 15 \
+    --spec-config "$dir/terms$n.txtpb" >"$dir/impostor-t$n.log" 2>&1 & pids+=($!)
+  "$worker" --domain $((domain + 3 + n)) --id tw$n >"$dir/worker-t$n.log" 2>&1 & twp=$!; pids+=($twp)
+  wait_text "$dir/worker-t$n.log" "is an absolute path or leaves its folder" 20 ||
+    fail "the worker did not refuse a model naming '$file': $(tail -5 "$dir/worker-t$n.log")"
+  grep -q "joined experiment 'it_terms$n'" "$dir/worker-t$n.log" && fail "the worker joined a model naming '$file'"
+  kill -9 $twp 2>/dev/null; wait $twp 2>/dev/null
+done
 
 farm_test_end

@@ -197,9 +197,7 @@ TEST(TermsModel, ASpecFromTheBusNamingAPathIsRefusedAndNothingIsRead) {
     const auto c = from_bus(model, {{path, cheetah_xml}});
     const std::string e = bus_error(c);
     EXPECT_NE(e.find("ExperimentSpec(t)"), std::string::npos) << model << " / " << path << ": " << e;
-    EXPECT_TRUE(e.find("is an absolute path or leaves its folder") != std::string::npos ||
-                e.find("leaves its folder or is not in normal form") != std::string::npos)
-        << model << " / " << path << ": " << e;
+    EXPECT_NE(e.find("is an absolute path or leaves its folder"), std::string::npos) << model << " / " << path << ": " << e;
     // The worker's task refuses it too, whatever checked the config before.
     EXPECT_THROW(make_task(c.task()), ModelError) << model << " / " << path;
   }
