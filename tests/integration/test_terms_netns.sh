@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# A robot from a model file and one config, trained by a worker that never saw the file: the
+# walkthrough of docs/ROBOT_FROM_FILES.md over two "hosts" (network namespaces joined by a veth
+# pair, UDP discovery by unicast to the learner, deploy/discovery/peers_udp.xml).
+#   A 10.77.0.1: farm-learner --config my_robot/my_robot.txtpb, run from the user's folder
+#   B 10.77.0.2: farm-worker, run from an empty folder
+# The model's folder is deleted once the learner has read it, so the worker can only have the model
+# from the ExperimentSpec. The run must take the worker's batches with nothing lost and answer its
+# evaluations, and the worker must have joined the experiment of the task of terms.
+#   tests/integration/test_terms_netns.sh LEARNER_BIN WORKER_BIN SOURCE_DIR
+# Needs root (ip netns); exits 77 (skipped) without it.
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") src=$(readlink -f "$3")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init terms-netns 131
+SKIP=77
+A=farm_ta_$$ B=farm_tb_$$ HA=fta$$ HB=ftb$$
+made_ns=0
+before_cleanup() {
+  if [ $made_ns = 1 ]; then ip netns del $A 2>/dev/null; ip netns del $B 2>/dev/null; fi
+}
+if [ "$(id -u)" != 0 ]; then echo "SKIP: network namespaces need root (uid $(id -u))"; exit $SKIP; fi
+command -v ip >/dev/null || { echo "SKIP: the 'ip' tool (Debian package iproute2) is not installed"; exit $SKIP; }
+if ! ip netns add $A 2>"$dir/netns.err"; then echo "SKIP: cannot create a network namespace: $(cat "$dir/netns.err")"; exit $SKIP; fi
+made_ns=1
+set -e
+ip netns add $B
+ip link add $HA type veth peer name $HB
+ip link set $HA netns $A
+ip link set $HB netns $B
+ip -n $A addr add 10.77.0.1/24 dev $HA
+ip -n $B addr add 10.77.0.2/24 dev $HB
+for ns in $A $B; do ip -n $ns link set lo up; done
+ip -n $A link set $HA up
+ip -n $B link set $HB up
+set +e
+unset ROS_DISCOVERY_SERVER FASTRTPS_DEFAULT_PROFILES_FILE FASTDDS_ENVIRONMENT_FILE FARM_SECURITY_DIR
+profiles=$src/deploy/discovery/peers_udp.xml
+
+# The user's folder: the shipped hexapod's config and model, renamed as a robot of their own.
+mkdir -p "$dir/user/my_robot" "$dir/empty"
+cp -r "$src/deploy/configs/models/hexapod" "$dir/user/my_robot/model"
+sed -e 's|experiment_id: "hexapod_sac"|experiment_id: "my_robot"|' \
+    -e 's|model: "models/hexapod/hexapod.xml"|model: "model/hexapod.xml"|' \
+    -e 's|max_seconds: 1800|max_seconds: 25|' -e 's|learning_starts: 5000|learning_starts: 1000|' \
+    -e 's|every_seconds: 30|every_seconds: 8|' "$src/deploy/configs/hexapod_sac.txtpb" >"$dir/user/my_robot/my_robot.txtpb"
+grep -q 'model: "model/hexapod.xml"' "$dir/user/my_robot/my_robot.txtpb" || fail "test set-up: the model line was not rewritten"
+
+(cd "$dir/user" && exec ip netns exec $A "$learner" --config my_robot/my_robot.txtpb --run-dir "$dir/run" \
+  --domain $domain --dds-profiles "$profiles") >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+wait_text "$dir/learner.log" "waiting for workers" 30 || fail "the learner did not start: $(tail -5 "$dir/learner.log")"
+rm -rf "$dir/user/my_robot/model"
+(cd "$dir/empty" && exec ip netns exec $B "$worker" --domain $domain --dds-profiles "$profiles" --id host-b \
+  --envs 8 --threads 1 --log-every 5) >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+wait $lp; rc=$?
+[ $rc = 0 ] || fail "farm-learner exited $rc: $(tail -5 "$dir/learner.log")"
+for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
+grep -q "joined experiment 'my_robot'" "$dir/worker.log" || fail "the worker did not join: $(tail -5 "$dir/worker.log")"
+[ -z "$(ls -A "$dir/empty")" ] || fail "the worker wrote into its folder: $(ls -A "$dir/empty")"
+summary=$(cat "$dir/run/summary.txt" 2>/dev/null)
+echo "$summary"
+grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" ||
+  fail "batch totals: $(grep ^batches <<<"$summary")"
+grep -qE "^evaluations +asked ([1-9][0-9]*), answered \1, lost 0, invalid 0" <<<"$summary" ||
+  fail "evaluations: $(grep ^evaluations <<<"$summary")"
+grep -qE "^worker +host-b session .*lost 0, duplicate 0, invalid 0" <<<"$summary" || fail "worker host-b not in the summary"
+farm_test_end
