@@ -42,6 +42,7 @@ for s in "${seed_list[@]}"; do
 done
 mkdir -p "$out"
 domain=${DOMAIN:-120}
+config_dir=$(cd "$(dirname "$config")" && pwd)
 for s in "${seed_list[@]}"; do
   if [ "${REPORT_ONLY:-0}" = 1 ]; then
     [ -r "$out/seed$s.txt" ] || { echo "bench_seeds: REPORT_ONLY but no run of seed $s in $out (seed$s.txt)" >&2; exit 2; }
@@ -49,8 +50,10 @@ for s in "${seed_list[@]}"; do
   fi
   cfg="$out/seed$s.txtpb"
   # The seed line, the stop block (from its opening line to the first closing brace at column 0),
-  # and the added lines just inside SET_BLOCK's opening line.
-  awk -v seed="$s" -v stop="$stop" -v block="$block" -v lines="$lines" '
+  # the added lines just inside SET_BLOCK's opening line, and a task of terms' model path made
+  # absolute (it is relative to CONFIG's folder, and the copy lives in OUT_DIR).
+  awk -v seed="$s" -v stop="$stop" -v block="$block" -v lines="$lines" -v cdir="$config_dir" '
+    /^[[:space:]]*model: "[^\/]/ { sub(/model: "/, "model: \"" cdir "/"); print; next }
     /^seed:/ { print "seed: " seed; next }
     /^stop \{/ { skipping = 1; if ($0 ~ /\}[[:space:]]*$/) skipping = 0; print "stop { " stop " }"; next }
     skipping { if ($0 ~ /^\}/) skipping = 0; next }
