@@ -425,14 +425,15 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
     throw ConfigError(errors.first().empty() ? source + ": cannot parse config" : errors.first());
   }
   Validator v(source, &tree);
-  // A task of terms names its model by a path relative to the config file: the model's files are
-  // read here, once, and travel in the config from then on.
+  // A task of terms names its model by a path relative to the config file (or an absolute one): the
+  // model's files are read here, once, and travel in the config from then on.
   const auto& given = cfg.task().terms();
   if (!folder.empty() && cfg.task().name() == "terms" && given.model_files_size() == 0 && !given.model().empty()) {
     auto* terms = cfg.mutable_task()->mutable_terms();
     const Section t = Section(v, cfg, "").nest("task", cfg.task()).nest("terms", cfg.task().terms());
     try {
-      robots::terms::read_model_folder(folder + "/" + terms->model(), terms);
+      const std::string& model = terms->model();
+      robots::terms::read_model_folder(model[0] == '/' ? model : folder + "/" + model, terms);
     } catch (const robots::terms::ModelError& e) {
       t.fail("model", e.what());
     }

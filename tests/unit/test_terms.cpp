@@ -145,6 +145,9 @@ TEST(TermsModel, FilesOutsideTheModelsFolderAreRefusedAtTheLearnerNamingThem) {
   EXPECT_EQ(cfg.task().terms().model(), "robot.xml");
   EXPECT_EQ(cfg.task().terms().model_files(1).path(), "parts/slider.xml");
   EXPECT_EQ(make_task(cfg.task())->spec().obs_dim, 1);
+  // A model named by an absolute path is read from there, not from the config's folder.
+  const auto abs = parse_config_text(config_of(ok + "/robot/robot.xml"), "my.txtpb", "/nonexistent");
+  EXPECT_EQ(abs.task().terms().model_files_size(), 2);
 }
 
 TEST(TermsModel, AModelOverItsBoundIsRefusedNamingTheFileAndTheField) {
