@@ -200,7 +200,8 @@ TEST(TermsModel, ASpecFromTheBusNamingAPathIsRefusedAndNothingIsRead) {
     const auto c = from_bus(model, {{path, cheetah_xml}});
     const std::string e = bus_error(c);
     EXPECT_NE(e.find("ExperimentSpec(t)"), std::string::npos) << model << " / " << path << ": " << e;
-    EXPECT_NE(e.find("is an absolute path or leaves its folder"), std::string::npos) << model << " / " << path << ": " << e;
+    EXPECT_NE(e.find("is an absolute path or leaves its folder"), std::string::npos)
+        << model << " / " << path << ": " << e;
     // The worker's task refuses it too, whatever checked the config before.
     EXPECT_THROW(make_task(c.task()), ModelError) << model << " / " << path;
   }
