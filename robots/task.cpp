@@ -2,6 +2,9 @@
 
 #include <mujoco/mujoco.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <stdexcept>
 
 #include "cartpole/cartpole_task.h"
@@ -20,6 +23,31 @@ TaskState::~TaskState() {
 Task::~Task() = default;
 
 void Task::episode_metrics(const TaskState&, float*) const {}
+
+void Task::view(const TaskState&, const mjData*, int, TaskView&) const {}
+
+void command_view(const double command[3], const mjData* pose, int root, TaskView& out) {
+  const mjtNum* x = pose->xmat + 9 * root;
+  const double yaw = std::atan2(x[3], x[0]);
+  const double vx = command[0] * std::cos(yaw) - command[1] * std::sin(yaw);
+  const double vy = command[0] * std::sin(yaw) + command[1] * std::cos(yaw);
+  if (std::hypot(vx, vy) > 1e-3) {
+    ViewMarker arrow;
+    arrow.kind = ViewMarker::kArrow;
+    const mjtNum* p = pose->xpos + 3 * root;
+    for (int k = 0; k < 3; ++k) arrow.pos[k] = arrow.to[k] = p[k];
+    arrow.pos[2] = arrow.to[2] = p[2] + 0.15;
+    arrow.to[0] += vx;
+    arrow.to[1] += vy;
+    arrow.radius = 0.02;
+    const float green[4] = {0.1f, 0.8f, 0.2f, 0.9f};
+    std::copy(green, green + 4, arrow.rgba);
+    out.markers.push_back(arrow);
+  }
+  char text[128];
+  std::snprintf(text, sizeof text, "vx %+.2f vy %+.2f yaw %+.2f", command[0], command[1], command[2]);
+  out.rows.push_back({"command", text});
+}
 
 namespace {
 

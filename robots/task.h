@@ -7,6 +7,7 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "farm_config.pb.h"
@@ -26,6 +27,27 @@ struct TaskState {
   // Called after every physics step inside Task::step when set (farm-play draws its video frames
   // from it at the video's rate, not once per control step). Empty in workers and evaluations.
   std::function<void()> after_physics_step;
+};
+
+// What a viewer (farm-play) shows of an episode besides the model, as the task declares it: the
+// camera's default elevation, a point to keep in the picture with the robot, markers for what the
+// robot goes after, and overlay rows.
+struct ViewMarker {
+  enum Kind { kDisc, kArrow } kind = kDisc;
+  double pos[3] = {0, 0, 0};  // the disc's centre, or the arrow's start (world)
+  double to[3] = {0, 0, 0};   // the arrow's end
+  double radius = 0;          // the disc's radius, or the arrow's width (m)
+  double half_height = 0;     // the disc's half thickness (m)
+  float rgba[4] = {0.9f, 0.1f, 0.1f, 0.7f};
+};
+struct TaskView {
+  double elevation = -10;  // degrees: the camera's default, below the horizon when negative
+  // A point the camera frames together with the robot (a goal), and the scene's half size that
+  // bounds the camera's distance then; unused where frame_extent is 0.
+  double frame_point[3] = {0, 0, 0};
+  double frame_extent = 0;
+  std::vector<ViewMarker> markers;
+  std::vector<std::pair<std::string, std::string>> rows;
 };
 
 struct StepResult {
@@ -56,7 +78,15 @@ class Task {
   virtual StepResult step(TaskState& s, const float* action, float* obs) const = 0;
   // Writes metric_names.size() floats about the episode that just ended.
   virtual void episode_metrics(const TaskState& s, float* out) const;
+  // What a viewer shows of state `s` at `pose` (its kinematics done); `root` is the body the
+  // viewer follows. The default shows nothing but the model.
+  virtual void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const;
 };
+
+// A velocity command (vx, vy in the root's frame, yaw rate) shown as legged robots show it: a green
+// arrow above the root, one second of the command turned to the world by the root's yaw, and an
+// overlay row.
+void command_view(const double command[3], const mjData_* pose, int root, TaskView& out);
 
 // Builds the task named by cfg.name(); throws std::invalid_argument naming the known tasks.
 std::unique_ptr<Task> make_task(const config::TaskConfig& cfg);

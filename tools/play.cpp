@@ -231,7 +231,7 @@ int main(int argc, char** argv) {
           row(left, "return", fmt("%.2f", state->episode_return));
           if (!metrics.empty()) task.episode_metrics(*state, metrics.data());
           for (size_t k = 0; k < metrics.size(); ++k) row(right, spec.metric_names[k], fmt("%.3f", metrics[k]));
-          for (const auto& [name, value] : view.rows(*state)) row(right, name, value);
+          for (const auto& [name, value] : view.rows(*state, pose)) row(right, name, value);
           columns.push_back(left);
           tools::OffscreenRenderer::Overlay column;
           std::istringstream names(right.names), values(right.values);

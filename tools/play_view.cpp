@@ -4,12 +4,6 @@
 #include <cmath>
 #include <cstdio>
 
-#include "mclari/mclari_task.h"
-#include "mclari/phase_groups.h"
-#include "mclari/terrain.h"
-#include "mobile/mobile_task.h"
-#include "quadruped/quadruped_task.h"
-
 namespace farm::tools {
 
 namespace {
@@ -41,12 +35,6 @@ void add_arrow(mjvScene& scn, const mjtNum from[3], const mjtNum to[3], double w
   mjv_initGeom(g, mjGEOM_ARROW, nullptr, nullptr, nullptr, rgba);
   mjv_makeConnector(g, mjGEOM_ARROW, width, from[0], from[1], from[2], to[0], to[1], to[2]);
   g->category = mjCAT_DECOR;
-}
-
-std::string format(const char* f, double a, double b = 0, double c = 0) {
-  char text[128];
-  std::snprintf(text, sizeof text, f, a, b, c);
-  return text;
 }
 
 }  // namespace
@@ -84,20 +72,18 @@ void PlayView::start_episode(const robots::TaskState& s, const mjModel* m, const
     has_floor_ =
         has_floor_ || (m->geom_bodyid[g] == 0 && (m->geom_type[g] == mjGEOM_PLANE || m->geom_type[g] == mjGEOM_HFIELD));
 
-  const auto* mobile = dynamic_cast<const robots::mobile::MobileTask*>(&task_);
-  const auto* legged = dynamic_cast<const robots::quadruped::QuadrupedTask*>(&task_);
-  const auto* mclari = dynamic_cast<const robots::McLariTask*>(&task_);
+  robots::TaskView view;
+  task_.view(s, pose, root_, view);
   if (choice_.distance > 0) {
     distance_ = choice_.distance;
-  } else if (mobile) {
-    const auto& ms = static_cast<const robots::mobile::MobileState&>(s);
-    const double half = mobile->scene().arena_half_size();
-    const double to_goal = std::hypot(ms.map.goal_x - r[0], ms.map.goal_y - r[1]);
+  } else if (view.frame_extent > 0) {
+    const double half = view.frame_extent;
+    const double to_goal = std::hypot(view.frame_point[0] - r[0], view.frame_point[1] - r[1]);
     distance_ = std::clamp(kGoalDistances * to_goal, kMinArenaHalfSizes * half, kMaxArenaHalfSizes * half);
   } else {
     distance_ = kRobotRadii * radius;
   }
-  elevation_ = choice_.elevation != 0 ? choice_.elevation : mobile ? -60 : mclari ? -35 : legged ? -20 : -10;
+  elevation_ = choice_.elevation != 0 ? choice_.elevation : view.elevation;
   target(s, pose, lookat_);
   last_time_ = pose->time;
 }
@@ -105,10 +91,11 @@ void PlayView::start_episode(const robots::TaskState& s, const mjModel* m, const
 void PlayView::target(const robots::TaskState& s, const mjData* pose, double out[3]) const {
   const mjtNum* r = pose->xpos + 3 * root_;
   for (int k = 0; k < 3; ++k) out[k] = r[k];
-  if (dynamic_cast<const robots::mobile::MobileTask*>(&task_)) {
-    const auto& ms = static_cast<const robots::mobile::MobileState&>(s);
-    out[0] = 0.5 * (r[0] + ms.map.goal_x);
-    out[1] = 0.5 * (r[1] + ms.map.goal_y);
+  robots::TaskView view;
+  task_.view(s, pose, root_, view);
+  if (view.frame_extent > 0) {
+    out[0] = 0.5 * (r[0] + view.frame_point[0]);
+    out[1] = 0.5 * (r[1] + view.frame_point[1]);
   }
 }
 
@@ -144,52 +131,23 @@ void PlayView::decorate(const robots::TaskState& s, const mjData* pose, mjvScene
       g->category = mjCAT_DECOR;
     }
   }
-  if (const auto* mobile = dynamic_cast<const robots::mobile::MobileTask*>(&task_)) {
-    // The goal region, a flat red disc on the floor.
-    const auto& ms = static_cast<const robots::mobile::MobileState&>(s);
-    const double radius = mobile->scene().goal_radius();
-    // mjv_initGeom takes a cylinder's size as a model does: radius, half height.
-    const mjtNum size[3] = {radius, 0.002, 0}, pos[3] = {ms.map.goal_x, ms.map.goal_y, 0.002};
-    const float red[4] = {0.9f, 0.1f, 0.1f, 0.7f};
-    add_geom(scn, mjGEOM_CYLINDER, size, pos, red);
-  } else if (dynamic_cast<const robots::quadruped::QuadrupedTask*>(&task_)) {
-    // The velocity command, turned from the base frame to the world by the trunk's yaw, as an
-    // arrow above the trunk one second long.
-    const auto& qs = static_cast<const robots::quadruped::QuadrupedState&>(s);
-    const mjtNum* x = pose->xmat + 9 * root_;
-    const double yaw = std::atan2(x[3], x[0]);
-    const double vx = qs.command[0] * std::cos(yaw) - qs.command[1] * std::sin(yaw);
-    const double vy = qs.command[0] * std::sin(yaw) + qs.command[1] * std::cos(yaw);
-    if (std::hypot(vx, vy) > 1e-3) {
-      const mjtNum* p = pose->xpos + 3 * root_;
-      const mjtNum from[3] = {p[0], p[1], p[2] + 0.15}, to[3] = {p[0] + vx, p[1] + vy, p[2] + 0.15};
-      const float green[4] = {0.1f, 0.8f, 0.2f, 0.9f};
-      add_arrow(scn, from, to, 0.02, green);
+  robots::TaskView view;
+  task_.view(s, pose, root_, view);
+  for (const auto& mk : view.markers) {
+    if (mk.kind == robots::ViewMarker::kArrow) {
+      add_arrow(scn, mk.pos, mk.to, mk.radius, mk.rgba);
+    } else {
+      // mjv_initGeom takes a cylinder's size as a model does: radius, half height.
+      const mjtNum size[3] = {mk.radius, mk.half_height, 0};
+      add_geom(scn, mjGEOM_CYLINDER, size, mk.pos, mk.rgba);
     }
-  } else if (const auto* mclari = dynamic_cast<const robots::McLariTask*>(&task_)) {
-    // The target the microbot walks to: a disc of the radius that counts as reached.
-    const auto& cs = static_cast<const robots::McLariState&>(s);
-    const double radius = mclari->config().target_radius();
-    const double z = mclari->ground_height(cs.target[0], cs.target[1], cs.terrain);
-    const mjtNum size[3] = {radius, 0.1, 0}, pos[3] = {cs.target[0], cs.target[1], z + 0.1};
-    const float red[4] = {0.9f, 0.1f, 0.1f, 0.7f};
-    add_geom(scn, mjGEOM_CYLINDER, size, pos, red);
   }
 }
 
-std::vector<std::pair<std::string, std::string>> PlayView::rows(const robots::TaskState& s) const {
-  if (dynamic_cast<const robots::quadruped::QuadrupedTask*>(&task_)) {
-    const auto& qs = static_cast<const robots::quadruped::QuadrupedState&>(s);
-    return {{"command", format("vx %+.2f vy %+.2f yaw %+.2f", qs.command[0], qs.command[1], qs.command[2])}};
-  }
-  if (dynamic_cast<const robots::McLariTask*>(&task_)) {
-    const auto& cs = static_cast<const robots::McLariState&>(s);
-    return {{"terrain", robots::mclari::terrain_name(cs.terrain)},
-            {"gait", cs.last.frequency == 0
-                         ? std::string("-")  // before the first step
-                         : std::to_string(cs.last.frequency) + " Hz, " + robots::mclari::group_name(cs.last.group)}};
-  }
-  return {};
+std::vector<std::pair<std::string, std::string>> PlayView::rows(const robots::TaskState& s, const mjData* pose) const {
+  robots::TaskView view;
+  task_.view(s, pose, root_, view);
+  return view.rows;
 }
 
 }  // namespace farm::tools

@@ -1,8 +1,8 @@
 // What farm-play shows of a task besides the model: a camera that follows the robot's root body
-// (its distance from the robot's size; for the mobile robots, the point between the robot and its
-// goal, far enough for both), markers for what the robot goes after (the Jetbot's and Kaya's goal,
-// the A1's and Badgers' velocity command, the microbot's target), a backdrop behind a robot that
-// has no floor (the pendulums), and the task's own figures for the overlay.
+// (its distance from the robot's size; where the task frames a point with the robot, a goal, the
+// point between the two, far enough for both), the markers and overlay rows the task declares
+// (Task::view: the Jetbot's and Kaya's goal, a legged robot's velocity command, the microbot's
+// target and gait), and a backdrop behind a robot that has no floor (the pendulums).
 #pragma once
 
 #include <mujoco/mujoco.h>
@@ -34,7 +34,7 @@ class PlayView {
   // Markers for the state's task (goal, command, target) added to the scene.
   void decorate(const robots::TaskState& s, const mjData* pose, mjvScene& scn) const;
   // Rows for the overlay (name, value) that only this task has (terrain, command, ...).
-  std::vector<std::pair<std::string, std::string>> rows(const robots::TaskState& s) const;
+  std::vector<std::pair<std::string, std::string>> rows(const robots::TaskState& s, const mjData* pose) const;
   // Bodies of the robot (the root body's tree): what the camera must keep in view.
   bool is_robot_body(int body) const;
   int root_body() const { return root_; }

@@ -396,4 +396,21 @@ std::unique_ptr<Task> make_mclari_task(const config::TaskConfig& cfg) {
   return std::make_unique<McLariTask>(cfg.mclari());
 }
 
+void McLariTask::view(const TaskState& base, const mjData*, int, TaskView& out) const {
+  const auto& s = static_cast<const McLariState&>(base);
+  out.elevation = -35;
+  ViewMarker target;
+  const double z = ground_height(s.target[0], s.target[1], s.terrain);
+  target.pos[0] = s.target[0];
+  target.pos[1] = s.target[1];
+  target.pos[2] = z + 0.1;
+  target.radius = cfg_.target_radius();
+  target.half_height = 0.1;
+  out.markers.push_back(target);
+  out.rows.push_back({"terrain", mclari::terrain_name(s.terrain)});
+  out.rows.push_back({"gait", s.last.frequency == 0
+                                  ? std::string("-")  // before the first step
+                                  : std::to_string(s.last.frequency) + " Hz, " + mclari::group_name(s.last.group)});
+}
+
 }  // namespace farm::robots

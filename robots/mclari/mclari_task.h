@@ -65,6 +65,8 @@ class McLariTask final : public Task {
   // "mean_frequency", "final_distance" (mm), "share" (efficiency over the terrain's
   // goal_efficiency, else its reference_efficiency, else 1; 0 after a fall).
   void episode_metrics(const TaskState& s, float* out) const override;
+  // The target as a red disc of the radius that counts as reached; the terrain and gait as rows.
+  void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const override;
 
   const config::MclariConfig& config() const { return cfg_; }
   const std::vector<float>& height_field() const { return hfield_; }

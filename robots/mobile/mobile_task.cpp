@@ -410,4 +410,20 @@ std::unique_ptr<Task> make_kaya_task(const config::TaskConfig& cfg) {
   return std::make_unique<MobileTask>(r);
 }
 
+void MobileTask::view(const TaskState& base, const mjData* pose, int root, TaskView& out) const {
+  const auto& s = static_cast<const MobileState&>(base);
+  out.elevation = -60;
+  out.frame_point[0] = s.map.goal_x;
+  out.frame_point[1] = s.map.goal_y;
+  out.frame_point[2] = pose->xpos[3 * root + 2];
+  out.frame_extent = scene().arena_half_size();
+  ViewMarker goal;
+  goal.pos[0] = s.map.goal_x;
+  goal.pos[1] = s.map.goal_y;
+  goal.pos[2] = 0.002;
+  goal.radius = scene().goal_radius();
+  goal.half_height = 0.002;
+  out.markers.push_back(goal);
+}
+
 }  // namespace farm::robots::mobile

@@ -55,6 +55,8 @@ class MobileTask final : public Task {
   StepResult step(TaskState& s, const float* action, float* obs) const override;
   // success, time_s, path_m, collision, final_distance.
   void episode_metrics(const TaskState& s, float* out) const override;
+  // From above, framing the robot with its goal (a red disc of the goal radius).
+  void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const override;
 
   // Starts an episode on a given map (tests, tools).
   void reset_to(TaskState& s, const MobileMap& map, float* obs) const;

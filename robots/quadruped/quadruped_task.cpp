@@ -473,4 +473,10 @@ std::unique_ptr<Task> make_silver_badger_task(const config::TaskConfig& cfg) {
   return std::make_unique<QuadrupedTask>(Robot::kSilverBadger, cfg.silver_badger());
 }
 
+void QuadrupedTask::view(const TaskState& base, const mjData* pose, int root, TaskView& out) const {
+  const auto& s = static_cast<const QuadrupedState&>(base);
+  out.elevation = -20;
+  command_view(s.command.data(), pose, root, out);
+}
+
 }  // namespace farm::robots::quadruped

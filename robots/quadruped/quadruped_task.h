@@ -76,6 +76,8 @@ class QuadrupedTask final : public Task {
   // tracking_lin, tracking_ang (per-step means of the two tracking terms, each in [0, 1]),
   // lin_vel_error (mean planar speed error, m/s), fell (1 if the episode ended in a fall), time_s.
   void episode_metrics(const TaskState& s, float* out) const override;
+  // The velocity command as a green arrow above the trunk, one second long, and as an overlay row.
+  void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const override;
 
   // The config with the robot's defaults applied (what the task runs with).
   const config::LeggedConfig& config() const { return cfg_; }

@@ -366,4 +366,13 @@ std::unique_ptr<Task> make_terms_task(const config::TaskConfig& cfg) {
   return std::make_unique<TermsTask>(cfg.terms());
 }
 
+void TermsTask::view(const TaskState& base, const mjData* pose, int root, TaskView& out) const {
+  const auto& s = static_cast<const TermsState&>(base);
+  out.elevation = -20;
+  const auto& c = cfg_.command();
+  if (c.lin_vel_x_min() != 0 || c.lin_vel_x_max() != 0 || c.lin_vel_y_min() != 0 || c.lin_vel_y_max() != 0 ||
+      c.yaw_rate_min() != 0 || c.yaw_rate_max() != 0)
+    command_view(s.command.data(), pose, root, out);
+}
+
 }  // namespace farm::robots::terms

@@ -60,6 +60,8 @@ class TermsTask final : public Task {
   void reset(TaskState& s, uint64_t seed, float* obs) const override;
   StepResult step(TaskState& s, const float* action, float* obs) const override;
   void episode_metrics(const TaskState& s, float* out) const override;
+  // A legged view; with commands, the command as an arrow and an overlay row.
+  void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const override;
 
   const config::TermsConfig& config() const { return cfg_; }
   double agent_dt() const;

@@ -57,9 +57,9 @@ TEST(Pendulum, UnknownTaskListsKnownTasks) {
     make_task(cfg);
     FAIL() << "expected std::invalid_argument";
   } catch (const std::invalid_argument& e) {
-    EXPECT_STREQ(
-        e.what(),
-        "unknown task 'nope'; known tasks: pendulum, cartpole, jetbot, kaya, mclari, a1, honey_badger, silver_badger");
+    EXPECT_STREQ(e.what(),
+                 "unknown task 'nope'; known tasks: pendulum, cartpole, jetbot, kaya, mclari, a1, honey_badger, "
+                 "silver_badger, terms");
   }
 }
 
