@@ -206,9 +206,11 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   auto& p = s.dynamics;
   p.fill(0.0);
-  // Foot friction (seed 000 §3.3, every robot).
-  p[0] = u(s.rng);
-  const double friction = cfg_.friction_min() + 0.5 * (p[0] + 1) * (cfg_.friction_max() - cfg_.friction_min());
+  // Foot friction (seed 000 §3.3, every robot), min + (max - min) x U(0, 1), as the task of terms
+  // draws it, so that the two give the same physics from the same seed.
+  const double share = std::uniform_real_distribution<double>(0.0, 1.0)(s.rng);
+  p[0] = 2 * share - 1;
+  const double friction = cfg_.friction_min() + (cfg_.friction_max() - cfg_.friction_min()) * share;
   for (int g : foot_geoms_) m->geom_friction[3 * g] = friction;
   mix_pair_friction(m);
   s.kp = cfg_.kp();

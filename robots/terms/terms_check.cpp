@@ -50,21 +50,36 @@ const TermInfo& check_term(const Section& s, const pb::Message& entry, const std
 
 // select(), with its error placed at the `names` entry (or the section when names is empty).
 void check_names(const Section& s, Names kind, const pb::RepeatedPtrField<std::string>& names, const ModelInfo& m,
-                 int root) {
+                 int root, const char* field = "names") {
   for (int i = 0; i < names.size(); ++i) {
     pb::RepeatedPtrField<std::string> one;
     *one.Add() = names.Get(i);
     try {
       select(kind, one, m, root);
     } catch (const std::invalid_argument& e) {
-      s.fail("names", e.what(), i);
+      s.fail(field, e.what(), i);
     }
   }
   try {
     select(kind, names, m, root);
   } catch (const std::invalid_argument& e) {
-    s.fail("names", e.what());
+    s.fail(field, e.what());
   }
+}
+
+// The items a term reads: its names, or for a contact term its names or geoms, and the geoms of
+// `other`.
+template <typename Entry>
+void check_items(const Section& s, Names kind, const Entry& e, const ModelInfo& m, int root) {
+  if (kind == Names::None) return;
+  if (kind != Names::Contacts && kind != Names::ContactsRequired) return check_names(s, kind, e.names(), m, root);
+  if (!e.geoms().empty()) {
+    s.check(e.names().empty(), "geoms", "a contact term reads bodies (names) or geoms, not both");
+    check_names(s, Names::Geoms, e.geoms(), m, root, "geoms");
+  } else {
+    check_names(s, kind, e.names(), m, root);
+  }
+  if (!e.other().empty()) check_names(s, Names::Geoms, e.other(), m, root, "other");
 }
 
 void check_expression(const Section& s, const std::string& expr, const ModelInfo& m) {
@@ -126,6 +141,7 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
   a.finite_non_negative("kp", act.kp());
   a.finite_non_negative("kd", act.kd());
   a.finite_non_negative("torque_limit", act.torque_limit());
+  a.check(act.velocity_limit() > 0, "velocity_limit", "expected > 0 (rad/s), got " + num(act.velocity_limit()));
   if (act.type() == "position" && act.default_pose_size() > 0 && act.default_pose_size() != act_dim)
     a.fail("default_pose",
            "expected one value per driven joint (" + num(act_dim) + "), got " + num(act.default_pose_size()));
@@ -141,7 +157,7 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
     const auto& o = c.observation(i);
     const Section os = s.nest_at("observation", i, o);
     const TermInfo& info = check_term(os, o, o.term(), observation_terms(), obs_always);
-    if (info.names != Names::None) check_names(os, info.names, o.names(), m, root);
+    check_items(os, info.names, o, m, root);
     os.check(o.frame() == "local" || o.frame() == "world", "frame",
              "expected \"local\" or \"world\", got \"" + o.frame() + "\"");
     os.finite("scale", o.scale());
@@ -157,7 +173,7 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
     const auto& r = c.reward(i);
     const Section rs = s.nest_at("reward", i, r);
     const TermInfo& info = check_term(rs, r, r.term(), reward_terms(), {"weight"});
-    if (info.names != Names::None) check_names(rs, info.names, r.names(), m, root);
+    check_items(rs, info.names, r, m, root);
     rs.finite("weight", r.weight());
     rs.check(r.axis() >= 0 && r.axis() <= 2, "axis", "expected 0 (x), 1 (y) or 2 (z), got " + num(r.axis()));
     rs.check(r.frame() == "local" || r.frame() == "world", "frame",
@@ -175,7 +191,7 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
     const auto& t = c.termination(i);
     const Section ts = s.nest_at("termination", i, t);
     const TermInfo& info = check_term(ts, t, t.term(), termination_terms(), {});
-    if (info.names != Names::None) check_names(ts, info.names, t.names(), m, root);
+    check_items(ts, info.names, t, m, root);
     ts.check(!(t.min() > t.max()), "min", "expected <= max (" + num(t.max()) + "), got " + num(t.min()));
   }
   const Section rs = s.nest("reset", c.reset());
@@ -187,6 +203,15 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
            "expected 0 < friction_min <= friction_max (" + num(r.friction_max()) + "), got " + num(r.friction_min()));
   rs.check(r.mass_min() > 0 && r.mass_min() <= r.mass_max() && std::isfinite(r.mass_max()), "mass_min",
            "expected 0 < mass_min <= mass_max (" + num(r.mass_max()) + "), got " + num(r.mass_min()));
+  rs.check(r.joint_pos_scale_min() <= r.joint_pos_scale_max() && std::isfinite(r.joint_pos_scale_min()) &&
+               std::isfinite(r.joint_pos_scale_max()),
+           "joint_pos_scale_min",
+           "expected finite, at most joint_pos_scale_max (" + num(r.joint_pos_scale_max()) + "), got " +
+               num(r.joint_pos_scale_min()));
+  if (!r.friction_geoms().empty()) check_names(rs, Names::Geoms, r.friction_geoms(), m, root, "friction_geoms");
+  if (!r.clear_geoms().empty()) check_names(rs, Names::Geoms, r.clear_geoms(), m, root, "clear_geoms");
+  rs.finite_non_negative("clearance", r.clearance());
+  rs.finite_non_negative("root_vel_noise", r.root_vel_noise());
   rs.finite_non_negative("push_interval_s", r.push_interval_s());
   rs.finite_non_negative("push_max_vel", r.push_max_vel());
   const Section cs = s.nest("command", c.command());
@@ -196,6 +221,9 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
   cs.check(k.yaw_rate_min() <= k.yaw_rate_max(), "yaw_rate_min", "expected <= yaw_rate_max");
   cs.check(k.resample_prob() >= 0 && k.resample_prob() <= 1, "resample_prob",
            "expected in [0, 1], got " + num(k.resample_prob()));
+  cs.finite_non_negative("small_command", k.small_command());
+  cs.finite_non_negative("heading_gain", k.heading_gain());
+  s.check(c.max_qvel() > 0, "max_qvel", "expected > 0 (rad/s or m/s), got " + num(c.max_qvel()));
 }
 
 }  // namespace farm::robots::terms

@@ -11,30 +11,93 @@
 
 namespace farm::robots::terms {
 
+namespace {
+
+// The free joint of a body, or -1.
+int free_joint(const mjModel* m, int body) {
+  const int j = m->body_jntadr[body];
+  return j >= 0 && m->jnt_type[j] == mjJNT_FREE ? j : -1;
+}
+
+bool in(const std::vector<int>& v, int x) { return std::find(v.begin(), v.end(), x) != v.end(); }
+
+// Whether contact `con` is between the group and a geom it counts against; `group2` says whether
+// the group's geom is the contact's geom2.
+bool counts(const mjContact& con, const std::vector<int>& geoms, const std::vector<int>& other, bool* group2) {
+  const bool g1 = in(geoms, con.geom1), g2 = in(geoms, con.geom2);
+  if (g1 == g2) return false;  // neither, or both (the group touching itself)
+  if (!other.empty() && !in(other, g1 ? con.geom2 : con.geom1)) return false;
+  *group2 = g2;
+  return true;
+}
+
+}  // namespace
+
+void body_rotation(const mjModel* m, const mjData* d, int body, double R[9]) {
+  const int j = free_joint(m, body);
+  if (j < 0) {
+    mju_copy(R, d->xmat + 9 * body, 9);
+    return;
+  }
+  mjtNum q[4];
+  mju_copy4(q, d->qpos + m->jnt_qposadr[j] + 3);
+  mju_normalize4(q);
+  mju_quat2Mat(R, q);
+}
+
 void body_velocity(const mjModel* m, const mjData* d, int body, bool local, double ang[3], double lin[3]) {
-  mjtNum res[6];
-  mj_objectVelocity(m, d, mjOBJ_BODY, body, res, local ? 1 : 0);
-  for (int i = 0; i < 3; ++i) {
-    ang[i] = res[i];
-    lin[i] = res[3 + i];
+  const int j = free_joint(m, body);
+  if (j < 0) {
+    mjtNum res[6];
+    mj_objectVelocity(m, d, mjOBJ_BODY, body, res, local ? 1 : 0);
+    for (int i = 0; i < 3; ++i) {
+      ang[i] = res[i];
+      lin[i] = res[3 + i];
+    }
+    return;
+  }
+  // A free joint's qvel: the body origin's linear velocity in the world frame, then its angular
+  // velocity in the body's frame.
+  const mjtNum* v = d->qvel + m->jnt_dofadr[j];
+  mjtNum R[9];
+  body_rotation(m, d, body, R);
+  if (local) {
+    mju_mulMatTVec(lin, R, v, 3, 3);
+    mju_copy3(ang, v + 3);
+  } else {
+    mju_copy3(lin, v);
+    mju_mulMatVec(ang, R, v + 3, 3, 3);
   }
 }
 
-void projected_gravity(const mjData* d, int body, double out[3]) {
-  // R^T (0, 0, -1): minus the third row of the body's rotation matrix.
-  const mjtNum* r = d->xmat + 9 * body;
-  out[0] = -r[6];
-  out[1] = -r[7];
-  out[2] = -r[8];
+double body_height(const mjModel* m, const mjData* d, int body) {
+  const int j = free_joint(m, body);
+  return j >= 0 ? d->qpos[m->jnt_qposadr[j] + 2] : d->xpos[3 * body + 2];
 }
 
-void body_contact_force(const mjModel* m, const mjData* d, const std::vector<int>& geoms, double out[3]) {
+void projected_gravity(const mjModel* m, const mjData* d, int body, double out[3]) {
+  // R^T (0, 0, -1): minus the third row of the body's rotation matrix.
+  mjtNum R[9];
+  body_rotation(m, d, body, R);
+  out[0] = -R[6];
+  out[1] = -R[7];
+  out[2] = -R[8];
+}
+
+bool touches(const mjData* d, const std::vector<int>& geoms, const std::vector<int>& other) {
+  bool g2;
+  for (int c = 0; c < d->ncon; ++c)
+    if (counts(d->contact[c], geoms, other, &g2)) return true;
+  return false;
+}
+
+void contact_force(const mjModel* m, const mjData* d, const std::vector<int>& geoms, const std::vector<int>& other,
+                   double out[3]) {
   out[0] = out[1] = out[2] = 0;
   for (int c = 0; c < d->ncon; ++c) {
     const mjContact& con = d->contact[c];
-    const bool g1 = std::find(geoms.begin(), geoms.end(), con.geom1) != geoms.end();
-    const bool g2 = std::find(geoms.begin(), geoms.end(), con.geom2) != geoms.end();
-    if (g1 == g2) continue;  // neither, or both (a body touching itself)
+    bool g2 = false;
+    if (!counts(con, geoms, other, &g2)) continue;
     mjtNum f6[6];
     mj_contactForce(m, d, c, f6);
     // f6 is in the contact frame (rows of con.frame); to the world: frame^T f. The force acts on
@@ -47,20 +110,12 @@ void body_contact_force(const mjModel* m, const mjData* d, const std::vector<int
   }
 }
 
-bool body_touches_other(const mjModel* m, const mjData* d, int body) {
-  for (int c = 0; c < d->ncon; ++c) {
-    const int b1 = m->geom_bodyid[d->contact[c].geom1], b2 = m->geom_bodyid[d->contact[c].geom2];
-    if ((b1 == body) != (b2 == body)) return true;
-  }
-  return false;
-}
-
 namespace {
 
 // Contact forces above this (N) count as a touch (legged_gym's contact threshold).
 constexpr double kTouchForce = 1.0;
-// legged_gym's collision term counts bodies with contact force above this (N).
-constexpr double kCollisionForce = 0.1;
+
+double norm3(const double f[3]) { return std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]); }
 
 bool local(const std::string& frame) { return frame == "local"; }
 
@@ -89,7 +144,7 @@ void obs_body_pos(const Ctx& c, const ObsBinding& b, double* out) {
     for (int k = 0; k < 3; ++k) out[3 * i + k] = c.d->xpos[3 * b.ids[i] + k];
 }
 void obs_body_height(const Ctx& c, const ObsBinding& b, double* out) {
-  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = c.d->xpos[3 * b.ids[i] + 2];
+  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = body_height(c.m, c.d, b.ids[i]);
 }
 void obs_body_quat(const Ctx& c, const ObsBinding& b, double* out) {
   for (size_t i = 0; i < b.ids.size(); ++i)
@@ -104,7 +159,7 @@ void obs_body_ang_vel(const Ctx& c, const ObsBinding& b, double* out) {
   for (size_t i = 0; i < b.ids.size(); ++i) body_velocity(c.m, c.d, b.ids[i], local(b.cfg->frame()), out + 3 * i, lin);
 }
 void obs_projected_gravity(const Ctx& c, const ObsBinding& b, double* out) {
-  for (size_t i = 0; i < b.ids.size(); ++i) projected_gravity(c.d, b.ids[i], out + 3 * i);
+  for (size_t i = 0; i < b.ids.size(); ++i) projected_gravity(c.m, c.d, b.ids[i], out + 3 * i);
 }
 void obs_sensor(const Ctx& c, const ObsBinding& b, double* out) {
   int k = 0;
@@ -117,8 +172,14 @@ void obs_last_action(const Ctx& c, const ObsBinding&, double* out) {
 void obs_command(const Ctx& c, const ObsBinding&, double* out) {
   std::copy(c.s.command.begin(), c.s.command.end(), out);
 }
+void obs_command_lin_vel(const Ctx& c, const ObsBinding&, double* out) {
+  out[0] = c.s.command[0];
+  out[1] = c.s.command[1];
+}
+void obs_command_yaw_rate(const Ctx& c, const ObsBinding&, double* out) { out[0] = c.s.command[2]; }
 void obs_contact(const Ctx& c, const ObsBinding& b, double* out) {
-  for (size_t i = 0; i < b.ids.size(); ++i) out[i] = body_touches_other(c.m, c.d, b.ids[i]) ? 1.0 : 0.0;
+  const auto& k = b.contacts;
+  for (size_t i = 0; i < k.geoms.size(); ++i) out[i] = touches(c.d, k.geoms[i], k.other) ? 1.0 : 0.0;
 }
 
 // Reward terms: the value before the weight.
@@ -154,9 +215,13 @@ double rew_action_rate(const Ctx& c, const RewardBinding&) {
   for (size_t i = 0; i < c.s.action.size(); ++i) s += std::pow(c.s.action[i] - c.s.last_action[i], 2);
   return s;
 }
-double rew_upright(const Ctx& c, const RewardBinding& b) { return c.d->xmat[9 * b.ids[0] + 8]; }
+double rew_upright(const Ctx& c, const RewardBinding& b) {
+  double g[3];
+  projected_gravity(c.m, c.d, b.ids[0], g);
+  return -g[2];
+}
 double rew_height(const Ctx& c, const RewardBinding& b) {
-  return std::pow(c.d->xpos[3 * b.ids[0] + 2] - b.cfg->target(), 2);
+  return std::pow(body_height(c.m, c.d, b.ids[0]) - b.cfg->target(), 2);
 }
 double rew_lin_vel_tracking(const Ctx& c, const RewardBinding& b) {
   double ang[3], lin[3];
@@ -181,7 +246,7 @@ double rew_ang_vel_xy(const Ctx& c, const RewardBinding& b) {
 }
 double rew_orientation(const Ctx& c, const RewardBinding& b) {
   double g[3];
-  projected_gravity(c.d, b.ids[0], g);
+  projected_gravity(c.m, c.d, b.ids[0], g);
   return g[0] * g[0] + g[1] * g[1];
 }
 double rew_joint_limits(const Ctx& c, const RewardBinding& b) {
@@ -211,17 +276,25 @@ double rew_joint_acc(const Ctx& c, const RewardBinding& b) {
 }
 double rew_contact_forces(const Ctx& c, const RewardBinding& b) {
   double s = 0, f[3];
-  for (size_t i = 0; i < b.ids.size(); ++i) {
-    body_contact_force(c.m, c.d, c.task.body_geoms(b.ids[i]), f);
-    s += std::max(0.0, std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) - b.cfg->threshold());
+  const auto& k = b.contacts;
+  for (const auto& geoms : k.geoms) {
+    contact_force(c.m, c.d, geoms, k.other, f);
+    s += std::max(0.0, norm3(f) - b.cfg->threshold());
   }
   return s;
 }
+// How many items are in contact: with a net contact force above `threshold` (N), or with any
+// contact at all when it is 0.
 double rew_collision(const Ctx& c, const RewardBinding& b) {
   double n = 0, f[3];
-  for (int body : b.ids) {
-    body_contact_force(c.m, c.d, c.task.body_geoms(body), f);
-    n += std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) > kCollisionForce ? 1 : 0;
+  const auto& k = b.contacts;
+  for (const auto& geoms : k.geoms) {
+    if (b.cfg->threshold() <= 0) {
+      n += touches(c.d, geoms, k.other) ? 1 : 0;
+    } else {
+      contact_force(c.m, c.d, geoms, k.other, f);
+      n += norm3(f) > b.cfg->threshold() ? 1 : 0;
+    }
   }
   return n;
 }
@@ -232,8 +305,8 @@ double rew_feet_air_time(const Ctx& c, const RewardBinding& b) {
   auto& last = c.s.last_contact[b.slot];
   const double dt = c.task.agent_dt();
   double r = 0, f[3];
-  for (size_t i = 0; i < b.ids.size(); ++i) {
-    body_contact_force(c.m, c.d, c.task.body_geoms(b.ids[i]), f);
+  for (size_t i = 0; i < b.contacts.geoms.size(); ++i) {
+    contact_force(c.m, c.d, b.contacts.geoms[i], b.contacts.other, f);
     const bool contact = f[2] > kTouchForce;
     const bool filt = contact || last[i];
     const bool first = air[i] > 0 && filt;
@@ -249,15 +322,19 @@ double rew_expression(const Ctx& c, const RewardBinding& b) { return c.s.parsers
 // Termination terms.
 
 bool end_body_contact(const Ctx& c, const TerminationBinding& b) {
-  for (int body : b.ids)
-    if (body_touches_other(c.m, c.d, body)) return true;
+  for (const auto& geoms : b.contacts.geoms)
+    if (touches(c.d, geoms, b.contacts.other)) return true;
   return false;
 }
 bool end_height(const Ctx& c, const TerminationBinding& b) {
-  const double z = c.d->xpos[3 * b.ids[0] + 2];
+  const double z = body_height(c.m, c.d, b.ids[0]);
   return !(z >= b.cfg->min() && z <= b.cfg->max());
 }
-bool end_orientation(const Ctx& c, const TerminationBinding& b) { return c.d->xmat[9 * b.ids[0] + 8] < b.cfg->min(); }
+bool end_orientation(const Ctx& c, const TerminationBinding& b) {
+  double g[3];
+  projected_gravity(c.m, c.d, b.ids[0], g);
+  return -g[2] < b.cfg->min();
+}
 bool end_non_finite(const Ctx& c, const TerminationBinding& b) {
   for (int i = 0; i < c.m->nv; ++i)
     if (!std::isfinite(c.d->qvel[i]) || std::abs(c.d->qvel[i]) > b.cfg->max()) return true;
@@ -300,6 +377,28 @@ Names names_of(const std::vector<TermInfo>& list, const std::string& name) {
   return Names::None;
 }
 
+// A term's items: what `names` selects, or for a contact term its bodies or geoms, bound to geoms.
+template <typename Entry>
+std::vector<int> items(Names kind, const Entry& e, const ModelInfo& info, const mjModel* m, int root,
+                       ContactItems& contacts) {
+  if (kind == Names::None) return {};
+  if (kind != Names::Contacts && kind != Names::ContactsRequired) return select(kind, e.names(), info, root);
+  bool by_geom = false;
+  std::vector<int> ids = contact_items(kind, e.names(), e.geoms(), info, root, &by_geom);
+  for (int id : ids) {
+    std::vector<int> geoms;
+    if (by_geom) {
+      geoms.push_back(id);
+    } else {
+      for (int g = 0; g < m->ngeom; ++g)
+        if (m->geom_bodyid[g] == id) geoms.push_back(g);
+    }
+    contacts.geoms.push_back(std::move(geoms));
+  }
+  if (!e.other().empty()) contacts.other = select(Names::Geoms, e.other(), info, root);
+  return ids;
+}
+
 }  // namespace
 
 void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel* m, int root, Bound& out) {
@@ -317,22 +416,19 @@ void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel* 
     }
   }
   for (const auto& o : cfg.observation()) {
-    ObsBinding b{&o, lookup(kObs, o.term(), "observation"), {}, observation_size(o, info, root, act_dim)};
-    const Names k = names_of(observation_terms(), o.term());
-    if (k != Names::None) b.ids = select(k, o.names(), info, root);
+    ObsBinding b{&o, lookup(kObs, o.term(), "observation"), {}, observation_size(o, info, root, act_dim), {}};
+    b.ids = items(names_of(observation_terms(), o.term()), o, info, m, root, b.contacts);
     out.obs.push_back(std::move(b));
   }
   for (int i = 0; i < cfg.reward_size(); ++i) {
     const auto& r = cfg.reward(i);
-    RewardBinding b{&r, lookup(kRewards, r.term(), "reward"), {}, i};
-    const Names k = names_of(reward_terms(), r.term());
-    if (k != Names::None) b.ids = select(k, r.names(), info, root);
+    RewardBinding b{&r, lookup(kRewards, r.term(), "reward"), {}, i, {}};
+    b.ids = items(names_of(reward_terms(), r.term()), r, info, m, root, b.contacts);
     out.rewards.push_back(std::move(b));
   }
   for (const auto& t : cfg.termination()) {
-    TerminationBinding b{&t, lookup(kTerminations, t.term(), "termination"), {}};
-    const Names k = names_of(termination_terms(), t.term());
-    if (k != Names::None) b.ids = select(k, t.names(), info, root);
+    TerminationBinding b{&t, lookup(kTerminations, t.term(), "termination"), {}, {}};
+    b.ids = items(names_of(termination_terms(), t.term()), t, info, m, root, b.contacts);
     out.terminations.push_back(std::move(b));
   }
   out.body_geoms.assign(m->nbody, {});

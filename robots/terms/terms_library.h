@@ -26,22 +26,32 @@ using ObsFn = void (*)(const Ctx&, const ObsBinding&, double* out);
 using RewardFn = double (*)(const Ctx&, const RewardBinding&);
 using TerminationFn = bool (*)(const Ctx&, const TerminationBinding&);
 
+// A contact term's items (bodies, or geoms) as the geoms of each, and the geoms a contact must be
+// with to count (empty: any geom not of the item).
+struct ContactItems {
+  std::vector<std::vector<int>> geoms;
+  std::vector<int> other;
+};
+
 struct ObsBinding {
   const config::ObsTerm* cfg;
   ObsFn fn;
-  std::vector<int> ids;  // joints, bodies or sensors selected by names
+  std::vector<int> ids;  // joints, bodies, geoms or sensors selected by names (or geoms)
   int size = 0;
+  ContactItems contacts;
 };
 struct RewardBinding {
   const config::RewardTerm* cfg;
   RewardFn fn;
   std::vector<int> ids;
   int slot = 0;  // index among the task's reward terms (its state slots)
+  ContactItems contacts;
 };
 struct TerminationBinding {
   const config::TerminationTerm* cfg;
   TerminationFn fn;
   std::vector<int> ids;
+  ContactItems contacts;
 };
 
 struct Bound {
@@ -59,12 +69,18 @@ struct Bound {
 // std::invalid_argument for a name the library lacks.
 void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel_* m, int root, Bound& out);
 
-// Library helpers the terms share (public for tests).
+// Library helpers the terms share (public for tests). A body with a free joint (a floating robot's
+// root) is read from qpos and qvel, the state after the step; other bodies from MuJoCo's kinematics
+// of the step's last forward pass (xpos, xmat, cvel).
+void body_rotation(const mjModel_* m, const mjData_* d, int body, double R[9]);  // body -> world, row-major
 void body_velocity(const mjModel_* m, const mjData_* d, int body, bool local, double ang[3], double lin[3]);
-void projected_gravity(const mjData_* d, int body, double out[3]);
-// Net contact force on a body (world frame, summed over its contacts).
-void body_contact_force(const mjModel_* m, const mjData_* d, const std::vector<int>& geoms, double out[3]);
-// True when a geom of the body touches a geom of another body.
-bool body_touches_other(const mjModel_* m, const mjData_* d, int body);
+double body_height(const mjModel_* m, const mjData_* d, int body);
+void projected_gravity(const mjModel_* m, const mjData_* d, int body, double out[3]);
+// Net contact force on a group of geoms (world frame, summed over the contacts of one of them with
+// a geom outside the group, and in `other` where that is not empty).
+void contact_force(const mjModel_* m, const mjData_* d, const std::vector<int>& geoms, const std::vector<int>& other,
+                   double out[3]);
+// True when a geom of the group touches a geom outside it (and in `other` where that is not empty).
+bool touches(const mjData_* d, const std::vector<int>& geoms, const std::vector<int>& other);
 
 }  // namespace farm::robots::terms

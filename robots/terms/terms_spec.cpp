@@ -59,7 +59,12 @@ std::vector<std::pair<int, std::string>> candidates(Names kind, const ModelInfo&
       break;
     case Names::Bodies:
     case Names::BodiesRequired:
+    case Names::Contacts:
+    case Names::ContactsRequired:
       for (size_t b = 1; b < m.bodies.size(); ++b) c.emplace_back(int(b), m.bodies[b]);
+      break;
+    case Names::Geoms:
+      for (size_t g = 0; g < m.geoms.size(); ++g) c.emplace_back(int(g), m.geoms[g]);
       break;
     case Names::Sensors:
       for (size_t s = 0; s < m.sensors.size(); ++s) c.emplace_back(int(s), m.sensors[s].name);
@@ -76,7 +81,11 @@ const char* kind_name(Names k) {
       return "hinge or slide joint";
     case Names::Bodies:
     case Names::BodiesRequired:
+    case Names::Contacts:
+    case Names::ContactsRequired:
       return "body";
+    case Names::Geoms:
+      return "geom";
     case Names::Sensors:
       return "sensor";
     case Names::None:
@@ -92,8 +101,10 @@ std::vector<int> select(Names kind, const google::protobuf::RepeatedPtrField<std
   const auto cands = candidates(kind, model);
   std::vector<int> ids;
   if (names.empty()) {
-    if (kind == Names::Bodies) return {root};
+    if (kind == Names::Bodies || kind == Names::Contacts) return {root};
     if (kind == Names::BodiesRequired) throw std::invalid_argument("names: expected at least one body name");
+    if (kind == Names::ContactsRequired)
+      throw std::invalid_argument("names: expected at least one body name (or geoms: geom names)");
     for (const auto& [id, n] : cands) ids.push_back(id);
     return ids;
   }
@@ -119,6 +130,15 @@ std::vector<int> select(Names kind, const google::protobuf::RepeatedPtrField<std
                                   " of the model; there are: " + list(all));
   }
   return ids;
+}
+
+std::vector<int> contact_items(Names kind, const google::protobuf::RepeatedPtrField<std::string>& names,
+                               const google::protobuf::RepeatedPtrField<std::string>& geoms, const ModelInfo& model,
+                               int root, bool* by_geom) {
+  if (by_geom) *by_geom = !geoms.empty();
+  if (geoms.empty()) return select(kind, names, model, root);
+  if (!names.empty()) throw std::invalid_argument("names: a contact term reads bodies (names) or geoms, not both");
+  return select(Names::Geoms, geoms, model, root);
 }
 
 int root_body(const config::TermsConfig& cfg, const ModelInfo& model) {
@@ -186,6 +206,8 @@ int observation_size(const config::ObsTerm& term, const ModelInfo& model, int ro
     }
     default:
       if (info.names == Names::None) return info.item_size;
+      if (info.names == Names::Contacts)
+        return info.item_size * int(contact_items(info.names, term.names(), term.geoms(), model, root).size());
       return info.item_size * int(select(info.names, term.names(), model, root).size());
   }
 }
@@ -208,12 +230,14 @@ std::vector<std::string> expression_quantities(const ModelInfo& model) {
 }
 
 std::vector<std::string> metric_names(const config::TermsConfig& cfg) {
-  std::vector<std::string> m = {"distance_x", "terminated", "time_s"};
+  std::vector<std::string> m = {"distance_x", "terminated", "time_s"}, ids;
   std::map<std::string, int> seen;
   for (const auto& r : cfg.reward()) {
     const int k = seen[r.term()]++;
-    m.push_back("reward." + r.term() + (k ? "_" + std::to_string(k + 1) : ""));
+    ids.push_back(r.term() + (k ? "_" + std::to_string(k + 1) : ""));
   }
+  for (const auto& id : ids) m.push_back("reward." + id);
+  for (const auto& id : ids) m.push_back("mean." + id);
   return m;
 }
 

@@ -13,7 +13,10 @@
 
 namespace farm::robots::terms {
 
-enum class Names { None, Joints, Bodies, BodiesRequired, Sensors };
+// What a term's `names` select. Contacts / ContactsRequired: bodies by `names`, or geoms by the
+// term's `geoms` in place of them (a foot that is one geom of a calf body); Contacts with neither
+// selects the root body. Geoms is what `geoms` and `other` select from.
+enum class Names { None, Joints, Bodies, BodiesRequired, Sensors, Geoms, Contacts, ContactsRequired };
 
 inline constexpr int kQpos = -1, kQvel = -2, kSensorDim = -3, kActDim = -4;
 
@@ -35,6 +38,12 @@ const std::vector<TermInfo>& termination_terms();
 std::vector<int> select(Names kind, const google::protobuf::RepeatedPtrField<std::string>& names,
                         const ModelInfo& model, int root_body);
 
+// The items of a contact term: the geoms `geoms` selects, each an item, when it is not empty; else
+// the bodies `names` selects (kind Contacts or ContactsRequired). `by_geom` says which.
+std::vector<int> contact_items(Names kind, const google::protobuf::RepeatedPtrField<std::string>& names,
+                               const google::protobuf::RepeatedPtrField<std::string>& geoms, const ModelInfo& model,
+                               int root, bool* by_geom = nullptr);
+
 // The root body's id: terms.root_body, or the first body below the world.
 int root_body(const config::TermsConfig& cfg, const ModelInfo& model);
 
@@ -48,8 +57,10 @@ int observation_size(const config::ObsTerm& term, const ModelInfo& model, int ro
 std::vector<std::string> expression_quantities(const ModelInfo& model);
 
 // The metrics every task of terms reports: root displacement along x (m), 1 if a termination term
-// ended the episode, episode time (s), then each reward term's episode sum ("reward.<term>", with a
-// suffix when a term is listed twice).
+// ended the episode, episode time (s), then each reward term's episode sum of weight x value
+// ("reward.<term>", with a suffix when a term is listed twice), then each term's per-step mean of
+// its value before the weight ("mean.<term>": a tracking term's mean is the share of the command
+// met).
 std::vector<std::string> metric_names(const config::TermsConfig& cfg);
 
 // The TaskSpec of task "terms" (model_files filled). Throws std::invalid_argument or ModelError.

@@ -87,8 +87,26 @@ TermsTask::TermsTask(const config::TermsConfig& cfg) : cfg_(cfg) {
     bound_ = std::make_unique<Bound>();
     bind(cfg_, info_, model_, root_, *bound_);
     spec_ = task_spec(cfg_);
-    for (int j = 0; j < model_->njnt; ++j)
-      if (model_->jnt_type[j] == mjJNT_FREE && model_->jnt_bodyid[j] == root_) root_free_dof_ = model_->jnt_dofadr[j];
+    for (int j = 0; j < model_->njnt; ++j) {
+      if (model_->jnt_type[j] == mjJNT_FREE && model_->jnt_bodyid[j] == root_) {
+        root_free_dof_ = model_->jnt_dofadr[j];
+        root_free_qpos_ = model_->jnt_qposadr[j];
+      }
+      if (model_->jnt_type[j] == mjJNT_HINGE || model_->jnt_type[j] == mjJNT_SLIDE) scaled_joints_.push_back(j);
+    }
+    const auto& r = cfg_.reset();
+    if (r.friction_geoms().empty()) {
+      for (int g = 0; g < model_->ngeom; ++g) friction_geoms_.push_back(g);
+    } else {
+      friction_geoms_ = select(Names::Geoms, r.friction_geoms(), info_, root_);
+    }
+    for (int p = 0; p < model_->npair; ++p) {
+      const auto& f = friction_geoms_;
+      if (std::find(f.begin(), f.end(), model_->pair_geom1[p]) != f.end() ||
+          std::find(f.begin(), f.end(), model_->pair_geom2[p]) != f.end())
+        friction_pairs_.push_back(p);
+    }
+    if (!r.clear_geoms().empty()) clear_geoms_ = select(Names::Geoms, r.clear_geoms(), info_, root_);
   } catch (...) {
     mj_deleteModel(model_);
     throw;
@@ -110,6 +128,63 @@ TermsTask::TermsTask(const config::TermsConfig& cfg) : cfg_(cfg) {
       default_qpos_[bound_->target_qpos[i]] = a.default_pose(int(i));
   const auto& r = cfg_.reset();
   randomized_model_ = r.friction_min() != 1.0 || r.friction_max() != 1.0 || r.mass_min() != 1.0 || r.mass_max() != 1.0;
+}
+
+void TermsTask::randomize_model(TermsState& s) const {
+  const auto& r = cfg_.reset();
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  s.model = s.model ? (mj_copyModel(s.model, model_), s.model) : mj_copyModel(nullptr, model_);
+  mjModel* m = s.model;
+  if (r.friction_min() != 1.0 || r.friction_max() != 1.0) {
+    const double friction = r.friction_min() + (r.friction_max() - r.friction_min()) * unit(s.rng);
+    for (int g : friction_geoms_) m->geom_friction[3 * g] = model_->geom_friction[3 * g] * friction;
+    // A pair's friction was fixed when the model was compiled: it gets what MuJoCo mixes for a
+    // contact of its two geoms, per component the larger (sliding, sliding, torsional, rolling,
+    // rolling).
+    for (int p : friction_pairs_) {
+      const mjtNum* f1 = m->geom_friction + 3 * m->pair_geom1[p];
+      const mjtNum* f2 = m->geom_friction + 3 * m->pair_geom2[p];
+      mjtNum* f = m->pair_friction + 5 * p;
+      f[0] = f[1] = std::max(f1[0], f2[0]);
+      f[2] = std::max(f1[1], f2[1]);
+      f[3] = f[4] = std::max(f1[2], f2[2]);
+    }
+  }
+  if (r.mass_min() != 1.0 || r.mass_max() != 1.0) {
+    for (int b = 1; b < model_->nbody; ++b) {
+      const double k = r.mass_min() + (r.mass_max() - r.mass_min()) * unit(s.rng);
+      m->body_mass[b] = model_->body_mass[b] * k;
+      for (int i = 0; i < 3; ++i) m->body_inertia[3 * b + i] = model_->body_inertia[3 * b + i] * k;
+    }
+  }
+}
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+}  // namespace
+
+double TermsTask::heading_yaw_rate(const TermsState& s) const {
+  mjtNum R[9];
+  body_rotation(model_of(s), s.data, root_, R);
+  const double heading = std::atan2(R[3], R[0]);  // the root's x axis in the world
+  const auto& c = cfg_.command();
+  return std::clamp(c.heading_gain() * std::remainder(s.heading_target - heading, 2 * kPi), c.yaw_rate_min(),
+                    c.yaw_rate_max());
+}
+
+void TermsTask::sample_command(TermsState& s) const {
+  const auto& c = cfg_.command();
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const auto draw = [&](double lo, double hi) { return lo + (hi - lo) * unit(s.rng); };
+  const auto planar = [&](double v) { return std::abs(v) < c.small_command() ? 0.0 : v; };
+  s.command[0] = planar(draw(c.lin_vel_x_min(), c.lin_vel_x_max()));
+  s.command[1] = planar(draw(c.lin_vel_y_min(), c.lin_vel_y_max()));
+  if (c.heading()) {
+    s.heading_target = draw(-kPi, kPi);
+    s.command[2] = heading_yaw_rate(s);
+  } else {
+    s.command[2] = draw(c.yaw_rate_min(), c.yaw_rate_max());
+  }
 }
 
 TermsTask::~TermsTask() {
@@ -137,11 +212,12 @@ std::unique_ptr<TaskState> TermsTask::make_state() const {
   s->qpos_before.assign(model_->nq, 0.0);
   s->obs_raw.assign(spec_.obs_dim, 0.0);
   s->reward_sums.assign(cfg_.reward_size(), 0.0);
+  s->value_sums.assign(cfg_.reward_size(), 0.0);
   s->air_time.resize(cfg_.reward_size());
   s->last_contact.resize(cfg_.reward_size());
   for (const auto& b : bound_->rewards) {
-    s->air_time[b.slot].assign(b.ids.size(), 0.0);
-    s->last_contact[b.slot].assign(b.ids.size(), 0);
+    s->air_time[b.slot].assign(b.contacts.geoms.size(), 0.0);
+    s->last_contact[b.slot].assign(b.contacts.geoms.size(), 0);
   }
   const std::vector<std::string> names = expression_quantities(info_);
   s->quantities.assign(names.size(), 0.0);
@@ -168,25 +244,36 @@ void TermsTask::reset(TaskState& base, uint64_t seed, float* obs) const {
   s.episode_return = 0;
   s.ended_by_term = false;
   std::fill(s.reward_sums.begin(), s.reward_sums.end(), 0.0);
+  std::fill(s.value_sums.begin(), s.value_sums.end(), 0.0);
   for (auto& a : s.air_time) std::fill(a.begin(), a.end(), 0.0);
   for (auto& c : s.last_contact) std::fill(c.begin(), c.end(), 0);
   const auto& r = cfg_.reset();
-  std::uniform_real_distribution<double> unit(0.0, 1.0);
-  if (randomized_model_) {
-    s.model = s.model ? (mj_copyModel(s.model, model_), s.model) : mj_copyModel(nullptr, model_);
-    const double friction = r.friction_min() + (r.friction_max() - r.friction_min()) * unit(s.rng);
-    for (int g = 0; g < model_->ngeom; ++g) s.model->geom_friction[3 * g] = model_->geom_friction[3 * g] * friction;
-    for (int b = 1; b < model_->nbody; ++b) {
-      const double k = r.mass_min() + (r.mass_max() - r.mass_min()) * unit(s.rng);
-      s.model->body_mass[b] = model_->body_mass[b] * k;
-      for (int i = 0; i < 3; ++i) s.model->body_inertia[3 * b + i] = model_->body_inertia[3 * b + i] * k;
-    }
-  }
+  if (randomized_model_) randomize_model(s);
   const mjModel* m = model_of(s);
   mjData* d = s.data;
   mj_resetData(m, d);
+  std::copy(default_qpos_.begin(), default_qpos_.end(), d->qpos);
+  if (r.joint_pos_scale_min() != 1.0 || r.joint_pos_scale_max() != 1.0) {
+    std::uniform_real_distribution<double> scale(r.joint_pos_scale_min(), r.joint_pos_scale_max());
+    for (int j : scaled_joints_) {
+      const int a = m->jnt_qposadr[j];
+      const double q = default_qpos_[a] * scale(s.rng);
+      d->qpos[a] = m->jnt_limited[j] ? std::clamp(q, m->jnt_range[2 * j], m->jnt_range[2 * j + 1]) : q;
+    }
+  }
+  if (!clear_geoms_.empty() && root_free_qpos_ >= 0) {
+    // Lift the root until the lowest of the geoms clears the floor (a scaled pose can reach below it).
+    mj_kinematics(m, d);
+    double lowest = INFINITY;
+    for (int g : clear_geoms_) {
+      const double radius = m->geom_type[g] == mjGEOM_SPHERE ? m->geom_size[3 * g] : m->geom_rbound[g];
+      lowest = std::min(lowest, d->geom_xpos[3 * g + 2] - radius);
+    }
+    if (lowest < r.clearance()) d->qpos[root_free_qpos_ + 2] += r.clearance() - lowest;
+  }
   std::uniform_real_distribution<double> qpos_noise(-r.qpos_noise(), r.qpos_noise());
-  for (int i = 0; i < m->nq; ++i) d->qpos[i] = default_qpos_[i] + (r.qpos_noise() > 0 ? qpos_noise(s.rng) : 0.0);
+  if (r.qpos_noise() > 0)
+    for (int i = 0; i < m->nq; ++i) d->qpos[i] += qpos_noise(s.rng);
   std::normal_distribution<double> normal(0.0, 1.0);
   std::uniform_real_distribution<double> qvel_uniform(-r.qvel_noise(), r.qvel_noise());
   for (int i = 0; i < m->nv; ++i) {
@@ -195,11 +282,12 @@ void TermsTask::reset(TaskState& base, uint64_t seed, float* obs) const {
                                              : r.qvel_noise() * normal(s.rng);
     d->qvel[i] = default_qvel_[i] + noise;
   }
+  if (r.root_vel_noise() > 0 && root_free_dof_ >= 0) {
+    std::uniform_real_distribution<double> vel(-r.root_vel_noise(), r.root_vel_noise());
+    for (int k = 0; k < 6; ++k) d->qvel[root_free_dof_ + k] += vel(s.rng);
+  }
   mj_forward(m, d);
-  const auto& c = cfg_.command();
-  const auto draw = [&](double lo, double hi) { return lo + (hi - lo) * unit(s.rng); };
-  s.command = {draw(c.lin_vel_x_min(), c.lin_vel_x_max()), draw(c.lin_vel_y_min(), c.lin_vel_y_max()),
-               draw(c.yaw_rate_min(), c.yaw_rate_max())};
+  sample_command(s);
   s.push_every_steps = r.push_interval_s() > 0 ? std::max(1, int(std::lround(r.push_interval_s() / agent_dt()))) : 0;
   std::fill(s.action.begin(), s.action.end(), 0.0);
   std::fill(s.last_action.begin(), s.last_action.end(), 0.0);
@@ -228,8 +316,10 @@ void TermsTask::apply_action(TermsState& s, mjData* d) const {
   // "position": the PD law on this physics step.
   for (size_t i = 0; i < b.targets.size(); ++i) {
     const int act = b.target_actuator[i];
-    double tau = a.kp() * (s.targets[i] - d->qpos[b.target_qpos[i]]) - a.kd() * d->qvel[b.target_dofs[i]];
+    const double qd = d->qvel[b.target_dofs[i]];
+    double tau = a.kp() * (s.targets[i] - d->qpos[b.target_qpos[i]]) - a.kd() * qd;
     if (a.torque_limit() > 0) tau = std::clamp(tau, -a.torque_limit(), a.torque_limit());
+    if (std::abs(qd) > a.velocity_limit() && tau * qd > 0) tau = 0;
     const double gear = m->actuator_gear[6 * act] != 0 ? m->actuator_gear[6 * act] : 1.0;
     double u = tau / gear;
     if (m->actuator_ctrllimited[act])
@@ -241,7 +331,9 @@ void TermsTask::apply_action(TermsState& s, mjData* d) const {
 void TermsTask::update_quantities(TermsState& s) const {
   const mjModel* m = model_of(s);
   const mjData* d = s.data;
-  double ang_w[3], lin_w[3], ang[3], lin[3];
+  double ang_w[3], lin_w[3], ang[3], lin[3], g[3];
+  projected_gravity(m, d, root_, g);
+  const double up_z = -g[2];
   body_velocity(m, d, root_, false, ang_w, lin_w);
   body_velocity(m, d, root_, true, ang, lin);
   double act_sq = 0, tau_sq = 0;
@@ -252,7 +344,7 @@ void TermsTask::update_quantities(TermsState& s) const {
                            lin_w[2],
                            (d->xpos[3 * root_] - s.xpos_before[3 * root_]) / agent_dt(),
                            d->xpos[3 * root_ + 2],
-                           d->xmat[9 * root_ + 8],
+                           up_z,
                            ang[0],
                            ang[1],
                            ang[2],
@@ -293,7 +385,8 @@ StepResult TermsTask::step(TaskState& base, const float* action, float* obs) con
   StepResult r;
   bool finite = true;
   for (int i = 0; i < m->nq && finite; ++i) finite = std::isfinite(d->qpos[i]);
-  for (int i = 0; i < m->nv && finite; ++i) finite = std::isfinite(d->qvel[i]);
+  for (int i = 0; i < m->nv && finite; ++i)
+    finite = std::isfinite(d->qvel[i]) && std::abs(d->qvel[i]) <= cfg_.max_qvel();
   if (!finite) {
     // Diverged: the episode ends; the observation is zeros (nothing of the state is sane).
     s.ended_by_term = true;
@@ -307,17 +400,16 @@ StepResult TermsTask::step(TaskState& base, const float* action, float* obs) con
     d->qvel[root_free_dof_ + 1] += push(s.rng);
   }
   const auto& c = cfg_.command();
-  if (c.resample_prob() > 0 && std::uniform_real_distribution<double>(0, 1)(s.rng) < c.resample_prob()) {
-    std::uniform_real_distribution<double> unit(0.0, 1.0);
-    const auto draw = [&](double lo, double hi) { return lo + (hi - lo) * unit(s.rng); };
-    s.command = {draw(c.lin_vel_x_min(), c.lin_vel_x_max()), draw(c.lin_vel_y_min(), c.lin_vel_y_max()),
-                 draw(c.yaw_rate_min(), c.yaw_rate_max())};
-  }
+  if (c.resample_prob() > 0 && std::uniform_real_distribution<double>(0, 1)(s.rng) < c.resample_prob())
+    sample_command(s);
+  if (c.heading()) s.command[2] = heading_yaw_rate(s);
   if (!s.parsers.empty()) update_quantities(s);
   const Ctx ctx{m, d, s, *this};
   double total = 0;
   for (const auto& b : bound_->rewards) {
-    const double v = b.cfg->weight() * b.fn(ctx, b);
+    const double value = b.fn(ctx, b);
+    const double v = b.cfg->weight() * value;
+    s.value_sums[b.slot] += value;
     s.reward_sums[b.slot] += v;
     total += v;
   }
@@ -359,7 +451,12 @@ void TermsTask::episode_metrics(const TaskState& base, float* out) const {
   out[0] = float(s.data->xpos[3 * root_] - s.start_x);
   out[1] = s.ended_by_term ? 1.f : 0.f;
   out[2] = float(s.step * agent_dt());
-  for (size_t i = 0; i < s.reward_sums.size(); ++i) out[3 + i] = float(s.reward_sums[i]);
+  const size_t n = s.reward_sums.size();
+  const double steps = std::max(1, s.step);
+  for (size_t i = 0; i < n; ++i) {
+    out[3 + i] = float(s.reward_sums[i]);
+    out[3 + n + i] = float(s.value_sums[i] / steps);
+  }
 }
 
 std::unique_ptr<Task> make_terms_task(const config::TaskConfig& cfg) {

@@ -26,13 +26,15 @@ struct TermsState : TaskState {
   mjModel_* model = nullptr;  // owned: this episode's randomized copy, or null (the task's model)
   std::vector<double> action, last_action, targets, last_qvel;
   std::array<double, 3> command{};  // vx, vy (m/s, root frame), yaw rate (rad/s)
+  double heading_target = 0;        // heading commands: the yaw the robot is asked to face (rad)
   std::vector<double> xpos_before;  // every body's position before the step (world)
   std::vector<double> qpos_before;
   double start_x = 0;
   int push_every_steps = 0;
   bool ended_by_term = false;
-  // Per reward term: episode sums; feet air time and last contacts where the term keeps them.
-  std::vector<double> reward_sums;
+  // Per reward term: episode sums of weight x value and of the value; feet air time and last
+  // contacts where the term keeps them.
+  std::vector<double> reward_sums, value_sums;
   std::vector<std::vector<double>> air_time;
   std::vector<std::vector<char>> last_contact;
   // Reward expressions: the quantities they read (expression_quantities' order) and their parsers.
@@ -73,6 +75,9 @@ class TermsTask final : public Task {
   void apply_action(TermsState& s, mjData_* d) const;
   void write_obs(TermsState& s, float* obs) const;
   void update_quantities(TermsState& s) const;
+  void randomize_model(TermsState& s) const;
+  void sample_command(TermsState& s) const;
+  double heading_yaw_rate(const TermsState& s) const;
 
   config::TermsConfig cfg_;
   TaskSpec spec_;
@@ -82,7 +87,10 @@ class TermsTask final : public Task {
   std::unique_ptr<Bound> bound_;
   std::vector<double> default_qpos_, default_qvel_;
   bool randomized_model_ = false;
-  int root_free_dof_ = -1;  // the root's free joint's first dof (pushes), -1 without one
+  int root_free_dof_ = -1;   // the root's free joint's first dof (pushes), -1 without one
+  int root_free_qpos_ = -1;  // and its first qpos entry
+  std::vector<int> friction_geoms_, clear_geoms_, friction_pairs_;
+  std::vector<int> scaled_joints_;  // hinge and slide joints (reset.joint_pos_scale_*)
 };
 
 std::unique_ptr<Task> make_terms_task(const config::TaskConfig& cfg);

@@ -15,6 +15,9 @@
 // activation, head), else a 64-64 relu actor. --inference-only measures only policy inference:
 // rows/s for calls of 1, 8 and 64 rows and of --envs rows (FARM_MLP_ISA=baseline forces the
 // kernel's baseline path, see common/mlp.h).
+// --against FILE sets the worker on --config's task beside a worker on FILE's task, with the same
+// envs, threads and policy sizes, measured in turn (twice each, the mean), and prints the ratio:
+//   bench_worker --config deploy/configs/a1_terms_ppo.txtpb --against deploy/configs/a1_ppo.txtpb
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
@@ -265,7 +268,7 @@ farm::PolicyParams bench_policy(const farm::config::ExperimentConfig* cfg, const
 int main(int argc, char** argv) {
   int envs = 16, threads = int(std::thread::hardware_concurrency());
   double seconds = 2.0;
-  std::string task_name = "pendulum", config_path;
+  std::string task_name = "pendulum", config_path, against_path;
   bool raw_only = false, inference_only = false, envs_given = false, task_given = false;
   const int T = 32;
   for (int i = 1; i < argc; ++i) {
@@ -280,6 +283,8 @@ int main(int argc, char** argv) {
       task_given = true;
     } else if (i + 1 < argc && a == "--config") {
       config_path = argv[++i];
+    } else if (i + 1 < argc && a == "--against") {
+      against_path = argv[++i];
     } else if (i + 1 < argc && a == "--seconds") {
       seconds = std::atof(argv[++i]);
     } else if (a == "--raw-only") {
@@ -288,14 +293,20 @@ int main(int argc, char** argv) {
       inference_only = true;
     } else {
       std::fprintf(stderr,
-                   "usage: %s [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] "
-                   "[--raw-only | --inference-only]\n",
+                   "usage: %s [--task NAME | --config FILE [--against FILE]] [--envs N] [--threads K] "
+                   "[--seconds S] [--raw-only | --inference-only]\n",
                    argv[0]);
       return 2;
     }
   }
   if (task_given && !config_path.empty()) {
     std::fprintf(stderr, "--task and --config both name the task: give one\n");
+    return 2;
+  }
+  if (!against_path.empty() && (config_path.empty() || raw_only || inference_only)) {
+    std::fprintf(stderr,
+                 "--against sets one config's worker beside --config's: give --config, not --raw-only or "
+                 "--inference-only\n");
     return 2;
   }
   if (raw_only && inference_only) {
@@ -375,6 +386,32 @@ int main(int argc, char** argv) {
     return 0;
   }
 
+  if (!against_path.empty()) {
+    std::shared_ptr<const farm::robots::Task> other;
+    farm::config::ExperimentConfig other_cfg;
+    try {
+      other_cfg = farm::load_config_file(against_path);
+      farm::clear_output_paths(&other_cfg);
+      other = farm::robots::make_task(other_cfg.task());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_worker: %s\n", e.what());
+      return 2;
+    }
+    const farm::PolicyParams other_policy = bench_policy(&other_cfg, other->spec());
+    std::printf("%s (task %s) against %s (task %s): policy %s, %d envs, T=%d, %.1f s per measurement\n",
+                config_path.c_str(), task->spec().name.c_str(), against_path.c_str(), other->spec().name.c_str(),
+                policy.layout.describe().c_str(), envs, T, seconds);
+    for (const int k : {1, std::min(threads, envs)}) {
+      double mine = 0, theirs = 0;
+      for (int rep = 0; rep < 2; ++rep) {
+        mine += worker_steps_per_second(task, policy, envs, k, T, seconds) / 2;
+        theirs += worker_steps_per_second(other, other_policy, envs, k, T, seconds) / 2;
+      }
+      std::printf("worker %d thread(s): %.0f env steps/s (%s), %.0f env steps/s (%s): ratio %.3f\n", k, mine,
+                  task->spec().name.c_str(), theirs, other->spec().name.c_str(), mine / theirs);
+    }
+    return 0;
+  }
   std::printf("task %s, policy %s (%s kernel), %d envs, T=%d, %.1f s per measurement\n", task->spec().name.c_str(),
               policy.layout.describe().c_str(), isa, envs, T, seconds);
   const RawStart start = raw_start(*task);

@@ -89,6 +89,23 @@ TEST(TermsConfig, ABodyJointOrSensorNameTheModelLacksIsNamedWithTheNamesThereAre
   const std::string a =
       error_of(cheetah(kObs + "    action { type: \"actuator\" names: \"bthigh\" names: \"tail\" }\n"));
   EXPECT_NE(a.find("field 'task.terms.action.names': names: 'tail' matches no actuator"), std::string::npos) << a;
+  // A contact term's geoms and the geoms it counts contacts with, and the reset's geoms.
+  const std::string g = error_of(
+      cheetah(kObs + "    reward { term: \"collision\" geoms: \"bthigh\" geoms: \"claw\" other: \"floor\" }\n"));
+  EXPECT_NE(g.find("my.txtpb:7:48: field 'task.terms.reward[0].geoms': names: 'claw' matches no geom of the model; "
+                   "there are: floor, torso"),
+            std::string::npos)
+      << g;
+  const std::string o =
+      error_of(cheetah(kObs + "    termination { term: \"body_contact\" geoms: \"torso\" other: \"flor\" }\n"));
+  EXPECT_NE(o.find("field 'task.terms.termination[0].other': names: 'flor' matches no geom"), std::string::npos) << o;
+  const std::string b =
+      error_of(cheetah(kObs + "    termination { term: \"body_contact\" names: \"torso\" geoms: \"torso\" }\n"));
+  EXPECT_NE(b.find("field 'task.terms.termination[0].geoms': a contact term reads bodies (names) or geoms, not both"),
+            std::string::npos)
+      << b;
+  const std::string r = error_of(cheetah(kObs + "    reset { clear_geoms: \"fot\" }\n"));
+  EXPECT_NE(r.find("field 'task.terms.reset.clear_geoms': names: 'fot' matches no geom"), std::string::npos) << r;
 }
 
 // A folder under the test's temporary directory with the given files.
@@ -296,14 +313,20 @@ TEST(TermsTask, AnExpressionRewardIsTheFormulaOverItsQuantities) {
     const double expr = 2 * res[3] - ctrl + (d->xpos[3 + 2] > 0.5 ? 1 : 0);
     EXPECT_NEAR(r.reward, (d->qpos[0] - x_before) / 0.05 - 0.1 * ctrl + 0.5 * expr, 1e-4) << "step " << t;
   }
-  // The per-term episode sums are the episode's metrics after the three common ones.
+  // The per-term episode sums are the episode's metrics after the three common ones, then each
+  // term's per-step mean before its weight.
   const auto names = c.task->spec().metric_names;
-  ASSERT_EQ(names.size(), 6u);
+  ASSERT_EQ(names.size(), 9u);
   EXPECT_EQ(names[3], "reward.joint_progress");
   EXPECT_EQ(names[5], "reward.expression");
+  EXPECT_EQ(names[6], "mean.joint_progress");
+  EXPECT_EQ(names[8], "mean.expression");
   std::vector<float> m(names.size());
   c.task->episode_metrics(*c.state, m.data());
   EXPECT_NEAR(m[3] + m[4] + m[5], c.state->episode_return, 1e-3);
+  ASSERT_EQ(c.state->step, 20);
+  EXPECT_NEAR(m[5], 0.5 * 20 * m[8], 1e-3 * std::max(1.f, std::abs(m[5])));
+  EXPECT_NEAR(m[7], ctrl, 1e-4);  // ctrl_cost before its weight: the same action on every step
 }
 
 TEST(TermsTask, TerminationsEndTheEpisodeAndSayWhy) {
