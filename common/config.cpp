@@ -1,8 +1,7 @@
 #include "config.h"
 #include "config_validator.h"
-#include "task_spec.h"
+#include "task_specs.h"
 #include "terms/mjcf_bundle.h"
-#include "terms/terms_check.h"
 
 #include <google/protobuf/io/tokenizer.h>
 #include <google/protobuf/text_format.h>
@@ -24,198 +23,6 @@ namespace {
 
 // sac.max_step_scale at most: a batch 64 times the seed's 256 is past what helps on any host here.
 constexpr int kMaxSacStepScale = 64;
-
-// Task sections: the ranges their tasks (robots/) can run with.
-
-void check_pendulum(const Section& s, const config::PendulumConfig& p) {
-  for (auto [f, x] : {std::pair<const char*, double>{"gravity", p.gravity()},
-                      {"mass", p.mass()},
-                      {"length", p.length()},
-                      {"dt", p.dt()},
-                      {"max_speed", p.max_speed()},
-                      {"max_torque", p.max_torque()}})
-    s.finite_positive(f, x);
-  s.finite_non_negative("velocity_cost", p.velocity_cost());
-  s.finite_non_negative("torque_cost", p.torque_cost());
-  s.finite_non_negative("init_max_speed", p.init_max_speed());
-  s.positive("max_episode_steps", p.max_episode_steps());
-}
-
-void check_cartpole(const Section& s, const config::CartpoleConfig& c) {
-  s.finite_positive("physics_dt", c.physics_dt());
-  s.finite_positive("max_force", c.max_force());
-  s.finite_positive("gear", c.gear());
-  s.finite_positive("rail_limit", c.rail_limit());
-  s.positive("control_substeps", c.control_substeps());
-  s.positive("max_episode_steps", c.max_episode_steps());
-  s.non_negative("init_noise", c.init_noise());
-}
-
-// The arena and its obstacle map (robots/mobile/obstacle_map.h). Whether the robot fits the arena
-// depends on its model too: MapGenerator checks that.
-void check_scene(const Section& s, const config::MobileSceneConfig& c) {
-  s.check(c.lidar_rays() >= 1 && c.lidar_rays() <= 1024, "lidar_rays",
-          "expected in [1, 1024], got " + num(c.lidar_rays()));
-  s.positive("lidar_range", c.lidar_range());
-  s.check(c.lidar_fov_deg() > 0 && c.lidar_fov_deg() <= 360, "lidar_fov_deg",
-          "expected in (0, 360], got " + num(c.lidar_fov_deg()));
-  s.positive("arena_half_size", c.arena_half_size());
-  s.positive("wall_height", c.wall_height());
-  s.non_negative("min_obstacles", c.min_obstacles());
-  s.check(c.max_obstacles() >= c.min_obstacles(), "max_obstacles",
-          "expected >= min_obstacles (" + num(c.min_obstacles()) + "), got " + num(c.max_obstacles()));
-  // One MuJoCo body per obstacle slot.
-  s.check(c.max_obstacles() <= 256, "max_obstacles", "expected <= 256, got " + num(c.max_obstacles()));
-  s.positive("obstacle_min_half_size", c.obstacle_min_half_size());
-  s.check(c.obstacle_max_half_size() >= c.obstacle_min_half_size(), "obstacle_max_half_size",
-          "expected >= obstacle_min_half_size (" + num(c.obstacle_min_half_size()) + "), got " +
-              num(c.obstacle_max_half_size()));
-  s.check(c.obstacle_max_half_size() < c.arena_half_size(), "obstacle_max_half_size",
-          "expected < arena_half_size (" + num(c.arena_half_size()) + "), got " + num(c.obstacle_max_half_size()));
-  s.non_negative("clearance", c.clearance());
-  s.non_negative("min_start_goal_distance", c.min_start_goal_distance());
-  s.positive("goal_radius", c.goal_radius());
-  s.positive("max_episode_steps", c.max_episode_steps());
-  s.check(c.physics_dt() > 0 && c.physics_dt() <= 0.05, "physics_dt",
-          "expected in (0, 0.05], got " + num(c.physics_dt()));
-  s.at_least("control_substeps", c.control_substeps(), 1);
-  s.non_negative("distance_weight", c.distance_weight());
-  s.check(c.collision_penalty() >= 0, "collision_penalty",
-          "expected >= 0 (it is subtracted), got " + num(c.collision_penalty()));
-  s.at_least("max_reset_tries", c.max_reset_tries(), 1);
-}
-
-// JetbotConfig and KayaConfig: the same fields around the same scene.
-template <typename Robot>
-void check_mobile(const Section& s, const Robot& r) {
-  s.finite_positive("max_linear_speed", r.max_linear_speed());
-  s.finite_positive("max_angular_speed", r.max_angular_speed());
-  s.finite_positive("wheel_kv", r.wheel_kv());
-  s.finite_positive("wheel_max_torque", r.wheel_max_torque());
-  check_scene(s.nest("scene", r.scene()), r.scene());
-}
-
-// A1, Honey Badger and Silver Badger (robots/quadruped). The Badger defaults the task applies to
-// unset fields (kp 40, kd 1) lie in these ranges too.
-void check_legged(const Section& s, const config::LeggedConfig& c) {
-  s.at_least("decimation", c.decimation(), 1);
-  s.check(c.physics_dt() > 0 && c.physics_dt() <= 0.05, "physics_dt",
-          "expected in (0, 0.05], got " + num(c.physics_dt()));
-  s.positive("kp", c.kp());
-  s.non_negative("kd", c.kd());
-  s.positive("action_scale", c.action_scale());
-  s.positive("action_range", c.action_range());
-  s.at_least("max_episode_steps", c.max_episode_steps(), 1);
-  s.check(c.command_resample_prob() >= 0 && c.command_resample_prob() <= 1, "command_resample_prob",
-          "expected in [0, 1], got " + num(c.command_resample_prob()));
-  s.non_negative("lin_vel_x_max", c.lin_vel_x_max());
-  s.non_negative("lin_vel_y_max", c.lin_vel_y_max());
-  s.non_negative("ang_vel_max", c.ang_vel_max());
-  s.positive("tracking_sigma", c.tracking_sigma());
-  s.in_unit("soft_dof_pos_limit", c.soft_dof_pos_limit());
-  s.check(c.friction_min() > 0 && c.friction_min() <= c.friction_max(), "friction_min",
-          "expected 0 < friction_min <= friction_max (" + num(c.friction_max()) + "), got " + num(c.friction_min()));
-  s.check(
-      c.init_joint_scale_min() <= c.init_joint_scale_max(), "init_joint_scale_min",
-      "expected <= init_joint_scale_max (" + num(c.init_joint_scale_max()) + "), got " + num(c.init_joint_scale_min()));
-  s.check(c.push_interval_s() >= 0, "push_interval_s", "expected >= 0 (0: no pushes), got " + num(c.push_interval_s()));
-  s.non_negative("noise_level", c.noise_level());
-  // Relative randomization ranges +-x around the model's value: the value keeps its sign.
-  for (auto [f, x] : {std::pair<const char*, double>{"trunk_mass_rel", c.trunk_mass_rel()},
-                      {"torque_limit_rel", c.torque_limit_rel()},
-                      {"velocity_limit_rel", c.velocity_limit_rel()},
-                      {"foot_size_rel", c.foot_size_rel()},
-                      {"kp_rel", c.kp_rel()},
-                      {"kd_rel", c.kd_rel()},
-                      {"action_scale_rel", c.action_scale_rel()},
-                      {"torque_multiplier_rel", c.torque_multiplier_rel()}})
-    s.check(x >= 0 && x < 1, f, "expected in [0, 1), got " + num(x));
-  s.positive("velocity_limit", c.velocity_limit());
-  s.check(c.armature_max() >= 0.005, "armature_max",
-          "expected >= 0.005 (the lower end of its range), got " + num(c.armature_max()));
-}
-
-// mCLARI (robots/mclari), its gaits and its terrains.
-void check_mclari(const Section& s, const config::MclariConfig& c) {
-  for (auto [f, x] : {std::pair<const char*, double>{"voltage", c.voltage()},
-                      {"frequency_step", c.frequency_step()},
-                      {"step_seconds", c.step_seconds()},
-                      {"power_sample_seconds", c.power_sample_seconds()},
-                      {"gravity_si", c.gravity_si()},
-                      {"target_radius", c.target_radius()},
-                      {"ground_half_size", c.ground_half_size()},
-                      {"hfield_height", c.hfield_height()},
-                      {"obs_power_scale", c.obs_power_scale()},
-                      {"obs_speed_scale", c.obs_speed_scale()},
-                      {"obs_distance_scale", c.obs_distance_scale()}})
-    s.finite_positive(f, x);
-  const int fmin = c.min_frequency(), fmax = c.max_frequency();
-  const std::string frange = "[min_frequency, max_frequency] = [" + num(fmin) + ", " + num(fmax) + "]";
-  s.at_least("min_frequency", fmin, 1);
-  s.check(fmax >= fmin, "max_frequency", "expected >= min_frequency (" + num(fmin) + "), got " + num(fmax));
-  s.check(c.initial_frequency() >= fmin && c.initial_frequency() <= fmax, "initial_frequency",
-          "expected in " + frange + ", got " + num(c.initial_frequency()));
-  s.at_least("steps_per_period", c.steps_per_period(), 1);
-  s.check(c.max_timestep() >= 0 && std::isfinite(c.max_timestep()), "max_timestep",
-          "expected >= 0 (0: no cap), got " + num(c.max_timestep()));
-  s.at_least("max_episode_steps", c.max_episode_steps(), 1);
-  s.non_negative("target_min_distance", c.target_min_distance());
-  s.check(
-      c.target_max_distance() >= c.target_min_distance(), "target_max_distance",
-      "expected >= target_min_distance (" + num(c.target_min_distance()) + "), got " + num(c.target_max_distance()));
-  s.check(c.target_max_distance() < c.ground_half_size(), "target_max_distance",
-          "expected inside the ground, < ground_half_size (" + num(c.ground_half_size()) + "), got " +
-              num(c.target_max_distance()));
-  s.non_negative("tendon_rest_length", c.tendon_rest_length());
-  s.non_negative("tendon_stiffness", c.tendon_stiffness());
-  s.check(c.fixed_frequency() >= 0 && c.fixed_frequency() <= fmax, "fixed_frequency",
-          "expected 0 (off) or in [1, max_frequency] = [1, " + num(fmax) + "], got " + num(c.fixed_frequency()));
-  s.check(c.fixed_group() >= 0 && c.fixed_group() < kMclariPhaseGroups, "fixed_group",
-          "expected in [0, " + num(kMclariPhaseGroups) + "), got " + num(c.fixed_group()));
-  // Gaits the agent chooses from.
-  if (c.groups_size() > 0 && c.reduced_groups()) s.fail("groups", "set groups or reduced_groups, not both");
-  s.distinct_in_range("groups", c.groups(), 0, kMclariPhaseGroups - 1, "[0, " + num(kMclariPhaseGroups) + ")",
-                      [](int g) { return "group " + num(g); });
-  s.distinct_in_range("frequencies", c.frequencies(), fmin, fmax, frange, [](int f) { return num(f) + " Hz"; });
-  const int groups = c.groups_size() > 0  ? c.groups_size()
-                     : c.reduced_groups() ? kMclariReducedGroups
-                                          : kMclariPhaseGroups;
-  s.check(c.initial_group() >= 0 && c.initial_group() < groups, "initial_group",
-          "expected an index into the " + num(groups) + " active groups, got " + num(c.initial_group()));
-  // Terrains, their reward references and the rough ground's height field.
-  // A terrain may be listed more than once: it is then drawn more often.
-  for (int i = 0; i < c.terrains_size(); ++i)
-    if (c.terrains(i) < 0 || c.terrains(i) >= kMclariTerrains)
-      s.fail("terrains", "entries must be in [0, " + num(kMclariTerrains) + "), got " + num(c.terrains(i)), i);
-  // One finite value > 0 per terrain, or none.
-  const auto per_terrain = [&s](const char* field, const pb::RepeatedField<double>& values) {
-    if (!values.empty() && values.size() != kMclariTerrains)
-      s.fail(field, "expected one value per terrain (" + num(kMclariTerrains) + ") or none, got " + num(values.size()));
-    for (int t = 0; t < values.size(); ++t)
-      if (!(values.Get(t) > 0) || !std::isfinite(values.Get(t)))
-        s.fail(field, "expected finite values > 0, got " + num(values.Get(t)) + " for terrain " + num(t), t);
-  };
-  per_terrain("reference_efficiency", c.reference_efficiency());
-  per_terrain("goal_efficiency", c.goal_efficiency());
-  s.at_least("hfield_size", c.hfield_size(), 2);
-  s.positive("hfield_sigma", c.hfield_sigma());
-  s.check(c.hfield_filter() >= 1 && c.hfield_filter() % 2 == 1, "hfield_filter",
-          "expected odd and >= 1, got " + num(c.hfield_filter()));
-}
-
-// The section of the task that runs; the others are never read.
-void check_task(const Section& s, const config::TaskConfig& t) {
-  const std::string& n = t.name();
-  if (n == "pendulum") check_pendulum(s.nest(n, t.pendulum()), t.pendulum());
-  if (n == "cartpole") check_cartpole(s.nest(n, t.cartpole()), t.cartpole());
-  if (n == "jetbot") check_mobile(s.nest(n, t.jetbot()), t.jetbot());
-  if (n == "kaya") check_mobile(s.nest(n, t.kaya()), t.kaya());
-  if (n == "mclari") check_mclari(s.nest(n, t.mclari()), t.mclari());
-  if (n == "a1") check_legged(s.nest(n, t.a1()), t.a1());
-  if (n == "honey_badger") check_legged(s.nest(n, t.honey_badger()), t.honey_badger());
-  if (n == "silver_badger") check_legged(s.nest(n, t.silver_badger()), t.silver_badger());
-  if (n == "terms") robots::terms::check_terms(s.nest(n, t.terms()), t.terms());
-}
 
 // Algorithm sections.
 
@@ -313,7 +120,7 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
 void validate(const config::ExperimentConfig& c, Validator& v) {
   const Section root(v, c, "");
   if (!c.has_experiment_id() || c.experiment_id().empty())
-    root.fail("experiment_id", "required: a name for the run, e.g. \"pendulum_sac\"");
+    root.fail("experiment_id", "required: a name for the run, e.g. \"my_robot_sac\"");
   for (char ch : c.experiment_id()) {
     if (!(std::isalnum(static_cast<unsigned char>(ch)) || ch == '_' || ch == '-' || ch == '.'))
       root.fail("experiment_id", "expected letters, digits, '_', '-' or '.', got \"" + c.experiment_id() + "\"");
@@ -328,7 +135,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
     root.fail("algorithm", "expected one of: " + known + "; got \"" + c.algorithm() + "\"");
   }
 
-  check_task(root.nest("task", c.task()), c.task());
+  robots::check_task_section(root.nest("task", c.task()), c.task());
   check_sac(root.nest("sac", c.sac()), c.sac());
   if (c.algorithm() == "dqn") check_dqn(root.nest("dqn", c.dqn()), c.dqn());
   if (c.algorithm() == "ppo") check_ppo(root.nest("ppo", c.ppo()), c.ppo());
@@ -404,13 +211,6 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   root.positive("worker_timeout_seconds", c.worker_timeout_seconds());
 }
 
-// A section checked in code: no file, errors name the path alone.
-template <typename Msg, typename Check>
-void check_in_code(const Msg& msg, const std::string& path, Check check) {
-  Validator v;
-  check(Section(v, msg, path), msg);
-}
-
 }  // namespace
 
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
@@ -446,16 +246,6 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
   return parse_config_text(text, source, "");
 }
 
-void check_config(const config::PendulumConfig& c) { check_in_code(c, "task.pendulum", check_pendulum); }
-void check_config(const config::CartpoleConfig& c) { check_in_code(c, "task.cartpole", check_cartpole); }
-void check_config(const config::JetbotConfig& c) {
-  check_in_code(c, "task.jetbot", check_mobile<config::JetbotConfig>);
-}
-void check_config(const config::KayaConfig& c) { check_in_code(c, "task.kaya", check_mobile<config::KayaConfig>); }
-void check_config(const config::MclariConfig& c) { check_in_code(c, "task.mclari", check_mclari); }
-void check_config(const config::LeggedConfig& c, const std::string& task) {
-  check_in_code(c, "task." + task, check_legged);
-}
 void check_config(const config::SacConfig& c) { check_in_code(c, "sac", check_sac); }
 void check_config(const config::DqnConfig& c) { check_in_code(c, "dqn", check_dqn); }
 void check_config(const config::PpoConfig& c) { check_in_code(c, "ppo", check_ppo); }

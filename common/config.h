@@ -20,12 +20,6 @@ inline constexpr int kMaxThreadsPerWorker = 256;
 inline constexpr int kMaxStepsPerBatch = 4096;
 inline constexpr long long kMaxBatchTransitions = 1 << 20;  // steps x envs of one batch
 
-// mCLARI's counts that bound its config's lists and indices (robots/mclari asserts they agree):
-// phase groups (seed 001 §2.2), the reduced set of them (§4.1.2) and terrains (§3.3).
-inline constexpr int kMclariPhaseGroups = 27;
-inline constexpr int kMclariReducedGroups = 8;
-inline constexpr int kMclariTerrains = 6;
-
 struct ConfigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
@@ -43,8 +37,8 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
                                            const std::string& folder);
 
-// Fields that name a file the process building the task writes (today task.mclari.hfield_png):
-// the set ones, by path ("task.mclari.hfield_png"), and a way to clear them all.
+// Fields that name a file the process building the task writes (marked output_path in the schema):
+// the set ones, by path ("task.<section>.<field>"), and a way to clear them all.
 std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg);
 void clear_output_paths(config::ExperimentConfig* cfg);
 // parse_config_text for a config that came over the bus (a worker's ExperimentSpec): it may not
@@ -58,16 +52,10 @@ std::string config_to_text(const config::ExperimentConfig& cfg);
 // sees one, else the CPU): the learner devices a config may name.
 bool valid_device_name(const std::string& name);
 
-// The loader's range checks of one section, for a task or an algorithm built from a config that
-// did not come through the loader (unit tests, tools that change a loaded config). The error names
-// the field path, as there is no file: std::invalid_argument("field 'task.a1.kp': expected > 0, got 0").
-void check_config(const config::PendulumConfig& c);  // task.pendulum
-void check_config(const config::CartpoleConfig& c);  // task.cartpole
-void check_config(const config::JetbotConfig& c);    // task.jetbot, its scene included
-void check_config(const config::KayaConfig& c);      // task.kaya, its scene included
-void check_config(const config::MclariConfig& c);    // task.mclari
-// task: the section the config stands for, "a1", "honey_badger" or "silver_badger".
-void check_config(const config::LeggedConfig& c, const std::string& task);
+// The loader's range checks of one algorithm section, for a config that did not come through the
+// loader (unit tests, tools that change a loaded config). The error names the field path, as there
+// is no file: std::invalid_argument("field 'sac.batch_size': expected > 0, got 0"). A task
+// section's own check_config is in its robot's folder (robots/<robot>/<robot>_spec.h).
 void check_config(const config::SacConfig& c);
 void check_config(const config::DqnConfig& c);
 void check_config(const config::PpoConfig& c);

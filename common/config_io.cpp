@@ -23,8 +23,8 @@ std::vector<std::string> algorithm_sections() {
 
 namespace {
 
-// Names of the fields that name a file to write; found at any depth of the config.
-bool is_output_path(const pb::FieldDescriptor* f) { return f->name() == "hfield_png"; }
+// Fields that name a file to write (marked output_path in the schema); found at any depth.
+bool is_output_path(const pb::FieldDescriptor* f) { return f->options().GetExtension(config::output_path); }
 
 // Visits the set output-path fields under msg (path so far: prefix); clears them when asked.
 void walk_output_paths(pb::Message* msg, const std::string& prefix, bool clear, std::vector<std::string>* found) {

@@ -98,13 +98,13 @@ inline std::string num(double v) {
   return o.str();
 }
 
-// One message of the config and its path ("task.a1"): a check names the field by its path and,
+// One message of the config and its path ("task.terms"): a check names the field by its path and,
 // through the Validator, by where the file wrote it.
 class Section {
  public:
   Section(Validator& v, const pb::Message& msg, std::string path) : v_(v), msg_(msg), path_(std::move(path)) {}
 
-  // The message `field` of this one, e.g. task.nest("a1", t.a1()).
+  // The message `field` of this one, e.g. task.nest("terms", t.terms()).
   Section nest(const std::string& field, const pb::Message& child) const {
     v_.nest(msg_, field, child);
     return Section(v_, child, path_of(field));
@@ -176,5 +176,13 @@ class Section {
   const pb::Message& msg_;
   std::string path_;
 };
+
+// A section checked in code (a config built by a program, not read from a file): errors name the
+// path alone, as std::invalid_argument.
+template <typename Msg, typename Check>
+void check_in_code(const Msg& msg, const std::string& path, Check check) {
+  Validator v;
+  check(Section(v, msg, path), msg);
+}
 
 }  // namespace farm::config_checks

@@ -20,9 +20,10 @@ struct TaskSpec {
   int num_actions = 0;
 };
 
-// The spec of the task cfg names, from the config alone (no MuJoCo): what robots::make_task(cfg)
-// builds reports the same spec() (tests/unit/test_task_conformance.cpp). Throws
-// std::invalid_argument for a task it does not know.
+// The spec of the task cfg names, from the config alone (no MuJoCo), as its robot's folder defines
+// it (robots/tasks.def, robots/task_specs.cpp): what robots::make_task(cfg) builds reports the same
+// spec() (tests/unit/test_task_conformance.cpp). Throws std::invalid_argument for a task it does
+// not know.
 TaskSpec task_spec(const config::TaskConfig& cfg);
 
 }  // namespace farm::robots

@@ -7,14 +7,15 @@
 #include <cstdio>
 #include <stdexcept>
 
-#include "cartpole/cartpole_task.h"
-#include "mclari/mclari_task.h"
-#include "mobile/mobile_task.h"
-#include "pendulum/pendulum_task.h"
-#include "quadruped/quadruped_task.h"
-#include "terms/terms_task.h"
-
 namespace farm::robots {
+
+// Each registered task's make function, declared from its line of robots/tasks.def.
+#define TASK(name, family, make, spec, check)                \
+  namespace family {                                         \
+  std::unique_ptr<Task> make(const config::TaskConfig& cfg); \
+  }
+#include "tasks.def"
+#undef TASK
 
 TaskState::~TaskState() {
   if (data) mj_deleteData(data);
@@ -56,17 +57,11 @@ struct Registration {
   std::unique_ptr<Task> (*make)(const config::TaskConfig&);
 };
 
-// One line per task.
+// robots/tasks.def: one line per task.
 const Registration kTasks[] = {
-    {"pendulum", &make_pendulum_task},
-    {"cartpole", &make_cartpole_task},
-    {"jetbot", &mobile::make_jetbot_task},
-    {"kaya", &mobile::make_kaya_task},
-    {"mclari", &make_mclari_task},
-    {"a1", &quadruped::make_a1_task},
-    {"honey_badger", &quadruped::make_honey_badger_task},
-    {"silver_badger", &quadruped::make_silver_badger_task},
-    {"terms", &terms::make_terms_task},
+#define TASK(name, family, make, spec, check) {#name, &family::make},
+#include "tasks.def"
+#undef TASK
 };
 
 }  // namespace

@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "config.h"
+#include "cartpole/cartpole_spec.h"
 #include "embedded_mjcf.h"
 
 namespace farm::robots {
@@ -115,7 +115,7 @@ void CartpoleTask::episode_metrics(const TaskState& s, float* out) const {
   out[0] = cs.step > 0 ? float(cs.upright_steps) / float(cs.step) : 0.f;
 }
 
-std::unique_ptr<Task> make_cartpole_task(const config::TaskConfig& cfg) {
+std::unique_ptr<Task> cartpole::make_cartpole_task(const config::TaskConfig& cfg) {
   return std::make_unique<CartpoleTask>(cfg.cartpole());
 }
 

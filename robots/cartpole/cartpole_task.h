@@ -42,7 +42,9 @@ class CartpoleTask final : public Task {
   mjModel_* model_ = nullptr;  // owned
 };
 
-// Registered as "cartpole"; reads cfg.cartpole().
+namespace cartpole {
+// Registered as "cartpole" (robots/tasks.def); reads cfg.cartpole().
 std::unique_ptr<Task> make_cartpole_task(const config::TaskConfig& cfg);
+}  // namespace cartpole
 
 }  // namespace farm::robots

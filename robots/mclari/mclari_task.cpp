@@ -11,6 +11,7 @@
 #include "check.h"
 #include "config.h"
 #include "embedded_mjcf.h"
+#include "mclari/mclari_spec.h"
 #include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
 
@@ -392,7 +393,7 @@ void McLariTask::episode_metrics(const TaskState& base, float* out) const {
   out[6] = s.fell ? 0.f : goal.empty() ? out[0] : float(out[0] / goal.Get(s.terrain));
 }
 
-std::unique_ptr<Task> make_mclari_task(const config::TaskConfig& cfg) {
+std::unique_ptr<Task> mclari::make_mclari_task(const config::TaskConfig& cfg) {
   return std::make_unique<McLariTask>(cfg.mclari());
 }
 

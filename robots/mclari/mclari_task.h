@@ -104,7 +104,9 @@ class McLariTask final : public Task {
   double mass_g_ = 0;
 };
 
-// Registered as "mclari"; reads cfg.mclari() (seed 001 defaults where unset).
+namespace mclari {
+// Registered as "mclari" (robots/tasks.def); reads cfg.mclari() (seed 001 defaults where unset).
 std::unique_ptr<Task> make_mclari_task(const config::TaskConfig& cfg);
+}  // namespace mclari
 
 }  // namespace farm::robots

@@ -8,9 +8,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "config.h"
 #include "embedded_mjcf.h"
 #include "mobile/kinematics.h"
+#include "mobile/mobile_spec.h"
 
 namespace farm::robots::mobile {
 

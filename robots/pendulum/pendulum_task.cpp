@@ -7,8 +7,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "config.h"
 #include "embedded_mjcf.h"
+#include "pendulum/pendulum_spec.h"
 
 namespace farm::robots {
 
@@ -149,7 +149,7 @@ void PendulumTask::episode_metrics(const TaskState& s, float* out) const {
   out[0] = ps.step > 0 ? float(ps.upright_steps) / float(ps.step) : 0.f;
 }
 
-std::unique_ptr<Task> make_pendulum_task(const config::TaskConfig& cfg) {
+std::unique_ptr<Task> pendulum::make_pendulum_task(const config::TaskConfig& cfg) {
   return std::make_unique<PendulumTask>(cfg.pendulum());
 }
 

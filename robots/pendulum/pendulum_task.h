@@ -45,7 +45,9 @@ class PendulumTask final : public Task {
   mjModel_* model_ = nullptr;  // owned
 };
 
-// Registered as "pendulum"; reads cfg.pendulum() (Pendulum-v1 defaults where unset).
+namespace pendulum {
+// Registered as "pendulum" (robots/tasks.def); reads cfg.pendulum() (Pendulum-v1 defaults where unset).
 std::unique_ptr<Task> make_pendulum_task(const config::TaskConfig& cfg);
+}  // namespace pendulum
 
 }  // namespace farm::robots

@@ -7,8 +7,8 @@
 #include <limits>
 #include <stdexcept>
 
-#include "config.h"
 #include "embedded_mjcf.h"
+#include "quadruped/quadruped_spec.h"
 
 namespace farm::robots::quadruped {
 

@@ -100,6 +100,10 @@ void check_expression(const Section& s, const std::string& expr, const ModelInfo
 
 }  // namespace
 
+void check_terms(const Section& task, const config::TaskConfig& t) {
+  check_terms(task.nest("terms", t.terms()), t.terms());
+}
+
 void check_terms(const Section& s, const config::TermsConfig& c) {
   s.check(c.max_model_bytes() > 0 && c.max_model_bytes() <= kMaxModelBytesCap, "max_model_bytes",
           "expected 1.." + std::to_string(kMaxModelBytesCap) + ", got " + num(double(c.max_model_bytes())));

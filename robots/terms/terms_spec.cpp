@@ -241,6 +241,8 @@ std::vector<std::string> metric_names(const config::TermsConfig& cfg) {
   return m;
 }
 
+TaskSpec terms_spec(const config::TaskConfig& cfg) { return task_spec(cfg.terms()); }
+
 TaskSpec task_spec(const config::TermsConfig& cfg) {
   const ModelInfo model = scan_model(cfg);
   const int root = root_body(cfg, model);

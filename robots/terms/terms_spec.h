@@ -65,5 +65,7 @@ std::vector<std::string> metric_names(const config::TermsConfig& cfg);
 
 // The TaskSpec of task "terms" (model_files filled). Throws std::invalid_argument or ModelError.
 TaskSpec task_spec(const config::TermsConfig& cfg);
+// The same from the task section (robots/tasks.def).
+TaskSpec terms_spec(const config::TaskConfig& cfg);
 
 }  // namespace farm::robots::terms

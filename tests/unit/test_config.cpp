@@ -8,6 +8,10 @@
 #include <string>
 
 #include "config.h"
+#include "mclari/mclari_spec.h"
+#include "mobile/mobile_spec.h"
+#include "pendulum/pendulum_spec.h"
+#include "quadruped/quadruped_spec.h"
 
 using farm::ConfigError;
 using farm::parse_config_text;

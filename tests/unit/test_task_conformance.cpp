@@ -23,9 +23,11 @@
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <ostream>
 #include <random>
+#include <regex>
 #include <set>
 #include <stdexcept>
 #include <string>
@@ -33,6 +35,7 @@
 
 #include "config.h"
 #include "task.h"
+#include "task_specs.h"
 
 namespace farm::robots {
 namespace {
@@ -224,6 +227,47 @@ TEST(TaskSpecFromConfig, FollowsTheOptionsThatSizeTheTask) {
   config::TaskConfig unknown;
   unknown.set_name("no_such_task");
   EXPECT_THROW(task_spec(unknown), std::invalid_argument);
+}
+
+// The two registries, MuJoCo's (make_task) and the spec side's (task_spec, the loader's checks),
+// come from one list, robots/tasks.def.
+TEST(TaskRegistry, BothSidesRegisterTheSameTasks) { EXPECT_EQ(registered_task_names(), task_names()); }
+
+// Every robot's knowledge (its config section, range checks, spec) lives in its own folder under
+// robots/: no code under common/ names a registered robot task. Comments are left out (a default's
+// comment may cite a source paper's table column named for a robot); "terms", the task of terms,
+// is no robot.
+TEST(TaskRegistry, CommonNamesNoRobot) {
+  std::string alternatives;
+  for (const auto& n : task_names())
+    if (n != "terms") alternatives += (alternatives.empty() ? "" : "|") + n;
+  ASSERT_FALSE(alternatives.empty());
+  const std::regex robot("(^|[^A-Za-z0-9_])(" + alternatives + ")([^A-Za-z0-9_]|$)", std::regex::icase);
+  // The code of a file with its comments (// and, in CMake files, #) left out, line by line.
+  const auto code_lines = [](const std::filesystem::path& p) {
+    std::vector<std::string> lines;
+    std::ifstream in(p);
+    const bool cmake = p.filename() == "CMakeLists.txt";
+    for (std::string line; std::getline(in, line);) {
+      const size_t cut = line.find(cmake ? "#" : "//");
+      lines.push_back(cut == std::string::npos ? line : line.substr(0, cut));
+    }
+    return lines;
+  };
+  int files = 0;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(std::string(FARM_SOURCE_DIR) + "/common")) {
+    if (!e.is_regular_file()) continue;
+    ++files;
+    const auto lines = code_lines(e.path());
+    for (size_t i = 0; i < lines.size(); ++i)
+      EXPECT_FALSE(std::regex_search(lines[i], robot)) << e.path().string() << ":" << i + 1 << ": " << lines[i];
+  }
+  EXPECT_GT(files, 10);
+  // The same search finds the robots where they are: the task section's fields.
+  int found = 0;
+  for (const auto& line : code_lines(std::string(FARM_SOURCE_DIR) + "/robots/tasks/tasks.proto"))
+    found += std::regex_search(line, robot);
+  EXPECT_GE(found, 8);
 }
 
 // Three states, two of one Task and one of another, reset with one seed and fed one action
