@@ -3,14 +3,14 @@
 # --config): half a simulated second of each (the microbot: its first 1 s step) to an MP4 that
 # ffprobe reads with the frame count farm-play printed, with the robot in the picture of every
 # frame (--view-check: the robot's bodies cover at least 20 pixels of each).
-# Every task of robots/task.cpp's registry must have a shipped experiment in deploy/configs/.
+# Every task of the registry (robots/tasks.def) must have a shipped experiment in deploy/configs/.
 #   tests/integration/test_play_tasks.sh PLAY SOURCE_DIR
 set -uo pipefail
 play=$(readlink -f "$1") src=$(readlink -f "$2")
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 farm_test_init play-tasks 0
 
-tasks=$(sed -n 's/^ *{"\([a-z_0-9]*\)", &.*make_.*_task},$/\1/p' "$src/robots/task.cpp")
+tasks=$(sed -n 's/^TASK(\([a-z_0-9]*\), .*/\1/p' "$src/robots/tasks.def")
 [ "$(wc -w <<<"$tasks")" -ge 8 ] || fail "could not read the task registry: '$tasks'"
 for task in $tasks; do
   cfg=$(grep -l "^  name: \"$task\"" "$src"/deploy/configs/*.txtpb | head -1)
