@@ -22,6 +22,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <stdexcept>
 #include <string>
 
@@ -246,6 +247,20 @@ class Reader : public fdds::DataReaderListener {
     pending_ = true;
     cv_.notify_all();
   }
+  // The writers matched with this reader, kept from the match notifications (Fast DDS 2.9's
+  // get_matched_publications is not implemented). A writer leaves when its participant leaves or
+  // its lease runs out.
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& info) override {
+    const eprosima::fastrtps::rtps::GUID_t writer =
+        eprosima::fastrtps::rtps::iHandle2GUID(info.last_publication_handle);
+    std::lock_guard<std::mutex> lk(matched_mu_);
+    if (info.current_count_change > 0) matched_writers_.insert(writer);
+    if (info.current_count_change < 0) matched_writers_.erase(writer);
+  }
+  bool writer_matched(const eprosima::fastrtps::rtps::GUID_t& writer) const {
+    std::lock_guard<std::mutex> lk(matched_mu_);
+    return matched_writers_.count(writer) > 0;
+  }
   // Samples refused for their size (bounded constructor) in this process so far.
   uint64_t refused() const { return max_sample_bytes_ ? samples_refused_for_size() : 0; }
   // The bound of the bounded constructor; 0 for none.
@@ -258,6 +273,8 @@ class Reader : public fdds::DataReaderListener {
   fdds::DataReader* reader_ = nullptr;
   std::mutex mu_;
   std::condition_variable cv_;
+  mutable std::mutex matched_mu_;
+  std::set<eprosima::fastrtps::rtps::GUID_t> matched_writers_;
   bool pending_ = false;
 };
 

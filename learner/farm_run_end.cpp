@@ -11,6 +11,7 @@
 
 #include "farm_service.h"
 #include "meter.h"
+#include "printable.h"
 
 namespace farm {
 
@@ -46,7 +47,7 @@ std::string FarmService::summary_workers() const {
     o << "other experiments " << ingest_.counters().foreign
       << " batches of other experiments on the domain, not used\n";
   for (auto& [k, w] : ingest_.workers()) {
-    o << "worker            " << w.worker_id << " session " << w.session << ": received " << w.received
+    o << "worker            " << printable(w.worker_id, 100) << " session " << w.session << ": received " << w.received
       << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
       << w.duplicates << ", invalid " << w.invalid << (w.ended ? ", stream closed" : ", stream open") << "\n";
   }

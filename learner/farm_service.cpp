@@ -9,6 +9,7 @@
 #include "config.h"
 #include "eval_answer.h"
 #include "meter.h"
+#include "printable.h"
 #include "registry.h"
 
 namespace farm {
@@ -47,7 +48,8 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                        const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid());
                        if (by != s.worker_id()) {
                          ++heartbeats_refused_;
-                         heartbeat_refused_note_ = "'" + s.worker_id() + "' from '" + by + "'";
+                         heartbeat_refused_note_ =
+                             "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'";
                          continue;
                        }
                      }
@@ -260,7 +262,9 @@ bool FarmService::try_checkpoint(double elapsed) {
 }
 
 void FarmService::log(const std::string& s) const {
-  std::printf("[learner] %s\n", s.c_str());
+  // Every line is made printable here too, whatever part of it came from the bus (ids, errors,
+  // reasons that quote them), and cut: nothing a participant sends reaches the terminal raw.
+  std::printf("[learner] %s\n", printable(s, kMaxLogLine, false).c_str());
   std::fflush(stdout);
 }
 
@@ -346,7 +350,8 @@ bool FarmService::accept_batch() {
     return false;
   }
   if (++rejections_logged_ <= 20)
-    log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + batch_.worker_id() + ": " + why);
+    log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
+        ": " + why);
   return false;
 }
 

@@ -164,6 +164,7 @@ class FarmService final : public Farm {
   uint64_t heartbeats_refused_logged_ = 0;
   int heartbeat_notes_ = 0;
   static constexpr size_t kMaxHeard = 65536;
+  static constexpr size_t kMaxLogLine = 8192;  // bytes of one log line; a longer one is cut
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
   farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;

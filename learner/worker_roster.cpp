@@ -2,6 +2,8 @@
 
 #include <cstdio>
 
+#include "printable.h"
+
 namespace farm {
 
 namespace {
@@ -21,21 +23,23 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& s, double now) {
     // A worker with no experiment yet (it waits for a spec) is not ours until it says so; one of
     // another experiment is noted once per experiment, so a shared domain shows in the log.
     if (!s.experiment_id().empty() && foreign_.size() < kMaxForeignNoted && foreign_.insert(s.experiment_id()).second)
-      log_("heartbeats of another experiment, '" + s.experiment_id() + "' (worker " + s.worker_id() +
-           "), are ignored: only workers of '" + experiment_id_ + "' count");
+      log_("heartbeats of another experiment, '" + printable(s.experiment_id()) + "' (worker " +
+           printable(s.worker_id()) + "), are ignored: only workers of '" + experiment_id_ + "' count");
     return false;
   }
   View& v = views_[s.worker_id() + "#" + std::to_string(s.worker_session())];
   const std::string size = std::to_string(s.envs()) + " envs on " + std::to_string(s.threads()) + " threads";
   // A worker builds its environments once it has the spec: until then its heartbeats carry no size.
+  // Ids, hosts and errors are network input: printed escaped and cut (printable.h).
+  const std::string who = "worker " + printable(s.worker_id(), 100) + " on " + printable(s.host(), 100);
   if (v.seen == 0)
-    log_("worker " + s.worker_id() + " on " + s.host() + " joined (session " + std::to_string(s.worker_session()) +
-         ", " + (s.envs() > 0 ? size : std::string("waiting for the spec")) + ")");
+    log_(who + " joined (session " + std::to_string(s.worker_session()) + ", " +
+         (s.envs() > 0 ? size : std::string("waiting for the spec")) + ")");
   else if (s.envs() > 0 && v.last.envs() == 0)
-    log_("worker " + s.worker_id() + " on " + s.host() + " runs " + size);
-  if (v.dead) log_("worker " + s.worker_id() + " on " + s.host() + " is back after " + seconds(now - v.seen) + " s");
+    log_(who + " runs " + size);
+  if (v.dead) log_(who + " is back after " + seconds(now - v.seen) + " s");
   if (!s.last_error().empty() && s.last_error() != v.last.last_error())
-    log_("worker " + s.worker_id() + " reports: " + s.last_error());
+    log_("worker " + printable(s.worker_id(), 100) + " reports: " + printable(s.last_error(), 500));
   v.last = s;
   v.seen = now;
   v.dead = false;
@@ -53,17 +57,10 @@ void WorkerRoster::note_rejection(const farm::msg::WorkerStatus& s) {
   if (e.rfind("cannot run experiment '" + experiment_id_ + "'", 0) != 0 &&
       e.find("ExperimentSpec(" + experiment_id_ + ")") == std::string::npos)
     return;
-  constexpr size_t kMaxError = 500;
-  auto printable = [](std::string t) {
-    for (char& c : t)
-      if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
-    return t;
-  };
-  const std::string text =
-      printable(e.size() > kMaxError ? e.substr(0, kMaxError) + "... (" + std::to_string(e.size()) + " bytes)" : e);
-  const std::string id = printable(s.worker_id().substr(0, 100));
+  const std::string text = printable(e, 500);
+  const std::string id = printable(s.worker_id(), 100);
   if (rejected_.size() >= kMaxRejectionsNoted || !rejected_.insert(id + "#" + text).second) return;
-  log_("worker " + id + " on " + printable(s.host().substr(0, 100)) + " cannot join: " + text +
+  log_("worker " + id + " on " + printable(s.host(), 100) + " cannot join: " + text +
        (rejected_.size() == kMaxRejectionsNoted ? " (no more such lines)" : ""));
 }
 
@@ -71,8 +68,8 @@ void WorkerRoster::check(double now) {
   for (auto& [k, v] : views_) {
     if (v.dead || v.last.state() == "finished" || now - v.seen < timeout_) continue;
     v.dead = true;
-    log_("worker " + v.last.worker_id() + " on " + v.last.host() + " silent for " + seconds(now - v.seen) +
-         " s: marked dead; going on with " + std::to_string(live_count(now)) + " workers");
+    log_("worker " + printable(v.last.worker_id(), 100) + " on " + printable(v.last.host(), 100) + " silent for " +
+         seconds(now - v.seen) + " s: marked dead; going on with " + std::to_string(live_count(now)) + " workers");
   }
 }
 

@@ -8,6 +8,8 @@
 #include <ctime>
 #include <sstream>
 
+#include "printable.h"
+
 namespace farm {
 
 namespace {
@@ -76,11 +78,14 @@ std::string render_table(const MonitorSnapshot& s) {
                 "BATCHES", "POLICY", "STATE", "AGE");
   o << line;
   for (const WorkerRow& w : s.workers) {
-    std::string st = w.state;
-    if (w.alive && !w.last_error.empty()) st += " (" + w.last_error + ")";
-    std::snprintf(line, sizeof(line), "%-16s %-20s %6u %10.0f %9llu %7s %-20s %5.1fs\n", w.host.c_str(), w.id.c_str(),
-                  w.envs, w.steps_per_second, static_cast<unsigned long long>(w.batches_sent),
-                  ("v" + std::to_string(w.policy_version)).c_str(), st.c_str(), w.age_s);
+    // Hosts, ids, states and errors come from heartbeats: escaped and cut (printable.h), so no
+    // escape sequence reaches the operator's terminal.
+    std::string st = printable(w.state, 40);
+    if (w.alive && !w.last_error.empty()) st += " (" + printable(w.last_error, 200) + ")";
+    std::snprintf(line, sizeof(line), "%-16s %-20s %6u %10.0f %9llu %7s %-20s %5.1fs\n", printable(w.host, 64).c_str(),
+                  printable(w.id, 64).c_str(), w.envs, w.steps_per_second,
+                  static_cast<unsigned long long>(w.batches_sent), ("v" + std::to_string(w.policy_version)).c_str(),
+                  st.c_str(), w.age_s);
     o << line;
   }
   if (s.workers.empty()) o << "(no worker heartbeats yet)\n";
@@ -96,7 +101,7 @@ std::string render_table(const MonitorSnapshot& s) {
     o << "learner: no LearnerStats yet\n";
   } else {
     const LearnerRow& l = s.learners[s.latest_learner];
-    o << "learner  experiment " << l.experiment << ", " << fmt("%.0f", l.elapsed_s) << " s, last stats "
+    o << "learner  experiment " << printable(l.experiment, 64) << ", " << fmt("%.0f", l.elapsed_s) << " s, last stats "
       << fmt("%.1f", l.age_s) << " s ago, " << l.workers << " live workers\n"
       << "  ingest   " << fmt("%.0f", l.env_steps_per_second) << " steps/s (" << l.env_steps << " env steps)\n"
       << "  updates  " << fmt("%.0f", l.updates_per_second) << " upd/s (" << l.updates << ")\n"

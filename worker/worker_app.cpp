@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "config.h"
+#include "printable.h"
 #include "task.h"
 
 namespace farm {
@@ -45,11 +46,13 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
       bus_(o.bus, "farm-worker " + o.id),
       spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader",
                [this](eprosima::fastdds::dds::DataReader* r) {
-                 farm::msg::ExperimentSpec s;
-                 while (decltype(spec_in_)::take_from(r, s)) {
+                 SpecIn in;
+                 eprosima::fastdds::dds::SampleInfo info;
+                 while (decltype(spec_in_)::take_from(r, in.spec, info)) {
+                   in.writer = info.sample_identity.writer_guid();
                    std::lock_guard<std::mutex> lk(in_mu_);
                    if (specs_in_.size() >= kMaxSpecsIn) specs_in_.pop_front();
-                   specs_in_.push_back(s);
+                   specs_in_.push_back(in);
                  }
                }),
       weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader",
@@ -148,12 +151,14 @@ int WorkerApp::run() {
 }
 
 void WorkerApp::log(const std::string& s) {
-  std::printf("[worker %s] %s\n", opt_.id.c_str(), s.c_str());
+  // Lines quote what came from the bus (experiment ids, config errors): made printable and cut, so
+  // no escape sequence a participant sends reaches the operator's terminal.
+  std::printf("[worker %s] %s\n", opt_.id.c_str(), printable(s, 8192, false).c_str());
   std::fflush(stdout);
 }
 
 void WorkerApp::poll_spec() {
-  std::deque<farm::msg::ExperimentSpec> got;
+  std::deque<SpecIn> got;
   {
     std::lock_guard<std::mutex> lk(in_mu_);
     got.swap(specs_in_);
@@ -162,14 +167,56 @@ void WorkerApp::poll_spec() {
     on_spec(s);
     if (finished_) return;
   }
+  // The joined learner has left the bus (its lease ran out, or it ended without a last word): the
+  // latest spec of another writer is the experiment's learner now, a restarted one.
+  if (pending_spec_ && rollout_ && !spec_in_.writer_matched(learner_writer_)) {
+    SpecIn next = std::move(*pending_spec_);
+    pending_spec_.reset();
+    const std::string why = check_spec_update(next.spec);
+    if (!why.empty()) return refuse_spec(why);
+    if (next.spec.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
+    learner_writer_ = next.writer;
+    spec_ = next.spec;
+  }
 }
 
-void WorkerApp::on_spec(const farm::msg::ExperimentSpec& s) {
+void WorkerApp::refuse_spec(const std::string& why) {
+  ++specs_refused_;
+  // What a participant sends is not for it to fill this worker's log: one line per 10 s at most.
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_refusal_log_ < std::chrono::seconds(10)) return;
+  last_refusal_log_ = now;
+  log("refused a spec of experiment '" + experiment_ + "' (" + std::to_string(specs_refused_) + " so far): " + why);
+}
+
+std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) const {
+  config::ExperimentConfig cfg;
+  try {
+    cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||
+      (long long)s.steps_per_batch() * envs_ > kMaxBatchTransitions)
+    return "steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " + std::to_string(envs_) +
+           " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) + " steps and " +
+           std::to_string(kMaxBatchTransitions) + " transitions per batch";
+  if (s.max_batches_per_version() < 1) return "max_batches_per_version 0: no batch could be sent";
+  if (cfg.task().SerializeAsString() != joined_task_) return "its task section differs from the one this worker runs";
+  if (int(s.obs_dim()) != task_->spec().obs_dim || int(s.act_dim()) != task_->spec().act_dim)
+    return "its obs_dim " + std::to_string(s.obs_dim()) + " / act_dim " + std::to_string(s.act_dim()) +
+           " are not the task's " + std::to_string(task_->spec().obs_dim) + " / " +
+           std::to_string(task_->spec().act_dim);
+  return "";
+}
+
+void WorkerApp::on_spec(const SpecIn& in) {
+  const farm::msg::ExperimentSpec& s = in.spec;
   if (experiment_.empty()) {
     // Without --experiment the first experiment this worker can run binds it (join); one that is
     // over is no one's to join, and one it cannot run (a forged or broken spec) must not keep it
     // from the next.
-    if (!s.finished()) join(s);
+    if (!s.finished()) join(in);
     return;
   }
   // One experiment per worker process: another one's spec (a second learner on the domain, or
@@ -180,19 +227,29 @@ void WorkerApp::on_spec(const farm::msg::ExperimentSpec& s) {
     note_foreign(s.experiment_id());
     return;
   }
+  if (!rollout_) {
+    if (!s.finished()) join(in);
+    return;
+  }
+  // Joined: only the learner joined speaks for the experiment. Another writer's spec (an impostor,
+  // or a restarted learner while the old one is still on the bus) waits until that learner has
+  // left; another writer's end of the experiment is not believed at all.
+  if (in.writer != learner_writer_) {
+    if (s.finished()) return refuse_spec("an end of the experiment from a participant other than its learner");
+    pending_spec_ = in;
+    return;
+  }
   if (s.finished()) {
-    if (rollout_) {
-      log("learner finished experiment '" + s.experiment_id() + "'");
-      finished_ = true;
-    }
+    log("learner finished experiment '" + s.experiment_id() + "'");
+    finished_ = true;
     return;
   }
-  if (rollout_) {
-    if (s.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
-    spec_ = s;
-    return;
-  }
-  join(s);
+  // Checked every time, as at join: a spec that would size batches past their bounds, stall the
+  // worker or change its task is refused, and the worker runs on with the spec it has.
+  const std::string why = check_spec_update(s);
+  if (!why.empty()) return refuse_spec(why);
+  if (s.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
+  spec_ = s;
 }
 
 namespace {
@@ -231,7 +288,8 @@ std::string lower_priority(int nice) {
 
 }  // namespace
 
-void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
+void WorkerApp::join(const SpecIn& in) {
+  const farm::msg::ExperimentSpec& s = in.spec;
   drain_sender(false);  // batches of an earlier join keep their session; the numbering restarts below
   try {
     config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
@@ -242,6 +300,8 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
       throw std::runtime_error("spec's steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " +
                                std::to_string(envs) + " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) +
                                " steps and " + std::to_string(kMaxBatchTransitions) + " transitions per batch");
+    if (s.max_batches_per_version() < 1)
+      throw std::runtime_error("spec's max_batches_per_version 0: no batch could be sent");
     std::shared_ptr<const robots::Task> task = robots::make_task(cfg.task());
     const int eval_max = std::max(cfg.eval().episodes(), cfg.eval().final_episodes());
     if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
@@ -258,6 +318,10 @@ void WorkerApp::join(const farm::msg::ExperimentSpec& s) {
     }
     split_at_ = {};
     spec_ = s;
+    learner_writer_ = in.writer;
+    pending_spec_.reset();
+    joined_task_ = cfg.task().SerializeAsString();
+    envs_ = envs;
     sequence_ = 0;
     have_policy_ = false;
     batches_on_version_ = 0;

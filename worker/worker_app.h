@@ -12,12 +12,14 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <thread>
@@ -53,9 +55,18 @@ class WorkerApp {
 
  private:
   void log(const std::string& s);
+  // A spec as it arrived, with the writer that sent it.
+  struct SpecIn {
+    farm::msg::ExperimentSpec spec;
+    eprosima::fastrtps::rtps::GUID_t writer;
+  };
   void poll_spec();
-  void on_spec(const farm::msg::ExperimentSpec& s);
-  void join(const farm::msg::ExperimentSpec& s);
+  void on_spec(const SpecIn& in);
+  void join(const SpecIn& in);
+  // Why a spec of the joined experiment cannot replace the one this worker runs ("" when it can):
+  // the checks of join() against the running task (config, sizes, its task section unchanged).
+  std::string check_spec_update(const farm::msg::ExperimentSpec& s) const;
+  void refuse_spec(const std::string& why);
   // One log line the first time an experiment other than this worker's shows up.
   void note_foreign(const std::string& experiment_id);
   void poll_weights();
@@ -99,7 +110,7 @@ class WorkerApp {
   // next write would otherwise replace ours before the main loop takes it. Specs are kept in
   // order (the first experiment seen binds an unbound worker), weights the latest per experiment.
   std::mutex in_mu_;
-  std::deque<farm::msg::ExperimentSpec> specs_in_;                 // bounded: kMaxSpecsIn
+  std::deque<SpecIn> specs_in_;                                    // bounded: kMaxSpecsIn
   std::map<std::string, farm::msg::PolicyWeights> weights_in_by_;  // bounded: kMaxExperimentsKept
   static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
   farm::dds::Bus bus_;
@@ -129,6 +140,15 @@ class WorkerApp {
   std::string experiment_;          // the bound experiment; empty until the first join (no --experiment)
   std::set<std::string> foreign_;   // other experiments already noted (bounded)
   farm::msg::ExperimentSpec spec_;  // of experiment_, once joined
+  // The learner joined: the writer of the spec this worker runs. A spec, or the end of the
+  // experiment, counts only from it; another writer's spec waits (the latest one) until that
+  // learner has left the bus (a restarted learner), and is checked then.
+  eprosima::fastrtps::rtps::GUID_t learner_writer_;
+  std::optional<SpecIn> pending_spec_;
+  std::string joined_task_;  // the joined config's task section, serialized
+  int envs_ = 0;             // envs of the joined rollout
+  uint64_t specs_refused_ = 0;
+  std::chrono::steady_clock::time_point last_refusal_log_{};
   std::unique_ptr<Rollout> rollout_;
   // Two batch buffers: one being collected, the other with the sender (queued or being written).
   // send_q_ holds the buffers handed over, in collection order; a buffer is free again once written.

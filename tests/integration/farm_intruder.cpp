@@ -3,13 +3,17 @@
 // certificate must get nothing through either way.
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
 //                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]] [--try-writers 1]
-//                 [--heartbeat 1] [--eval-requests WORKER]
+//                 [--heartbeat 1] [--eval-requests WORKER] [--spec-finished 1] [--spec-max-batches N]
+//                 [--spec-only 1] [--status-host TEXT] [--status-error TEXT]
 // --id NAME names the participant and the worker id of its batches; with --security DIR of another
 // participant's certificate it is a modified sender writing under an id that is not its own.
 // --heartbeat 1: also publish a WorkerStatus heartbeat (worker NAME, state running) with each batch
-// of the plain stream, as a worker would.
+// of the plain stream, as a worker would; --status-host and --status-error set its host (default:
+// this host's name) and last_error.
 // --spec-config FILE: also publish an ExperimentSpec for the experiment whose config text is FILE's
-// (a learner's impostor: what a worker does with a spec it did not ask for).
+// (a learner's impostor: what a worker does with a spec it did not ask for). --spec-finished 1 marks
+// it as the end of the experiment, --spec-max-batches N sets its max_batches_per_version (default
+// 4), and --spec-only 1 sends no batch: the participant publishes its spec and stays --seconds.
 // --hostile 1: instead of a plain stream, every 20 ms one batch claiming a sequence number near
 // 2^64 or 2^63 and 50 batches of invented sessions with sequence numbers drawn from the whole 64-bit
 // range, all well-formed otherwise (the attack that once set a learner's lost count to 2^63).
@@ -116,8 +120,9 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false, oversize = false, try_writers = false, heartbeat = false;
-  std::string spec_config, eval_worker;
-  unsigned spec_steps = 4;
+  bool spec_finished = false, spec_only = false;
+  std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error;
+  unsigned spec_steps = 4, spec_max_batches = 4;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -142,6 +147,16 @@ int main(int argc, char** argv) {
         spec_config = v;
       else if (a == "--spec-steps")
         spec_steps = std::stoul(v);
+      else if (a == "--spec-finished")
+        spec_finished = v == "1";
+      else if (a == "--spec-max-batches")
+        spec_max_batches = std::stoul(v);
+      else if (a == "--spec-only")
+        spec_only = v == "1";
+      else if (a == "--status-host")
+        status_host = v;
+      else if (a == "--status-error")
+        status_error = v;
       else if (a == "--try-writers")
         try_writers = v == "1";
       else if (a == "--heartbeat")
@@ -203,10 +218,18 @@ int main(int argc, char** argv) {
       s.obs_dim(obs);
       s.act_dim(act);
       s.steps_per_batch(spec_steps);
-      s.max_batches_per_version(4);
+      s.max_batches_per_version(spec_max_batches);
       s.seed(1);
       s.learner_session(1);
+      s.finished(spec_finished);
       spec_out->write(s);
+      if (spec_only) {
+        std::printf("%s: published a spec of experiment '%s' (steps_per_batch %u, max_batches_per_version %u%s)\n",
+                    id.c_str(), experiment.c_str(), spec_steps, spec_max_batches, spec_finished ? ", finished" : "");
+        std::fflush(stdout);
+        std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+        return 0;
+      }
     }
     // A well-formed batch: if it got through, the learner would accept it.
     const unsigned T = 1, N = 1;
@@ -275,12 +298,13 @@ int main(int argc, char** argv) {
         farm::msg::WorkerStatus st;
         st.worker_id(id);
         st.worker_session(1);
-        st.host(farm::dds::hostname());
+        st.host(status_host);
         st.experiment_id(experiment);
         st.envs(N);
         st.threads(1);
         st.batches_sent(sent);
         st.state("running");
+        st.last_error(status_error);
         status_out->write(st);
       }
       max_matched = std::max(max_matched, out.matched());

@@ -226,3 +226,29 @@ TEST(PrometheusText, PromtoolAcceptsThePage) {
   EXPECT_EQ(rc, 0) << out;
   EXPECT_EQ(out, "") << "promtool's lint found something";
 }
+
+namespace {
+
+// farm-monitor's table (render_table): hosts, ids, states and errors from heartbeats reach the
+// operator's terminal escaped, so no escape sequence (ESC, BEL, the 8-bit CSI 0x9b) and no cursor
+// control passes through, and a 60,000-byte host is cut.
+TEST(MonitorTable, HeartbeatTextIsEscapedAndCut) {
+  farm::MonitorSnapshot s = sample_snapshot();
+  s.workers[0].host = std::string("evil\x1b]0;owned\x07\x1b[2J") + std::string(60000, 'h');
+  s.workers[0].id =
+      "w\x9b"
+      "31mred\r\n";
+  s.workers[0].state = "running\x1b[A";
+  s.workers[0].last_error = "boom\x1b[1;1H\x7f";
+  const std::string table = farm::render_table(s);
+  for (size_t i = 0; i < table.size(); ++i) {
+    const unsigned char c = static_cast<unsigned char>(table[i]);
+    ASSERT_TRUE(c == '\n' || (c >= 0x20 && c < 0x7f)) << "byte " << int(c) << " at " << i << " of:\n" << table;
+  }
+  EXPECT_NE(table.find("evil\\x1b]0;owned\\x07\\x1b[2J"), std::string::npos) << table;
+  EXPECT_NE(table.find("w\\x9b31mred\\x0d\\x0a"), std::string::npos) << table;
+  EXPECT_NE(table.find("running\\x1b[A (boom\\x1b[1;1H\\x7f)"), std::string::npos) << table;
+  EXPECT_LT(table.size(), 4000u) << "the 60,000-byte host was not cut";
+}
+
+}  // namespace

@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# A spec after join counts only from the learner the worker joined, and only as join() would take
+# it. A worker joins a learner; then participants that are not that learner publish the
+# experiment's spec three ways, one after the other: with 2^31 - 1 steps per batch, with
+# max_batches_per_version 0, and as the end of the experiment. The worker runs on through all three
+# (it refuses another participant's end of the experiment outright, and holds another writer's spec
+# back while its learner is on the bus, checking it as at join should that learner leave). The
+# learner's record shows it: batches keep arriving during the attack and after it, none lost or
+# invalid, and the worker ends (exit 0) with the learner's own end of the run.
+#   tests/integration/test_spec_trust.sh LEARNER WORKER INTRUDER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init spec-trust 131
+
+awk '/^stop \{/ { print "stop { max_seconds: 30 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
+  "$src/deploy/configs/pendulum_sac.txtpb" |
+  sed -e 's/^experiment_id: .*/experiment_id: "it_trust"/' -e 's/^log_every_seconds: .*/log_every_seconds: 1/' \
+    >"$dir/trust.txtpb"
+grep -q '^stop { max_seconds: 30 }' "$dir/trust.txtpb" || fail "test set-up: no stop block replaced"
+"$learner" --config "$dir/trust.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain --id tw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+wait_text "$dir/worker.log" "joined experiment 'it_trust'" 30 || fail "the worker did not join: $(tail -5 "$dir/worker.log")"
+sleep 2
+
+# The batches the learner has accepted so far, from its last learner.csv row (column batches_ok).
+batches_ok() {
+  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
+    "$dir/run/learner.csv" 2>/dev/null
+}
+before=$(batches_ok)
+n=0
+for attack in "--spec-steps 2147483647" "--spec-max-batches 0" "--spec-finished 1"; do
+  n=$((n + 1))
+  # shellcheck disable=SC2086
+  "$intruder" --domain $domain --experiment it_trust --id impostor$n --obs 3 --act 1 --seconds 4 --spec-only 1 \
+    --spec-config "$dir/trust.txtpb" $attack >"$dir/impostor$n.log" 2>&1 || fail "impostor $n ($attack) did not run"
+  kill -0 $wp 2>/dev/null || fail "the worker ended after a spec from another participant ($attack): $(tail -3 "$dir/worker.log")"
+done
+sleep 2
+during=$(batches_ok)
+[ "$during" -gt "$before" ] || fail "no batch arrived during the attack: batches_ok $before before it, $during after"
+
+wait $lp; lrc=$?
+[ $lrc = 0 ] || fail "the learner exited with $lrc: $(tail -5 "$dir/learner.log")"
+for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
+wait $wp; wrc=$?
+[ $wrc = 0 ] || fail "the worker exited with $wrc: $(tail -5 "$dir/worker.log")"
+final=$(batches_ok)
+[ "$final" -gt "$during" ] || fail "no batch arrived after the attack: batches_ok $during then, $final at the end"
+grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
+  fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"
+farm_test_end "batches_ok $before before the attack, $during after it, $final at the end; nothing lost"
