@@ -27,6 +27,15 @@ void Task::episode_metrics(const TaskState&, float*) const {}
 
 void Task::view(const TaskState&, const mjData*, int, TaskView&) const {}
 
+void mix_pair_friction(mjModel* m, int p) {
+  const mjtNum* f1 = m->geom_friction + 3 * m->pair_geom1[p];
+  const mjtNum* f2 = m->geom_friction + 3 * m->pair_geom2[p];
+  mjtNum* f = m->pair_friction + 5 * p;
+  f[0] = f[1] = std::max(f1[0], f2[0]);
+  f[2] = std::max(f1[1], f2[1]);
+  f[3] = f[4] = std::max(f1[2], f2[2]);
+}
+
 void command_view(const double command[3], const mjData* pose, int root, TaskView& out) {
   const mjtNum* x = pose->xmat + 9 * root;
   const double yaw = std::atan2(x[3], x[0]);

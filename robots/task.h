@@ -83,6 +83,12 @@ class Task {
   virtual void view(const TaskState& s, const mjData_* pose, int root, TaskView& out) const;
 };
 
+// A model with a collision list (<contact> pairs) takes a contact's friction from its pair, fixed
+// when the model was compiled. After its geoms' friction changes (randomization), pair `p` gets
+// what MuJoCo mixes for a contact of its two geoms without the list: per component the larger of
+// the two (sliding, sliding, torsional, rolling, rolling).
+void mix_pair_friction(mjModel_* m, int p);
+
 // A velocity command (vx, vy in the root's frame, yaw rate) shown as legged robots show it: a green
 // arrow above the root, one second of the command turned to the world by the root's yaw, and an
 // overlay row.

@@ -52,21 +52,6 @@ config::LeggedConfig with_robot_defaults(Robot r, config::LeggedConfig c) {
   return c;
 }
 
-// A model with a collision list (the quadruped MJCFs' <contact> pairs) takes a contact's friction
-// from its pair, fixed when the model was compiled. After the geoms' friction changes, each pair
-// gets what MuJoCo mixes for a contact of its two geoms without the list: per component the larger
-// of the two (sliding, sliding, torsional, rolling, rolling), so randomized feet act as they would.
-void mix_pair_friction(mjModel* m) {
-  for (int p = 0; p < m->npair; ++p) {
-    const mjtNum* f1 = m->geom_friction + 3 * m->pair_geom1[p];
-    const mjtNum* f2 = m->geom_friction + 3 * m->pair_geom2[p];
-    mjtNum* f = m->pair_friction + 5 * p;
-    f[0] = f[1] = std::max(f1[0], f2[0]);
-    f[2] = std::max(f1[1], f2[1]);
-    f[3] = f[4] = std::max(f1[2], f2[2]);
-  }
-}
-
 }  // namespace
 
 QuadrupedState::~QuadrupedState() {
@@ -212,7 +197,7 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
   p[0] = 2 * share - 1;
   const double friction = cfg_.friction_min() + (cfg_.friction_max() - cfg_.friction_min()) * share;
   for (int g : foot_geoms_) m->geom_friction[3 * g] = friction;
-  mix_pair_friction(m);
+  for (int p = 0; p < m->npair; ++p) mix_pair_friction(m, p);  // the quadruped MJCFs' <contact> pairs
   s.kp = cfg_.kp();
   s.kd = cfg_.kd();
   s.action_scale = cfg_.action_scale();

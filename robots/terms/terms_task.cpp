@@ -138,17 +138,7 @@ void TermsTask::randomize_model(TermsState& s) const {
   if (r.friction_min() != 1.0 || r.friction_max() != 1.0) {
     const double friction = r.friction_min() + (r.friction_max() - r.friction_min()) * unit(s.rng);
     for (int g : friction_geoms_) m->geom_friction[3 * g] = model_->geom_friction[3 * g] * friction;
-    // A pair's friction was fixed when the model was compiled: it gets what MuJoCo mixes for a
-    // contact of its two geoms, per component the larger (sliding, sliding, torsional, rolling,
-    // rolling).
-    for (int p : friction_pairs_) {
-      const mjtNum* f1 = m->geom_friction + 3 * m->pair_geom1[p];
-      const mjtNum* f2 = m->geom_friction + 3 * m->pair_geom2[p];
-      mjtNum* f = m->pair_friction + 5 * p;
-      f[0] = f[1] = std::max(f1[0], f2[0]);
-      f[2] = std::max(f1[1], f2[1]);
-      f[3] = f[4] = std::max(f1[2], f2[2]);
-    }
+    for (int p : friction_pairs_) mix_pair_friction(m, p);
   }
   if (r.mass_min() != 1.0 || r.mass_max() != 1.0) {
     for (int b = 1; b < model_->nbody; ++b) {
