@@ -190,11 +190,16 @@ void WorkerApp::refuse_spec(const std::string& why) {
 }
 
 std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) const {
-  config::ExperimentConfig cfg;
-  try {
-    cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
-  } catch (const std::exception& e) {
-    return e.what();
+  // The learner republishes its spec every few seconds with the same config text: that text was
+  // checked when the running spec came, and is parsed again only when it changed.
+  if (s.config_text() != spec_.config_text()) {
+    config::ExperimentConfig cfg;
+    try {
+      cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+    } catch (const std::exception& e) {
+      return e.what();
+    }
+    if (cfg.task().SerializeAsString() != joined_task_) return "its task section differs from the one this worker runs";
   }
   if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||
       (long long)s.steps_per_batch() * envs_ > kMaxBatchTransitions)
@@ -202,7 +207,6 @@ std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) con
            " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) + " steps and " +
            std::to_string(kMaxBatchTransitions) + " transitions per batch";
   if (s.max_batches_per_version() < 1) return "max_batches_per_version 0: no batch could be sent";
-  if (cfg.task().SerializeAsString() != joined_task_) return "its task section differs from the one this worker runs";
   if (int(s.obs_dim()) != task_->spec().obs_dim || int(s.act_dim()) != task_->spec().act_dim)
     return "its obs_dim " + std::to_string(s.obs_dim()) + " / act_dim " + std::to_string(s.act_dim()) +
            " are not the task's " + std::to_string(task_->spec().obs_dim) + " / " +

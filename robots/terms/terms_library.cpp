@@ -431,8 +431,6 @@ void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel* 
     b.ids = items(names_of(termination_terms(), t.term()), t, info, m, root, b.contacts);
     out.terminations.push_back(std::move(b));
   }
-  out.body_geoms.assign(m->nbody, {});
-  for (int g = 0; g < m->ngeom; ++g) out.body_geoms[m->geom_bodyid[g]].push_back(g);
 }
 
 }  // namespace farm::robots::terms

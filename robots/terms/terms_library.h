@@ -62,7 +62,6 @@ struct Bound {
   std::vector<ObsBinding> obs;
   std::vector<RewardBinding> rewards;
   std::vector<TerminationBinding> terminations;
-  std::vector<std::vector<int>> body_geoms;  // geoms of each body (contact terms)
 };
 
 // Binds the config's terms to the model: the functions by name, the names to ids. Throws

@@ -183,8 +183,6 @@ TermsTask::~TermsTask() {
 
 double TermsTask::agent_dt() const { return model_->opt.timestep * cfg_.control_substeps(); }
 
-const std::vector<int>& TermsTask::body_geoms(int body) const { return bound_->body_geoms[body]; }
-
 const mjModel* TermsTask::model_of(const TaskState& s) const {
   const auto& t = static_cast<const TermsState&>(s);
   return t.model ? t.model : model_;

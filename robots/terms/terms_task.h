@@ -69,7 +69,6 @@ class TermsTask final : public Task {
   double agent_dt() const;
   int root_body() const { return root_; }
   const std::vector<double>& default_qpos() const { return default_qpos_; }
-  const std::vector<int>& body_geoms(int body) const;
 
  private:
   void apply_action(TermsState& s, mjData_* d) const;
