@@ -209,6 +209,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   root.positive("torch_threads", c.torch_threads());
   root.positive("log_every_seconds", c.log_every_seconds());
   root.positive("worker_timeout_seconds", c.worker_timeout_seconds());
+  root.positive("account_expiry_seconds", c.account_expiry_seconds());
 }
 
 }  // namespace

@@ -47,6 +47,14 @@ inline constexpr const char* kEvalRequestTopic = "farm/EvaluationRequest";
 inline constexpr const char* kEvalAnswerTopic = "farm/EvaluationAnswer";
 // The longest worker id and error text an EvaluationAnswer may carry (a worker cuts its error text).
 inline constexpr size_t kMaxEvalTextBytes = 1024;
+// What a worker's readers take at most, serialized, before knowing any experiment: an
+// ExperimentSpec (a config and a model of at most 64 MiB of files, robots/terms/mjcf_bundle.h),
+// PolicyWeights, and an EvaluationRequest (a policy and a few ids). Larger samples are refused
+// before memory is taken for them (Reader's bounded constructor); the learner refuses to start
+// an experiment whose spec or policy would not fit (learner/farm_service.cpp).
+inline constexpr uint32_t kMaxSpecBytes = 72u << 20;
+inline constexpr uint32_t kMaxPolicyBytes = 64u << 20;
+inline constexpr uint32_t kMaxEvalRequestBytes = kMaxPolicyBytes + (64u << 10);
 
 struct BusOptions {
   int domain = 0;
@@ -193,8 +201,9 @@ class Reader : public fdds::DataReaderListener {
   // listener of such a refusal (neither sample lost nor sample rejected fires); it logs one error
   // per sample, which refused() counts (samples_refused_for_size). The topic must not have been
   // created on this bus with another type size.
-  Reader(Bus& bus, const std::string& topic_name, const std::string& profile, uint32_t max_sample_bytes)
-      : bus_(bus), max_sample_bytes_(max_sample_bytes) {
+  Reader(Bus& bus, const std::string& topic_name, const std::string& profile, uint32_t max_sample_bytes,
+         OnData on_data = {})
+      : bus_(bus), max_sample_bytes_(max_sample_bytes), on_data_(std::move(on_data)) {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new BoundedType<PubSubType>(max_sample_bytes)));
     fdds::TypeSupport registered = bus.participant()->find_type(t->get_type_name());
     if (registered.empty() || registered->m_typeSize != max_sample_bytes) {
@@ -284,5 +293,13 @@ PolicyParams from_wire(const farm::msg::PolicyWeights& w);
 
 std::string hostname();
 uint64_t random_session_id();
+
+// The participant a sample came from, as a map key: the GUID prefix of its writer
+// (SampleInfo::sample_identity.writer_guid()), which every writer of one participant shares. A
+// worker's batches, heartbeats and evaluation answers come from one participant: the learner binds
+// each worker stream to it and takes a worker's answers only from it.
+inline std::string participant_key(const eprosima::fastrtps::rtps::GUID_t& writer) {
+  return std::string(reinterpret_cast<const char*>(writer.guidPrefix.value), sizeof writer.guidPrefix.value);
+}
 
 }  // namespace farm::dds

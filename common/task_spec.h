@@ -2,6 +2,7 @@
 // metric names. Plain data, so the learner's algorithms and the wire code read it without MuJoCo.
 #pragma once
 
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -18,6 +19,10 @@ struct TaskSpec {
   // > 0: discrete actions; act_dim is 1 and the action is the index, in [0, num_actions), as a
   // float. 0: continuous actions in [-1, 1].
   int num_actions = 0;
+  // The most |reward| of one step can be, from the config: an evaluation answer whose return is
+  // beyond length x reward_bound is refused (learner/eval_answer.h). Infinite: not declared.
+  // tests/unit/test_task_conformance.cpp steps every task and holds its rewards to it.
+  double reward_bound = HUGE_VAL;
 };
 
 // The spec of the task cfg names, from the config alone (no MuJoCo), as its robot's folder defines

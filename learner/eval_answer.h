@@ -3,6 +3,7 @@
 // came back, every number finite and every size the experiment's.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <string>
 
@@ -17,6 +18,9 @@ struct EvalExpected {
   int episodes = 0;           // asked
   int num_metrics = 0;        // the task's metric_names.size()
   int max_episode_steps = 0;  // the task's time limit: no episode is longer
+  // The task's bound on |reward| of one step (TaskSpec::reward_bound): no episode's return is
+  // beyond length x bound. Infinite where the task declares none.
+  double reward_bound = HUGE_VAL;
 };
 
 // "" when the answer is one to use; else what is wrong with it (the first problem found).

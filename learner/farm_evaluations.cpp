@@ -15,6 +15,7 @@
 #include "eval_answer.h"
 #include "farm_service.h"
 #include "meter.h"
+#include "printable.h"
 
 namespace farm {
 
@@ -113,6 +114,7 @@ bool FarmService::send_evaluation(EvalRequest& r) {
   r.roster_key = next->first;
   r.worker_id = next->second->last.worker_id();
   r.worker_session = next->second->last.worker_session();
+  r.writer = next->second->writer;
   r.asked_at = now;
 
   farm::msg::EvaluationRequest m;
@@ -145,7 +147,7 @@ bool FarmService::send_evaluation(EvalRequest& r) {
 
 void FarmService::poll_evaluations() {
   if (evals_out_.empty() && !eval_in_.matched()) return;
-  while (eval_in_.take(answer_)) take_answer();
+  while (eval_in_.take(answer_, answer_info_)) take_answer();
   const double now = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
   for (size_t i = 0; i < evals_out_.size();) {
     EvalRequest& r = evals_out_[i];
@@ -186,6 +188,23 @@ void FarmService::take_answer() {
           std::to_string(answer_.request_id()) + " was not asked");
     return;
   }
+  // Only the participant asked answers: every field of a request can be read off the bus, so an
+  // answer that merely matches them may come from anyone. It is bound to the participant whose
+  // heartbeats put the worker in the roster (and, under DDS Security, whose certificate bears the
+  // worker's id). Not used; the request stays out for the worker asked.
+  const auto& guid = answer_info_.sample_identity.writer_guid();
+  std::string not_asked;
+  if (!it->writer.empty() && farm::dds::participant_key(guid) != it->writer)
+    not_asked = "written by another participant than worker " + it->worker_id + "'s, the one asked";
+  else if (!bus_.security_dir().empty() && bus_.authenticated_name(guid) != it->worker_id)
+    not_asked = "written by a participant whose certificate name is '" + printable(bus_.authenticated_name(guid), 100) +
+                "', not '" + it->worker_id + "'";
+  if (!not_asked.empty()) {
+    ++evals_invalid_;
+    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
+      log("refused an answer to evaluation " + std::to_string(it->id) + ": " + not_asked);
+    return;
+  }
   EvalExpected e;
   e.experiment_id = cfg_.experiment_id();
   e.learner_session = eval_session_;
@@ -196,6 +215,7 @@ void FarmService::take_answer() {
   e.episodes = it->episodes;
   e.num_metrics = int(task_spec_.metric_names.size());
   e.max_episode_steps = task_spec_.max_episode_steps;
+  e.reward_bound = task_spec_.reward_bound;
   if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
     // Not used; the request stays out, so it is answered again or counted lost in its time.
     ++evals_invalid_;

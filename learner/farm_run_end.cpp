@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include "farm_service.h"
 #include "meter.h"
@@ -46,11 +47,26 @@ std::string FarmService::summary_workers() const {
   if (ingest_.counters().foreign > 0)
     o << "other experiments " << ingest_.counters().foreign
       << " batches of other experiments on the domain, not used\n";
-  for (auto& [k, w] : ingest_.workers()) {
-    o << "worker            " << printable(w.worker_id, 100) << " session " << w.session << ": received " << w.received
-      << " of sequence 0.." << (w.next_sequence ? w.next_sequence - 1 : 0) << ", lost " << w.lost << ", duplicate "
-      << w.duplicates << ", invalid " << w.invalid << (w.ended ? ", stream closed" : ", stream open") << "\n";
+  // One line per stream, the kMaxSummaryStreams with the most accepted batches (invented streams
+  // may number thousands), then how many more.
+  std::vector<const WorkerAccount*> shown;
+  for (auto& [k, w] : ingest_.workers()) shown.push_back(&w);
+  std::stable_sort(shown.begin(), shown.end(),
+                   [](const WorkerAccount* a, const WorkerAccount* b) { return a->received > b->received; });
+  const size_t more = shown.size() > kMaxSummaryStreams ? shown.size() - kMaxSummaryStreams : 0;
+  shown.resize(shown.size() - more);
+  std::sort(shown.begin(), shown.end(), [](const WorkerAccount* a, const WorkerAccount* b) {
+    return std::tie(a->worker_id, a->session) < std::tie(b->worker_id, b->session);
+  });
+  o << "worker streams    " << ingest_.workers().size() << " open, " << ingest_.retired()
+    << " retired (idle for account_expiry_seconds, or to make room)\n";
+  for (const WorkerAccount* w : shown) {
+    o << "worker            " << printable(w->worker_id, 100) << " session " << w->session << ": received "
+      << w->received << " of sequence 0.." << (w->next_sequence ? w->next_sequence - 1 : 0) << ", lost " << w->lost
+      << ", duplicate " << w->duplicates << ", invalid " << w->invalid
+      << (w->ended ? ", stream closed" : ", stream open") << "\n";
   }
+  if (more > 0) o << "worker            ... and " << more << " more streams\n";
   return o.str();
 }
 
@@ -92,19 +108,25 @@ void FarmService::drain_before_interrupted_stop() {
 // After announcing the end, every batch still in flight is taken and accounted, so the summary
 // can say exactly what was sent and what arrived.
 void FarmService::drain_until_workers_end() {
-  const double t_end = now_seconds() + 15.0;
+  // Streams that sent nothing for worker_timeout_seconds are not waited for (a worker gone, or a
+  // stream someone invented); a live worker's stream ends with its last batch.
+  const double t_end = now_seconds() + 15.0, quiet = cfg_.worker_timeout_seconds();
   while (now_seconds() < t_end) {
     drain_batches(1024);
     drain_status();
+    const double now = now_seconds();
     bool all_ended = !ingest_.workers().empty();
-    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && w.ended;
+    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && (w.ended || now - w.last_seen >= quiet);
     if (all_ended) break;
     batches_in_.wait(0.05);
   }
+  size_t open = 0;
   for (auto& [k, w] : ingest_.workers())
-    if (!w.ended)
-      log("worker " + w.worker_id + " did not close its stream; batches after " + std::to_string(w.next_sequence) +
-          " are unaccounted");
+    if (!w.ended && ++open <= kMaxOpenStreamLines)
+      log("worker " + printable(w.worker_id, 100) + " did not close its stream; batches after " +
+          std::to_string(w.next_sequence) + " are unaccounted");
+  if (open > kMaxOpenStreamLines)
+    log("... and " + std::to_string(open - kMaxOpenStreamLines) + " more streams not closed (the summary lists them)");
 }
 
 }  // namespace farm

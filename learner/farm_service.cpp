@@ -36,27 +36,28 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                       Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
                                               cfg_.worker().steps_per_batch()),
                       UINT32_MAX))),
-      status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader",
-                 [this](eprosima::fastdds::dds::DataReader* r) {
-                   farm::msg::WorkerStatus s;
-                   eprosima::fastdds::dds::SampleInfo info;
-                   while (decltype(status_in_)::take_from(r, s, info)) {
-                     std::lock_guard<std::mutex> lk(heard_mu_);
-                     // Under DDS Security, as for batches: only from the participant whose
-                     // certificate bears the worker id (no invented workers in the roster).
-                     if (!bus_.security_dir().empty()) {
-                       const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid());
-                       if (by != s.worker_id()) {
-                         ++heartbeats_refused_;
-                         heartbeat_refused_note_ =
-                             "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'";
-                         continue;
-                       }
-                     }
-                     if (heard_.size() >= kMaxHeard) heard_.pop_front();
-                     heard_.emplace_back(s, now_seconds());
-                   }
-                 }),
+      status_in_(
+          bus_, farm::dds::kWorkerStatusTopic, "status_reader",
+          [this](eprosima::fastdds::dds::DataReader* r) {
+            farm::msg::WorkerStatus s;
+            eprosima::fastdds::dds::SampleInfo info;
+            while (decltype(status_in_)::take_from(r, s, info)) {
+              std::lock_guard<std::mutex> lk(heard_mu_);
+              // Under DDS Security, as for batches: only from the participant whose
+              // certificate bears the worker id (no invented workers in the roster).
+              if (!bus_.security_dir().empty()) {
+                const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid());
+                if (by != s.worker_id()) {
+                  ++heartbeats_refused_;
+                  heartbeat_refused_note_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'";
+                  continue;
+                }
+              }
+              WorkerRoster::cut(s);
+              if (heard_.size() >= kMaxHeard) heard_.pop_front();
+              heard_.push_back({s, now_seconds(), farm::dds::participant_key(info.sample_identity.writer_guid())});
+            }
+          }),
       eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
       // Answers over what this experiment's evaluations can hold are refused before memory is taken.
       eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
@@ -64,7 +65,8 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                                      std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes()),
                                      int(task_spec_.metric_names.size()))),
       roster_(
-          cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id()),
+          cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id(),
+          cfg_.account_expiry_seconds()),
       algo_(make_algorithm(cfg_, task_spec_)) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
@@ -98,6 +100,9 @@ int FarmService::run() {
     work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
+      if (const size_t n = ingest_.expire(now, cfg_.account_expiry_seconds()))
+        log(std::to_string(n) + " worker stream(s) with no batch for " + fmt("%.0f", cfg_.account_expiry_seconds()) +
+            " s retired (account_expiry_seconds)");
       progress(now - t0, now - last_log);
       last_log = now;
     }
@@ -187,6 +192,14 @@ void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
   farm::msg::PolicyWeights w;
   farm::dds::to_wire(policy, cfg_.experiment_id(), w);
   if (batch_quota > 0) w.batch_quota(batch_quota);
+  // Workers refuse larger weights before reading them (dds::kMaxPolicyBytes); the first publish
+  // comes at the start, so a network too large for them ends the run there, saying so.
+  const uint64_t bytes = 4 * (uint64_t(w.parameters().size()) + w.obs_mean().size() + w.obs_std().size() +
+                              w.log_std().size() + w.layer_sizes().size()) +
+                         4096;
+  if (bytes > farm::dds::kMaxPolicyBytes)
+    throw std::runtime_error("the policy is " + std::to_string(bytes) + " bytes on the bus, more than the " +
+                             std::to_string(farm::dds::kMaxPolicyBytes) + " a worker takes: a smaller network");
   weights_out_.write(w);
 }
 
@@ -308,7 +321,7 @@ void FarmService::prepare_run_dir() {
 }
 
 void FarmService::drain_status() {
-  std::deque<std::pair<farm::msg::WorkerStatus, double>> got;
+  std::deque<Heard> got;
   uint64_t refused = 0;
   std::string refused_note;
   {
@@ -323,9 +336,9 @@ void FarmService::drain_status() {
         refused_note + ")");
   }
   heartbeats_refused_logged_ = refused;
-  for (const auto& [s, when] : got) {
+  for (const auto& h : got) {
     // Only a worker of this experiment counts as heard (another experiment's may share the domain).
-    if (roster_.heard(s, when) && first_heard_ == 0) first_heard_ = now_seconds();
+    if (roster_.heard(h.status, h.when, h.writer) && first_heard_ == 0) first_heard_ = now_seconds();
   }
   roster_.check(now_seconds());
 }
@@ -339,8 +352,15 @@ bool FarmService::accept_batch() {
   // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
   std::string writer;
   if (!bus_.security_dir().empty()) writer = bus_.authenticated_name(batch_info_.sample_identity.writer_guid());
+  const uint64_t retired = ingest_.retired();
   const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_,
-                                         bus_.security_dir().empty() ? nullptr : &writer);
+                                         bus_.security_dir().empty() ? nullptr : &writer,
+                                         farm::dds::participant_key(batch_info_.sample_identity.writer_guid()));
+  if (ingest_.retired() > retired && ++retirements_logged_ <= 20)
+    log("worker stream " + printable(ingest_.last_retired(), 200) + " retired to make room for " +
+        printable(batch_.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) + " streams open, " +
+        std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
+        (retirements_logged_ == 20 ? "; no more such lines (the summary counts them)" : ""));
   if (why.empty()) return true;
   if (ingest_.counters().foreign > foreign) {
     // Another experiment shares the domain: said once per experiment, not once per batch.

@@ -114,6 +114,8 @@ class FarmService final : public Farm {
     uint64_t id = 0, seed = 0, worker_session = 0, group = 0;
     int episodes = 0, part = 1, first_episode = 0;
     std::string worker_id, roster_key;  // empty while no live worker could take it
+    // The participant of the worker asked (its roster entry's): only an answer it wrote counts.
+    std::string writer;
     double asked_at = 0;
     int attempt = 1;
     std::string avoid;  // the worker that lost attempt 1: another one is asked where there is one
@@ -157,14 +159,21 @@ class FarmService final : public Farm {
   // a long fit or evaluation cannot let them be overwritten in the reader's history (16 deep for
   // all workers together) and live workers be marked dead; the main loop hands them to roster_.
   std::mutex heard_mu_;
-  std::deque<std::pair<farm::msg::WorkerStatus, double>> heard_;  // bounded: kMaxHeard
+  struct Heard {
+    farm::msg::WorkerStatus status;
+    double when = 0;
+    std::string writer;  // its participant (dds::participant_key)
+  };
+  std::deque<Heard> heard_;  // bounded: kMaxHeard
   // Under DDS Security, heartbeats whose worker id is not their writer's certificate name: not heard.
   uint64_t heartbeats_refused_ = 0;     // guarded by heard_mu_
   std::string heartbeat_refused_note_;  // the last one, "'ID' from 'NAME'"; guarded by heard_mu_
   uint64_t heartbeats_refused_logged_ = 0;
   int heartbeat_notes_ = 0;
   static constexpr size_t kMaxHeard = 65536;
-  static constexpr size_t kMaxLogLine = 8192;  // bytes of one log line; a longer one is cut
+  static constexpr size_t kMaxSummaryStreams = 64;   // worker streams listed in the summary
+  static constexpr size_t kMaxOpenStreamLines = 10;  // streams not closed at the end, named in the log
+  static constexpr size_t kMaxLogLine = 8192;        // bytes of one log line; a longer one is cut
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
   farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
@@ -182,7 +191,7 @@ class FarmService final : public Farm {
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
   std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal
-  int rejections_logged_ = 0;
+  int rejections_logged_ = 0, retirements_logged_ = 0;
   std::set<std::string> foreign_noted_;        // other experiments whose batches were seen (bounded)
   std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
   std::map<uint64_t, EvalGroup> eval_groups_;  // evaluations with parts out
@@ -192,6 +201,7 @@ class FarmService final : public Farm {
   std::string eval_last_key_;                   // the roster key asked last, for the turn
   const std::string* eval_snapshot_ = nullptr;  // while the algorithm reports: the networks asked
   farm::msg::EvaluationAnswer answer_;
+  eprosima::fastdds::dds::SampleInfo answer_info_;  // of answer_: its writer
   uint64_t eval_session_ = 0, next_eval_id_ = 0, evals_asked_ = 0, evals_answered_ = 0, evals_lost_ = 0,
            evals_invalid_ = 0, evals_late_ = 0;
   int eval_rejections_logged_ = 0;

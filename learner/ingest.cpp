@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <stdexcept>
 
 namespace farm {
@@ -92,7 +93,8 @@ std::string Ingest::content_problem(const farm::msg::TransitionBatch& b, uint64_
 }
 
 std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
-                           std::vector<FinishedEpisode>& episodes, const std::string* writer_name) {
+                           std::vector<FinishedEpisode>& episodes, const std::string* writer_name,
+                           const std::string& writer) {
   if (b.experiment_id() != experiment_id_) {
     // Another experiment on the same domain (its own learner accounts it): counted apart, never
     // taken, and not invalid, which would hide a real fault among another run's normal traffic.
@@ -111,30 +113,61 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
            "', the certificate name of the participant that wrote it";
   }
   const uint64_t seq = b.sequence_number();
-  auto it = workers_.find({b.worker_id(), b.worker_session()});
+  const Key key{b.worker_id(), b.worker_session()};
+  auto it = workers_.find(key);
   if (it == workers_.end()) {
-    // A stream not seen before: its first batch passes every check before an account is opened,
-    // and accounts are bounded, so invented sessions cannot grow the map or the checkpoints.
+    // A stream not open: its first batch passes every check before an account is opened (or a
+    // retired one continued).
     std::string why = content_problem(b, current_version);
-    if (why.empty() && seq > kMaxSequenceJump)
+    const auto back = retired_.find(key);
+    if (why.empty() && back == retired_.end() && seq > kMaxSequenceJump)
       why = "sequence number " + std::to_string(seq) + " opens a stream of " + b.worker_id() + " more than " +
             std::to_string(kMaxSequenceJump) + " past its start";
-    if (why.empty() && workers_.size() >= kMaxAccounts)
-      why = "new stream of " + b.worker_id() + " refused: already " + std::to_string(workers_.size()) +
-            " worker streams (the most one run accounts)";
+    if (why.empty() && back != retired_.end() && !back->second.writer.empty() && !writer.empty() &&
+        back->second.writer != writer)
+      why = "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
     if (!why.empty()) {
       ++counters_.invalid;
       return why;
     }
-    it = workers_.emplace(Key{b.worker_id(), b.worker_session()}, WorkerAccount{}).first;
-    it->second.worker_id = b.worker_id();
-    it->second.session = b.worker_session();
+    WorkerAccount account;
+    const bool restored = back != retired_.end();
+    if (restored) {
+      account = std::move(back->second);
+      retired_.erase(back);  // its key stays in retired_order_ until it reaches the front
+    } else {
+      account.worker_id = b.worker_id();
+      account.session = b.worker_session();
+    }
+    // Room: past the id's bound, or past the total, the open stream with the fewest accepted
+    // batches (the least recently seen of those) goes, of that id or of all.
+    const auto fewer = [](const WorkerAccount& a, const WorkerAccount& b) {
+      return a.received != b.received ? a.received < b.received : a.last_seen < b.last_seen;
+    };
+    size_t same_id = 0;
+    auto first_out = workers_.end();
+    for (auto j = workers_.lower_bound(Key{b.worker_id(), 0}); j != workers_.end() && j->first.first == b.worker_id();
+         ++j, ++same_id)
+      if (first_out == workers_.end() || fewer(j->second, first_out->second)) first_out = j;
+    if (same_id < kMaxSessionsPerWorker && workers_.size() >= kMaxAccounts) {
+      first_out = workers_.begin();
+      for (auto j = workers_.begin(); j != workers_.end(); ++j)
+        if (fewer(j->second, first_out->second)) first_out = j;
+    }
+    if (same_id >= kMaxSessionsPerWorker || workers_.size() >= kMaxAccounts) retire(first_out);
+    it = workers_.emplace(key, std::move(account)).first;
+  } else if (!it->second.writer.empty() && !writer.empty() && it->second.writer != writer) {
+    // Someone else writing under an open stream's id and session (both can be read off the bus):
+    // refused without moving the account, so it can neither fake losses nor skip the sequence.
+    ++counters_.invalid;
+    return "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
   } else if (seq >= it->second.next_sequence && seq - it->second.next_sequence > kMaxSequenceJump) {
     // No worker skips that far: forged or corrupted. Refused without moving the account.
     ++counters_.invalid;
     return "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(kMaxSequenceJump) +
            " past " + std::to_string(it->second.next_sequence) + ", the next expected from " + b.worker_id();
   }
+  if (it->second.writer.empty()) it->second.writer = writer;
   WorkerAccount& w = it->second;
   w.last_seen = now;
 
@@ -224,6 +257,38 @@ void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double 
 void Ingest::restore(const std::map<Key, WorkerAccount>& workers, const IngestCounters& counters) {
   workers_ = workers;
   counters_ = counters;
+}
+
+void Ingest::retire(std::map<Key, WorkerAccount>::iterator it) {
+  ++retired_count_;
+  last_retired_ = it->first.first + "#" + std::to_string(it->first.second) + " (" +
+                  std::to_string(it->second.received) + " batches)";
+  while (retired_.size() >= kMaxRetired && !retired_order_.empty()) {
+    retired_.erase(retired_order_.front());
+    retired_order_.pop_front();
+  }
+  retired_order_.push_back(it->first);
+  retired_[it->first] = std::move(it->second);
+  workers_.erase(it);
+  // The key of an account that came back stays in the order until it reaches the front (where
+  // erasing it is a no-op, or retires that account's later copy a little early).
+  while (retired_order_.size() > 2 * kMaxRetired) {
+    retired_.erase(retired_order_.front());
+    retired_order_.pop_front();
+  }
+}
+
+size_t Ingest::expire(double now, double idle_seconds) {
+  size_t n = 0;
+  for (auto it = workers_.begin(); it != workers_.end();) {
+    auto next = std::next(it);
+    if (now - it->second.last_seen >= idle_seconds) {
+      retire(it);
+      ++n;
+    }
+    it = next;
+  }
+  return n;
 }
 
 }  // namespace farm

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <string>
 #include <utility>
@@ -26,6 +27,9 @@ struct WorkerAccount {
   bool ended = false;             // end_of_stream seen
   double last_seen = 0.0;         // seconds on the learner's clock
   std::vector<uint64_t> missing;  // gap sequence numbers that may still arrive late
+  // The participant whose batches opened (or, after a restore, first continued) the stream: the
+  // stream takes batches from it alone. Not checkpointed: a resumed learner binds it again.
+  std::string writer;
 };
 
 struct IngestCounters {
@@ -49,8 +53,21 @@ class Ingest {
   // experiment whose worker id is not that name is refused as invalid on no account: it is not the
   // worker it claims, and must neither train nor open or move that worker's stream. nullptr: no
   // security, no such check.
+  // writer: the participant that wrote the batch (its GUID prefix, dds::participant_key); a stream
+  // once opened takes batches only from the participant that opened it, and a batch of its
+  // (worker id, session) from any other is refused as invalid without touching the account. ""
+  // binds nothing.
   std::string accept(const farm::msg::TransitionBatch& b, uint64_t current_version, double now, Transitions& out,
-                     std::vector<FinishedEpisode>& episodes, const std::string* writer_name = nullptr);
+                     std::vector<FinishedEpisode>& episodes, const std::string* writer_name = nullptr,
+                     const std::string& writer = "");
+
+  // Retires the accounts with no batch for idle_seconds or more (kept aside as retired: a batch
+  // of one that comes back continues its account). Returns how many.
+  size_t expire(double now, double idle_seconds);
+  // Accounts retired so far: idle (expire), or to make room (the bounds below).
+  uint64_t retired() const { return retired_count_; }
+  // The last account retired to make room, "ID#SESSION (N batches)", for the log.
+  const std::string& last_retired() const { return last_retired_; }
 
   const IngestCounters& counters() const { return counters_; }
   using Key = std::pair<std::string, uint64_t>;  // (worker id, session)
@@ -62,10 +79,19 @@ class Ingest {
   std::string check(const farm::msg::TransitionBatch& b) const;
 
   // A stream's sequence numbers never jump further than this (forged or corrupted otherwise);
-  // a run accounts at most kMaxAccounts streams (worker id, session); the first kMaxMissing numbers
-  // of a stream's gaps are remembered, so a late batch is not counted twice.
+  // the first kMaxMissing numbers of a stream's gaps are remembered, so a late batch is not counted
+  // twice. At most kMaxAccounts streams (worker id, session) are open, and at most
+  // kMaxSessionsPerWorker of one worker id. A new stream past either bound retires an open one
+  // rather than being refused, so invented streams cannot lock real workers out: the open stream
+  // with the fewest accepted batches (the least recently seen of those), of that id past the id's
+  // bound, of all past the total. A real worker's stream, with its many batches, outlasts
+  // invented ones. A worker's id is its certificate's name under DDS
+  // Security, so there the per-id bound is a bound per authenticated name. The last
+  // kMaxRetired retired accounts are kept: a stream that comes back continues its own.
   static constexpr uint64_t kMaxSequenceJump = uint64_t(1) << 20;
   static constexpr size_t kMaxAccounts = 4096;
+  static constexpr size_t kMaxSessionsPerWorker = 4;
+  static constexpr size_t kMaxRetired = 4096;
   static constexpr size_t kMaxMissing = 4096;
 
   // The largest serialized TransitionBatch (CDR, encapsulation included) a worker of this
@@ -95,7 +121,13 @@ class Ingest {
   int obs_dim_, act_dim_;
   int num_actions_ = 0;
   IngestCounters counters_;
+  // Moves an open account to retired_ (bounded, oldest out first).
+  void retire(std::map<Key, WorkerAccount>::iterator it);
   std::map<Key, WorkerAccount> workers_;
+  std::map<Key, WorkerAccount> retired_;
+  std::deque<Key> retired_order_;
+  uint64_t retired_count_ = 0;
+  std::string last_retired_;
   uint64_t refused_samples_ = 0;  // of this process's reader, so not checkpointed
 };
 

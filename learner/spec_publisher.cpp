@@ -3,6 +3,7 @@
 #include "config.h"
 
 #include <cstdio>
+#include <stdexcept>
 #include <string>
 
 namespace farm {
@@ -28,6 +29,12 @@ SpecPublisher::SpecPublisher(farm::dds::Bus& bus, const config::ExperimentConfig
   spec_.max_batches_per_version(cfg.worker().max_batches_per_version());
   spec_.seed(cfg.seed());
   spec_.learner_session(farm::dds::random_session_id());
+  // Workers refuse a larger spec before reading it (dds::kMaxSpecBytes): said here, at the start.
+  const uint64_t bytes = spec_.config_text().size() + spec_.experiment_id().size() + spec_.task_name().size() + 4096;
+  if (bytes > farm::dds::kMaxSpecBytes)
+    throw std::runtime_error("the experiment's spec would be " + std::to_string(bytes) +
+                             " bytes on the bus, more than the " + std::to_string(farm::dds::kMaxSpecBytes) +
+                             " a worker takes (a model's files count in it: task.terms.max_model_bytes)");
 }
 
 void SpecPublisher::publish(bool finished) {

@@ -44,7 +44,8 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
     : opt_(o),
       stop_(stop),
       bus_(o.bus, "farm-worker " + o.id),
-      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader",
+      // Each reader refuses samples larger than any experiment allows before taking memory for them.
+      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader", farm::dds::kMaxSpecBytes,
                [this](eprosima::fastdds::dds::DataReader* r) {
                  SpecIn in;
                  eprosima::fastdds::dds::SampleInfo info;
@@ -55,7 +56,7 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
                    specs_in_.push_back(in);
                  }
                }),
-      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader",
+      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader", farm::dds::kMaxPolicyBytes,
                   [this](eprosima::fastdds::dds::DataReader* r) {
                     farm::msg::PolicyWeights w;
                     while (decltype(weights_in_)::take_from(r, w)) {
@@ -73,7 +74,7 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
       status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
       // Requests are kept only when addressed to this worker (a queue of a few); the checks of
       // their contents come on the main loop.
-      eval_in_(bus_, farm::dds::kEvalRequestTopic, "batch_reader",
+      eval_in_(bus_, farm::dds::kEvalRequestTopic, "batch_reader", farm::dds::kMaxEvalRequestBytes,
                [this](eprosima::fastdds::dds::DataReader* r) {
                  farm::msg::EvaluationRequest q;
                  while (decltype(eval_in_)::take_from(r, q)) {

@@ -37,6 +37,7 @@ TaskSpec cartpole_spec(const config::TaskConfig& cfg) {
   s.act_dim = 1;
   s.max_episode_steps = cfg.cartpole().max_episode_steps();
   s.metric_names = {"upright_fraction"};
+  s.reward_bound = 1;  // the control suite's smooth reward: a product of factors in [0, 1]
   return s;
 }
 

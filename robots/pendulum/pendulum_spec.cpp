@@ -2,6 +2,7 @@
 
 #include "config_validator.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -41,6 +42,12 @@ TaskSpec pendulum_spec(const config::TaskConfig& cfg) {
   s.act_dim = 1;
   s.max_episode_steps = cfg.pendulum().max_episode_steps();
   s.metric_names = {"upright_fraction"};
+  // Pendulum-v1's cost at its largest: the angle at pi, the speed at its clip (or the reset's
+  // range), the torque at its limit.
+  const auto& p = cfg.pendulum();
+  const double v = std::max(p.max_speed(), p.init_max_speed());
+  s.reward_bound =
+      M_PI * M_PI + std::abs(p.velocity_cost()) * v * v + std::abs(p.torque_cost()) * p.max_torque() * p.max_torque();
   return s;
 }
 

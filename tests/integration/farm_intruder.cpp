@@ -30,8 +30,20 @@
 // of another experiment, a policy of another version than the request's, and a policy whose layout
 // ([3, 2^31 - 1 x 4, 2^31 - 3, 1, 536870915, 2]) counts 2^64 + 8 parameters and carries 8. They
 // name a learner session of their own, so a learner does not take the answers for its own.
+// --forge-answers RETURN: instead of a stream, answer every evaluation request of the experiment
+// the moment it is seen, as the worker asked would, every field copied from the request and that
+// worker's last heartbeat, with each episode's return RETURN, length --forge-length (default 1)
+// and --forge-metrics metrics (default 1) of value 1.
+// --flood-streams N: instead of a plain stream, N one-step batches once matched, each under an
+// invented worker id and session, all well-formed.
+// --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
+// worker session, with the host name --status-host (--status-host-bytes B: B characters instead).
+// --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
+// id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
+#include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -112,6 +124,84 @@ int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
   return 0;
 }
 
+// --forge-answers: answers every request of `experiment` the moment it is seen (see the top).
+int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
+                  float forged_return, uint32_t length, uint32_t metrics) {
+  using namespace farm::msg;
+  farm::dds::Reader<EvaluationRequest, EvaluationRequestPubSubType> requests(bus, farm::dds::kEvalRequestTopic,
+                                                                             "batch_reader");
+  farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType> status(bus, farm::dds::kWorkerStatusTopic, "status_reader");
+  farm::dds::Writer<EvaluationAnswer, EvaluationAnswerPubSubType> answers(bus, farm::dds::kEvalAnswerTopic,
+                                                                          "batch_writer");
+  std::map<std::string, uint64_t> sessions;  // worker id -> its last heartbeat's session
+  uint64_t answered = 0;
+  const double t0 = farm::now_seconds();
+  while (farm::now_seconds() - t0 < seconds) {
+    WorkerStatus st;
+    while (status.take(st)) sessions[st.worker_id()] = st.worker_session();
+    EvaluationRequest q;
+    while (requests.take(q)) {
+      if (q.experiment_id() != experiment) continue;
+      EvaluationAnswer a;
+      a.experiment_id(q.experiment_id());
+      a.learner_session(q.learner_session());
+      a.request_id(q.request_id());
+      a.worker_id(q.worker_id());
+      a.worker_session(sessions[q.worker_id()]);
+      a.policy_version(q.policy_version());
+      a.seconds(0.01);
+      std::vector<EvaluationEpisode> eps(q.episodes());
+      for (auto& e : eps) {
+        e.episode_return(forged_return);
+        e.length(length);
+        e.metrics(std::vector<float>(metrics, 1.f));
+      }
+      a.episodes(eps);
+      answered += answers.write(a);
+    }
+    requests.wait(0.005);
+  }
+  std::printf("%s: forged %llu evaluation answers\n", id.c_str(), (unsigned long long)answered);
+  return 0;
+}
+
+// --big-to-workers: one spec, weights and evaluation request of mib MiB each (see the top).
+int big_to_workers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, unsigned mib,
+                   double seconds) {
+  using namespace farm::msg;
+  farm::dds::Writer<ExperimentSpec, ExperimentSpecPubSubType> spec_out(bus, farm::dds::kSpecTopic, "latest_writer");
+  farm::dds::Writer<PolicyWeights, PolicyWeightsPubSubType> weights_out(bus, farm::dds::kWeightsTopic, "latest_writer");
+  farm::dds::Writer<EvaluationRequest, EvaluationRequestPubSubType> request_out(bus, farm::dds::kEvalRequestTopic,
+                                                                                "batch_writer");
+  const double t_match = farm::now_seconds();
+  while ((spec_out.matched() == 0 || weights_out.matched() == 0 || request_out.matched() == 0) &&
+         farm::now_seconds() - t_match < 15)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const size_t floats = size_t(mib) << 18;
+  PolicyWeights w;
+  w.experiment_id(experiment);
+  w.version(1);
+  w.layer_sizes({3, int32_t(floats / 4 - 1), 1});
+  w.parameters(std::vector<float>(floats, 0.f));
+  EvaluationRequest q;
+  q.experiment_id(experiment);
+  q.learner_session(77);
+  q.request_id(1);
+  q.worker_id("nobody-" + id);
+  q.policy_version(1);
+  q.episodes(1);
+  q.policy(w);
+  ExperimentSpec s;
+  s.experiment_id(experiment);
+  s.config_text(std::string(size_t(mib) << 20, '#'));
+  s.learner_session(77);
+  const int sent = int(spec_out.write(s)) + int(weights_out.write(w)) + int(request_out.write(q));
+  std::printf("%s: sent %d samples of %u MiB to the workers\n", id.c_str(), sent, mib);
+  std::fflush(stdout);
+  std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -123,6 +213,8 @@ int main(int argc, char** argv) {
   bool spec_finished = false, spec_only = false;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error;
   unsigned spec_steps = 4, spec_max_batches = 4;
+  double forge_return = NAN;
+  unsigned forge_length = 1, forge_metrics = 1, flood_streams = 0, flood_heartbeats = 0, host_bytes = 0, big_mib = 0;
   try {
     for (int i = 1; i < argc; ++i) {
       std::string a = argv[i];
@@ -163,6 +255,20 @@ int main(int argc, char** argv) {
         heartbeat = v == "1";
       else if (a == "--eval-requests")
         eval_worker = v;
+      else if (a == "--forge-answers")
+        forge_return = std::stof(v);
+      else if (a == "--forge-length")
+        forge_length = std::stoul(v);
+      else if (a == "--forge-metrics")
+        forge_metrics = std::stoul(v);
+      else if (a == "--flood-streams")
+        flood_streams = std::stoul(v);
+      else if (a == "--flood-heartbeats")
+        flood_heartbeats = std::stoul(v);
+      else if (a == "--status-host-bytes")
+        host_bytes = std::stoul(v);
+      else if (a == "--big-to-workers")
+        big_mib = std::stoul(v);
       else
         throw std::invalid_argument("unknown flag " + a);
     }
@@ -179,6 +285,10 @@ int main(int argc, char** argv) {
     std::printf("%s: joined domain %d %s\n", id.c_str(), bus.domain(), how.c_str());
     std::fflush(stdout);
     if (try_writers) return try_every_writer(bus, id);
+    if (!std::isnan(forge_return))
+      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics);
+    if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
+    if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
           bus, farm::dds::kEvalRequestTopic, "batch_writer");
@@ -272,6 +382,38 @@ int main(int argc, char** argv) {
       std::printf("%s: oversized batches of %ux%u transitions, %zu bytes serialized\n", id.c_str(), OT, ON,
                   farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4);
       std::fflush(stdout);
+    }
+    if (flood_streams > 0 || flood_heartbeats > 0) {
+      while (out.matched() == 0 && farm::now_seconds() - t0 < 15)
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      uint64_t batches = 0, beats = 0;
+      for (unsigned k = 0; k < flood_streams; ++k) {
+        b.worker_id(id + "-" + std::to_string(k));
+        b.worker_session(rng());
+        b.sequence_number(0);
+        batches += out.write(b);
+      }
+      if (flood_heartbeats > 0) {
+        StatusWriter beat_out(bus, farm::dds::kWorkerStatusTopic, "status_writer");
+        while (beat_out.matched() == 0 && farm::now_seconds() - t0 < 15)
+          std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        farm::msg::WorkerStatus st;
+        st.worker_id(id);
+        st.host(status_host);
+        st.experiment_id(experiment);
+        st.envs(1);
+        st.threads(1);
+        st.state("running");
+        for (unsigned k = 0; k < flood_heartbeats; ++k) {
+          st.worker_session(rng());
+          beats += beat_out.write(st);
+        }
+      }
+      std::printf("%s: flooded %llu batches of invented streams, %llu heartbeats of invented sessions\n", id.c_str(),
+                  (unsigned long long)batches, (unsigned long long)beats);
+      std::fflush(stdout);
+      std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+      return 0;
     }
     while (oversize && farm::now_seconds() - t0 < seconds) {
       b.sequence_number(sent);

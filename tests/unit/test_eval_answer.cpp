@@ -99,4 +99,24 @@ TEST(EvalAnswer, TheSizeBoundHoldsTheLargestGoodAnswer) {
 }
 
 }  // namespace
+// A return no episode of the task can reach (beyond length x the spec's reward_bound) is refused;
+// one at the bound passes; with no declared bound only finiteness is asked.
+TEST(EvalAnswer, ReturnBeyondTheTasksRewardBoundIsRefused) {
+  EvalExpected e = expected();
+  e.reward_bound = 16.3;
+  auto a = good();
+  a.episodes()[1].episode_return(1e30f);
+  a.episodes()[1].length(1);
+  const std::string why = check_eval_answer(a, e);
+  EXPECT_NE(why.find("episode 1: return"), std::string::npos) << why;
+  EXPECT_NE(why.find("beyond what 1 steps of this task can give"), std::string::npos) << why;
+  a.episodes()[1].episode_return(-16.3f * 200);
+  a.episodes()[1].length(200);
+  EXPECT_EQ(check_eval_answer(a, e), "");
+  a.episodes()[1].episode_return(-16.3f * 201);
+  EXPECT_NE(check_eval_answer(a, e), "");
+  e.reward_bound = HUGE_VAL;
+  EXPECT_EQ(check_eval_answer(a, e), "");
+}
+
 }  // namespace farm

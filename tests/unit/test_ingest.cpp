@@ -181,21 +181,72 @@ TEST_F(Fixture, AbsurdSequenceJumpIsRefusedWithoutMovingTheAccount) {
   EXPECT_EQ(ingest.counters().ok, 4u);
 }
 
-// Invented sessions by the thousand: accounts stop at the bound, refused ones open nothing, and
-// the real streams are untouched.
-TEST_F(Fixture, InventedSessionsAreBounded) {
+// Invented sessions by the thousand: open accounts stay at the bound, each new stream past it
+// retires the open one with the fewest accepted batches (an invented one-batch stream, never the
+// real worker's), and a real stream that opens after the flood is taken.
+TEST_F(Fixture, InventedSessionsAreBoundedAndLockNoWorkerOut) {
   EXPECT_EQ(take(make_batch(0)), "");
-  size_t refused = 0;
+  EXPECT_EQ(take(make_batch(1)), "");
   for (uint64_t k = 0; k < Ingest::kMaxAccounts + 500; ++k) {
     auto b = make_batch(0);
+    b.worker_id("x" + std::to_string(k));
     b.worker_session(1000 + k);
-    if (!take(b).empty()) ++refused;
+    EXPECT_EQ(take(b), "");
   }
   EXPECT_EQ(ingest.workers().size(), Ingest::kMaxAccounts);
-  EXPECT_EQ(refused, 501u);
-  EXPECT_EQ(ingest.counters().invalid, 501u);
-  EXPECT_EQ(take(make_batch(1)), "");
-  EXPECT_EQ(ingest.workers().at({"w1", 7}).received, 2u);
+  EXPECT_EQ(ingest.retired(), 501u);
+  EXPECT_EQ(take(make_batch(2)), "");
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).received, 3u);
+  auto late = make_batch(0);  // a real worker that joins after the flood
+  late.worker_id("w9");
+  EXPECT_EQ(take(late), "");
+  EXPECT_EQ(ingest.workers().count({"w9", 7}), 1u);
+  EXPECT_EQ(ingest.counters().invalid, 0u);
+}
+
+// One worker id holds at most kMaxSessionsPerWorker streams: a new session past it retires that
+// id's least recently seen one, and a retired stream that comes back continues its own account
+// (no loss counted for the batches it sent before).
+TEST_F(Fixture, SessionsPerWorkerAreBoundedAndARetiredStreamContinues) {
+  double now = 0;
+  const auto at = [&](uint64_t session, uint64_t seq) {
+    auto b = make_batch(seq);
+    b.worker_session(session);
+    return ingest.accept(b, 5, now += 1, out, eps);
+  };
+  for (uint64_t s = 1; s <= Ingest::kMaxSessionsPerWorker; ++s) EXPECT_EQ(at(s, 0), "");
+  EXPECT_EQ(at(1, 1), "");  // session 1 is now the most recently seen; 2 the least
+  EXPECT_EQ(at(99, 0), "");
+  EXPECT_EQ(ingest.workers().size(), Ingest::kMaxSessionsPerWorker);
+  EXPECT_EQ(ingest.workers().count({"w1", 2}), 0u);
+  EXPECT_EQ(ingest.retired(), 1u);
+  EXPECT_EQ(at(2, 1), "");  // back: its account goes on from sequence 1
+  EXPECT_EQ(ingest.workers().at({"w1", 2}).received, 2u);
+  EXPECT_EQ(ingest.counters().lost, 0u);
+}
+
+// Accounts idle for the expiry are retired, counted; one seen since stays.
+TEST_F(Fixture, IdleAccountsExpire) {
+  auto b = make_batch(0);
+  EXPECT_EQ(ingest.accept(b, 5, 10.0, out, eps), "");
+  b.worker_id("w2");
+  EXPECT_EQ(ingest.accept(b, 5, 100.0, out, eps), "");
+  EXPECT_EQ(ingest.expire(500.0, 450.0), 1u);
+  EXPECT_EQ(ingest.workers().size(), 1u);
+  EXPECT_EQ(ingest.workers().count({"w2", 7}), 1u);
+  EXPECT_EQ(ingest.retired(), 1u);
+}
+
+// A stream takes batches only from the participant that opened it: another participant writing
+// under its id and session (both readable off the bus) is refused without moving the account.
+TEST_F(Fixture, StreamTakesBatchesOnlyFromItsWriter) {
+  EXPECT_EQ(ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "P1"), "");
+  const std::string why = ingest.accept(make_batch(5), 5, 0.0, out, eps, nullptr, "P2");
+  EXPECT_NE(why.find("from another participant"), std::string::npos) << why;
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).next_sequence, 1u);
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).lost, 0u);
+  EXPECT_EQ(ingest.accept(make_batch(1), 5, 0.0, out, eps, nullptr, "P1"), "");
+  EXPECT_EQ(ingest.counters().invalid, 1u);
 }
 
 // DDS Security: a worker's id is its certificate's name. A batch whose worker id differs from the

@@ -120,6 +120,7 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
   void SetUp() override {
     task_ = make_task(GetParam().config);
     spec_ = task_->spec();
+    bound_ = task_spec(GetParam().config).reward_bound;
   }
 
   std::unique_ptr<Task> another_instance() const { return make_task(GetParam().config); }
@@ -149,6 +150,9 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
     std::vector<float> buf(spec_.obs_dim + kPad, sentinel());
     const StepResult r = task->step(s, action.data(), buf.data());
     EXPECT_TRUE(std::isfinite(r.reward)) << "reward " << r.reward << " at step " << s.step;
+    // The bound the learner holds evaluation answers to (TaskSpec::reward_bound, from the config).
+    EXPECT_LE(std::abs(double(r.reward)), bound_)
+        << "reward " << r.reward << " at step " << s.step << " beyond the spec's reward_bound";
     return {checked(buf, spec_.obs_dim, "step observation"), r.reward, r.terminated, r.truncated};
   }
 
@@ -169,6 +173,7 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
 
   std::unique_ptr<Task> task_;
   TaskSpec spec_;
+  double bound_ = HUGE_VAL;  // task_spec(config).reward_bound
 };
 
 TEST_P(TaskConformance, SpecIsWellFormed) {

@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Invented worker streams and heartbeats neither lock a worker out nor grow the learner. Before any
+# worker, a participant sends 5,000 one-step batches, each under an invented worker id and session
+# (more streams than the learner keeps open), and 10,000 heartbeats of invented sessions with
+# 60,000-character host names. A real worker that joins after it trains: its stream is accepted
+# whole, nothing of it lost or invalid. The learner's summary keeps the open streams at the bound,
+# its peak memory stays within 250 MiB of a run without the flood (measured in the same test; the heartbeats alone carry 600 MB of host names), and its log stays
+# small (the roster writes a bounded number of lines per 10 s).
+#   tests/integration/test_account_flood.sh LEARNER WORKER INTRUDER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init account-flood 139
+
+awk '/^stop \{/ { print "stop { max_seconds: 20 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
+  "$src/deploy/configs/pendulum_sac.txtpb" | sed -e 's/^experiment_id: .*/experiment_id: "it_flood"/' >"$dir/flood.txtpb"
+grep -q '^stop { max_seconds: 20 }' "$dir/flood.txtpb" || fail "test set-up: no stop block replaced"
+# The learner's peak resident memory in kB while it runs (VmHWM), read just before it ends.
+peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
+
+run() {  # NAME FLOOD(0/1): one learner and, after the flood if any, one worker; sets peak (kB)
+  local name=$1 flood=$2 lp p
+  peak=0
+  "$learner" --config "$dir/flood.txtpb" --run-dir "$dir/$name" --domain $domain >"$dir/$name.log" 2>&1 & lp=$!; pids+=($lp)
+  if [ "$flood" = 1 ]; then
+    "$intruder" --domain $domain --experiment it_flood --id flood --seconds 1 --flood-streams 5000 \
+      --flood-heartbeats 10000 --status-host-bytes 60000 >"$dir/intruder.log" 2>&1 ||
+      fail "the intruder did not run: $(tail -2 "$dir/intruder.log")"
+  fi
+  "$worker" --domain $domain --id fw --envs 4 >"$dir/$name-worker.log" 2>&1 & pids+=($!)
+  while kill -0 $lp 2>/dev/null; do p=$(peak_kb $lp); [ -n "$p" ] && peak=$p; sleep 0.5; done
+  wait $lp || fail "the $name learner exited with $?: $(tail -3 "$dir/$name.log")"
+}
+run plain 0
+base_peak=$peak
+domain=$((domain + 1))
+run flooded 1
+flood_peak=$peak
+summary="$dir/flooded/summary.txt"
+[ -r "$summary" ] || { fail "no summary of the flooded run"; farm_test_end; }
+line=$(grep "^worker  *fw session" "$summary")
+received=$(echo "$line" | sed -n 's/.*received \([0-9]*\) of sequence 0\.\.\([0-9]*\), lost \([0-9]*\), duplicate 0, invalid \([0-9]*\).*/\1 \2 \3 \4/p')
+read -r got last lost invalid <<<"$received"
+[ "${got:-0}" -gt 0 ] || fail "the real worker's batches were not taken after the flood: '$line'"
+[ "${lost:-1}" = 0 ] && [ "${invalid:-1}" = 0 ] || fail "the real worker's stream lost or had refused batches: '$line'"
+[ "${got:-0}" = "$(( ${last:-0} + 1 ))" ] || fail "the real worker's stream is not whole: '$line'"
+open=$(sed -n 's/^worker streams *\([0-9]*\) open, \([0-9]*\) retired.*/\1/p' "$summary")
+retired=$(sed -n 's/^worker streams *\([0-9]*\) open, \([0-9]*\) retired.*/\2/p' "$summary")
+[ -n "$open" ] && [ "$open" -le 4096 ] && [ "${retired:-0}" -ge 500 ] ||
+  fail "open streams not held at the bound: $(grep '^worker streams' "$summary")"
+[ "$(grep -c '^worker ' "$summary")" -le 70 ] || fail "the summary lists $(grep -c '^worker ' "$summary") streams"
+log_bytes=$(stat -c %s "$dir/flooded.log")
+[ "$log_bytes" -lt 200000 ] || fail "the flooded learner's log is $log_bytes bytes"
+[ "$flood_peak" -lt $((base_peak + 256000)) ] || fail "peak memory ${flood_peak} kB with the flood, ${base_peak} kB without"
+farm_test_end "real worker: $got batches, lost 0; streams $open open, $retired retired; log $log_bytes bytes; peak ${flood_peak} kB (${base_peak} kB without the flood); $(tail -1 "$dir/intruder.log")"

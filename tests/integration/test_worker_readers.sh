@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# A worker's readers take nothing larger than an experiment allows. A learner (pendulum) and one
+# worker train; a participant that is not the learner then publishes a spec, weights and an
+# evaluation request (to a worker id no one has) of 200 MiB each. The worker runs on: its peak
+# memory stays within 100 MiB of what it was before them, and its batches keep arriving, none
+# lost or invalid.
+#   tests/integration/test_worker_readers.sh LEARNER WORKER INTRUDER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init worker-readers 141
+
+awk '/^stop \{/ { print "stop { max_seconds: 25 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
+  "$src/deploy/configs/pendulum_sac.txtpb" |
+  sed -e 's/^experiment_id: .*/experiment_id: "it_readers"/' -e 's/^log_every_seconds: .*/log_every_seconds: 1/' \
+    >"$dir/readers.txtpb"
+grep -q '^stop { max_seconds: 25 }' "$dir/readers.txtpb" || fail "test set-up: no stop block replaced"
+"$learner" --config "$dir/readers.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain --id rw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+batches_ok() {
+  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
+    "$dir/run/learner.csv" 2>/dev/null
+}
+peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
+for _ in $(seq 150); do [ "$(batches_ok)" -gt 0 ] && break; sleep 0.2; done
+sleep 2
+before=$(batches_ok) peak_before=$(peak_kb $wp)
+[ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
+"$intruder" --domain $domain --experiment it_readers --id big --seconds 4 --big-to-workers 200 >"$dir/intruder.log" 2>&1 ||
+  fail "the intruder did not run: $(tail -2 "$dir/intruder.log")"
+kill -0 $wp 2>/dev/null || fail "the worker ended after the large samples: $(tail -3 "$dir/worker.log")"
+peak_after=$(peak_kb $wp)
+[ -n "$peak_after" ] && [ "$peak_after" -lt $((peak_before + 102400)) ] ||
+  fail "the worker's peak memory went from ${peak_before} kB to ${peak_after} kB"
+during=$(batches_ok)
+[ "$during" -gt "$before" ] || fail "no batch arrived during the attack: $before before, $during after"
+wait $lp || fail "the learner exited with $?: $(tail -3 "$dir/learner.log")"
+grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
+  fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"
+farm_test_end "worker peak ${peak_before} kB before, ${peak_after} kB after; batches_ok $before, $during; $(tail -1 "$dir/intruder.log")"
