@@ -491,10 +491,6 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
     refuse_discovery_server_with_security(pqos);
     enable_security(security_dir_, pqos);
     own_name_ = certificate_name(security_dir_);
-    if (const std::string error =
-            load_worker_grants(security_dir_ + "/permissions.p7s", security_dir_ + "/ca.cert.pem", grants_);
-        !error.empty())
-      throw std::runtime_error("DDS Security: " + error);
     identities_ = std::make_unique<ParticipantIdentities>();
   }
   // The listener hears participant discovery and authentication only (no entity status).
@@ -505,6 +501,17 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
                                   ? std::string()
                                   : " with DDS Security from " + security_dir_ +
                                         " (certificate, key or signed documents rejected; see messages above)"));
+  }
+  // The worker names granted, from the permissions Fast DDS has just accepted (so its own message
+  // comes first for a file it refuses, e.g. on a host whose clock is behind the CA's start).
+  if (!security_dir_.empty()) {
+    if (const std::string error =
+            load_worker_grants(security_dir_ + "/permissions.p7s", security_dir_ + "/ca.cert.pem", grants_);
+        !error.empty()) {
+      factory->delete_participant(participant_);
+      participant_ = nullptr;
+      throw std::runtime_error("DDS Security: " + error);
+    }
   }
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
