@@ -2,11 +2,13 @@
 
 #include "paths.h"
 #include "shm_leftovers.h"
+#include "trust.h"
 
 #include <arpa/inet.h>
 #include <fastdds/rtps/builtin/data/ParticipantProxyData.h>
 #include <fastdds/rtps/participant/ParticipantDiscoveryInfo.h>
 #include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
+#include <fastdds/rtps/writer/WriterDiscoveryInfo.h>
 #include <netinet/in.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
@@ -103,6 +105,14 @@ void enable_security(std::string& dir, fdds::DomainParticipantQos& pqos) {
   set("dds.sec.auth.builtin.PKI-DH.identity_ca", f + "ca.cert.pem");
   set("dds.sec.auth.builtin.PKI-DH.identity_certificate", f + "cert.pem");
   set("dds.sec.auth.builtin.PKI-DH.private_key", f + "key.pem");
+  // A revocation list (deploy/make-pki.sh --revoke): Fast DDS refuses a revoked certificate, the
+  // peer's in authentication and its own at the participant's creation. It reads the list only
+  // then, and cannot create a participant with an expired list: said here, plainly, first.
+  if (file_exists(dir + "/crl.pem")) {
+    if (const std::string why = crl_problem(dir + "/crl.pem"); !why.empty())
+      throw std::runtime_error("DDS Security: " + why);
+    set("dds.sec.auth.builtin.PKI-DH.identity_crl", f + "crl.pem");
+  }
   set("dds.sec.access.plugin", "builtin.Access-Permissions");
   set("dds.sec.access.builtin.Access-Permissions.permissions_ca", f + "ca.cert.pem");
   set("dds.sec.access.builtin.Access-Permissions.governance", f + "governance.p7s");
@@ -132,14 +142,14 @@ void refuse_discovery_server_with_security(const fdds::DomainParticipantQos& pqo
 
 }  // namespace
 
-// Who the remote participants are, under DDS Security: the subject of each one's certificate, from
-// the identity token in its discovery data (dds.cert.sn), and whether authentication accepted it.
-// Once a participant is authenticated its subject is kept as it was: discovery data is not
-// protected, so a later announcement may not rename it. Entries stay after a participant leaves
-// (its last samples may still wait in a reader; under DDS Security a GUID prefix begins with a hash
-// of the certificate's subject, so a participant with another certificate does not take it over)
-// and are bounded: beyond kMaxIdentities, departed entries go first, then unauthenticated ones,
-// oldest first.
+// Who the remote participants are, under DDS Security: whether authentication accepted each one,
+// and the worker name each remote writer's partition gave it at its discovery (trust.h). The subject
+// in a participant's identity token (dds.cert.sn) is kept for messages only: Fast DDS 2.9.1 never
+// checks it against the authenticated certificate, so a participant may put any name there.
+// Entries stay after a participant leaves (its last samples may still wait in a reader; under DDS
+// Security a GUID prefix begins with a hash of the certificate's subject, so a participant with
+// another certificate does not take it over) and are bounded: beyond kMaxIdentities, departed
+// entries go first, then unauthenticated ones, oldest first.
 class ParticipantIdentities : public fdds::DomainParticipantListener {
  public:
   static constexpr size_t kMaxIdentities = 4096;
@@ -171,11 +181,33 @@ class ParticipantIdentities : public fdds::DomainParticipantListener {
     if (Entry* e = entry(info.guid.guidPrefix)) e->authorized = true;
   }
 
-  std::string name_of(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix) const {
+  // The CN its identity token claims (for messages only: nothing checks it).
+  std::string token_name_of(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix) const {
     std::lock_guard<std::mutex> lk(mu_);
     auto it = ids_.find(prefix);
-    if (it == ids_.end() || !it->second.authorized) return "";
-    return common_name_of_subject(it->second.subject);
+    return it == ids_.end() ? "" : common_name_of_subject(it->second.subject);
+  }
+
+  // Fast DDS calls this before it matches the writer with a local reader, whatever the status mask.
+  void on_publisher_discovery(fdds::DomainParticipant*, eprosima::fastrtps::rtps::WriterDiscoveryInfo&& info) override {
+    using Info = eprosima::fastrtps::rtps::WriterDiscoveryInfo;
+    if (!is_worker_topic(info.info.topicName().to_string())) return;
+    const WriterNames::Event event = info.status == Info::DISCOVERED_WRITER    ? WriterNames::Event::kDiscovered
+                                     : info.status == Info::CHANGED_QOS_WRITER ? WriterNames::Event::kChanged
+                                                                               : WriterNames::Event::kRemoved;
+    writers_.writer(info.info.guid(), info.info.m_qos.m_partition.getNames(), event);
+  }
+
+  std::string name_of(const eprosima::fastrtps::rtps::GUID_t& writer, std::string* why) const {
+    {
+      std::lock_guard<std::mutex> lk(mu_);
+      auto it = ids_.find(writer.guidPrefix);
+      if (it == ids_.end() || !it->second.authorized) {
+        if (why) *why = "its participant is not authenticated";
+        return "";
+      }
+    }
+    return writers_.name_of(writer, why);
   }
 
  private:
@@ -208,7 +240,18 @@ class ParticipantIdentities : public fdds::DomainParticipantListener {
   mutable std::mutex mu_;
   std::map<eprosima::fastrtps::rtps::GuidPrefix_t, Entry> ids_;
   uint64_t next_order_ = 0;
+  WriterNames writers_;
 };
+
+namespace {
+std::atomic<bool> g_reload_grants{false};
+}  // namespace
+
+void request_grants_reload() { g_reload_grants.store(true); }
+
+bool is_worker_topic(const std::string& topic_name) {
+  return topic_name == kBatchTopic || topic_name == kWorkerStatusTopic || topic_name == kEvalAnswerTopic;
+}
 
 std::string security_dir_of(const BusOptions& opts) {
   if (!opts.security_dir.empty()) return opts.security_dir;
@@ -299,8 +342,64 @@ std::string common_name_of_subject(const std::string& subject) {
   return found == 1 ? cn : "";
 }
 
-std::string Bus::authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer) const {
-  return identities_ ? identities_->name_of(writer.guidPrefix) : "";
+std::string Bus::authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer, std::string* why) const {
+  if (!identities_) {
+    if (why) *why = "DDS Security is off";
+    return "";
+  }
+  const std::string name = identities_->name_of(writer, why);
+  if (name.empty()) return "";
+  std::lock_guard<std::mutex> lk(grants_mu_);
+  if (!grants_.count(name)) {
+    if (why) *why = "'" + name + "' is not granted by the permissions this learner read last: revoked or never named";
+    return "";
+  }
+  return name;
+}
+
+std::string Bus::token_name(const eprosima::fastrtps::rtps::GUID_t& writer) const {
+  return identities_ ? identities_->token_name_of(writer.guidPrefix) : "";
+}
+
+std::set<std::string> Bus::granted_workers() const {
+  std::lock_guard<std::mutex> lk(grants_mu_);
+  return grants_;
+}
+
+std::string Bus::reload_grants_if_requested() {
+  if (security_dir_.empty() || !g_reload_grants.exchange(false)) return "";
+  std::set<std::string> fresh;
+  const std::string error =
+      load_worker_grants(security_dir_ + "/permissions.p7s", security_dir_ + "/ca.cert.pem", fresh);
+  std::lock_guard<std::mutex> lk(grants_mu_);
+  if (!error.empty()) return "worker grants not reloaded, the previous ones stay: " + error;
+  std::string added, dropped;
+  for (const auto& n : fresh)
+    if (!grants_.count(n)) added += (added.empty() ? "" : " ") + n;
+  for (const auto& n : grants_)
+    if (!fresh.count(n)) dropped += (dropped.empty() ? "" : " ") + n;
+  grants_.swap(fresh);
+  return "worker grants reloaded from " + security_dir_ + "/permissions.p7s: dropped " +
+         (dropped.empty() ? "none" : dropped) + "; added " + (added.empty() ? "none" : added) + "; " +
+         std::to_string(grants_.size()) + " granted";
+}
+
+fdds::DataWriterQos Bus::writer_qos(const std::string& topic_name, const std::string& profile) {
+  fdds::DataWriterQos qos;
+  if (publisher_->get_datawriter_qos_from_profile(profile, qos) != ReturnCode_t::RETCODE_OK)
+    throw std::runtime_error("no DDS writer profile '" + profile + "' in " + profiles_file_);
+  if (!security_dir_.empty() && is_worker_topic(topic_name))
+    qos.properties().properties().emplace_back("partitions", worker_partition(own_name_));
+  return qos;
+}
+
+fdds::DataReaderQos Bus::reader_qos(const std::string& topic_name, const std::string& profile) {
+  fdds::DataReaderQos qos;
+  if (subscriber_->get_datareader_qos_from_profile(profile, qos) != ReturnCode_t::RETCODE_OK)
+    throw std::runtime_error("no DDS reader profile '" + profile + "' in " + profiles_file_);
+  if (!security_dir_.empty() && is_worker_topic(topic_name))
+    qos.properties().properties().emplace_back("partitions", worker_partition("*"));
+  return qos;
 }
 
 bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
@@ -391,6 +490,7 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
   if (!security_dir_.empty()) {
     refuse_discovery_server_with_security(pqos);
     enable_security(security_dir_, pqos);
+    own_name_ = certificate_name(security_dir_);
     identities_ = std::make_unique<ParticipantIdentities>();
   }
   // The listener hears participant discovery and authentication only (no entity status).
@@ -401,6 +501,17 @@ Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(
                                   ? std::string()
                                   : " with DDS Security from " + security_dir_ +
                                         " (certificate, key or signed documents rejected; see messages above)"));
+  }
+  // The worker names granted, from the permissions Fast DDS has just accepted (so its own message
+  // comes first for a file it refuses, e.g. on a host whose clock is behind the CA's start).
+  if (!security_dir_.empty()) {
+    if (const std::string error =
+            load_worker_grants(security_dir_ + "/permissions.p7s", security_dir_ + "/ca.cert.pem", grants_);
+        !error.empty()) {
+      factory->delete_participant(participant_);
+      participant_ = nullptr;
+      throw std::runtime_error("DDS Security: " + error);
+    }
   }
   publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
   subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);

@@ -62,7 +62,8 @@ struct BusOptions {
   // (or in ../share/farm), else the one in deploy/. A file given here wins over the variable.
   std::string profiles_file;
   // DDS Security: a folder made by deploy/make-pki.sh (ca.cert.pem, cert.pem, key.pem,
-  // governance.p7s, permissions.p7s). Empty: FARM_SECURITY_DIR if set, else no security.
+  // governance.p7s, permissions.p7s, and crl.pem once a certificate was revoked). Empty:
+  // FARM_SECURITY_DIR if set, else no security.
   std::string security_dir;
 };
 
@@ -84,6 +85,15 @@ std::string certificate_name(const std::string& security_dir);
 std::string common_name_of_subject(const std::string& subject);
 
 class ParticipantIdentities;
+
+// Under DDS Security the topics a worker writes (batches, heartbeats, evaluation answers) go in
+// the worker's own partition, worker/<certificate name>, which its signed permissions alone allow
+// it (trust.h); their readers read worker/*. Other topics stay in the default partition.
+bool is_worker_topic(const std::string& topic_name);
+
+// Asks every Bus of this process to read its permissions document again at its next
+// reload_grants_if_requested (async-signal-safe: a SIGHUP handler calls it).
+void request_grants_reload();
 
 class Bus {
  public:
@@ -107,11 +117,28 @@ class Bus {
   }
   // The DDS Security folder in use, or "" when security is off.
   const std::string& security_dir() const { return security_dir_; }
-  // With DDS Security: the certificate name (CN) of the authenticated remote participant that
-  // wrote a sample (SampleInfo::sample_identity.writer_guid()), taken from the identity token
-  // (dds.cert.sn) of its discovery data; "" when that participant is not known as authenticated.
-  // Always "" without security.
-  std::string authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer) const;
+  // With DDS Security: the worker name of the writer of a sample
+  // (SampleInfo::sample_identity.writer_guid()): the NAME of the one partition worker/NAME the writer
+  // was in when it was discovered, which access control allowed only to a participant authenticated
+  // with NAME's certificate (trust.h). "" with *why when the writer's participant is not
+  // authenticated, the writer is unknown, in no worker partition, changed partitions after it was
+  // discovered, or NAME is not granted by the permissions this process read last (a revoked worker).
+  // The participant's identity token (dds.cert.sn) is never used: Fast DDS 2.9.1 does not check it
+  // against the certificate. Always "" without security.
+  std::string authenticated_name(const eprosima::fastrtps::rtps::GUID_t& writer, std::string* why = nullptr) const;
+  // The CN the identity token of a writer's participant claims, for messages only ("" if none).
+  std::string token_name(const eprosima::fastrtps::rtps::GUID_t& writer) const;
+  // With DDS Security, after request_grants_reload(): reads DIR/permissions.p7s again, checked against
+  // the permissions CA, and from then on refuses the worker names it no longer grants. Returns what
+  // changed ("worker grants reloaded: dropped w2; added none; 3 granted"), or why the file was refused
+  // (the previous grants stay); "" when no reload was asked or security is off.
+  std::string reload_grants_if_requested();
+  // The worker names the permissions grant, as read last (security only).
+  std::set<std::string> granted_workers() const;
+  // Fills a writer's or reader's QoS from a profile, plus this process's partition for a worker topic
+  // under DDS Security; throws std::runtime_error naming the profile when it is missing.
+  fdds::DataWriterQos writer_qos(const std::string& topic_name, const std::string& profile);
+  fdds::DataReaderQos reader_qos(const std::string& topic_name, const std::string& profile);
   // Registers the type once and returns the topic (one per name per participant).
   fdds::Topic* topic(const std::string& name, fdds::TypeSupport type);
 
@@ -123,6 +150,9 @@ class Bus {
   std::map<std::string, fdds::Topic*> topics_;
   std::string profiles_file_;
   std::string security_dir_;
+  std::string own_name_;  // the certificate's name, under DDS Security
+  mutable std::mutex grants_mu_;
+  std::set<std::string> grants_;
   int domain_ = 0;
   int participant_id_ = -1;
 };
@@ -132,7 +162,7 @@ class Writer {
  public:
   Writer(Bus& bus, const std::string& topic_name, const std::string& profile) : bus_(bus) {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
-    writer_ = bus.publisher()->create_datawriter_with_profile(t, profile);
+    writer_ = bus.publisher()->create_datawriter(t, bus.writer_qos(topic_name, profile));
     if (!writer_) {
       throw std::runtime_error("cannot create DDS writer for " + topic_name + " with profile '" + profile +
                                "' (is it in " + bus.profiles_file() + "?)");
@@ -185,7 +215,7 @@ class Reader : public fdds::DataReaderListener {
   Reader(Bus& bus, const std::string& topic_name, const std::string& profile, OnData on_data = {})
       : bus_(bus), on_data_(std::move(on_data)) {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
-    reader_ = bus.subscriber()->create_datareader_with_profile(t, profile, this);
+    reader_ = bus.subscriber()->create_datareader(t, bus.reader_qos(topic_name, profile), this);
     if (!reader_) {
       throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" + profile +
                                "' (is it in " + bus.profiles_file() + "?)");
@@ -210,11 +240,7 @@ class Reader : public fdds::DataReaderListener {
       throw std::logic_error("DDS topic " + topic_name + " was created without the bound of " +
                              std::to_string(max_sample_bytes) + " bytes per sample");
     }
-    fdds::DataReaderQos qos;
-    if (bus.subscriber()->get_datareader_qos_from_profile(profile, qos) !=
-        eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
-      throw std::runtime_error("no DDS reader profile '" + profile + "' in " + bus.profiles_file());
-    }
+    fdds::DataReaderQos qos = bus.reader_qos(topic_name, profile);
     qos.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
     count_samples_refused_for_size();
     reader_ = bus.subscriber()->create_datareader(t, qos, this);

@@ -11,7 +11,7 @@
 # ROS_DISCOVERY_SERVER (the Discovery Servers, with --insecure only; unset: multicast discovery),
 # SSH ("ssh -o BatchMode=yes").
 # DDS Security is on by default: each worker runs with --security DIR, a folder on that host
-# (FARM_SECURITY_DIR, default /etc/farm/pki) holding what `deploy/make-pki.sh pki <HOST>-1` made in
+# (FARM_SECURITY_DIR, default /etc/farm/pki) holding what `deploy/make-pki.sh pki worker:<HOST>-1` made in
 # pki/<HOST>-1; a host without it refuses to start the worker and says how to make it. --insecure
 # starts the workers without security, for a network where every host is trusted.
 # --dry-run prints the ssh commands instead of running them. Hosts with systemd can use
@@ -71,7 +71,7 @@ while read -r host envs threads extra || [ -n "${host:-}" ]; do
     # in its log file.
     sec=$(printf %q "$security")
     remote+="[ -r $sec/cert.pem ] && [ -r $sec/key.pem ] || { echo \"$host: no DDS Security folder $sec"
-    remote+=" (make it with deploy/make-pki.sh pki $id, copy pki/$id to $host:$sec; or --insecure on a trusted"
+    remote+=" (make it with deploy/make-pki.sh pki worker:$id, copy pki/$id to $host:$sec; or --insecure on a trusted"
     remote+=" network)\" >&2; exit 1; }; "
   fi
   [ -z "$discovery" ] || remote+="ROS_DISCOVERY_SERVER=$(printf %q "$discovery") "

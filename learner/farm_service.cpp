@@ -46,10 +46,12 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
               // Under DDS Security, as for batches: only from the participant whose
               // certificate bears the worker id (no invented workers in the roster).
               if (!bus_.security_dir().empty()) {
-                const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid());
+                std::string why;
+                const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid(), &why);
                 if (by != s.worker_id()) {
                   ++heartbeats_refused_;
-                  heartbeat_refused_note_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'";
+                  heartbeat_refused_note_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) +
+                                            "'" + (by.empty() ? ": " + why : "");
                   continue;
                 }
               }
@@ -155,6 +157,8 @@ int FarmService::run() {
 }
 
 void FarmService::work() {
+  // SIGHUP: the permissions document again (deploy/make-pki.sh --revoke); names it drops are refused.
+  if (const std::string reloaded = bus_.reload_grants_if_requested(); !reloaded.empty()) log(reloaded);
   const size_t got = drain_batches(256);
   drain_status();
   poll_evaluations();
@@ -345,13 +349,22 @@ void FarmService::drain_status() {
 
 int FarmService::live_count() const { return roster_.live_count(now_seconds()); }
 
+// Where a participant's identity token names another than its writer's partition: said, since no
+// one else checks it (Fast DDS 2.9.1 does not compare the token with the certificate).
+std::string FarmService::token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const {
+  if (bus_.security_dir().empty() || name.empty()) return "";
+  const std::string token = bus_.token_name(writer);
+  return token == name ? "" : "; its participant's identity token claims '" + printable(token, 100) + "'";
+}
+
 bool FarmService::accept_batch() {
   pending_.clear();
   episodes_.clear();
   const uint64_t foreign = ingest_.counters().foreign;
   // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
-  std::string writer;
-  if (!bus_.security_dir().empty()) writer = bus_.authenticated_name(batch_info_.sample_identity.writer_guid());
+  std::string writer, unnamed_why;
+  if (!bus_.security_dir().empty())
+    writer = bus_.authenticated_name(batch_info_.sample_identity.writer_guid(), &unnamed_why);
   const uint64_t retired = ingest_.retired();
   const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_,
                                          bus_.security_dir().empty() ? nullptr : &writer,
@@ -371,7 +384,8 @@ bool FarmService::accept_batch() {
   }
   if (++rejections_logged_ <= 20)
     log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
-        ": " + why);
+        ": " + why + (writer.empty() && !bus_.security_dir().empty() ? " (" + unnamed_why + ")" : "") +
+        token_note(batch_info_.sample_identity.writer_guid(), writer));
   return false;
 }
 

@@ -68,6 +68,7 @@ class FarmService final : public Farm {
   // pending_ and episodes_ hold its transitions and finished episodes; false (and a log line for
   // the first 20) when the batch is refused.
   bool accept_batch();
+  std::string token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const;
   void record_episode(float episode_return);
   double mean_recent_return() const;
   void progress(double elapsed, double window);

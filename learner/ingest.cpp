@@ -107,8 +107,7 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     // --id). Refused before any account is looked at, so it opens and moves none.
     ++counters_.invalid;
     if (writer_name->empty())
-      return "worker id '" + b.worker_id() +
-             "' from a participant DDS Security has not authenticated by a certificate name";
+      return "worker id '" + b.worker_id() + "' from a writer DDS Security binds to no granted worker name";
     return "worker id '" + b.worker_id() + "' is not '" + *writer_name +
            "', the certificate name of the participant that wrote it";
   }

@@ -75,6 +75,8 @@ int main(int argc, char** argv) {
   }
   signal(SIGINT, on_signal);
   signal(SIGTERM, on_signal);
+  // Under DDS Security: read the permissions again and refuse the workers they no longer grant.
+  signal(SIGHUP, [](int) { farm::dds::request_grants_reload(); });
   configure_compute(cfg.torch_threads());
   try {
     FarmService farm({opt.bus, opt.resume, opt.run_dir}, cfg, g_interrupted);

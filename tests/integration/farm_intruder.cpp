@@ -25,6 +25,11 @@
 // print which ones DDS Security's access control let it create (`writers created [...], refused
 // [...]`), then exit 0. A writer the permissions deny is refused by Fast DDS at creation, so no
 // sample of it can reach anyone; the security test runs it with worker and monitor certificates.
+// --token-name NAME: the participant's identity token, which every peer reads in its discovery data,
+// says its certificate's subject has CN=NAME while it authenticates with the certificate of --security
+// (a participant built to lie: Fast DDS 2.9.1 fills the token's dds.cert.sn from X509_NAME_oneline,
+// which this program replaces for Fast DDS's calls, and no peer compares the token with the
+// certificate). Its batch and heartbeat writers stay in the partition of its real certificate.
 // --eval-requests WORKER: instead of a stream, rounds of six evaluation requests addressed to WORKER,
 // 50 ms apart, each wrong in one way: 0 episodes, 2^32 - 1 episodes, a first episode of 2^32 - 1, a policy
 // of another experiment, a policy of another version than the request's, and a policy whose layout
@@ -40,8 +45,12 @@
 // worker session, with the host name --status-host (--status-host-bytes B: B characters instead).
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
 // id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
+#include <dlfcn.h>
+#include <openssl/x509.h>
+
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <memory>
@@ -53,6 +62,35 @@
 #include "config.h"
 #include "dds.h"
 #include "meter.h"
+
+namespace {
+
+std::string g_token_name;  // --token-name
+std::string g_own_name;    // the CN of its own certificate, which the token's subject replaces
+
+}  // namespace
+
+// Replaces OpenSSL's X509_NAME_oneline for Fast DDS's calls (this program exports it: ENABLE_EXPORTS),
+// so that with --token-name the subject of its own certificate, as Fast DDS puts it in this
+// participant's identity token, has another CN. Other subjects (the CA's, the peers') stay as they
+// are, Fast DDS's access control reads the subject in RFC 2253 form (X509_NAME_print_ex), which stays
+// the certificate's, and so does every other caller of this function.
+extern "C" char* X509_NAME_oneline(const X509_NAME* name, char* buf, int size) {
+  using Fn = char* (*)(const X509_NAME*, char*, int);
+  static const Fn real = reinterpret_cast<Fn>(dlsym(RTLD_NEXT, "X509_NAME_oneline"));
+  char* text = real(name, buf, size);
+  Dl_info caller{};
+  if (g_token_name.empty() || !text || buf != nullptr || !dladdr(__builtin_return_address(0), &caller) ||
+      !caller.dli_fname || !std::strstr(caller.dli_fname, "libfastrtps"))
+    return text;
+  std::string subject = text;
+  const size_t cn = subject.find("/CN=" + g_own_name);
+  const size_t end = cn + 4 + g_own_name.size();
+  if (cn == std::string::npos || (end < subject.size() && subject[end] != '/')) return text;
+  subject = subject.substr(0, cn + 4) + g_token_name + subject.substr(end);
+  OPENSSL_free(text);
+  return OPENSSL_strdup(subject.c_str());
+}
 
 namespace {
 
@@ -269,6 +307,8 @@ int main(int argc, char** argv) {
         host_bytes = std::stoul(v);
       else if (a == "--big-to-workers")
         big_mib = std::stoul(v);
+      else if (a == "--token-name")
+        g_token_name = v;
       else
         throw std::invalid_argument("unknown flag " + a);
     }
@@ -277,6 +317,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
+    if (!g_token_name.empty()) g_own_name = farm::dds::certificate_name(farm::dds::security_dir_of(bus_opts));
     farm::dds::Bus bus(bus_opts, id);
     // Said once the participant exists, so a test can tell a participant that ran and got nothing
     // from one that never started (a missing certificate file also ends in `refused:` below).

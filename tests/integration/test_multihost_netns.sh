@@ -101,7 +101,7 @@ for i in 0 1; do
   grep -q "Server is running" "$dir/discovery-$i.log" || fail "discovery server $i did not start: $(cat "$dir/discovery-$i.log")"
 done
 
-bash "$src/deploy/make-pki.sh" "$pki" learner monitor host-b host-c >"$dir/pki.log" 2>&1 ||
+bash "$src/deploy/make-pki.sh" "$pki" learner:learner monitor:monitor worker:host-b worker:host-c >"$dir/pki.log" 2>&1 ||
   { fail "deploy/make-pki.sh failed: $(cat "$dir/pki.log")"; exit 1; }
 
 cat >"$dir/cfg.txtpb" <<'EOF'

@@ -7,10 +7,14 @@
 // before their making: checked on the files and by a worker whose clock is an hour behind (faketime).
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <ctime>
+#include <filesystem>
 #include <regex>
 #include <string>
+#include <thread>
 
 #include <unistd.h>
 
@@ -38,11 +42,13 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(77));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner worker-a insider > " + d + "/pki.log 2>&1").c_str()),
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner:learner worker:worker-a worker:insider > " + d +
+                         "/pki.log 2>&1")
+                            .c_str()),
             0)
       << slurp(d + "/pki.log");
   // Same participant name, certificate from a CA the farm does not trust.
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/rogue worker-a > " + d + "/rogue.log 2>&1").c_str()), 0)
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/rogue worker:worker-a > " + d + "/rogue.log 2>&1").c_str()), 0)
       << slurp(d + "/rogue.log");
   write_file(d + "/secure.txtpb", kConfig);
 
@@ -121,7 +127,8 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(79));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner w1 > " + d + "/pki.log 2>&1").c_str()), 0)
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner:learner worker:w1 > " + d + "/pki.log 2>&1").c_str()),
+            0)
       << slurp(d + "/pki.log");
   std::string cfg = kConfig;
   cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 28");
@@ -188,7 +195,7 @@ TEST(Security, DiscoveryServerWithSecurityIsRefusedAtStart) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(80));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki w1 > " + d + "/pki.log 2>&1").c_str()), 0)
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki worker:w1 > " + d + "/pki.log 2>&1").c_str()), 0)
       << slurp(d + "/pki.log");
   setenv("ROS_DISCOVERY_SERVER", "127.0.0.1:11811", 1);
   Proc& client = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "client");
@@ -230,7 +237,9 @@ TEST(Security, WorkerAndMonitorCertificatesCannotPublishSpecOrWeights) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(78));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner worker-a monitor-a > " + d + "/pki.log 2>&1").c_str()),
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner:learner worker:worker-a monitor:monitor-a > " + d +
+                         "/pki.log 2>&1")
+                            .c_str()),
             0)
       << slurp(d + "/pki.log");
   EXPECT_EQ(writers_of(set, domain, d + "/pki/learner", "learner"),
@@ -264,7 +273,9 @@ TEST(Security, CertificatesAreValidFromBeforeTheirMaking) {
   const std::string d = set.dir();
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
   const long long made = std::time(nullptr);
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner worker-a > " + d + "/pki.log 2>&1").c_str()), 0)
+  ASSERT_EQ(
+      std::system(("bash " + pki + " " + d + "/pki learner:learner worker:worker-a > " + d + "/pki.log 2>&1").c_str()),
+      0)
       << slurp(d + "/pki.log");
   for (const std::string cert :
        {d + "/pki/ca/ca.cert.pem", d + "/pki/learner/cert.pem", d + "/pki/worker-a/cert.pem"}) {
@@ -273,7 +284,7 @@ TEST(Security, CertificatesAreValidFromBeforeTheirMaking) {
     EXPECT_LE(t, made - 23 * 3600) << cert << " is valid only from " << (made - t) << " s before it was made";
   }
   // A later run that adds a participant backdates it too.
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki worker-b >> " + d + "/pki.log 2>&1").c_str()), 0)
+  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki worker:worker-b >> " + d + "/pki.log 2>&1").c_str()), 0)
       << slurp(d + "/pki.log");
   EXPECT_LE(not_before(d + "/pki/worker-b/cert.pem"), made - 23 * 3600);
   std::smatch m;
@@ -302,12 +313,14 @@ TEST(Security, WorkerWhoseClockIsAnHourBehindJoins) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(81));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner worker-a > " + d + "/pki.log 2>&1").c_str()), 0)
-      << slurp(d + "/pki.log");
   ASSERT_EQ(
-      std::system(
-          ("FARM_PKI_BACKDATE_DAYS=0 bash " + pki + " " + d + "/late worker-late > " + d + "/late.log 2>&1").c_str()),
+      std::system(("bash " + pki + " " + d + "/pki learner:learner worker:worker-a > " + d + "/pki.log 2>&1").c_str()),
       0)
+      << slurp(d + "/pki.log");
+  ASSERT_EQ(std::system(("FARM_PKI_BACKDATE_DAYS=0 bash " + pki + " " + d + "/late worker:worker-late > " + d +
+                         "/late.log 2>&1")
+                            .c_str()),
+            0)
       << slurp(d + "/late.log");
   // faketime does shift the clock by an hour.
   FILE* f = popen((std::string(kFaketime) + " -f -1h date +%s").c_str(), "r");
@@ -360,3 +373,161 @@ TEST(Security, WorkerWhoseClockIsAnHourBehindJoins) {
 }
 
 }  // namespace
+
+namespace {
+
+// Parses "worker NAME session S: received R of sequence 0..K, lost L, duplicate D, invalid I" of a
+// summary: R and L, or false.
+bool worker_line(const std::string& summary, const std::string& name, long long& received, long long& lost) {
+  std::smatch m;
+  if (!std::regex_search(summary, m,
+                         std::regex("worker\\s+" + name +
+                                    R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+), duplicate 0)")))
+    return false;
+  received = std::stoll(m[1]);
+  lost = std::stoll(m[3]);
+  return true;
+}
+
+}  // namespace
+
+// Trust between participants, item 5: a worker's name is what access control enforces with its real
+// certificate, not what its participant says of itself. A participant that authenticates with w1's
+// certificate and claims w2 in its identity token (farm_intruder --token-name w2: Fast DDS 2.9.1
+// fills dds.cert.sn and no peer checks it) writes batches and heartbeats as w2. Its writers can only
+// be in worker/w1, the one partition w1's signed grant allows, and the learner takes the name from
+// that partition: every batch as w2 is refused, nothing of w2 is accounted or heard. A learner that
+// read the token took them as w2's. The real w1 worker trains alongside, none of its batches lost.
+TEST(Security, IdentityTokenDoesNotNameTheWorker) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(82));
+  const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
+  ASSERT_EQ(
+      std::system(
+          ("bash " + pki + " " + d + "/pki learner:learner worker:w1 worker:w2 > " + d + "/pki.log 2>&1").c_str()),
+      0)
+      << slurp(d + "/pki.log");
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 26");
+  write_file(d + "/token.txtpb", cfg);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/token.txtpb", "--run-dir", d + "/run", "--domain",
+                             domain, "--security", d + "/pki/learner"},
+                            "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "worker");
+  Proc& liar = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", "w2",
+                          "--security", d + "/pki/w1", "--token-name", "w2", "--seconds", "20", "--heartbeat", "1"},
+                         "liar");
+  EXPECT_EQ(wait_for(liar, 60), 0) << set.log("liar");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+
+  // The liar was authenticated and matched (its certificate is a worker's): its batches reached the
+  // learner, whose log shows the token's claim.
+  std::smatch m;
+  const std::string lied = set.log("liar");
+  ASSERT_TRUE(std::regex_search(lied, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << lied;
+  EXPECT_GT(std::stoi(m[1]), 0) << lied;
+  EXPECT_GE(std::stoi(m[2]), 1) << lied;
+  const std::string log = set.log("learner");
+  EXPECT_NE(log.find("from w2: worker id 'w2' is not 'w1', the certificate name of the participant that wrote it; "
+                     "its participant's identity token claims 'w2'"),
+            std::string::npos)
+      << log;
+  EXPECT_EQ(log.find("worker w2 on"), std::string::npos) << log;
+
+  // Nothing of w2 accounted; w1's stream whole; the refused batches counted invalid.
+  const std::string summary = slurp(d + "/run/summary.txt");
+  EXPECT_EQ(summary.find("w2 session"), std::string::npos) << summary;
+  long long w1_received = 0, w1_lost = -1;
+  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
+  EXPECT_GT(w1_received, 10) << summary;
+  EXPECT_EQ(w1_lost, 0) << summary;
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
+  EXPECT_EQ(std::stoll(m[1]), w1_received) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_GE(std::stoll(m[4]), 1) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
+// Trust between participants, item 6: roles come from what make-pki.sh was told, not from names,
+// and a certificate can be revoked. (a) A worker named learnerbox-1 gets a worker's rights only: no
+// spec or weights writer. (b) w3's certificate revoked before the learner starts (the CA's
+// revocation list in every folder, read by Fast DDS): a participant with w3's certificate and its
+// folder from before the revocation is matched by no learner and nothing of it is accounted.
+// (c) w2 revoked while the farm runs: the permissions signed again without w2's grant reach the
+// learner's folder and a SIGHUP makes the learner read them; w2's batches are refused from then on
+// (counted invalid, none accounted past that point) while w1 trains on, none of its batches lost.
+TEST(Security, RolesAreExplicitAndRevokedWorkersAreRefused) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(83));
+  const std::string pki = "bash " + std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh " + d + "/pki ";
+  ASSERT_EQ(
+      std::system(
+          (pki + "learner:learner worker:w1 worker:w2 worker:w3 worker:learnerbox-1 > " + d + "/pki.log 2>&1").c_str()),
+      0)
+      << slurp(d + "/pki.log");
+  // A bare name is refused: make-pki.sh no longer takes a role from a name's prefix.
+  EXPECT_NE(std::system((pki + "learner-2 >> " + d + "/pki.log 2>&1").c_str()), 0);
+  EXPECT_FALSE(std::filesystem::exists(d + "/pki/learner-2")) << slurp(d + "/pki.log");
+
+  // (a)
+  EXPECT_EQ(writers_of(set, domain, d + "/pki/learnerbox-1", "learnerbox-1"),
+            "created [farm/TransitionBatch farm/WorkerStatus], "
+            "refused [farm/ExperimentSpec farm/PolicyWeights farm/LearnerStats]");
+
+  // (b) w3's folder as its holder kept it, then the revocation.
+  std::filesystem::copy(d + "/pki/w3", d + "/w3-kept");
+  ASSERT_EQ(std::system((pki + "--revoke w3 >> " + d + "/pki.log 2>&1").c_str()), 0) << slurp(d + "/pki.log");
+  ASSERT_TRUE(std::filesystem::exists(d + "/pki/learner/crl.pem")) << slurp(d + "/pki.log");
+  EXPECT_FALSE(std::filesystem::exists(d + "/w3-kept/crl.pem"));
+
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 24");
+  write_file(d + "/revoke.txtpb", cfg);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/revoke.txtpb", "--run-dir", d + "/run", "--domain",
+                             domain, "--security", d + "/pki/learner"},
+                            "learner");
+  Proc& w1 = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "w1");
+  Proc& w2 = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w2"}, "w2");
+  Proc& revoked = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", "w3",
+                             "--security", d + "/w3-kept", "--seconds", "20", "--heartbeat", "1"},
+                            "w3");
+  // (c) once w2 trains: revoked, and the learner told.
+  ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker w2 on", 40)) << set.log("learner");
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+  ASSERT_EQ(std::system((pki + "--revoke w2 >> " + d + "/pki.log 2>&1").c_str()), 0) << slurp(d + "/pki.log");
+  ASSERT_EQ(kill(learner.pid, SIGHUP), 0);
+
+  EXPECT_EQ(wait_for(revoked, 60), 0) << set.log("w3");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(w1, 60), 0) << set.log("w1");
+  wait_for(w2, 60);  // refused from the reload on: how it ends is not the point
+
+  // (b): the revoked certificate matched no learner reader.
+  std::smatch m;
+  const std::string w3 = set.log("w3");
+  ASSERT_TRUE(std::regex_search(w3, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << w3;
+  EXPECT_GT(std::stoi(m[1]), 0) << w3;
+  EXPECT_EQ(m[2], "0") << w3;
+  const std::string summary = slurp(d + "/run/summary.txt");
+  EXPECT_EQ(summary.find("w3 session"), std::string::npos) << summary;
+
+  // (c): the reload dropped w2, and w2's batches after it were refused, not accounted.
+  const std::string log = set.log("learner");
+  EXPECT_NE(log.find("worker grants reloaded from " + d + "/pki/learner/permissions.p7s: dropped w2; added none"),
+            std::string::npos)
+      << log;
+  EXPECT_NE(log.find("'w2' is not granted by the permissions this learner read last"), std::string::npos) << log;
+  long long w1_received = 0, w1_lost = -1, w2_received = 0, w2_lost = -1;
+  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
+  ASSERT_TRUE(worker_line(summary, "w2", w2_received, w2_lost)) << summary;
+  EXPECT_GT(w1_received, 10) << summary;
+  EXPECT_EQ(w1_lost, 0) << summary;
+  EXPECT_GT(w2_received, 0) << summary;  // before its revocation
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
+  EXPECT_EQ(std::stoll(m[1]), w1_received + w2_received) << summary;
+  EXPECT_GE(std::stoll(m[4]), 3) << summary;  // w2's batches after the reload
+  set.cleanup(::testing::Test::HasFailure());
+}

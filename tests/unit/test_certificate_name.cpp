@@ -35,8 +35,8 @@ TEST(CertificateName, WorkerCertificateFromMakePki) {
   char tmpl[] = "/tmp/farm-cert-XXXXXX";
   ASSERT_NE(mkdtemp(tmpl), nullptr);
   const std::string d = tmpl;
-  const std::string cmd =
-      "bash " + std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh " + d + "/pki w1 host-b-2 > " + d + "/pki.log 2>&1";
+  const std::string cmd = "bash " + std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh " + d +
+                          "/pki worker:w1 worker:host-b-2 > " + d + "/pki.log 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   EXPECT_EQ(certificate_name(d + "/pki/w1"), "w1");
   EXPECT_EQ(certificate_name(d + "/pki/host-b-2"), "host-b-2");

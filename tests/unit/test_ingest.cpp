@@ -263,7 +263,8 @@ TEST_F(Fixture, BatchUnderAnotherIdThanItsWritersCertificateIsRefused) {
   EXPECT_NE(why.find("worker id 'w2' is not 'w1'"), std::string::npos) << why;
   b.worker_id("w1");  // the right id, from a participant whose name is w2
   EXPECT_NE(ingest.accept(b, 5, 0.0, out, eps, &w2), "");
-  EXPECT_NE(ingest.accept(make_batch(1), 5, 0.0, out, eps, &unknown).find("not authenticated"), std::string::npos);
+  EXPECT_NE(ingest.accept(make_batch(1), 5, 0.0, out, eps, &unknown).find("binds to no granted worker name"),
+            std::string::npos);
   EXPECT_EQ(out.n, 6);  // the first batch only
   EXPECT_EQ(ingest.counters().ok, 1u);
   EXPECT_EQ(ingest.counters().invalid, 3u);
