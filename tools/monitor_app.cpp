@@ -90,8 +90,21 @@ void MonitorApp::drain() {
   const double now = farm::now_seconds();
   farm::msg::WorkerStatus s;
   while (status_in_.take(s)) {
-    heard_.insert(key(s));
+    // Heartbeats are network input, and anyone on the domain can invent them: texts are kept cut
+    // and every table bounded (the least recently heard worker or learner makes room).
+    if (s.worker_id().size() > kMaxTextBytes) s.worker_id(s.worker_id().substr(0, kMaxTextBytes));
+    if (s.host().size() > kMaxTextBytes) s.host(s.host().substr(0, kMaxTextBytes));
+    if (s.experiment_id().size() > kMaxTextBytes) s.experiment_id(s.experiment_id().substr(0, kMaxTextBytes));
+    if (s.state().size() > kMaxTextBytes) s.state(s.state().substr(0, kMaxTextBytes));
+    if (s.last_error().size() > 4 * kMaxTextBytes) s.last_error(s.last_error().substr(0, 4 * kMaxTextBytes));
+    if (heard_.size() < kMaxEntries) heard_.insert(key(s));
     if (!wanted(s.experiment_id())) continue;
+    if (workers_.size() >= kMaxEntries && !workers_.count(key(s))) {
+      auto oldest = workers_.begin();
+      for (auto it = workers_.begin(); it != workers_.end(); ++it)
+        if (it->second.seen < oldest->second.seen) oldest = it;
+      workers_.erase(oldest);
+    }
     // A restarted worker (same id, new session) replaces its earlier session.
     for (auto it = workers_.begin(); it != workers_.end();) {
       if (it->second.last.worker_id() == s.worker_id() && it->second.last.worker_session() != s.worker_session())
@@ -108,8 +121,15 @@ void MonitorApp::drain() {
   }
   farm::msg::LearnerStats l;
   while (stats_in_.take(l)) {
-    stats_heard_.insert(l.experiment_id());
+    if (l.experiment_id().size() > kMaxTextBytes) l.experiment_id(l.experiment_id().substr(0, kMaxTextBytes));
+    if (stats_heard_.size() < kMaxEntries) stats_heard_.insert(l.experiment_id());
     if (!wanted(l.experiment_id())) continue;
+    if (learners_.size() >= kMaxEntries && !learners_.count(l.experiment_id())) {
+      auto oldest = learners_.begin();
+      for (auto it = learners_.begin(); it != learners_.end(); ++it)
+        if (it->second.seen < oldest->second.seen) oldest = it;
+      learners_.erase(oldest);
+    }
     LearnerView& v = learners_[l.experiment_id()];
     v.last = l;
     v.seen = now;

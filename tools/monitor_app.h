@@ -86,6 +86,8 @@ class MonitorApp {
   std::string latest_learner_;
   std::set<std::string> heard_;        // every worker session heard from, experiment filter or not
   std::set<std::string> stats_heard_;  // every learner (experiment id) heard from, filter or not
+  // Each table above holds at most kMaxEntries; each text from a heartbeat at most kMaxTextBytes.
+  static constexpr size_t kMaxEntries = 4096, kMaxTextBytes = 256;
   std::ofstream log_;
 };
 
