@@ -32,3 +32,23 @@ farm_test_end() {
   [ "$failed" = 0 ] && echo "PASS${1:+: $1}"
   exit "$failed"
 }
+
+# Writes FILE: SOURCE_DIR/deploy/configs/pendulum_sac.txtpb with experiment id ID, its top-level
+# stop block replaced by `stop { STOP }` and logs every second; fails the test if no stop block was
+# replaced.  pendulum_config SOURCE_DIR ID 'STOP' FILE
+pendulum_config() {
+  awk -v stop="$3" '/^stop \{/ { print "stop { " stop " }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
+    "$1/deploy/configs/pendulum_sac.txtpb" |
+    sed -e "s/^experiment_id: .*/experiment_id: \"$2\"/" -e 's/^log_every_seconds: .*/log_every_seconds: 1/' >"$4"
+  grep -q "^stop { $3 }" "$4" || fail "test set-up: no stop block replaced in $4"
+}
+
+# The batches a learner has accepted so far, from the last row of RUN_DIR/learner.csv (column
+# batches_ok); 0 before the first row.  batches_ok RUN_DIR
+batches_ok() {
+  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
+    "$1/learner.csv" 2>/dev/null
+}
+
+# A process's peak resident memory in kB (VmHWM), or nothing once it has ended.  peak_kb PID
+peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }

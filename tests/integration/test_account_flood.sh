@@ -12,11 +12,7 @@ learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 farm_test_init account-flood 139
 
-awk '/^stop \{/ { print "stop { max_seconds: 20 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
-  "$src/deploy/configs/pendulum_sac.txtpb" | sed -e 's/^experiment_id: .*/experiment_id: "it_flood"/' >"$dir/flood.txtpb"
-grep -q '^stop { max_seconds: 20 }' "$dir/flood.txtpb" || fail "test set-up: no stop block replaced"
-# The learner's peak resident memory in kB while it runs (VmHWM), read just before it ends.
-peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
+pendulum_config "$src" it_flood "max_seconds: 20" "$dir/flood.txtpb"
 
 run() {  # NAME FLOOD(0/1): one learner and, after the flood if any, one worker; sets peak (kB)
   local name=$1 flood=$2 lp p

@@ -13,20 +13,11 @@ learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 farm_test_init spec-trust 131
 
-awk '/^stop \{/ { print "stop { max_seconds: 30 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
-  "$src/deploy/configs/pendulum_sac.txtpb" |
-  sed -e 's/^experiment_id: .*/experiment_id: "it_trust"/' -e 's/^log_every_seconds: .*/log_every_seconds: 1/' \
-    >"$dir/trust.txtpb"
-grep -q '^stop { max_seconds: 30 }' "$dir/trust.txtpb" || fail "test set-up: no stop block replaced"
+pendulum_config "$src" it_trust "max_seconds: 30" "$dir/trust.txtpb"
 "$learner" --config "$dir/trust.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$worker" --domain $domain --id tw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
-# The batches the learner has accepted so far, from its last learner.csv row (column batches_ok).
-batches_ok() {
-  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
-    "$dir/run/learner.csv" 2>/dev/null
-}
-for _ in $(seq 150); do [ "$(batches_ok)" -gt 0 ] && break; sleep 0.2; done
-before=$(batches_ok)
+for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 0 ] && break; sleep 0.2; done
+before=$(batches_ok "$dir/run")
 [ "$before" -gt 0 ] || fail "no batch of the worker reached the learner in 30 s: $(tail -5 "$dir/worker.log")"
 n=0
 for attack in "--spec-steps 2147483647" "--spec-max-batches 0" "--spec-finished 1"; do
@@ -37,7 +28,7 @@ for attack in "--spec-steps 2147483647" "--spec-max-batches 0" "--spec-finished 
   kill -0 $wp 2>/dev/null || fail "the worker ended after a spec from another participant ($attack): $(tail -3 "$dir/worker.log")"
 done
 sleep 2
-during=$(batches_ok)
+during=$(batches_ok "$dir/run")
 [ "$during" -gt "$before" ] || fail "no batch arrived during the attack: batches_ok $before before it, $during after"
 
 wait $lp; lrc=$?
@@ -45,7 +36,7 @@ wait $lp; lrc=$?
 for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
 wait $wp; wrc=$?
 [ $wrc = 0 ] || fail "the worker exited with $wrc: $(tail -5 "$dir/worker.log")"
-final=$(batches_ok)
+final=$(batches_ok "$dir/run")
 [ "$final" -gt "$during" ] || fail "no batch arrived after the attack: batches_ok $during then, $final at the end"
 grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
   fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"

@@ -10,21 +10,12 @@ learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 farm_test_init worker-readers 141
 
-awk '/^stop \{/ { print "stop { max_seconds: 25 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
-  "$src/deploy/configs/pendulum_sac.txtpb" |
-  sed -e 's/^experiment_id: .*/experiment_id: "it_readers"/' -e 's/^log_every_seconds: .*/log_every_seconds: 1/' \
-    >"$dir/readers.txtpb"
-grep -q '^stop { max_seconds: 25 }' "$dir/readers.txtpb" || fail "test set-up: no stop block replaced"
+pendulum_config "$src" it_readers "max_seconds: 25" "$dir/readers.txtpb"
 "$learner" --config "$dir/readers.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$worker" --domain $domain --id rw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
-batches_ok() {
-  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
-    "$dir/run/learner.csv" 2>/dev/null
-}
-peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
-for _ in $(seq 150); do [ "$(batches_ok)" -gt 0 ] && break; sleep 0.2; done
+for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 0 ] && break; sleep 0.2; done
 sleep 2
-before=$(batches_ok) peak_before=$(peak_kb $wp)
+before=$(batches_ok "$dir/run") peak_before=$(peak_kb $wp)
 [ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
 "$intruder" --domain $domain --experiment it_readers --id big --seconds 4 --big-to-workers 200 >"$dir/intruder.log" 2>&1 ||
   fail "the intruder did not run: $(tail -2 "$dir/intruder.log")"
@@ -32,7 +23,7 @@ kill -0 $wp 2>/dev/null || fail "the worker ended after the large samples: $(tai
 peak_after=$(peak_kb $wp)
 [ -n "$peak_after" ] && [ "$peak_after" -lt $((peak_before + 102400)) ] ||
   fail "the worker's peak memory went from ${peak_before} kB to ${peak_after} kB"
-during=$(batches_ok)
+during=$(batches_ok "$dir/run")
 [ "$during" -gt "$before" ] || fail "no batch arrived during the attack: $before before, $during after"
 wait $lp || fail "the learner exited with $?: $(tail -3 "$dir/learner.log")"
 grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
