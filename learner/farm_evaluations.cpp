@@ -171,11 +171,12 @@ void FarmService::poll_evaluations() {
 }
 
 void FarmService::take_answer() {
+  // Another learner's, on this domain (another experiment, or one before this on this one): not
+  // ours to count. Its request ids may be ours too.
+  if (answer_.experiment_id() != cfg_.experiment_id() || answer_.learner_session() != eval_session_) return;
   const auto it = std::find_if(evals_out_.begin(), evals_out_.end(),
                                [this](const EvalRequest& r) { return r.id == answer_.request_id(); });
   if (it == evals_out_.end() || it->worker_id.empty()) {
-    // Another learner's, on this domain (another experiment, or one before this on this one).
-    if (answer_.experiment_id() != cfg_.experiment_id() || answer_.learner_session() != eval_session_) return;
     if (evals_closed_.count(answer_.request_id())) {
       ++evals_late_;
       log("evaluation " + std::to_string(answer_.request_id()) + " answered by " + answer_.worker_id().substr(0, 64) +

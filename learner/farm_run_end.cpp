@@ -58,7 +58,7 @@ std::string FarmService::summary_workers() const {
   std::sort(shown.begin(), shown.end(), [](const WorkerAccount* a, const WorkerAccount* b) {
     return std::tie(a->worker_id, a->session) < std::tie(b->worker_id, b->session);
   });
-  o << "worker streams    " << ingest_.workers().size() << " open, " << ingest_.retired()
+  o << "streams           " << ingest_.workers().size() << " open, " << ingest_.retired()
     << " retired (idle for account_expiry_seconds, or to make room)\n";
   for (const WorkerAccount* w : shown) {
     o << "worker            " << printable(w->worker_id, 100) << " session " << w->session << ": received "
@@ -66,7 +66,7 @@ std::string FarmService::summary_workers() const {
       << ", duplicate " << w->duplicates << ", invalid " << w->invalid
       << (w->ended ? ", stream closed" : ", stream open") << "\n";
   }
-  if (more > 0) o << "worker            ... and " << more << " more streams\n";
+  if (more > 0) o << "streams           " << more << " more not listed\n";
   return o.str();
 }
 

@@ -8,7 +8,8 @@
 // bound replaces one of its sessions not live, else the one of them that joined last; past the
 // total, a worker not live, and with none such the new worker is not taken), keeps each text cut (host, state, error),
 // forgets a dead worker after forget_seconds, binds each worker (id and session) to the participant of its first
-// heartbeat, and writes at most kLogBurst lines per kLogWindowS of what heartbeats cause.
+// heartbeat, and writes at most kLogBurst lines per kLogWindowS of what heartbeats cause (a farm of
+// 100 workers starting together is still named worker by worker).
 #pragma once
 
 #include <functional>
@@ -55,7 +56,7 @@ class WorkerRoster {
   uint64_t refused() const { return refused_; }
   static constexpr size_t kMaxViews = 1024, kMaxSessionsPerWorker = 4, kMaxIdBytes = 256;
   static constexpr size_t kMaxHostBytes = 255, kMaxStateBytes = 32, kMaxErrorBytes = 1024;
-  static constexpr int kLogBurst = 20;
+  static constexpr int kLogBurst = 100;
   static constexpr double kLogWindowS = 10.0;
   // Heard within the timeout, not dead, not finished.
   bool live(const View& v, double now) const;

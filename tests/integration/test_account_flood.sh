@@ -40,10 +40,10 @@ read -r got last lost invalid <<<"$received"
 [ "${got:-0}" -gt 0 ] || fail "the real worker's batches were not taken after the flood: '$line'"
 [ "${lost:-1}" = 0 ] && [ "${invalid:-1}" = 0 ] || fail "the real worker's stream lost or had refused batches: '$line'"
 [ "${got:-0}" = "$(( ${last:-0} + 1 ))" ] || fail "the real worker's stream is not whole: '$line'"
-open=$(sed -n 's/^worker streams *\([0-9]*\) open, \([0-9]*\) retired.*/\1/p' "$summary")
-retired=$(sed -n 's/^worker streams *\([0-9]*\) open, \([0-9]*\) retired.*/\2/p' "$summary")
+open=$(sed -n 's/^streams *\([0-9]*\) open, \([0-9]*\) retired.*/\1/p' "$summary")
+retired=$(sed -n 's/^streams *\([0-9]*\) open, \([0-9]*\) retired.*/\2/p' "$summary")
 [ -n "$open" ] && [ "$open" -le 4096 ] && [ "${retired:-0}" -ge 500 ] ||
-  fail "open streams not held at the bound: $(grep '^worker streams' "$summary")"
+  fail "open streams not held at the bound: $(grep '^streams' "$summary")"
 [ "$(grep -c '^worker ' "$summary")" -le 70 ] || fail "the summary lists $(grep -c '^worker ' "$summary") streams"
 log_bytes=$(stat -c %s "$dir/flooded.log")
 [ "$log_bytes" -lt 200000 ] || fail "the flooded learner's log is $log_bytes bytes"

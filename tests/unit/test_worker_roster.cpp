@@ -151,3 +151,43 @@ TEST(WorkerRoster, AWorkerThatCannotRunTheSpecIsReportedOnce) {
   }
   EXPECT_LT(l.lines.size(), 100u);
 }
+
+// A worker (id and session) is bound to the participant of its first heartbeat: another
+// participant's heartbeats under them are not taken.
+TEST(WorkerRoster, HeartbeatsOfAnotherParticipantUnderAWorkersIdAreRefused) {
+  Lines l;
+  farm::WorkerRoster roster(10.0, l.log());
+  EXPECT_TRUE(roster.heard(status(4, "running"), 1.0, "P1"));
+  auto forged = status(4, "error");
+  forged.last_error("stop me");
+  EXPECT_FALSE(roster.heard(forged, 2.0, "P2"));
+  EXPECT_EQ(roster.refused(), 1u);
+  EXPECT_EQ(roster.views().begin()->second.last.state(), "running");
+  EXPECT_TRUE(roster.heard(status(4, "running"), 3.0, "P1"));
+}
+
+// Invented sessions of one id by the thousand: the roster keeps kMaxSessionsPerWorker of that id,
+// never pushing out the long-running one, cuts their texts, and writes at most kLogBurst lines per
+// window, then says how many it held back.
+TEST(WorkerRoster, InventedSessionsAreBoundedAndTheirLinesLimited) {
+  Lines l;
+  farm::WorkerRoster roster(10.0, l.log());
+  EXPECT_TRUE(roster.heard(status(4, "running"), 1.0, "real"));
+  for (uint64_t k = 0; k < 5000; ++k) {
+    auto s = status(4, "running");
+    s.worker_session(1000 + k);
+    s.host(std::string(60000, 'h'));
+    roster.heard(s, 2.0 + k * 1e-4, "forger");
+  }
+  EXPECT_EQ(roster.views().size(), farm::WorkerRoster::kMaxSessionsPerWorker);
+  EXPECT_EQ(roster.views().count("local-2#42"), 1u) << "the worker heard first stays";
+  for (const auto& [k, v] : roster.views()) EXPECT_LE(v.last.host().size(), farm::WorkerRoster::kMaxHostBytes);
+  EXPECT_EQ(l.lines.size(), size_t(farm::WorkerRoster::kLogBurst));
+  roster.heard(status(4, "running"), 20.0, "real");
+  auto late = status(4, "running");
+  late.worker_session(7);
+  roster.heard(late, 20.5, "other");
+  ASSERT_GE(l.lines.size(), size_t(farm::WorkerRoster::kLogBurst) + 2);
+  EXPECT_NE(l.lines[farm::WorkerRoster::kLogBurst].find("roster line(s) held back"), std::string::npos)
+      << l.lines[farm::WorkerRoster::kLogBurst];
+}
