@@ -7,6 +7,7 @@
 // more of another worker; a part lost twice gives up its whole evaluation. Training never waits for
 // an answer; only the final evaluation is waited for, within the same timeout.
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <iterator>
 #include <sstream>
@@ -64,7 +65,9 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
   // not each part.
   const int min_each = cfg_.eval().min_episodes_per_worker();
   const int ready = int(eval_ready_workers(group.asked_at).size());
-  const int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
+  int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
+  // Under security, two workers at least where two are ready (confirmation()).
+  if (!bus_.security_dir().empty() && ready >= 2 && ask.episodes >= 2) parts = std::max(parts, 2);
   group.parts = group.parts_left = parts;
   const uint64_t seed = cfg_.seed() + 1000003ull * ++evals_;
   bool sent = true;
@@ -232,6 +235,8 @@ void FarmService::take_answer() {
   // Every part out has its group: giving a group up takes its other parts out (evaluation_given_up).
   const auto g = eval_groups_.find(r.group);
   EvalGroup& group = g->second;
+  auto& returns = group.returns_by_worker[r.worker_id];
+  for (const auto& ep : answer_.episodes()) returns.push_back(ep.episode_return());
   group.episodes.insert(group.episodes.end(), std::make_move_iterator(answer_.episodes().begin()),
                         std::make_move_iterator(answer_.episodes().end()));
   if (--group.parts_left > 0) return;
@@ -265,9 +270,17 @@ void FarmService::take_answer() {
     log("evaluation of policy v" + std::to_string(group.ask.version) + " complete: " + std::to_string(rep.episodes) +
         " episodes from " + std::to_string(group.parts) + " workers, " + fmt("%.1f", now_seconds() - group.asked_at) +
         " s since asked");
+  if (!bus_.security_dir().empty()) {
+    const std::string why = confirmation(group);
+    rep.confirmed = why.empty();
+    if (!rep.confirmed)
+      log("evaluation of policy v" + std::to_string(group.ask.version) + " not confirmed: " + why +
+          "; it keeps no best and stops nothing");
+  }
+  last_eval_confirmed_ = rep.confirmed;
   const EvalGroup done = std::move(group);
   eval_groups_.erase(g);
-  if (done.ask.label == "eval" && rep.episodes > 0) note_goal(done.ask, rep);
+  if (done.ask.label == "eval" && rep.episodes > 0 && rep.confirmed) note_goal(done.ask, rep);
   eval_snapshot_ = &done.snapshot;
   algo_->evaluated(*this, done.ask, rep);
   eval_snapshot_ = nullptr;
@@ -358,6 +371,31 @@ void FarmService::wait_for_evaluations() {
         fmt("%.0f", now_seconds() - t0) + " s: not reported");
     evaluation_given_up(r.group);
   }
+}
+
+std::string FarmService::confirmation(const EvalGroup& group) const {
+  const auto& by = group.returns_by_worker;
+  if (by.size() < 2)
+    return "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")";
+  const auto stats = [](const std::vector<double>& v) {
+    double m = 0, q = 0;
+    for (double x : v) m += x;
+    m /= double(v.size());
+    for (double x : v) q += (x - m) * (x - m);
+    return std::pair<double, double>{m, v.size() > 1 ? q / double(v.size() - 1) : 0.0};
+  };
+  for (auto a = by.begin(); a != by.end(); ++a) {
+    for (auto b = std::next(a); b != by.end(); ++b) {
+      const auto [ma, va] = stats(a->second);
+      const auto [mb, vb] = stats(b->second);
+      const double se = std::sqrt(va / double(a->second.size()) + vb / double(b->second.size()));
+      const double room = kAgreeSigmas * se + kAgreeRelative * 0.5 * (std::abs(ma) + std::abs(mb)) + 1e-6;
+      if (std::abs(ma - mb) > room)
+        return a->first + "'s episodes (mean return " + fmt("%.1f", ma) + ") and " + b->first + "'s (" +
+               fmt("%.1f", mb) + ") disagree by more than " + fmt("%.1f", room);
+    }
+  }
+  return "";
 }
 
 std::string FarmService::eval_summary() const {

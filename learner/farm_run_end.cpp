@@ -108,15 +108,23 @@ void FarmService::drain_before_interrupted_stop() {
 // After announcing the end, every batch still in flight is taken and accounted, so the summary
 // can say exactly what was sent and what arrived.
 void FarmService::drain_until_workers_end() {
-  // Streams that sent nothing for worker_timeout_seconds are not waited for (a worker gone, or a
-  // stream someone invented); a live worker's stream ends with its last batch.
+  // Waited for: the streams of workers heard within worker_timeout_seconds (a worker blocked for
+  // weights still beats). A stream with no such worker (one gone, or a stream someone invented)
+  // and no batch in that time is not.
   const double t_end = now_seconds() + 15.0, quiet = cfg_.worker_timeout_seconds();
   while (now_seconds() < t_end) {
     drain_batches(1024);
     drain_status();
     const double now = now_seconds();
     bool all_ended = !ingest_.workers().empty();
-    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && (w.ended || now - w.last_seen >= quiet);
+    for (auto& [k, w] : ingest_.workers()) {
+      if (w.ended || now - w.last_seen < quiet) {
+        all_ended = all_ended && w.ended;
+        continue;
+      }
+      const auto v = roster_.views().find(w.worker_id + "#" + std::to_string(w.session));
+      all_ended = all_ended && !(v != roster_.views().end() && now - v->second.seen < quiet);
+    }
     if (all_ended) break;
     batches_in_.wait(0.05);
   }

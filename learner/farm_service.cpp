@@ -411,6 +411,7 @@ double FarmService::evaluation_score(const EvalReport& r) const {
 }
 
 void FarmService::record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) {
+  if (!report.confirmed) return;  // under security: a second worker did not agree (confirmation())
   const double score = evaluation_score(report);
   const std::string what = best_measure() + " " + fmt(cfg_.eval().best_metric().empty() ? "%.1f" : "%.4f", score);
   // A named measure is not in the evaluation's own line (that gives means): each one is logged, so
@@ -485,7 +486,8 @@ std::string FarmService::should_stop(double elapsed) const {
   const double last_eval = algo_->last_eval();
   const int64_t updates = algo_->updates();
   if (!goal_reached_.empty()) return goal_reached_;
-  if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval) && last_eval >= s.target_eval_return())
+  if (!std::isnan(s.target_eval_return()) && !std::isnan(last_eval) && last_eval_confirmed_ &&
+      last_eval >= s.target_eval_return())
     return "evaluation return " + fmt("%.1f", last_eval) + " reached the target " + fmt("%.1f", s.target_eval_return());
   if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
   if (s.max_env_steps() > 0 && int64_t(ingest_.counters().env_steps) >= s.max_env_steps())

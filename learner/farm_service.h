@@ -107,8 +107,15 @@ class FarmService final : public Farm {
     std::string snapshot;  // the algorithm's networks when it asked (for best/); "" if not kept
     int parts = 1, parts_left = 1;
     double asked_at = 0;
-    std::vector<farm::msg::EvaluationEpisode> episodes;  // of the parts answered so far
+    std::vector<farm::msg::EvaluationEpisode> episodes;            // of the parts answered so far
+    std::map<std::string, std::vector<double>> returns_by_worker;  // the answered parts' returns
   };
+  // Under DDS Security a kept best or a stop rests on the word of two workers: an evaluation's
+  // parts go to two workers at least where two are ready, and the report is confirmed only when
+  // two answered and each pair's mean returns agree within kAgreeSigmas standard errors of their
+  // episodes (plus kAgreeRelative of their size). "" when confirmed; else why not.
+  std::string confirmation(const EvalGroup& group) const;
+  static constexpr double kAgreeSigmas = 4.0, kAgreeRelative = 0.05;
   // One part of an evaluation asked of one worker; a lost one is asked once more (attempt 2) under
   // a new id.
   struct EvalRequest {
@@ -193,6 +200,7 @@ class FarmService final : public Farm {
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
   std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal
   int rejections_logged_ = 0, retirements_logged_ = 0;
+  bool last_eval_confirmed_ = true;            // the last report handed to the algorithm (confirmation())
   std::set<std::string> foreign_noted_;        // other experiments whose batches were seen (bounded)
   std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
   std::map<uint64_t, EvalGroup> eval_groups_;  // evaluations with parts out

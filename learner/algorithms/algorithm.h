@@ -35,6 +35,9 @@ struct EvalReport {
   double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
   std::vector<double> metrics;      // means, in the order of TaskSpec::metric_names
   std::vector<double> metrics_min;  // the lowest episode's, in the same order
+  // Under DDS Security, whether a second worker's episodes agree with the first's (the learner's
+  // confirmation): an unconfirmed report keeps no best and stops nothing.
+  bool confirmed = true;
 };
 
 // An evaluation an algorithm asks for (Farm::ask_evaluation); handed back with its report

@@ -38,7 +38,8 @@
 // --forge-answers RETURN: instead of a stream, answer every evaluation request of the experiment
 // the moment it is seen, as the worker asked would, every field copied from the request and that
 // worker's last heartbeat, with each episode's return RETURN, length --forge-length (default 1)
-// and --forge-metrics metrics (default 1) of value 1.
+// and --forge-metrics metrics (default 1) of value 1. With --heartbeat 1 it is a worker of its own
+// instead: it beats as NAME (session 1, 4 envs, running) and answers only what is asked of it.
 // --flood-streams N: instead of a plain stream, N one-step batches once matched, each under an
 // invented worker id and session, all well-formed.
 // --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
@@ -164,22 +165,44 @@ int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
 
 // --forge-answers: answers every request of `experiment` the moment it is seen (see the top).
 int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
-                  float forged_return, uint32_t length, uint32_t metrics) {
+                  float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat) {
   using namespace farm::msg;
   farm::dds::Reader<EvaluationRequest, EvaluationRequestPubSubType> requests(bus, farm::dds::kEvalRequestTopic,
                                                                              "batch_reader");
-  farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType> status(bus, farm::dds::kWorkerStatusTopic, "status_reader");
+  // Another worker's session is read off its heartbeats; as a worker of its own (own_heartbeat,
+  // which a worker certificate allows: it may not read heartbeats) it beats as session 1.
+  std::unique_ptr<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>> status;
+  std::unique_ptr<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>> beats;
+  if (own_heartbeat)
+    beats = std::make_unique<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>>(
+        bus, farm::dds::kWorkerStatusTopic, "status_writer");
+  else
+    status = std::make_unique<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>>(
+        bus, farm::dds::kWorkerStatusTopic, "status_reader");
   farm::dds::Writer<EvaluationAnswer, EvaluationAnswerPubSubType> answers(bus, farm::dds::kEvalAnswerTopic,
                                                                           "batch_writer");
   std::map<std::string, uint64_t> sessions;  // worker id -> its last heartbeat's session
+  sessions[id] = 1;
   uint64_t answered = 0;
   const double t0 = farm::now_seconds();
+  double beat_at = 0;
   while (farm::now_seconds() - t0 < seconds) {
     WorkerStatus st;
-    while (status.take(st)) sessions[st.worker_id()] = st.worker_session();
+    while (status && status->take(st)) sessions[st.worker_id()] = st.worker_session();
+    if (beats && farm::now_seconds() - beat_at >= 0.5) {
+      st.worker_id(id);
+      st.worker_session(1);
+      st.host(farm::dds::hostname());
+      st.experiment_id(experiment);
+      st.envs(4);
+      st.threads(1);
+      st.state("running");
+      beats->write(st);
+      beat_at = farm::now_seconds();
+    }
     EvaluationRequest q;
     while (requests.take(q)) {
-      if (q.experiment_id() != experiment) continue;
+      if (q.experiment_id() != experiment || (own_heartbeat && q.worker_id() != id)) continue;
       EvaluationAnswer a;
       a.experiment_id(q.experiment_id());
       a.learner_session(q.learner_session());
@@ -327,7 +350,7 @@ int main(int argc, char** argv) {
     std::fflush(stdout);
     if (try_writers) return try_every_writer(bus, id);
     if (!std::isnan(forge_return))
-      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics);
+      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat);
     if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {

@@ -450,6 +450,53 @@ TEST(Security, IdentityTokenDoesNotNameTheWorker) {
   set.cleanup(::testing::Test::HasFailure());
 }
 
+// Trust between participants, item 1, with security: one worker's certificate cannot decide a kept
+// best or a stop on its own word. A participant with w2's certificate beats as worker w2 and
+// answers what is asked of it with a return of 3,000 an episode (within what the pendulum's
+// rewards bound, and beyond any real one: its returns are never positive), beside the real w1. Each
+// evaluation is split between the two, and a report whose workers disagree beyond the spread of
+// their episodes keeps no best and stops nothing: the run ends at its time limit, though the mixed
+// mean is far above the target of -5, and no kept best is positive. Before, the mixed mean ended
+// the run at the target.
+TEST(Security, OneWorkersAnswersAloneDecideNoBestAndNoStop) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(84));
+  const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
+  ASSERT_EQ(
+      std::system(
+          ("bash " + pki + " " + d + "/pki learner:learner worker:w1 worker:w2 > " + d + "/pki.log 2>&1").c_str()),
+      0)
+      << slurp(d + "/pki.log");
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("stop { max_seconds: 40 }"), 24, "stop { target_eval_return: -5 max_seconds: 24 }");
+  write_file(d + "/agree.txtpb", cfg);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/agree.txtpb", "--run-dir", d + "/run", "--domain",
+                             domain, "--security", d + "/pki/learner"},
+                            "learner");
+  Proc& worker = set.start({FARM_WORKER_BIN, "--domain", domain, "--security", d + "/pki/w1"}, "worker");
+  Proc& liar = set.start(
+      {FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", "w2", "--security", d + "/pki/w2",
+       "--seconds", "30", "--heartbeat", "1", "--forge-answers", "3000", "--forge-length", "200"},
+      "liar");
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+  EXPECT_EQ(wait_for(liar, 60), 0) << set.log("liar");
+  std::smatch m;
+  const std::string lied = set.log("liar");
+  ASSERT_TRUE(std::regex_search(lied, m, std::regex(R"(forged (\d+) evaluation answers)"))) << lied;
+  EXPECT_GE(std::stoi(m[1]), 1) << "the liar was never asked: the test shows nothing\n" << lied;
+
+  const std::string summary = slurp(d + "/run/summary.txt");
+  EXPECT_NE(summary.find("stopped because   time limit"), std::string::npos) << summary;
+  if (std::regex_search(summary, m, std::regex(R"(best eval return\s+(\S+))")))
+    EXPECT_FALSE(std::stod(m[1]) > 0) << "a kept best rests on the liar's answers\n" << summary;
+  long long w1_received = 0, w1_lost = -1;
+  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
+  EXPECT_GT(w1_received, 10) << summary;
+  EXPECT_EQ(w1_lost, 0) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
 // Trust between participants, item 6: roles come from what make-pki.sh was told, not from names,
 // and a certificate can be revoked. (a) A worker named learnerbox-1 gets a worker's rights only: no
 // spec or weights writer. (b) w3's certificate revoked before the learner starts (the CA's
