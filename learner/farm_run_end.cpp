@@ -116,15 +116,14 @@ void FarmService::drain_until_workers_end() {
     drain_batches(1024);
     drain_status();
     const double now = now_seconds();
-    bool all_ended = !ingest_.workers().empty();
-    for (auto& [k, w] : ingest_.workers()) {
-      if (w.ended || now - w.last_seen < quiet) {
-        all_ended = all_ended && w.ended;
-        continue;
-      }
+    const auto waited_for = [&](const WorkerAccount& w) {
+      if (w.ended) return false;
+      if (now - w.last_seen < quiet) return true;
       const auto v = roster_.views().find(w.worker_id + "#" + std::to_string(w.session));
-      all_ended = all_ended && !(v != roster_.views().end() && now - v->second.seen < quiet);
-    }
+      return v != roster_.views().end() && now - v->second.seen < quiet;
+    };
+    bool all_ended = !ingest_.workers().empty();
+    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && !waited_for(w);
     if (all_ended) break;
     batches_in_.wait(0.05);
   }

@@ -133,7 +133,8 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     const bool restored = back != retired_.end();
     if (restored) {
       account = std::move(back->second);
-      retired_.erase(back);  // its key stays in retired_order_ until it reaches the front
+      retired_.erase(back);
+      retired_order_.erase(std::find(retired_order_.begin(), retired_order_.end(), key));
     } else {
       account.worker_id = b.worker_id();
       account.session = b.worker_session();
@@ -269,12 +270,6 @@ void Ingest::retire(std::map<Key, WorkerAccount>::iterator it) {
   retired_order_.push_back(it->first);
   retired_[it->first] = std::move(it->second);
   workers_.erase(it);
-  // The key of an account that came back stays in the order until it reaches the front (where
-  // erasing it is a no-op, or retires that account's later copy a little early).
-  while (retired_order_.size() > 2 * kMaxRetired) {
-    retired_.erase(retired_order_.front());
-    retired_order_.pop_front();
-  }
 }
 
 size_t Ingest::expire(double now, double idle_seconds) {

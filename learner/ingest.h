@@ -125,7 +125,7 @@ class Ingest {
   void retire(std::map<Key, WorkerAccount>::iterator it);
   std::map<Key, WorkerAccount> workers_;
   std::map<Key, WorkerAccount> retired_;
-  std::deque<Key> retired_order_;
+  std::deque<Key> retired_order_;  // the keys of retired_, oldest first
   uint64_t retired_count_ = 0;
   std::string last_retired_;
   uint64_t refused_samples_ = 0;  // of this process's reader, so not checkpointed
