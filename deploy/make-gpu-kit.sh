@@ -114,7 +114,7 @@ set(GTest_FOUND TRUE)
 EOF
 
 # Debian-built programs for hosts that only run them.
-for b in worker/farm-worker tests/bench_worker tests/bench_transport tests/bench_scale; do
+for b in worker/farm-worker tests/bench_worker tests/bench_transport tests/bench_scale tests/farm_intruder; do
   [ -x "$build/$b" ] && cp "$build/$b" "$kit/debian-bin/"
 done
 cp "$root/deploy/fastdds_profiles.xml" "$kit/debian-bin/"

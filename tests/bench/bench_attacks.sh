@@ -6,11 +6,12 @@
 # learner's learner.csv (one row a second). Prints one line per attack with the ratio against the
 # bound 0.9 (within 10 % of before), and the learner's batch counts at the end.
 #   tests/bench/bench_attacks.sh LEARNER WORKER INTRUDER SOURCE_DIR [OUT_DIR]
-# Environment: WARM (default 8), BEFORE (default 5), DOMAIN (default 150).
+# Environment: WARM (default 8), BEFORE (default 5), DOMAIN (default 150), ONLY (the attacks to run,
+# by number, e.g. "3 4"; default all).
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
 out=${5:-/tmp/farm_bench_attacks}
-warm=${WARM:-8} before=${BEFORE:-5} domain=${DOMAIN:-150}
+warm=${WARM:-8} before=${BEFORE:-5} domain=${DOMAIN:-150} only=${ONLY:-}
 mkdir -p "$out"
 # updates at the last row of CSV, and its elapsed seconds
 last_row() { awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == "updates") u = i; if ($i == "elapsed_s") e = i }; next }
@@ -26,6 +27,7 @@ k=0
 for a in "${attacks[@]}"; do
   name=${a%%|*} flags=${a#*|} k=$((k + 1)) d=$domain
   domain=$((domain + 1))
+  [ -n "$only" ] && [[ " $only " != *" $k "* ]] && continue
   cfg="$out/a$k.txtpb"
   awk '/^stop \{/ { print "stop { max_seconds: 40 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
     "$src/deploy/configs/pendulum_sac.txtpb" |
