@@ -9,6 +9,7 @@ PACKAGES=(
   libgl-dev libopengl-dev libglx-dev                # ... and OpenGL (find_dependency in mujocoConfig.cmake)
   libeigen3-dev libprotobuf-dev protobuf-compiler
   libtinyxml2-dev libmuparser-dev                   # the task of terms: its MJCF scan and reward expressions
+  nlohmann-json3-dev                                # the learner's RUN/events.jsonl
   libtorch-dev libopenblas0-pthread                 # without OpenBLAS LibTorch is ~6x slower
   libgtest-dev libbenchmark-dev
   zlib1g-dev python3-matplotlib                   # mCLARI height-field PNG, sweep plots

@@ -82,6 +82,17 @@ endif()
 set($1_FOUND TRUE)
 EOF
 }
+# nlohmann-json is header-only: its headers and an INTERFACE target of Debian's name.
+cp -a /usr/include/nlohmann "$kit/include/"
+mkdir -p "$kit/cmake/nlohmann_json"
+cat >"$kit/cmake/nlohmann_json/nlohmann_jsonConfig.cmake" <<'EOF'
+get_filename_component(_kit "${CMAKE_CURRENT_LIST_DIR}/../.." ABSOLUTE)
+if(NOT TARGET nlohmann_json::nlohmann_json)
+  add_library(nlohmann_json::nlohmann_json INTERFACE IMPORTED)
+  set_target_properties(nlohmann_json::nlohmann_json PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kit}/include")
+endif()
+set(nlohmann_json_FOUND TRUE)
+EOF
 imported mujoco mujoco::mujoco "$(readlink $arch/libmujoco.so)" ""
 imported tinyxml2 tinyxml2::tinyxml2 "$(readlink $arch/libtinyxml2.so)" ""
 imported muparser muparser::muparser "$(readlink $arch/libmuparser.so)" ""

@@ -281,6 +281,27 @@ void FarmService::take_answer() {
   const EvalGroup done = std::move(group);
   eval_groups_.erase(g);
   if (done.ask.label == "eval" && rep.episodes > 0 && rep.confirmed) note_goal(done.ask, rep);
+  {
+    const auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
+    nlohmann::json metrics = nlohmann::json::object(), metrics_min = nlohmann::json::object();
+    for (size_t k = 0; k < task_spec_.metric_names.size() && k < rep.metrics.size(); ++k) {
+      metrics[task_spec_.metric_names[k]] = num(rep.metrics[k]);
+      metrics_min[task_spec_.metric_names[k]] = num(rep.metrics_min[k]);
+    }
+    events_.write("evaluation", {{"label", done.ask.label},
+                                 {"policy_version", done.ask.version},
+                                 {"updates", done.ask.updates},
+                                 {"asked_elapsed_s", done.ask.elapsed},
+                                 {"episodes", rep.episodes},
+                                 {"workers", done.returns_by_worker.size()},
+                                 {"mean", num(rep.mean)},
+                                 {"min", num(rep.min)},
+                                 {"max", num(rep.max)},
+                                 {"mean_length", num(rep.mean_length)},
+                                 {"metrics", metrics},
+                                 {"metrics_min", metrics_min},
+                                 {"confirmed", rep.confirmed}});
+  }
   eval_snapshot_ = &done.snapshot;
   algo_->evaluated(*this, done.ask, rep);
   eval_snapshot_ = nullptr;
@@ -325,6 +346,8 @@ void FarmService::evaluation_given_up(uint64_t group) {
     }
     it = evals_out_.erase(it);
   }
+  events_.write("evaluation",
+                {{"label", done.ask.label}, {"policy_version", done.ask.version}, {"episodes", 0}, {"given_up", true}});
   algo_->not_evaluated(*this, done.ask);
   drop_snapshot(done.snapshot);
 }

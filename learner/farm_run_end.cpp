@@ -19,7 +19,7 @@ namespace farm {
 namespace fs = std::filesystem;
 
 std::string FarmService::summary_head(double elapsed, const std::string& reason) const {
-  const auto& c = ingest_.counters();
+  const IngestCounters c = intake_.counters();
   std::ostringstream o;
   o << "experiment        " << cfg_.experiment_id() << "\n"
     << "stopped because   " << reason << "\n"
@@ -42,15 +42,21 @@ std::string FarmService::untrained_stop_note(const std::string& reason) const {
          "stop on time (stop.max_seconds) or on a target instead";
 }
 
-std::string FarmService::summary_workers() const {
+std::string FarmService::summary_workers() {
   std::ostringstream o;
-  if (ingest_.counters().foreign > 0)
-    o << "other experiments " << ingest_.counters().foreign
-      << " batches of other experiments on the domain, not used\n";
+  // The accounts as they are now (the ingest thread goes on): streams, retired and foreign.
+  std::map<Ingest::Key, WorkerAccount> workers;
+  uint64_t retired = 0, foreign = 0;
+  intake_.with_ingest([&](const Ingest& in) {
+    workers = in.workers();
+    retired = in.retired();
+    foreign = in.counters().foreign;
+  });
+  if (foreign > 0) o << "other experiments " << foreign << " batches of other experiments on the domain, not used\n";
   // One line per stream, the kMaxSummaryStreams with the most accepted batches (invented streams
   // may number thousands), then how many more.
   std::vector<const WorkerAccount*> shown;
-  for (auto& [k, w] : ingest_.workers()) shown.push_back(&w);
+  for (auto& [k, w] : workers) shown.push_back(&w);
   std::stable_sort(shown.begin(), shown.end(),
                    [](const WorkerAccount* a, const WorkerAccount* b) { return a->received > b->received; });
   const size_t more = shown.size() > kMaxSummaryStreams ? shown.size() - kMaxSummaryStreams : 0;
@@ -58,7 +64,7 @@ std::string FarmService::summary_workers() const {
   std::sort(shown.begin(), shown.end(), [](const WorkerAccount* a, const WorkerAccount* b) {
     return std::tie(a->worker_id, a->session) < std::tie(b->worker_id, b->session);
   });
-  o << "streams           " << ingest_.workers().size() << " open, " << ingest_.retired()
+  o << "streams           " << workers.size() << " open, " << retired
     << " retired (idle for account_expiry_seconds, or to make room)\n";
   for (const WorkerAccount* w : shown) {
     o << "worker            " << printable(w->worker_id, 100) << " session " << w->session << ": received "
@@ -76,6 +82,23 @@ void FarmService::write_summary(double elapsed, const std::string& reason) {
       summary_head(elapsed, reason) + algo_->summary(f, elapsed) + eval_summary() + summary_workers();
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
+  const IngestCounters c = intake_.counters();
+  events_.write("summary",
+                {{"reason", reason},
+                 {"wall_s", elapsed},
+                 {"env_steps", c.env_steps},
+                 {"batches_ok", c.ok},
+                 {"batches_lost", c.lost},
+                 {"batches_duplicate", c.duplicate},
+                 {"batches_invalid", c.invalid},
+                 {"updates", algo_->updates()},
+                 {"policy_version", algo_->version()},
+                 {"evals_asked", evals_asked_},
+                 {"evals_answered", evals_answered_},
+                 {"evals_lost", evals_lost_},
+                 {"evals_invalid", evals_invalid_},
+                 {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},
+                 {"best_measure", f.best_measure}});
   log("summary written to " + run_dir_ + "/summary.txt");
 }
 
@@ -100,7 +123,7 @@ void FarmService::drain_before_interrupted_stop() {
     for (const auto& [k, v] : roster_.views())
       running = running || (roster_.live(v, now) && v.last.state() == "running");
     if (now - last >= 3.0 || (now - last >= 0.5 && !running)) break;
-    batches_in_.wait(0.05);
+    intake_.wait(0.05);
   }
   log("took the " + std::to_string(taken) + " batches in flight (" + fmt("%.1f", now_seconds() - t0) + " s)");
 }
@@ -122,16 +145,24 @@ void FarmService::drain_until_workers_end() {
       const auto v = roster_.views().find(w.worker_id + "#" + std::to_string(w.session));
       return v != roster_.views().end() && now - v->second.seen < quiet;
     };
-    bool all_ended = !ingest_.workers().empty();
-    for (auto& [k, w] : ingest_.workers()) all_ended = all_ended && !waited_for(w);
-    if (all_ended) break;
-    batches_in_.wait(0.05);
+    bool all_ended = false;
+    intake_.with_ingest([&](const Ingest& in) {
+      all_ended = !in.workers().empty();
+      for (auto& [k, w] : in.workers()) all_ended = all_ended && !waited_for(w);
+    });
+    if (all_ended && intake_.queued() == 0) break;
+    intake_.wait(0.05);
   }
+  drain_batches(SIZE_MAX);
   size_t open = 0;
-  for (auto& [k, w] : ingest_.workers())
-    if (!w.ended && ++open <= kMaxOpenStreamLines)
-      log("worker " + printable(w.worker_id, 100) + " did not close its stream; batches after " +
-          std::to_string(w.next_sequence) + " are unaccounted");
+  std::vector<std::string> lines;
+  intake_.with_ingest([&](const Ingest& in) {
+    for (auto& [k, w] : in.workers())
+      if (!w.ended && ++open <= kMaxOpenStreamLines)
+        lines.push_back("worker " + printable(w.worker_id, 100) + " did not close its stream; batches after " +
+                        std::to_string(w.next_sequence) + " are unaccounted");
+  });
+  for (const auto& l : lines) log(l);
   if (open > kMaxOpenStreamLines)
     log("... and " + std::to_string(open - kMaxOpenStreamLines) + " more streams not closed (the summary lists them)");
 }

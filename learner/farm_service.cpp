@@ -24,18 +24,22 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       task_spec_(robots::task_spec(cfg_.task())),
       obs_dim_(task_spec_.obs_dim),
       act_dim_(task_spec_.act_dim),
-      ingest_(cfg_.experiment_id(), obs_dim_, act_dim_),
       bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
       spec_(bus_, cfg_, obs_dim_, act_dim_),
       weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
       stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
-      // Samples over what this experiment's workers can send are refused before memory is taken for
-      // them (docs/RELIABILITY.md, "size limits before memory").
-      batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader",
-                  static_cast<uint32_t>(std::min<uint64_t>(
-                      Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
-                                              cfg_.worker().steps_per_batch()),
-                      UINT32_MAX))),
+      intake_(
+          bus_,
+          [this] {
+            Ingest in(cfg_.experiment_id(), obs_dim_, act_dim_);
+            in.set_num_actions(task_spec_.num_actions);
+            return in;
+          }(),
+          static_cast<uint32_t>(
+              std::min<uint64_t>(Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
+                                                         cfg_.worker().steps_per_batch()),
+                                 UINT32_MAX)),
+          size_t(cfg_.ingest_queue_batches()), [this](const std::string& m) { log(m); }, events_),
       status_in_(
           bus_, farm::dds::kWorkerStatusTopic, "status_reader",
           [this](eprosima::fastdds::dds::DataReader* r) {
@@ -74,16 +78,26 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   best_dir_ = (fs::path(run_dir_) / "best").string();
   eval_dir_ = (fs::path(run_dir_) / "evaluating").string();
-  ingest_.set_num_actions(task_spec_.num_actions);
   eval_session_ = farm::dds::random_session_id();
+  roster_.on_event([this](const nlohmann::json& e) { events_.write("worker", e); });
 }
 
 int FarmService::run() {
   prepare_run_dir();
+  intake_.start();
   drop_snapshot(eval_dir_);  // what a learner that crashed mid-evaluation left
   algo_->warm_up(*this);     // workers are not told of the run yet, so none waits on it
   spec_.publish(false);
   t0_ = now_seconds() - elapsed_offset_;
+  events_.set_start(t0_);
+  events_.write("start", {{"experiment_id", cfg_.experiment_id()},
+                          {"task", cfg_.task().name()},
+                          {"algorithm", cfg_.algorithm()},
+                          {"obs_dim", obs_dim_},
+                          {"act_dim", act_dim_},
+                          {"domain", bus_.domain()},
+                          {"resumed", opt_.resume},
+                          {"ingest_queue_batches", intake_.capacity()}});
   algo_->start(*this);
   log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
       ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " +
@@ -102,7 +116,9 @@ int FarmService::run() {
     work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
-      if (const size_t n = ingest_.expire(now, cfg_.account_expiry_seconds()))
+      size_t n = 0;
+      intake_.with_ingest([&](Ingest& in) { n = in.expire(now, cfg_.account_expiry_seconds()); });
+      if (n > 0)
         log(std::to_string(n) + " worker stream(s) with no batch for " + fmt("%.0f", cfg_.account_expiry_seconds()) +
             " s retired (account_expiry_seconds)");
       progress(now - t0, now - last_log);
@@ -117,6 +133,7 @@ int FarmService::run() {
   }
   const double elapsed = now_seconds() - t0;
   log("stopping: " + stop_reason);
+  events_.write("stop", {{"reason", stop_reason}, {"env_steps", intake_.env_steps()}, {"updates", algo_->updates()}});
   if (stop_reason == "interrupted") {
     // Workers stay and wait: a resumed learner picks them up again. What the reader already
     // acknowledged goes into the checkpoint first, or the resumed learner counts it lost.
@@ -131,18 +148,12 @@ int FarmService::run() {
   // Batches that had arrived before the stop are taken first (for at most a second).
   for (const double t_end = now_seconds() + 1.0; now_seconds() < t_end && drain_batches(1024) > 0;) {
   }
-  steps_at_stop_ = ingest_.counters().env_steps;
+  steps_at_stop_ = intake_.env_steps();
   algo_->hold_workers(*this);
   // What the held workers had made or begun (a batch or two each) arrives within moments; it is
   // taken before the final evaluation, so that a last fit can use it. Until no batch came for half
   // a second, three seconds at most.
-  for (double t = now_seconds(), quiet_from = t, t_end = t + 3.0; t < t_end && t - quiet_from < 0.5;
-       t = now_seconds()) {
-    if (drain_batches(1024) > 0)
-      quiet_from = now_seconds();
-    else
-      batches_in_.wait(0.05);
-  }
+  drain_while_arriving(0.5, 3.0);
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
   evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
@@ -163,33 +174,28 @@ void FarmService::work() {
   drain_status();
   poll_evaluations();
   const double wait = algo_->train(*this, got > 0);
-  if (wait > 0) batches_in_.wait(wait);
+  if (wait > 0) intake_.wait(wait);
 }
 
 size_t FarmService::drain_batches(size_t max) {
-  size_t n = 0;
-  if (const uint64_t refused = ingest_.count_refused_samples(batches_in_.refused())) {
-    if (++rejections_logged_ <= 20)
-      log("refused " + std::to_string(refused) + " batch sample(s) larger than " +
-          std::to_string(batches_in_.max_sample_bytes()) +
-          " bytes serialized (the most this experiment's workers send) before deserialization");
+  intake_.set_version(algo_->version());
+  return intake_.pop(max, [this](AcceptedBatch& a) { take(a); });
+}
+
+void FarmService::take(AcceptedBatch& a) {
+  const Batch b = a.view();
+  if (!algo_->take(b)) return;
+  for (const auto& e : a.episodes) record_episode(e.episode_return);
+}
+
+void FarmService::drain_while_arriving(double quiet, double most) {
+  for (double t = now_seconds(), quiet_from = t, t_end = t + most; t < t_end && t - quiet_from < quiet;
+       t = now_seconds()) {
+    if (drain_batches(1024) > 0)
+      quiet_from = now_seconds();
+    else
+      intake_.wait(0.05);
   }
-  while (n < max && batches_in_.take(batch_, batch_info_)) {
-    ++n;
-    if (!accept_batch()) continue;
-    Batch b;
-    b.worker_id = batch_.worker_id();
-    b.policy_version = batch_.policy_version();
-    b.num_steps = int(batch_.num_steps());
-    b.num_envs = int(batch_.num_envs());
-    b.truncated = batch_.truncated().data();
-    b.log_probs = batch_.log_probs().data();
-    b.rows = &pending_;
-    b.episodes = &episodes_;
-    if (!algo_->take(b)) continue;
-    for (const auto& e : episodes_) record_episode(e.episode_return);
-  }
-  return n;
 }
 
 void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
@@ -218,7 +224,7 @@ std::vector<Farm::LiveWorker> FarmService::live_workers() const {
 }
 
 FarmFigures FarmService::figures() const {
-  const auto& c = ingest_.counters();
+  const IngestCounters c = intake_.counters();
   FarmFigures f;
   f.env_steps = c.env_steps;
   f.ok = c.ok;
@@ -242,14 +248,26 @@ double FarmService::elapsed() const { return now_seconds() - t0_; }
 void FarmService::csv_row(const std::string& row) {
   csv_ << row << '\n';
   csv_.flush();
+  events_.write("progress", EventLog::from_csv(csv_header_, row));
 }
 
 void FarmService::checkpoint(double elapsed) {
+  // The accounts as of the last batch the algorithm took: every batch they count accepted is in
+  // what it saves (a resumed learner counts the rest lost, and none silently).
+  config::CheckpointManifest accounts;
+  intake_.settle([this](AcceptedBatch& a) { take(a); },
+                 [&accounts](const Ingest& in) { accounts_to_manifest(in, accounts); });
   config::CheckpointManifest m = base_manifest(algo_->version(), algo_->updates(), elapsed);
+  m.MergeFrom(accounts);
   algo_->to_manifest(m);
   const double t = now_seconds();
   write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) { algo_->save(tmp); });
   log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
+  events_.write("checkpoint", {{"dir", ckpt_dir_},
+                               {"ok", true},
+                               {"seconds", now_seconds() - t},
+                               {"policy_version", m.policy_version()},
+                               {"updates", m.updates()}});
 }
 
 // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
@@ -271,6 +289,7 @@ bool FarmService::try_checkpoint(double elapsed) {
     checkpoint(elapsed);
     return true;
   } catch (const std::exception& e) {
+    events_.write("checkpoint", {{"dir", ckpt_dir_}, {"ok", false}, {"error", e.what()}});
     log(std::string("checkpoint failed: ") + e.what() + "; the last good checkpoint" +
         (checkpoint_exists(ckpt_dir_) ? " (" + usable_checkpoint(ckpt_dir_) + ")" : std::string(" (none yet)")) +
         " is kept, training goes on, next try in " + fmt("%.0f", cfg_.checkpoint_every_seconds()) + " s");
@@ -308,12 +327,13 @@ void FarmService::prepare_run_dir() {
         best_eval_ = b.best_eval_return();
     }
     episodes_total_ = m.episodes();
-    accounts_from_manifest(m, ingest_);
+    intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in); });
     // The first progress line's rates count from the restored counters, not from zero.
-    last_steps_ = ingest_.counters().env_steps;
-    last_ok_ = ingest_.counters().ok;
-    last_lag_sum_ = ingest_.counters().lag_sum;
-    log("resumed from " + ckpt_dir_ + " " + algo_->resumed(m, ingest_.counters().env_steps));
+    const IngestCounters c = intake_.counters();
+    last_steps_ = c.env_steps;
+    last_ok_ = c.ok;
+    last_lag_sum_ = c.lag_sum;
+    log("resumed from " + ckpt_dir_ + " " + algo_->resumed(m, c.env_steps));
   } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
@@ -321,7 +341,9 @@ void FarmService::prepare_run_dir() {
   const bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
   csv_.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
   if (!csv_) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
-  if (new_csv) csv_ << algo_->csv_header() << '\n';
+  csv_header_ = algo_->csv_header();
+  if (new_csv) csv_ << csv_header_ << '\n';
+  events_.open((fs::path(run_dir_) / "events.jsonl").string());
 }
 
 void FarmService::drain_status() {
@@ -348,46 +370,6 @@ void FarmService::drain_status() {
 }
 
 int FarmService::live_count() const { return roster_.live_count(now_seconds()); }
-
-// Where a participant's identity token names another than its writer's partition: said, since no
-// one else checks it (Fast DDS 2.9.1 does not compare the token with the certificate).
-std::string FarmService::token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const {
-  if (bus_.security_dir().empty() || name.empty()) return "";
-  const std::string token = bus_.token_name(writer);
-  return token == name ? "" : "; its participant's identity token claims '" + printable(token, 100) + "'";
-}
-
-bool FarmService::accept_batch() {
-  pending_.clear();
-  episodes_.clear();
-  const uint64_t foreign = ingest_.counters().foreign;
-  // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
-  std::string writer, unnamed_why;
-  if (!bus_.security_dir().empty())
-    writer = bus_.authenticated_name(batch_info_.sample_identity.writer_guid(), &unnamed_why);
-  const uint64_t retired = ingest_.retired();
-  const std::string why = ingest_.accept(batch_, algo_->version(), now_seconds(), pending_, episodes_,
-                                         bus_.security_dir().empty() ? nullptr : &writer,
-                                         farm::dds::participant_key(batch_info_.sample_identity.writer_guid()));
-  if (ingest_.retired() > retired && ++retirements_logged_ <= 20)
-    log("worker stream " + printable(ingest_.last_retired(), 200) + " retired to make room for " +
-        printable(batch_.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) + " streams open, " +
-        std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
-        (retirements_logged_ == 20 ? "; no more such lines (the summary counts them)" : ""));
-  if (why.empty()) return true;
-  if (ingest_.counters().foreign > foreign) {
-    // Another experiment shares the domain: said once per experiment, not once per batch.
-    if (foreign_noted_.size() < 16 && foreign_noted_.insert(batch_.experiment_id()).second)
-      log("batches of experiment '" + batch_.experiment_id() +
-          "' (another learner's, on this domain) are not used here; the summary counts them");
-    return false;
-  }
-  if (++rejections_logged_ <= 20)
-    log("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
-        ": " + why + (writer.empty() && !bus_.security_dir().empty() ? " (" + unnamed_why + ")" : "") +
-        token_note(batch_info_.sample_identity.writer_guid(), writer));
-  return false;
-}
 
 void FarmService::record_episode(float episode_return) {
   recent_returns_.push_back(episode_return);
@@ -429,7 +411,9 @@ void FarmService::record_evaluation(const EvalReport& report, uint64_t version, 
       throw std::runtime_error("the networks of policy v" + std::to_string(version) +
                                " were not kept when it was asked");
     const std::string snapshot = *eval_snapshot_;
-    write_checkpoint(best_dir_, base_manifest(version, updates, elapsed), [&snapshot](const std::string& tmp) {
+    config::CheckpointManifest m = base_manifest(version, updates, elapsed);
+    intake_.with_ingest([&m](const Ingest& in) { accounts_to_manifest(in, m); });
+    write_checkpoint(best_dir_, m, [&snapshot](const std::string& tmp) {
       fs::copy(snapshot, tmp, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
     });
   } catch (const std::exception& e) {
@@ -439,6 +423,11 @@ void FarmService::record_evaluation(const EvalReport& report, uint64_t version, 
   }
   log("best evaluation so far (" + what + ", policy v" + std::to_string(version) + "): kept in " + best_dir_ + " (" +
       fmt("%.2f", now_seconds() - t) + " s)");
+  events_.write("best", {{"measure", best_measure()},
+                         {"score", score},
+                         {"policy_version", version},
+                         {"updates", updates},
+                         {"dir", best_dir_}});
 }
 
 double FarmService::mean_recent_return() const {
@@ -449,7 +438,7 @@ double FarmService::mean_recent_return() const {
 }
 
 void FarmService::progress(double elapsed, double window) {
-  const auto& c = ingest_.counters();
+  const IngestCounters c = intake_.counters();
   FarmFigures f = figures();
   f.in_rate = double(c.env_steps - last_steps_) / window;
   f.lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
@@ -490,7 +479,7 @@ std::string FarmService::should_stop(double elapsed) const {
       last_eval >= s.target_eval_return())
     return "evaluation return " + fmt("%.1f", last_eval) + " reached the target " + fmt("%.1f", s.target_eval_return());
   if (s.max_seconds() > 0 && elapsed >= s.max_seconds()) return "time limit " + fmt("%.0f", s.max_seconds()) + " s";
-  if (s.max_env_steps() > 0 && int64_t(ingest_.counters().env_steps) >= s.max_env_steps())
+  if (s.max_env_steps() > 0 && int64_t(intake_.env_steps()) >= s.max_env_steps())
     return "env step limit " + std::to_string(s.max_env_steps());
   if (s.max_updates() > 0 && updates >= s.max_updates()) return "update limit " + std::to_string(s.max_updates());
   return "";
@@ -508,7 +497,6 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   }
   m.set_config_text(config_to_text(cfg_));
   m.set_episodes(episodes_total_);
-  accounts_to_manifest(ingest_, m);
   return m;
 }
 

@@ -22,8 +22,10 @@
 
 #include "algorithm.h"
 #include "dds.h"
+#include "events.h"
 #include "farm_config.pb.h"
 #include "ingest.h"
+#include "ingest_thread.h"
 #include "spec_publisher.h"
 #include "task_spec.h"
 #include "worker_roster.h"
@@ -47,7 +49,7 @@ class FarmService final : public Farm {
   std::vector<LiveWorker> live_workers() const override;
   double first_worker_heard() const override { return first_heard_; }
   FarmFigures figures() const override;
-  uint64_t env_steps() const override { return ingest_.counters().env_steps; }
+  uint64_t env_steps() const override { return intake_.env_steps(); }
   double elapsed() const override;
   bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) override;
   void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) override;
@@ -61,14 +63,14 @@ class FarmService final : public Farm {
  private:
   void prepare_run_dir();
   void work();
+  // Hands up to max batches that the ingest thread accepted to the algorithm; returns how many.
   size_t drain_batches(size_t max);
+  // One accepted batch to the algorithm, and its finished episodes to the recent returns.
+  void take(AcceptedBatch& a);
+  // Takes batches while they come, until none came for `quiet` seconds or `most` seconds passed.
+  void drain_while_arriving(double quiet, double most);
   void drain_status();
   int live_count() const;
-  // Takes batch_ (just read) through the ingest's checks against the algorithm's version:
-  // pending_ and episodes_ hold its transitions and finished episodes; false (and a log line for
-  // the first 20) when the batch is refused.
-  bool accept_batch();
-  std::string token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const;
   void record_episode(float episode_return);
   double mean_recent_return() const;
   void progress(double elapsed, double window);
@@ -81,7 +83,7 @@ class FarmService final : public Farm {
   // checkpoint() that survives a failure (a full disk): logged, the last good checkpoint kept;
   // false when it failed.
   bool try_checkpoint(double elapsed);
-  // The manifest fields every checkpoint carries.
+  // The manifest fields every checkpoint carries, but the accounts (accounts_to_manifest).
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
   // Live workers that wait on the learner (for new weights, or for room in the batch queue).
   std::string waiting_note() const;
@@ -89,7 +91,7 @@ class FarmService final : public Farm {
   // --- The end of a run (farm_run_end.cpp) ---
   // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
   std::string summary_head(double elapsed, const std::string& reason) const;
-  std::string summary_workers() const;
+  std::string summary_workers();
   // A line for the log and summary when the run ended on an env step or update limit before its
   // first evaluation (a limit that more workers reach sooner); "" otherwise.
   std::string untrained_stop_note(const std::string& reason) const;
@@ -157,12 +159,12 @@ class FarmService final : public Farm {
   const std::atomic<bool>& interrupted_;
   robots::TaskSpec task_spec_;  // from the config alone: the learner builds no task
   int obs_dim_, act_dim_;
-  Ingest ingest_;
   farm::dds::Bus bus_;
   SpecPublisher spec_;
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
-  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
+  EventLog events_;  // before intake_, whose thread writes to it
+  IngestThread intake_;
   // Heartbeats are taken on Fast DDS's listener thread as they arrive, with their arrival time, so
   // a long fit or evaluation cannot let them be overwritten in the reader's history (16 deep for
   // all workers together) and live workers be marked dead; the main loop hands them to roster_.
@@ -189,19 +191,14 @@ class FarmService final : public Farm {
   std::unique_ptr<Algorithm> algo_;
   std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;
-  farm::msg::TransitionBatch batch_;
-  eprosima::fastdds::dds::SampleInfo batch_info_;  // of batch_: its writer, named under DDS Security
-  Transitions pending_;
-  std::vector<FinishedEpisode> episodes_;
+  std::string csv_header_;
   std::deque<float> recent_returns_;
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
   uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
-  std::string goal_reached_;  // the stop reason once an evaluation met every stop.eval_goal
-  int rejections_logged_ = 0, retirements_logged_ = 0;
+  std::string goal_reached_;                   // the stop reason once an evaluation met every stop.eval_goal
   bool last_eval_confirmed_ = true;            // the last report handed to the algorithm (confirmation())
-  std::set<std::string> foreign_noted_;        // other experiments whose batches were seen (bounded)
   std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
   std::map<uint64_t, EvalGroup> eval_groups_;  // evaluations with parts out
   uint64_t next_eval_group_ = 0;

@@ -63,9 +63,11 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& in, double now, const st
   if (v.dead) note(who + " is back after " + seconds(now - v.seen) + " s", now);
   if (!s.last_error().empty() && s.last_error() != v.last.last_error())
     note("worker " + printable(s.worker_id(), 100) + " reports: " + printable(s.last_error(), 500), now);
+  const bool joined = v.seen == 0, back = v.dead;
   v.last = std::move(s);
   v.seen = now;
   v.dead = false;
+  if (joined || back) note("", now, joined ? "joined" : "back", &v);
   return true;
 }
 
@@ -104,22 +106,29 @@ bool WorkerRoster::make_room(const std::string& id, double now) {
   return true;
 }
 
-void WorkerRoster::note(const std::string& line, double now) {
+void WorkerRoster::note(const std::string& line, double now, const char* change, const View* v) {
   if (now - window_start_ >= kLogWindowS) {
     window_start_ = now;
     window_lines_ = 0;
   }
+  // An event alone (empty line) rides on the window of the line it goes with.
   if (window_lines_ >= kLogBurst) {
-    ++held_back_;
+    held_back_ += !line.empty();
     return;
   }
-  ++window_lines_;
-  if (held_back_ > 0) {
+  window_lines_ += !line.empty();
+  if (held_back_ > 0 && !line.empty()) {
     log_(std::to_string(held_back_) + " roster line(s) held back (at most " + std::to_string(kLogBurst) + " per " +
          seconds(kLogWindowS) + " s)");
     held_back_ = 0;
   }
-  log_(line);
+  if (!line.empty()) log_(line);
+  if (change && v && event_)
+    event_({{"change", change},
+            {"worker_id", printable(v->last.worker_id(), 100)},
+            {"session", v->last.worker_session()},
+            {"host", printable(v->last.host(), 100)},
+            {"envs", v->last.envs()}});
 }
 
 // A worker that could not run a spec has joined no experiment. Its error is the user's only clue
@@ -152,7 +161,7 @@ void WorkerRoster::check(double now) {
       v.dead = true;
       note("worker " + printable(v.last.worker_id(), 100) + " on " + printable(v.last.host(), 100) + " silent for " +
                seconds(now - v.seen) + " s: marked dead; going on with " + std::to_string(live_now) + " workers",
-           now);
+           now, "dead", &v);
     }
     ++it;
   }

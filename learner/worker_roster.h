@@ -17,6 +17,8 @@
 #include <set>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "farm.h"
 
 namespace farm {
@@ -31,6 +33,10 @@ class WorkerRoster {
     std::string writer;  // the participant of its first heartbeat (dds::participant_key); "" unknown
   };
   using Log = std::function<void(const std::string&)>;
+  // A worker event for RUN/events.jsonl: {"change": "joined" | "back" | "dead", "worker_id", "session",
+  // "host", "envs"}; written with its log line, under the same bound.
+  using Event = std::function<void(const nlohmann::json&)>;
+  void on_event(Event e) { event_ = std::move(e); }
 
   // experiment_id: the learner's experiment; heartbeats of any other are ignored. Empty: every
   // heartbeat counts.
@@ -65,12 +71,14 @@ class WorkerRoster {
 
  private:
   // Writes a line caused by a heartbeat, at most kLogBurst per kLogWindowS; the next line after a
-  // window with lines held back says how many.
-  void note(const std::string& line, double now);
+  // window with lines held back says how many. change (with v): the worker event that goes with it,
+  // written under the same bound; an empty line writes the event alone.
+  void note(const std::string& line, double now, const char* change = nullptr, const View* v = nullptr);
   // Makes room for a new worker of id: false when there is none to make.
   bool make_room(const std::string& id, double now);
   double timeout_, forget_;
   Log log_;
+  Event event_;
   uint64_t refused_ = 0;
   double window_start_ = -1e300;
   int window_lines_ = 0;

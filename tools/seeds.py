@@ -30,6 +30,7 @@ training's command (DIR/command.txt, written when training starts). Exit status 
 kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
 import csv
+import json
 import filecmp
 import math
 import os
@@ -116,14 +117,34 @@ def walking(r):
 
 # ---- the measures -------------------------------------------------------------------------------
 
-def summary_value(run, label):
-    """A figure of RUN/summary.txt ("final eval return -145.2 (...)"), NaN where absent."""
+def events(run, kind):
+    """The events of one kind in RUN/events.jsonl (the learner's record for programs), in order;
+    [] where the run has none. A line that is not JSON (a run killed mid-write) is skipped."""
+    out = []
     try:
-        text = open(os.path.join(run, "summary.txt")).read()
+        with open(os.path.join(run, "events.jsonl")) as f:
+            for line in f:
+                try:
+                    e = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(e, dict) and e.get("event") == kind:
+                    out.append(e)
     except OSError:
-        return math.nan
-    m = re.search(r"^" + re.escape(label) + r"\s+(-?[0-9.]+|nan)", text, re.M)
-    return number(m.group(1)) if m else math.nan
+        pass
+    return out
+
+
+def summary_value(run, field):
+    """A figure of the run's summary event ("wall_s", "env_steps"), NaN where absent."""
+    ev = events(run, "summary")
+    return number(ev[-1].get(field)) if ev and ev[-1].get(field) is not None else math.nan
+
+
+def evaluations(run, labels=("eval",)):
+    """The evaluation events of a run with episodes, of the given labels, in the order answered."""
+    return [e for e in events(run, "evaluation") if e.get("label") in labels and (e.get("episodes") or 0) > 0
+            and e.get("mean") is not None]
 
 
 def read_text(path):
@@ -134,24 +155,24 @@ def read_text(path):
         return ""
 
 
-def log_evals(log):
-    """(elapsed s, mean return) of every evaluation the learner logged: learner.csv holds a row per
-    log interval only (SAC, DQN), and a run that stops on its target may end between two rows."""
-    text = read_text(log)
-    return [(float(m.group(2)), float(m.group(1)))
-            for m in re.finditer(r"\] eval: mean return (-?[0-9.]+).*?, ([0-9.]+) s\)$", text, re.M)]
+def eval_returns(run):
+    """(elapsed s when asked, mean return) of every training evaluation of the run: learner.csv
+    holds a row per log interval only (SAC, DQN), and a run that stops on its target may end
+    between two rows."""
+    return [(float(e["asked_elapsed_s"]), float(e["mean"])) for e in evaluations(run)]
 
 
-def measure_curve(run, kind, target, log=""):
+def measure_curve(run, kind, target):
     """(time to goal, best measure, final measure, final meets goal, best meets goal): from the
-    learner's log and summary (returns) or learner.csv (walking)."""
+    run's evaluation events (returns) or learner.csv (walking)."""
     rows = read_rows(run)
     if kind == "return":
-        ev = log_evals(log) or [(number(r["elapsed_s"]), number(r["eval_return"]))
+        ev = eval_returns(run) or [(number(r["elapsed_s"]), number(r["eval_return"]))
                                 for r in eval_rows(rows, "eval_return")]
         if not ev:
             return None
-        final = summary_value(run, "final eval return")
+        finals = evaluations(run, ("final",))
+        final = float(finals[-1]["mean"]) if finals else math.nan
         if math.isnan(final):
             final = ev[-1][1]
         best = max([v for _, v in ev] + ([final] if not math.isnan(final) else []))
@@ -380,11 +401,10 @@ def report(args, task, kind, target, seeds):
             print(f"seeds: seed {s}: no learner.csv in {run}; reported as missing", file=sys.stderr)
         last = rows[-1] if rows else {}
         # The summary's figures where the run wrote one (learner.csv's last row may be seconds older).
-        wall, steps = summary_value(run, "wall time"), summary_value(run, "env steps")
+        wall, steps = summary_value(run, "wall_s"), summary_value(run, "env_steps")
         r = dict(seed=s, wall=number(last.get("elapsed_s")) if math.isnan(wall) else wall,
                  steps=number(last.get("env_steps")) if math.isnan(steps) else steps)
-        log = os.path.join(args.out, "logs", f"seed{s}-learner.log")
-        curve = measure_curve(run, "walking" if kind == "walking" else "return", target, log) if rows else None
+        curve = measure_curve(run, "walking" if kind == "walking" else "return", target) if rows else None
         r["time"] = curve["time"] if curve else math.nan
         r["same"] = same_policy(run) if kind in ("mobile", "mclari") else None
         if kind in ("return", "walking"):
@@ -453,38 +473,38 @@ def report(args, task, kind, target, seeds):
     return met
 
 
-def log_success(log):
-    """(elapsed s, success %) of every evaluation of a mobile robot's run that the learner logged,
-    its final one included: learner.csv has no success column."""
-    text = read_text(log)
-    return [(float(m.group(2)), round(100.0 * float(m.group(1)), 3))
-            for m in re.finditer(r"\] (?:eval|final): mean return .*?, success ([0-9.]+),.*?, ([0-9.]+) s\)$",
-                                 text, re.M)]
+def eval_success(run):
+    """(elapsed s when asked, success %) of every evaluation of a mobile robot's run, its final one
+    included: learner.csv has no success column."""
+    return [(float(e["asked_elapsed_s"]), round(100.0 * float(e["metrics"]["success"]), 3))
+            for e in evaluations(run, ("eval", "final")) if (e.get("metrics") or {}).get("success") is not None]
 
 
-def log_share(log):
-    """(elapsed s, worst terrain's share in %) of every evaluation of an mCLARI run that the learner
-    logged by the measure "share (min)" (eval.best_metric / best_reduce)."""
-    return [(float(m.group(1)), round(100.0 * float(m.group(2)), 3))
-            for m in re.finditer(r"\] evaluation of policy v\d+ at ([0-9.]+) s: share \(min\) ([0-9.]+)", read_text(log))]
+def eval_share(run):
+    """(elapsed s when asked, worst terrain's share in %) of every evaluation of an mCLARI run that a
+    second worker confirmed where one is asked to (the measure "share (min)": eval.best_metric /
+    best_reduce)."""
+    return [(float(e["asked_elapsed_s"]), round(100.0 * float(e["metrics_min"]["share"]), 3))
+            for e in evaluations(run, ("eval", "final"))
+            if e.get("confirmed", True) and (e.get("metrics_min") or {}).get("share") is not None]
 
 
 def curve(out, s, kind):
     """(label, [(elapsed s, value)]) that the plot draws for seed s: the learner's evaluations of
-    the goal's measure where it has them (success % for mobile robots, from the log), else the
+    the goal's measure where it has them (success % for mobile robots), else the
     evaluation return."""
     run = os.path.join(out, f"seed{s}")
     if kind == "mobile":
-        pts = log_success(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        pts = eval_success(os.path.join(out, f"seed{s}"))
         if pts:
             return SUCCESS_LABEL, pts
     if kind == "mclari":
-        pts = log_share(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        pts = eval_share(os.path.join(out, f"seed{s}"))
         if pts:
             return SHARE_LABEL, pts
     column = "eval_tracking_lin" if kind == "walking" else "eval_return"
     if kind == "return":
-        pts = log_evals(os.path.join(out, "logs", f"seed{s}-learner.log"))
+        pts = eval_returns(os.path.join(out, f"seed{s}"))
         if pts:
             return column, pts
     return column + (" (learner's evaluation)" if kind in ("mobile", "mclari") else ""), [

@@ -19,6 +19,8 @@
 #include <thread>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 namespace farm::testing {
 
 struct Proc {
@@ -119,6 +121,26 @@ inline std::string best_policy_problem(const std::string& run, const std::string
 
 // A DDS domain of our own (offset keeps test suites apart), so parallel runs and a running farm
 // do not see each other.
+// The events of one kind in RUN/events.jsonl, the learner's record for programs ("" kind: all),
+// in order; a line that is not JSON is skipped.
+inline std::vector<nlohmann::json> events(const std::string& run, const std::string& kind = "") {
+  std::vector<nlohmann::json> out;
+  std::ifstream in(run + "/events.jsonl");
+  for (std::string line; std::getline(in, line);) {
+    const nlohmann::json e = nlohmann::json::parse(line, nullptr, false);
+    if (e.is_object() && (kind.empty() || e.value("event", "") == kind)) out.push_back(e);
+  }
+  return out;
+}
+
+// The first event of `kind` whose field `key` holds a text containing `part`; null when none.
+inline nlohmann::json event_with(const std::string& run, const std::string& kind, const std::string& key,
+                                 const std::string& part) {
+  for (const auto& e : events(run, kind))
+    if (e.contains(key) && e[key].is_string() && e[key].get<std::string>().find(part) != std::string::npos) return e;
+  return nullptr;
+}
+
 inline int private_domain(int offset) { return 20 + static_cast<int>((getpid() + offset) % 200); }
 
 // A temporary directory with the processes started in it; everything is killed at the end and

@@ -77,18 +77,28 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   EXPECT_EQ(worker_rc[0], 0) << slurp(dir_ + "/worker-a.log");
   EXPECT_EQ(worker_rc[1], 0) << slurp(dir_ + "/worker-b.log");
 
-  // Throughput lines were printed and the same went to the CSV.
-  EXPECT_NE(learner_log.find("steps/s"), std::string::npos);
-  EXPECT_NE(learner_log.find("upd/s"), std::string::npos);
+  // Throughput rows went to the CSV, and each as a progress event under the CSV's column names.
   std::ifstream csv(run + "/learner.csv");
   std::string header, row;
   ASSERT_TRUE(std::getline(csv, header)) << "no learner.csv in " << run;
   EXPECT_NE(header.find("env_steps"), std::string::npos) << header;
-  EXPECT_TRUE(std::getline(csv, row)) << "learner.csv has no rows";
+  size_t rows = 0;
+  while (std::getline(csv, row)) ++rows;
+  EXPECT_GT(rows, 0u) << "learner.csv has no rows";
+  const auto progress = events(run, "progress");
+  ASSERT_EQ(progress.size(), rows);
+  EXPECT_GT(progress.back().value("env_steps", 0), 0);
+  EXPECT_TRUE(progress.back()["updates_per_s"].is_number()) << progress.back();
+  // The ingest thread's counters, as it accepted batches.
+  const auto ingest = events(run, "ingest");
+  ASSERT_FALSE(ingest.empty());
+  EXPECT_GT(ingest.back().value("batches_ok", 0), 0);
 
-  // The NaN batch was rejected with a reason naming it.
-  EXPECT_NE(learner_log.find("rejected batch 5 from it-a"), std::string::npos) << learner_log;
-  EXPECT_NE(learner_log.find("non-finite value"), std::string::npos) << learner_log;
+  // The NaN batch was refused with a reason naming it.
+  const auto refusal = event_with(run, "refusal", "reason", "non-finite value");
+  ASSERT_FALSE(refusal.is_null()) << learner_log;
+  EXPECT_EQ(refusal.value("worker_id", ""), "it-a") << refusal;
+  EXPECT_EQ(refusal.value("sequence_number", -1), 5) << refusal;
 
   const std::string summary = slurp(run + "/summary.txt");
   ASSERT_FALSE(summary.empty()) << learner_log;
@@ -131,7 +141,14 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   EXPECT_TRUE(fs::exists(run + "/checkpoint/manifest.txtpb"));
   // The best evaluation's networks were kept beside the checkpoint.
   EXPECT_EQ(best_policy_problem(run, summary, "sac"), "");
-  EXPECT_NE(learner_log.find("best evaluation so far"), std::string::npos) << learner_log;
+  EXPECT_FALSE(events(run, "best").empty()) << learner_log;
+  // Both workers joined, and the run says why it stopped and what it took.
+  EXPECT_GE(events(run, "worker").size(), 2u);
+  ASSERT_EQ(events(run, "stop").size(), 1u);
+  const auto end = events(run, "summary");
+  ASSERT_EQ(end.size(), 1u);
+  EXPECT_EQ(end[0].value("batches_invalid", -1), 1) << end[0];
+  EXPECT_EQ(end[0].value("batches_lost", -1), 0) << end[0];
 }
 
 TEST_F(FarmProcesses, MisspelledConfigFieldIsNamedAndNothingIsLost) {
@@ -173,8 +190,10 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   Proc& second =
       start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_, "--resume"}, "learner-2");
   ASSERT_EQ(wait_for(second, 300), 0) << slurp(dir_ + "/learner-2.log");
-  const std::string log2 = slurp(dir_ + "/learner-2.log");
-  EXPECT_NE(log2.find("resumed"), std::string::npos) << log2;
+  const auto starts = events(run, "start");  // one file for the run, resumed or not
+  ASSERT_EQ(starts.size(), 2u) << slurp(dir_ + "/learner-2.log");
+  EXPECT_FALSE(starts[0].value("resumed", true));
+  EXPECT_TRUE(starts[1].value("resumed", false));
   const double updates_2 = number_after(slurp(run + "/summary.txt"), "updates");
   EXPECT_GE(updates_2, 2500);
   EXPECT_LT(updates_2 - updates_1, 1500) << "the resumed run started from scratch";

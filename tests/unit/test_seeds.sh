@@ -39,26 +39,29 @@ grep -q "^| 1 | 30 | 3000 | 20 | 0.62 | 0.5 | -19 | yes | no |$" <<< "$out" || f
 grep -q "^- final more than 10 % below kept best: seed 1$" <<< "$out" || fail "walking drop not flagged"
 
 # A run that stops on its target between two learner.csv rows (SAC logs a row per interval): the
-# evaluations come from the learner's log, the final one from summary.txt.
-mkdir -p "$T/s/seed4" "$T/s/logs"
+# evaluations, the final one included, come from the run's events (a line cut short is skipped).
+mkdir -p "$T/s/seed4"
 printf 'elapsed_s,env_steps,eval_return\n5.00,21000,nan\n10.02,42600,nan\n' > "$T/s/seed4/learner.csv"
-cat > "$T/s/logs/seed4-learner.log" <<'LOG'
-[learner] eval: mean return -900.5 over 10 deterministic episodes, upright_fraction 0.1 (policy v50, 1500 updates, 6.1 s)
-[learner] eval: mean return -159.8 over 10 deterministic episodes, upright_fraction 0.839 (policy v107, 3336 updates, 10.0 s)
-LOG
-printf 'experiment        x\nfinal eval return -145.2 (mean of 50 deterministic episodes)\n' > "$T/s/seed4/summary.txt"
+cat > "$T/s/seed4/events.jsonl" <<'EV'
+{"event":"evaluation","elapsed_s":6.3,"label":"eval","asked_elapsed_s":6.1,"episodes":10,"mean":-900.5}
+{"event":"progress","elapsed_s":8.0,"env_steps":30000}
+{"event":"evaluation","elapsed_s":10.1,"label":"eval","asked_elapsed_s":10.0,"episodes":10,"mean":-159.8}
+{"event":"evaluation","elapsed_s":10.4,"label":"final","asked_elapsed_s":10.2,"episodes":50,"mean":-145.2}
+{"event":"evaluation","elapsed_s":10.5,"label":"ev
+EV
 out=$(seeds "$T/pendulum.txtpb" --seeds 4 --report-only --out "$T/s" 2>&1) || fail "seed 4 met the goal, exit non-zero: $out"
 grep -q "^| 4 | 10 | 42600 | 10 | -145 | -145 | +0 | yes | yes |$" <<< "$out" || fail "log and summary row: $out"
 
-# A mobile robot's plot: the success of each evaluation from the learner's log, the final one
+# A mobile robot's plot: the success of each evaluation from the run's events, the final one
 # included (learner.csv has no success column), next to the goal; the points in seeds_curves.csv.
-mkdir -p "$T/m/seed2" "$T/m/logs"
+mkdir -p "$T/m/seed2"
 printf 'elapsed_s,env_steps,eval_return\n60.0,1000,9.9\n' > "$T/m/seed2/learner.csv"
-cat > "$T/m/logs/seed2-learner.log" <<'LOG'
-[learner] eval: mean return 9.9 over 30 deterministic episodes, success 0.967, time_s 8.150, collision 0.033 (policy v1937, 61616 updates, 60.0 s)
-[learner] eval: mean return 2.1 over 30 deterministic episodes, success 0.833, time_s 9.7, collision 0.167 (policy v3777, 120504 updates, 120.4 s)
-[learner] final: mean return 8.6 over 100 deterministic episodes, success 0.940, time_s 8.141, collision 0.060 (policy v12512, 400000 updates, 415.9 s)
-LOG
+cat > "$T/m/seed2/events.jsonl" <<'EV'
+{"event":"evaluation","label":"eval","asked_elapsed_s":60.0,"episodes":30,"mean":9.9,"metrics":{"success":0.967,"time_s":8.15}}
+{"event":"evaluation","label":"eval","asked_elapsed_s":120.4,"episodes":30,"mean":2.1,"metrics":{"success":0.833,"time_s":9.7}}
+{"event":"evaluation","label":"eval","asked_elapsed_s":200.0,"episodes":0,"given_up":true}
+{"event":"evaluation","label":"final","asked_elapsed_s":415.9,"episodes":100,"mean":8.6,"metrics":{"success":0.94,"time_s":8.141}}
+EV
 (cd "$T/m" && /usr/bin/python3 -c "
 import sys, types; sys.path.insert(0, '$SRC/tools'); import seeds
 seeds.plot(types.SimpleNamespace(out='.', config='jetbot.txtpb'), 'mobile', float('nan'), [2])") \
@@ -87,7 +90,7 @@ cp "$SRC/deploy/configs/mclari_sac_terrain.txtpb" "$T/mcl.txtpb"
 # Older than the tables below: a file's time has the clock's coarse tick, so a table written within
 # the tick of this copy would not be "after what it names" and would be measured again.
 touch -d '3 hours ago' "$T/mcl.txtpb"
-R="$T/c/seed1"; mkdir -p "$R/best" "$R/checkpoint" "$T/c/logs"
+R="$T/c/seed1"; mkdir -p "$R/best" "$R/checkpoint"
 printf 'elapsed_s,env_steps,eval_return\n1500,80000,100\n' > "$R/learner.csv"
 touch -d '2 hours ago' "$R/best" "$R/checkpoint"
 table() {  # WHICH DIR ROUGH_DRY_PERCENT
@@ -97,10 +100,11 @@ table() {  # WHICH DIR ROUGH_DRY_PERCENT
   echo "| rough-dry | 10 | 0.1472 | 0 / 10 | 0 / 10 | 1.0 | (pi/2, 0, pi), 1 Hz | 0.1573 | $3 % |"
 }
 table best best 94 > "$R/eval_best.txt"; table final checkpoint 46 > "$R/eval_final.txt"
-cat > "$T/c/logs/seed1-learner.log" <<'LOG'
-[learner] evaluation of policy v7 at 150.0 s: share (min) 0.4123
-[learner] evaluation of policy v9 at 300.0 s: share (min) 0.9512, best so far 0.4123
-LOG
+cat > "$R/events.jsonl" <<'EV'
+{"event":"evaluation","label":"eval","asked_elapsed_s":150.0,"episodes":10,"mean":1.0,"metrics_min":{"share":0.4123},"confirmed":true}
+{"event":"evaluation","label":"eval","asked_elapsed_s":225.0,"episodes":10,"mean":1.0,"metrics_min":{"share":0.99},"confirmed":false}
+{"event":"evaluation","label":"eval","asked_elapsed_s":300.0,"episodes":10,"mean":1.0,"metrics_min":{"share":0.9512},"confirmed":true}
+EV
 mseeds() { seeds "$T/mcl.txtpb" --seeds 1 --report-only --out "$T/c" --build "$T/nobuild" "$@"; }
 out=$(mseeds 2>&1) || fail "the kept best meets the goal, exit non-zero: $out"
 grep -q "^| 1 | 1500 | 80000 | - | 94 | 46 | -51 | yes | no |$" <<< "$out" || fail "mclari row: $out"

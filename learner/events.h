@@ -1,0 +1,49 @@
+// The learner's record for programs: RUN/events.jsonl, one JSON object a line, each with "event"
+// (its kind) and "elapsed_s" (seconds of the run, as learner.csv counts them). Kinds:
+//   start       the run's experiment, task, algorithm and domain
+//   progress    one per learner.csv row, the row's fields under the CSV's column names
+//   ingest      from the ingest thread, at most once a second while batches arrive: its counters
+//               (batches_ok, batches_lost, batches_duplicate, batches_invalid, env_steps, queued)
+//   refusal     a batch or sample refused (the first ones; the ingest counters count them all)
+//   worker      a worker joined, came back or was marked dead (roster; bounded as its log lines)
+//   evaluation  an evaluation's report: label, policy_version, episodes, mean, min, max, metrics
+//   best        a new best policy kept in RUN/best
+//   checkpoint  a checkpoint written (ok) or failed (error)
+//   stop        why the run stopped
+//   summary     the end-of-run figures of summary.txt
+// The human log stays what it is; tests, tools/seeds.py and the benchmark scripts read this.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <fstream>
+#include <mutex>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+namespace farm {
+
+class EventLog {
+ public:
+  // Appends to path (a resumed run goes on in the same file). Throws when it cannot be opened.
+  void open(const std::string& path);
+  // The now_seconds() time that elapsed_s counts from (a resumed run's start minus its elapsed).
+  void set_start(double t0) { t0_.store(t0); }
+  // Writes one event of kind `event` with `fields`, and elapsed_s unless fields has it. Safe from
+  // any thread; a line is written whole. A failed write is counted (failures()), never thrown: a
+  // full disk must not stop training.
+  void write(const std::string& event, nlohmann::json fields = nlohmann::json::object());
+  uint64_t failures() const { return failures_.load(); }
+  // One CSV row as a JSON object under its header's column names: numbers as numbers, "nan" and
+  // empty cells as null, anything else as text.
+  static nlohmann::json from_csv(const std::string& header, const std::string& row);
+
+ private:
+  std::mutex mu_;
+  std::ofstream out_;
+  std::atomic<double> t0_{0};
+  std::atomic<uint64_t> failures_{0};
+};
+
+}  // namespace farm

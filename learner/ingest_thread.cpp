@@ -1,0 +1,202 @@
+#include "ingest_thread.h"
+
+#include <chrono>
+
+#include "meter.h"
+#include "printable.h"
+
+namespace farm {
+
+IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity, Log log,
+                           EventLog& events)
+    : bus_(bus),
+      ingest_(std::move(ingest)),
+      // Samples over what this experiment's workers can send are refused before memory is taken for
+      // them (docs/RELIABILITY.md, "size limits before memory").
+      reader_(bus, farm::dds::kBatchTopic, "batch_reader", max_sample_bytes),
+      capacity_(std::max<size_t>(1, capacity)),
+      log_(std::move(log)),
+      events_(events) {}
+
+IngestThread::~IngestThread() {
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    stop_ = true;
+  }
+  room_cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void IngestThread::start() {
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    env_steps_.store(ingest_.counters().env_steps);
+    last_event_ok_ = ingest_.counters().ok;
+    last_event_invalid_ = ingest_.counters().invalid;
+  }
+  thread_ = std::thread([this] { loop(); });
+}
+
+void IngestThread::loop() {
+  for (;;) {
+    {
+      std::unique_lock<std::mutex> lk(mu_);
+      if (!stop_ && queue_.size() >= capacity_) {
+        full_waits_.fetch_add(1);
+        room_cv_.wait(lk, [&] { return stop_ || queue_.size() < capacity_; });
+      }
+      if (stop_) return;
+      if (const uint64_t refused = ingest_.count_refused_samples(reader_.refused())) {
+        lk.unlock();
+        if (++rejections_logged_ <= kMaxRefusalLines)
+          log_("refused " + std::to_string(refused) + " batch sample(s) larger than " +
+               std::to_string(reader_.max_sample_bytes()) +
+               " bytes serialized (the most this experiment's workers send) before deserialization");
+        if (++refusal_events_ <= kMaxRefusalEvents)
+          events_.write("refusal",
+                        {{"what", "batch sample"},
+                         {"count", refused},
+                         {"reason", "larger than " + std::to_string(reader_.max_sample_bytes()) + " bytes"}});
+      }
+    }
+    if (reader_.take(batch_, info_))
+      accept();
+    else
+      reader_.wait(0.05);
+    ingest_event(false);
+  }
+}
+
+bool IngestThread::accept() {
+  auto a = std::make_unique<AcceptedBatch>();
+  // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
+  std::string writer, unnamed_why;
+  const bool secure = !bus_.security_dir().empty();
+  if (secure) writer = bus_.authenticated_name(info_.sample_identity.writer_guid(), &unnamed_why);
+  const std::string participant = farm::dds::participant_key(info_.sample_identity.writer_guid());
+  std::string why, retired_note;
+  bool foreign = false;
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    const uint64_t foreign_before = ingest_.counters().foreign, retired = ingest_.retired();
+    why = ingest_.accept(batch_, version_.load(), now_seconds(), a->rows, a->episodes, secure ? &writer : nullptr,
+                         participant);
+    if (ingest_.retired() > retired) retired_note = ingest_.last_retired();
+    foreign = ingest_.counters().foreign > foreign_before;
+    env_steps_.store(ingest_.counters().env_steps, std::memory_order_relaxed);
+    if (why.empty()) {
+      a->worker_id = batch_.worker_id();
+      a->policy_version = batch_.policy_version();
+      a->num_steps = int(batch_.num_steps());
+      a->num_envs = int(batch_.num_envs());
+      a->truncated.assign(batch_.truncated().begin(), batch_.truncated().end());
+      a->log_probs.assign(batch_.log_probs().begin(), batch_.log_probs().end());
+      queue_.push_back(std::move(a));
+    }
+  }
+  if (why.empty()) queued_cv_.notify_all();
+  if (!retired_note.empty() && ++retirements_logged_ <= kMaxRefusalLines)
+    log_("worker stream " + printable(retired_note, 200) + " retired to make room for " +
+         printable(batch_.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) +
+         " streams open, " + std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
+         (retirements_logged_ == kMaxRefusalLines ? "; no more such lines (the summary counts them)" : ""));
+  if (why.empty()) return true;
+  if (foreign) {
+    // Another experiment shares the domain: said once per experiment, not once per batch.
+    if (foreign_noted_.size() < 16 && foreign_noted_.insert(batch_.experiment_id()).second)
+      log_("batches of experiment '" + printable(batch_.experiment_id(), 100) +
+           "' (another learner's, on this domain) are not used here; the summary counts them");
+    return false;
+  }
+  if (++rejections_logged_ <= kMaxRefusalLines)
+    log_("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
+         ": " + why + (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
+         token_note(info_.sample_identity.writer_guid(), writer));
+  if (++refusal_events_ <= kMaxRefusalEvents)
+    events_.write("refusal", {{"what", "batch"},
+                              {"worker_id", printable(batch_.worker_id(), 100)},
+                              {"sequence_number", batch_.sequence_number()},
+                              {"reason", printable(why, 500)}});
+  return false;
+}
+
+// Where a participant's identity token names another than its writer's partition: said, since no
+// one else checks it (Fast DDS 2.9.1 does not compare the token with the certificate).
+std::string IngestThread::token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const {
+  if (bus_.security_dir().empty() || name.empty()) return "";
+  const std::string token = bus_.token_name(writer);
+  return token == name ? "" : "; its participant's identity token claims '" + printable(token, 100) + "'";
+}
+
+void IngestThread::ingest_event(bool force) {
+  const double now = now_seconds();
+  if (!force && now - last_event_ < kEventEveryS) return;
+  IngestCounters c;
+  size_t queued = 0;
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    c = ingest_.counters();
+    queued = queue_.size();
+  }
+  if (!force && c.ok == last_event_ok_ && c.invalid == last_event_invalid_) return;
+  last_event_ = now;
+  last_event_ok_ = c.ok;
+  last_event_invalid_ = c.invalid;
+  events_.write("ingest", {{"batches_ok", c.ok},
+                           {"batches_lost", c.lost},
+                           {"batches_duplicate", c.duplicate},
+                           {"batches_invalid", c.invalid},
+                           {"env_steps", c.env_steps},
+                           {"queued", queued},
+                           {"queue_full_waits", full_waits_.load()}});
+}
+
+size_t IngestThread::pop(size_t max, const std::function<void(AcceptedBatch&)>& take) {
+  std::vector<std::unique_ptr<AcceptedBatch>> got;
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    while (got.size() < max && !queue_.empty()) {
+      got.push_back(std::move(queue_.front()));
+      queue_.pop_front();
+    }
+  }
+  if (!got.empty()) room_cv_.notify_all();
+  for (auto& a : got) take(*a);
+  return got.size();
+}
+
+void IngestThread::wait(double seconds) {
+  std::unique_lock<std::mutex> lk(mu_);
+  queued_cv_.wait_for(lk, std::chrono::duration<double>(seconds), [&] { return !queue_.empty() || stop_; });
+}
+
+void IngestThread::settle(const std::function<void(AcceptedBatch&)>& take,
+                          const std::function<void(const Ingest&)>& f) {
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    while (!queue_.empty()) {
+      take(*queue_.front());
+      queue_.pop_front();
+    }
+    f(ingest_);
+  }
+  room_cv_.notify_all();
+}
+
+void IngestThread::with_ingest(const std::function<void(Ingest&)>& f) {
+  std::lock_guard<std::mutex> lk(mu_);
+  f(ingest_);
+  env_steps_.store(ingest_.counters().env_steps, std::memory_order_relaxed);
+}
+
+IngestCounters IngestThread::counters() const {
+  std::lock_guard<std::mutex> lk(mu_);
+  return ingest_.counters();
+}
+
+size_t IngestThread::queued() const {
+  std::lock_guard<std::mutex> lk(mu_);
+  return queue_.size();
+}
+
+}  // namespace farm

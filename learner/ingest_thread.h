@@ -1,0 +1,105 @@
+// Ingest on its own thread: takes the workers' batches off the bus, checks and accounts them
+// (Ingest), and hands each accepted batch, owned, to a bounded queue that the learner's loop pops.
+// A fit or a checkpoint on the loop's thread no longer stops the door: batches keep being taken,
+// checked and accounted meanwhile. When the queue is full the thread takes nothing more, so the
+// reliable DDS history fills and the workers' writers wait (their backpressure): nothing is dropped.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "dds.h"
+#include "events.h"
+#include "ingest.h"
+
+namespace farm {
+
+// One accepted batch, owning its data; view() is what an algorithm takes.
+struct AcceptedBatch {
+  std::string worker_id;
+  uint64_t policy_version = 0;
+  int num_steps = 0, num_envs = 0;
+  std::vector<uint8_t> truncated;
+  std::vector<float> log_probs;
+  Transitions rows;
+  std::vector<FinishedEpisode> episodes;
+  Batch view() {
+    return Batch{worker_id, policy_version, num_steps, num_envs, truncated.data(), log_probs.data(), &rows, &episodes};
+  }
+};
+
+class IngestThread {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  // ingest: the accounts (restored from a checkpoint before start()). The batch reader is bounded
+  // by what this experiment's workers can send (Ingest::max_batch_bytes); capacity: the batches the
+  // queue holds before the thread stops taking.
+  IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity, Log log,
+               EventLog& events);
+  ~IngestThread();
+  IngestThread(const IngestThread&) = delete;
+  IngestThread& operator=(const IngestThread&) = delete;
+
+  // Starts taking batches (after a resume has restored the accounts).
+  void start();
+  // The policy version batches are checked against (the algorithm's latest).
+  void set_version(uint64_t v) { version_.store(v); }
+  // Pops up to max accepted batches, oldest first, and hands each to take (on the caller's thread,
+  // without the queue held). Returns how many.
+  size_t pop(size_t max, const std::function<void(AcceptedBatch&)>& take);
+  // Waits until a batch is queued or seconds pass.
+  void wait(double seconds);
+  // Holds the thread, hands every queued batch to take, then runs f on the accounts: what they say
+  // was accepted has all been taken (a checkpoint's accounts match the algorithm's data).
+  void settle(const std::function<void(AcceptedBatch&)>& take, const std::function<void(const Ingest&)>& f);
+  // Runs f on the accounts with the thread held (counters, streams, expiry).
+  void with_ingest(const std::function<void(Ingest&)>& f);
+  IngestCounters counters() const;
+  // Env steps accepted so far, without a lock (read on every update).
+  uint64_t env_steps() const { return env_steps_.load(std::memory_order_relaxed); }
+  size_t queued() const;
+  size_t capacity() const { return capacity_; }
+  uint32_t max_sample_bytes() const { return reader_.max_sample_bytes(); }
+  // Batches the thread could not take because the queue was full, counted once per wait.
+  uint64_t full_waits() const { return full_waits_.load(); }
+
+ private:
+  void loop();
+  // Checks batch_ (just taken) and queues it; false when refused (with a line for the first ones).
+  bool accept();
+  std::string token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const;
+  void ingest_event(bool force);
+
+  farm::dds::Bus& bus_;
+  Ingest ingest_;  // guarded by mu_
+  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> reader_;
+  const size_t capacity_;
+  Log log_;
+  EventLog& events_;
+  mutable std::mutex mu_;
+  std::condition_variable queued_cv_, room_cv_;
+  std::deque<std::unique_ptr<AcceptedBatch>> queue_;  // guarded by mu_
+  bool stop_ = false;                                 // guarded by mu_
+  std::atomic<uint64_t> version_{0}, env_steps_{0}, full_waits_{0};
+  std::thread thread_;
+  // The loop thread's own:
+  farm::msg::TransitionBatch batch_;
+  eprosima::fastdds::dds::SampleInfo info_;
+  int rejections_logged_ = 0, retirements_logged_ = 0, refusal_events_ = 0;
+  std::set<std::string> foreign_noted_;  // other experiments whose batches were seen (bounded)
+  double last_event_ = 0;
+  uint64_t last_event_ok_ = 0, last_event_invalid_ = 0;
+  static constexpr int kMaxRefusalLines = 20, kMaxRefusalEvents = 100;
+  static constexpr double kEventEveryS = 1.0;
+};
+
+}  // namespace farm

@@ -1,0 +1,152 @@
+// The learner's ingest thread over a real DDS bus (two participants in this process): with a
+// consumer far slower than the sender, every batch is accepted and handed over once, in order,
+// with nothing lost, while the bounded queue makes the thread stop taking (the reliable history
+// then holds the writer back). And the event log: one JSON object a line, CSV rows under their
+// column names.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <thread>
+
+#include "events.h"
+#include "ingest_thread.h"
+#include "meter.h"
+
+namespace {
+
+constexpr int kObs = 2, kAct = 1;
+
+farm::msg::TransitionBatch batch(uint64_t seq) {
+  farm::msg::TransitionBatch b;
+  b.experiment_id("exp");
+  b.worker_id("w1");
+  b.worker_session(7);
+  b.sequence_number(seq);
+  b.policy_version(0);
+  b.num_steps(1);
+  b.num_envs(2);
+  b.obs_dim(kObs);
+  b.act_dim(kAct);
+  b.observations({float(seq), 0.f, 1.f, 1.f});
+  b.actions({0.1f, -0.2f});
+  b.rewards({float(seq), 1.f});
+  b.terminated({0, 0});
+  b.truncated({0, 0});
+  b.log_probs({0, 0});
+  b.next_observations({2.f, 2.f, 3.f, 3.f});
+  return b;
+}
+
+int test_domain() { return 120 + int(getpid() % 80); }
+
+// The worker's side, in a process of its own as on a farm (Fast DDS's intra-process shortcut would
+// not resend what a full reader history refused): n batches, each written again until the writer
+// takes it (a full reader history holds the writer back). Exit code 0 once all are written.
+int send_batches(int domain, uint64_t n) {
+  farm::dds::BusOptions o;
+  o.domain = domain;
+  farm::dds::Bus bus(o, "test worker");
+  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
+                                                                                          "batch_writer");
+  for (int i = 0; i < 400 && out.matched() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  if (out.matched() == 0) return 2;
+  for (uint64_t s = 0; s < n; ++s) {
+    auto b = batch(s);
+    const double t_end = farm::now_seconds() + 60;
+    while (!out.write(b))
+      if (farm::now_seconds() > t_end) return 3;
+  }
+  out.wait_for_acks(30);
+  return 0;
+}
+
+TEST(IngestThread, SlowConsumerLosesNothingAndTheQueueHoldsTheThreadBack) {
+  const int domain = test_domain();
+  // More than the queue and the reader's history (256) together: the writer must be held back.
+  const uint64_t n = 400;
+  std::fflush(nullptr);
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) _exit(send_batches(domain, n));
+  farm::dds::BusOptions o;
+  o.domain = domain;
+  farm::dds::Bus learner_bus(o, "test learner");
+  farm::EventLog events;
+  const size_t capacity = 4;
+  std::vector<std::string> lines;
+  std::mutex lines_mu;
+  farm::IngestThread intake(
+      learner_bus, farm::Ingest("exp", kObs, kAct), uint32_t(farm::Ingest::max_batch_bytes(kObs, kAct, 0, 1)), capacity,
+      [&](const std::string& m) {
+        std::lock_guard<std::mutex> lk(lines_mu);
+        lines.push_back(m);
+      },
+      events);
+  intake.start();
+
+  std::vector<uint64_t> got;
+  size_t most_queued = 0;
+  const double t_end = farm::now_seconds() + 90;
+  while (got.size() < n && farm::now_seconds() < t_end) {
+    most_queued = std::max(most_queued, intake.queued());
+    intake.pop(1, [&](farm::AcceptedBatch& a) {
+      ASSERT_EQ(a.rows.n, 2);
+      got.push_back(uint64_t(a.rows.rewards[0]));
+    });
+    if (got.size() < 40) std::this_thread::sleep_for(std::chrono::milliseconds(20));  // a slow consumer at first
+    intake.wait(0.05);
+  }
+  int status = -1;
+  waitpid(child, &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "sender status " << status;
+  for (const auto& l : lines) ADD_FAILURE() << "ingest said: " << l;
+  ASSERT_EQ(got.size(), n);
+  for (uint64_t s = 0; s < n; ++s) ASSERT_EQ(got[s], s) << "batch " << s << " out of order or missing";
+  const farm::IngestCounters c = intake.counters();
+  EXPECT_EQ(c.ok, n);
+  EXPECT_EQ(c.lost, 0u);
+  EXPECT_EQ(c.invalid, 0u);
+  EXPECT_EQ(intake.env_steps(), 2 * n);
+  EXPECT_LE(most_queued, capacity);
+  EXPECT_GT(intake.full_waits(), 0u) << "the queue never filled: the consumer was not slower than the sender";
+}
+
+TEST(EventLog, OneObjectALineWithCsvColumnsAsFields) {
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("events_" + std::to_string(getpid()) + ".jsonl")).string();
+  std::filesystem::remove(path);
+  {
+    farm::EventLog e;
+    e.open(path);
+    e.set_start(farm::now_seconds() - 5.0);
+    e.write("progress",
+            farm::EventLog::from_csv("elapsed_s,env_steps,updates_per_s,mean_return,note", "12.50,4096,87.5,nan,abc"));
+    e.write("worker", {{"worker_id", std::string("w\x1b\xff")}});
+  }
+  std::ifstream in(path);
+  std::string line;
+  ASSERT_TRUE(std::getline(in, line));
+  const auto a = nlohmann::json::parse(line);
+  EXPECT_EQ(a["event"], "progress");
+  EXPECT_DOUBLE_EQ(a["elapsed_s"].get<double>(), 12.5);  // the row's own, not the clock's
+  EXPECT_TRUE(a["env_steps"].is_number_integer());
+  EXPECT_EQ(a["env_steps"].get<int64_t>(), 4096);
+  EXPECT_DOUBLE_EQ(a["updates_per_s"].get<double>(), 87.5);
+  EXPECT_TRUE(a["mean_return"].is_null());
+  EXPECT_EQ(a["note"], "abc");
+  ASSERT_TRUE(std::getline(in, line));
+  const auto b = nlohmann::json::parse(line);  // invalid UTF-8 from the network does not break a line
+  EXPECT_EQ(b["event"], "worker");
+  EXPECT_GE(b["elapsed_s"].get<double>(), 5.0);
+  EXPECT_FALSE(std::getline(in, line));
+  std::filesystem::remove(path);
+}
+
+}  // namespace
