@@ -210,6 +210,8 @@ void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
   if (bytes > farm::dds::kMaxPolicyBytes)
     throw std::runtime_error("the policy is " + std::to_string(bytes) + " bytes on the bus, more than the " +
                              std::to_string(farm::dds::kMaxPolicyBytes) + " a worker takes: a smaller network");
+  // The ingest thread knows a version before any worker can send a batch made with it.
+  intake_.set_version(std::max<uint64_t>(policy.version, algo_->version()));
   weights_out_.write(w);
 }
 

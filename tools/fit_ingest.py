@@ -1,0 +1,68 @@
+#!/usr/bin/env python3
+"""Batches the learner accepted while it fitted: from RUN/events.jsonl of a PPO run.
+
+Each PPO fit is a progress event (a learner.csv row) with its start (elapsed_s) and length
+(fit_seconds); the ingest thread writes its counters (batches_ok, env_steps) at most once a second.
+Two ingest events inside one fit's window bound from below what was accepted during that fit.
+
+  tools/fit_ingest.py RUN_DIR [--min-fit-seconds S]
+
+Prints one line per fit long enough to hold two ingest events, then the totals. Exit code 0; 2 when
+the run has no events.jsonl or no fit.
+"""
+import argparse
+import json
+import os
+import sys
+
+
+def read_events(run):
+    out = []
+    with open(os.path.join(run, "events.jsonl")) as f:
+        for line in f:
+            try:
+                e = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(e, dict):
+                out.append(e)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("run")
+    ap.add_argument("--min-fit-seconds", type=float, default=0.0)
+    a = ap.parse_args()
+    try:
+        ev = read_events(a.run)
+    except OSError as e:
+        print(f"fit_ingest: {e}", file=sys.stderr)
+        return 2
+    fits = [e for e in ev if e.get("event") == "progress" and isinstance(e.get("fit_seconds"), (int, float))
+            and e["fit_seconds"] >= a.min_fit_seconds]
+    ingest = [e for e in ev if e.get("event") == "ingest"]
+    if not fits:
+        print(f"fit_ingest: no fit in {a.run}/events.jsonl", file=sys.stderr)
+        return 2
+    total_s = sum(f["fit_seconds"] for f in fits)
+    batches = steps = with_data = 0
+    print(f"{'fit':>5} {'start s':>9} {'fit s':>7} {'ingest events':>14} {'batches in fit':>15} {'env steps':>10}")
+    for f in fits:
+        t0, t1 = f["elapsed_s"], f["elapsed_s"] + f["fit_seconds"]
+        inside = [e for e in ingest if t0 < e["elapsed_s"] < t1]
+        if len(inside) < 2:
+            continue
+        b = inside[-1]["batches_ok"] - inside[0]["batches_ok"]
+        s = inside[-1]["env_steps"] - inside[0]["env_steps"]
+        batches += b
+        steps += s
+        with_data += b > 0
+        print(f"{f.get('fit', '?'):>5} {t0:9.2f} {f['fit_seconds']:7.2f} {len(inside):14d} {b:15d} {s:10d}")
+    print(f"fit_ingest: {len(fits)} fits, {total_s:.1f} s fitting; {with_data} fits with batches accepted while "
+          f"they ran; at least {batches} batches ({steps} env steps) accepted during fits")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
