@@ -18,7 +18,7 @@ PACKAGES=(
   clang-format                                      # the format check (deploy/format.sh --check)
   libosmesa6-dev ffmpeg                             # farm-play: headless MuJoCo rendering, MP4/GIF
   libonnx-dev python3-onnx python3-opencv           # farm-export: ONNX schema/checker; OpenCV DNN cross-check
-  libcivetweb-dev prometheus                        # farm-monitor --prometheus and its scrape test
+  libcivetweb-dev prometheus-cpp-dev prometheus     # farm-monitor --prometheus (HTTP, metrics) and its scrape test
   faketime                                          # the security test's worker on a clock an hour behind
 )
 

@@ -3,7 +3,7 @@
 # LibTorch (deploy/build-gpu.sh) and to run the Debian-built benchmarks and workers there:
 #   KIT/include, KIT/lib        headers and shared libraries of Eigen, Protobuf, MuJoCo (with
 #                               libccd, lodepng, qhull_r, tinyxml2), Fast DDS, GoogleTest,
-#                               civetweb and OpenSSL's libcrypto
+#                               civetweb, prometheus-cpp's core and OpenSSL's libcrypto
 #   KIT/cmake/<pkg>             small package configs pointing into the kit
 #   KIT/bin/protoc              Debian's protoc (runs with KIT/lib on LD_LIBRARY_PATH)
 #   KIT/bin/fastddsgen          stands in for fastddsgen (Java): copies the sources generated
@@ -35,10 +35,11 @@ for pat in 'libprotobuf.so*' 'libprotoc.so*' 'libmujoco.so*' 'libccd.so*' 'liblo
   cp -a $arch/$pat "$kit/lib/" 2>/dev/null || true
 done
 cp /usr/bin/protoc "$kit/bin/protoc"
-# civetweb (farm-monitor --prometheus) and OpenSSL's libcrypto (a worker reads its certificate's
-# name): headers and libraries, found by tools/ and common/ through the kit's prefix.
-cp -a /usr/include/civetweb.h "$kit/include/"
-cp -a $arch/libcivetweb.so* "$kit/lib/"
+# civetweb and prometheus-cpp's core (farm-monitor --prometheus) and OpenSSL's libcrypto (a worker
+# reads its certificate's name): headers and libraries, found by tools/ and common/ through the
+# kit's prefix (prometheus-cpp through its package config below).
+cp -a /usr/include/civetweb.h /usr/include/prometheus "$kit/include/"
+cp -a $arch/libcivetweb.so* $arch/libprometheus-cpp-core.so* "$kit/lib/"
 cp -a /usr/include/openssl "$kit/include/"
 cp -a /usr/include/x86_64-linux-gnu/openssl/* "$kit/include/openssl/" 2>/dev/null || true
 cp -a $arch/libcrypto.so* "$kit/lib/"
@@ -96,6 +97,7 @@ EOF
 imported mujoco mujoco::mujoco "$(readlink $arch/libmujoco.so)" ""
 imported tinyxml2 tinyxml2::tinyxml2 "$(readlink $arch/libtinyxml2.so)" ""
 imported muparser muparser::muparser "$(readlink $arch/libmuparser.so)" ""
+imported prometheus-cpp prometheus-cpp::core "$(readlink $arch/libprometheus-cpp-core.so)" ""
 imported fastcdr fastcdr "$(readlink $arch/libfastcdr.so)" ""
 imported fastrtps fastrtps "$(readlink $arch/libfastrtps.so)" "fastcdr"
 sed -i '1a include("${CMAKE_CURRENT_LIST_DIR}/../fastcdr/fastcdrConfig.cmake")' "$kit/cmake/fastrtps/fastrtpsConfig.cmake"

@@ -16,6 +16,7 @@
 #include "eval_answer.h"
 #include "farm_service.h"
 #include "meter.h"
+#include "policy_file.h"
 #include "printable.h"
 
 namespace farm {
@@ -51,6 +52,7 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
   try {
     fs::create_directories(group.snapshot);
     algo_->save_networks(group.snapshot);
+    write_policy_file((fs::path(group.snapshot) / kPolicyFileName).string(), policy);
   } catch (const std::exception& e) {
     log("the networks of policy v" + std::to_string(ask.version) + " could not be kept for best/ (" + e.what() +
         "); the evaluation goes on");

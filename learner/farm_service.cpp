@@ -9,6 +9,7 @@
 #include "config.h"
 #include "eval_answer.h"
 #include "meter.h"
+#include "policy_file.h"
 #include "printable.h"
 #include "registry.h"
 
@@ -263,7 +264,10 @@ void FarmService::checkpoint(double elapsed) {
   m.MergeFrom(accounts);
   algo_->to_manifest(m);
   const double t = now_seconds();
-  write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) { algo_->save(tmp); });
+  write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) {
+    algo_->save(tmp);
+    write_policy_file((fs::path(tmp) / kPolicyFileName).string(), algo_->policy());
+  });
   log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
   events_.write("checkpoint", {{"dir", ckpt_dir_},
                                {"ok", true},

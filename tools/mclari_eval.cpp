@@ -18,12 +18,12 @@
 #include <vector>
 
 #include "config.h"
+#include "config_policy.h"
 #include "mclari/mclari_task.h"
 #include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
 #include "mlp.h"
 #include "rollout.h"
-#include "run_policy.h"
 
 namespace mclari = farm::robots::mclari;
 

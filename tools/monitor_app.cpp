@@ -10,7 +10,6 @@
 #include <stdexcept>
 
 #include "meter.h"
-#include "prometheus_text.h"
 
 namespace farm {
 
@@ -245,7 +244,10 @@ void MonitorApp::show(double now) {
     std::fflush(stdout);
   }
   write_log(snap);
-  if (metrics_) metrics_->publish(render_prometheus(snap));
+  if (metrics_) {
+    prometheus_.update(snap);
+    metrics_->publish(prometheus_.page());
+  }
 }
 
 void MonitorApp::write_log(const MonitorSnapshot& s) {

@@ -20,6 +20,7 @@
 #include "dds.h"
 #include "metrics_server.h"
 #include "monitor_snapshot.h"
+#include "prometheus_text.h"
 
 namespace farm {
 
@@ -77,6 +78,7 @@ class MonitorApp {
   MonitorOptions opt_;
   const std::atomic<bool>& stop_;
   std::unique_ptr<MetricsServer> metrics_;  // before the bus: a bad address fails before joining
+  PrometheusMetrics prometheus_;            // what metrics_ serves, brought to each snapshot
   farm::dds::Bus bus_;
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
   farm::dds::Reader<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_in_;

@@ -15,10 +15,10 @@
 #include <string>
 #include <vector>
 
+#include "config_policy.h"
 #include "mlp.h"
 #include "offscreen_renderer.h"
 #include "play_view.h"
-#include "run_policy.h"
 #include "vec_env.h"
 #include "video_writer.h"
 

@@ -1,14 +1,15 @@
-// The Prometheus text exposition of a farm-monitor snapshot (prometheus_text.h).
+// farm-monitor's series in a prometheus-cpp registry, and their page (prometheus_text.h).
 #include "prometheus_text.h"
 
-#include <cinttypes>
+#include <prometheus/metric_family.h>
+#include <prometheus/registry.h>
+#include <prometheus/text_serializer.h>
+
 #include <cmath>
 #include <cstdint>
-#include <cstdio>
-#include <cstdlib>
 #include <functional>
 #include <set>
-#include <sstream>
+#include <utility>
 
 namespace farm {
 
@@ -45,43 +46,6 @@ size_t utf8_sequence(const std::string& s, size_t i) {
   return n;
 }
 
-// The shortest decimal that reads back as exactly v (0.817, not 0.81699999999999995).
-std::string number(double v) {
-  char buf[64];
-  for (int digits = 15; digits <= 17; ++digits) {
-    std::snprintf(buf, sizeof(buf), "%.*g", digits, v);
-    if (std::strtod(buf, nullptr) == v) break;
-  }
-  return buf;
-}
-
-// Writes families one after the other: every sample of a family right after its # HELP and # TYPE.
-class Exposition {
- public:
-  void family(const char* name, const char* type, const char* help) {
-    name_ = name;
-    o_ << "# HELP " << name << ' ' << help << "\n# TYPE " << name << ' ' << type << '\n';
-  }
-  // labels: the inside of {...}, already escaped; a gauge that is not a finite number (no
-  // evaluation yet) has no sample rather than a NaN.
-  void sample(const std::string& labels, double v) {
-    if (std::isfinite(v)) line(labels) << number(v) << '\n';
-  }
-  void sample(const std::string& labels, uint64_t v) { line(labels) << v << '\n'; }
-  void sample_text(const std::string& labels, const std::string& v) { line(labels) << v << '\n'; }
-  std::string str() const { return o_.str(); }
-
- private:
-  std::ostringstream& line(const std::string& labels) {
-    o_ << name_;
-    if (!labels.empty()) o_ << '{' << labels << '}';
-    o_ << ' ';
-    return o_;
-  }
-  std::ostringstream o_;
-  std::string name_;
-};
-
 }  // namespace
 
 const std::vector<std::string>& prometheus_worker_states() {
@@ -109,155 +73,241 @@ std::string prometheus_label_value(const std::string& raw, size_t max_bytes) {
     valid += piece;
     i += n ? n : 1;
   }
-  std::string out;
-  for (char c : valid) {
-    if (c == '\\')
-      out += "\\\\";
-    else if (c == '"')
-      out += "\\\"";
-    else if (c == '\n')
-      out += "\\n";
-    else
-      out += c;
-  }
-  return out;
+  return valid;
 }
 
-std::string render_prometheus(const MonitorSnapshot& s, const PrometheusLimits& limits) {
-  const auto label = [&](const std::string& v) { return prometheus_label_value(v, limits.max_label_bytes); };
+namespace {
 
-  // The workers and learners exported, each with its label set, distinct after bounding.
-  std::vector<std::pair<const WorkerRow*, std::string>> workers;
-  std::set<std::string> seen;
-  uint64_t not_exported = 0;
-  for (const WorkerRow& w : s.workers) {
-    std::string l =
-        "worker=\"" + label(w.id) + "\",host=\"" + label(w.host) + "\",experiment=\"" + label(w.experiment) + "\"";
-    if (workers.size() >= limits.max_workers || !seen.insert(l).second)
-      ++not_exported;
-    else
-      workers.emplace_back(&w, l);
-  }
-  std::vector<std::pair<const LearnerRow*, std::string>> learners;
-  seen.clear();
-  for (const LearnerRow& r : s.learners) {
-    std::string l = "experiment=\"" + label(r.experiment) + "\"";
-    if (learners.size() < limits.max_learners && seen.insert(l).second) learners.emplace_back(&r, l);
-  }
-
-  Exposition e;
-  const auto per_worker = [&](const char* name, const char* type, const char* help,
-                              const std::function<void(const WorkerRow&, const std::string&)>& add) {
-    e.family(name, type, help);
-    for (auto& [w, l] : workers) add(*w, l);
-  };
-  const auto per_learner = [&](const char* name, const char* type, const char* help,
-                               const std::function<void(const LearnerRow&, const std::string&)>& add) {
-    e.family(name, type, help);
-    for (auto& [r, l] : learners) add(*r, l);
-  };
-
-  e.family("farm_monitor_snapshot_timestamp_seconds", "gauge",
-           "Unix time at which farm-monitor took the snapshot these values come from.");
-  char stamp[48];  // to the millisecond, as the --log line's unix_time
-  std::snprintf(stamp, sizeof(stamp), "%lld.%03d", static_cast<long long>(s.unix_ms / 1000), int(s.unix_ms % 1000));
-  e.sample_text("", stamp);
-  e.family("farm_monitor_worker_timeout_seconds", "gauge",
-           "A worker silent this long is shown dead and left out of the totals (--timeout).");
-  e.sample("", s.timeout);
-  e.family("farm_monitor_workers_not_exported", "gauge",
-           "Workers in the monitor's table without series here: past the export bound, or with labels that, "
-           "bounded, repeat another worker's.");
-  e.sample("", not_exported);
-
-  // Per worker, from its latest heartbeat (WorkerStatus).
-  per_worker("farm_worker_up", "gauge", "1 while the worker's heartbeats arrive, 0 once it is silent past the timeout.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, uint64_t(w.alive ? 1 : 0)); });
-  e.family("farm_worker_state", "gauge",
-           "1 for the worker's current state (dead: silent past the timeout; other: a state this monitor does not "
-           "know), 0 for the others.");
-  for (auto& [w, l] : workers) {
-    const auto& states = prometheus_worker_states();
-    bool known = false;
-    for (const std::string& st : states) known = known || st == w->state;
-    for (const std::string& st : states) {
-      const bool on = known ? st == w->state : st == "other";
-      e.sample(l + ",state=\"" + st + "\"", uint64_t(on ? 1 : 0));
+// The series of one family that are not in want (or whose value there is not a finite number: a
+// gauge without a value has no sample rather than a NaN) leave the family.
+template <typename T>
+void drop_absent(prometheus::Family<T>& family, std::map<prometheus::Labels, T*>& series,
+                 const std::map<prometheus::Labels, double>& want) {
+  for (auto it = series.begin(); it != series.end();) {
+    const auto w = want.find(it->first);
+    if (w == want.end() || !std::isfinite(w->second)) {
+      family.Remove(it->second);
+      it = series.erase(it);
+    } else {
+      ++it;
     }
   }
-  per_worker("farm_worker_envs", "gauge", "Environments the worker simulates.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, uint64_t(w.envs)); });
-  per_worker("farm_worker_threads", "gauge", "Threads stepping the worker's environments.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, uint64_t(w.threads)); });
-  per_worker("farm_worker_env_steps_per_second", "gauge",
-             "Environment steps per second over the worker's recent heartbeats (0 when dead).",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, w.steps_per_second); });
-  per_worker("farm_worker_env_steps_total", "counter", "Environment steps the worker has simulated in this session.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, w.env_steps); });
-  per_worker("farm_worker_batches_sent_total", "counter", "Transition batches the worker has sent in this session.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, w.batches_sent); });
-  per_worker("farm_worker_policy_version", "gauge", "Version of the policy weights the worker acts with.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, w.policy_version); });
-  per_worker("farm_worker_last_heartbeat_age_seconds", "gauge", "Seconds since the worker's last heartbeat arrived.",
-             [&](const WorkerRow& w, const std::string& l) { e.sample(l, w.age_s); });
+}
+
+}  // namespace
+
+PrometheusMetrics::PrometheusMetrics(const PrometheusLimits& limits)
+    : limits_(limits), registry_(std::make_shared<prometheus::Registry>()) {}
+
+PrometheusMetrics::Tracked<prometheus::Gauge>& PrometheusMetrics::gauge(const std::string& name,
+                                                                        const std::string& help) {
+  auto [it, added] = gauges_.try_emplace(name);
+  if (added) {
+    it->second.family = &prometheus::BuildGauge().Name(name).Help(help).Register(*registry_);
+    order_.push_back({name, help, prometheus::MetricType::Gauge});
+  }
+  return it->second;
+}
+
+PrometheusMetrics::Tracked<prometheus::Counter>& PrometheusMetrics::counter(const std::string& name,
+                                                                            const std::string& help) {
+  auto [it, added] = counters_.try_emplace(name);
+  if (added) {
+    it->second.family = &prometheus::BuildCounter().Name(name).Help(help).Register(*registry_);
+    order_.push_back({name, help, prometheus::MetricType::Counter});
+  }
+  return it->second;
+}
+
+void PrometheusMetrics::sync(Tracked<prometheus::Gauge>& t, const Values& want) {
+  drop_absent(*t.family, t.series, want);
+  for (const auto& [labels, v] : want) {
+    if (!std::isfinite(v)) continue;
+    prometheus::Gauge*& g = t.series[labels];
+    if (!g) g = &t.family->Add(labels);
+    g->Set(v);
+  }
+}
+
+void PrometheusMetrics::sync(Tracked<prometheus::Counter>& t, const Values& want) {
+  drop_absent(*t.family, t.series, want);
+  for (const auto& [labels, v] : want) {
+    if (!std::isfinite(v)) continue;
+    prometheus::Counter*& c = t.series[labels];
+    if (c && v < c->Value()) {  // the source started over (a resumed learner): so does the counter
+      t.family->Remove(c);
+      c = nullptr;
+    }
+    if (!c) c = &t.family->Add(labels);
+    c->Increment(v - c->Value());
+  }
+}
+
+void PrometheusMetrics::update(const MonitorSnapshot& s) {
+  const auto label = [&](const std::string& v) { return prometheus_label_value(v, limits_.max_label_bytes); };
+
+  // The workers and learners exported, each with its label set, distinct after bounding.
+  std::vector<std::pair<const WorkerRow*, prometheus::Labels>> workers;
+  std::set<prometheus::Labels> seen;
+  uint64_t not_exported = 0;
+  for (const WorkerRow& w : s.workers) {
+    prometheus::Labels l{{"worker", label(w.id)}, {"host", label(w.host)}, {"experiment", label(w.experiment)}};
+    if (workers.size() >= limits_.max_workers || !seen.insert(l).second)
+      ++not_exported;
+    else
+      workers.emplace_back(&w, std::move(l));
+  }
+  std::vector<std::pair<const LearnerRow*, prometheus::Labels>> learners;
+  seen.clear();
+  for (const LearnerRow& r : s.learners) {
+    prometheus::Labels l{{"experiment", label(r.experiment)}};
+    if (learners.size() < limits_.max_learners && seen.insert(l).second) learners.emplace_back(&r, std::move(l));
+  }
+
+  const auto one = [](double v) { return Values{{prometheus::Labels{}, v}}; };
+  const auto set_gauge = [&](const char* name, const char* help, const Values& v) { sync(gauge(name, help), v); };
+  const auto set_counter = [&](const char* name, const char* help, const Values& v) { sync(counter(name, help), v); };
+  const auto per_worker = [&](const std::function<double(const WorkerRow&)>& value) {
+    Values v;
+    for (const auto& [w, l] : workers) v[l] = value(*w);
+    return v;
+  };
+  const auto per_learner = [&](const std::function<double(const LearnerRow&)>& value) {
+    Values v;
+    for (const auto& [r, l] : learners) v[l] = value(*r);
+    return v;
+  };
+
+  // To the millisecond, as the --log line's unix_time.
+  set_gauge("farm_monitor_snapshot_timestamp_seconds",
+            "Unix time at which farm-monitor took the snapshot these values come from.", one(s.unix_ms / 1000.0));
+  set_gauge("farm_monitor_worker_timeout_seconds",
+            "A worker silent this long is shown dead and left out of the totals (--timeout).", one(s.timeout));
+  set_gauge("farm_monitor_workers_not_exported",
+            "Workers in the monitor's table without series here: past the export bound, or with labels that, "
+            "bounded, repeat another worker's.",
+            one(double(not_exported)));
+
+  // Per worker, from its latest heartbeat (WorkerStatus).
+  set_gauge("farm_worker_up", "1 while the worker's heartbeats arrive, 0 once it is silent past the timeout.",
+            per_worker([](const WorkerRow& w) { return w.alive ? 1.0 : 0.0; }));
+  Values states;
+  for (const auto& [w, l] : workers) {
+    const auto& known = prometheus_worker_states();
+    bool is_known = false;
+    for (const std::string& st : known) is_known = is_known || st == w->state;
+    for (const std::string& st : known) {
+      prometheus::Labels with_state = l;
+      with_state["state"] = st;
+      states[with_state] = (is_known ? st == w->state : st == "other") ? 1 : 0;
+    }
+  }
+  set_gauge("farm_worker_state",
+            "1 for the worker's current state (dead: silent past the timeout; other: a state this monitor does not "
+            "know), 0 for the others.",
+            states);
+  set_gauge("farm_worker_envs", "Environments the worker simulates.",
+            per_worker([](const WorkerRow& w) { return double(w.envs); }));
+  set_gauge("farm_worker_threads", "Threads stepping the worker's environments.",
+            per_worker([](const WorkerRow& w) { return double(w.threads); }));
+  set_gauge("farm_worker_env_steps_per_second",
+            "Environment steps per second over the worker's recent heartbeats (0 when dead).",
+            per_worker([](const WorkerRow& w) { return w.steps_per_second; }));
+  set_counter("farm_worker_env_steps_total", "Environment steps the worker has simulated in this session.",
+              per_worker([](const WorkerRow& w) { return double(w.env_steps); }));
+  set_counter("farm_worker_batches_sent_total", "Transition batches the worker has sent in this session.",
+              per_worker([](const WorkerRow& w) { return double(w.batches_sent); }));
+  set_gauge("farm_worker_policy_version", "Version of the policy weights the worker acts with.",
+            per_worker([](const WorkerRow& w) { return double(w.policy_version); }));
+  set_gauge("farm_worker_last_heartbeat_age_seconds", "Seconds since the worker's last heartbeat arrived.",
+            per_worker([](const WorkerRow& w) { return w.age_s; }));
 
   // Totals over the live workers (alive, not finished): the table's TOTAL line. They fall when a
   // worker dies or finishes, so every one is a gauge.
   const WorkerTotals& t = s.totals;
-  e.family("farm_workers", "gauge", "Workers in the monitor's table by status: live, dead (silent) or finished.");
-  e.sample("status=\"live\"", uint64_t(t.live));
-  e.sample("status=\"dead\"", uint64_t(t.dead));
-  e.sample("status=\"finished\"", uint64_t(t.finished));
-  e.family("farm_total_envs", "gauge", "Environments of the live workers.");
-  e.sample("", t.envs);
-  e.family("farm_total_env_steps_per_second", "gauge", "Environment steps per second of the live workers together.");
-  e.sample("", t.steps_per_second);
-  e.family("farm_total_env_steps", "gauge",
-           "Environment steps of the live workers' current sessions (falls when a worker leaves).");
-  e.sample("", t.env_steps);
-  e.family("farm_total_batches_sent", "gauge",
-           "Batches sent by the live workers' current sessions (falls when a worker leaves).");
-  e.sample("", t.batches);
+  set_gauge("farm_workers", "Workers in the monitor's table by status: live, dead (silent) or finished.",
+            Values{{{{"status", "live"}}, double(t.live)},
+                   {{{"status", "dead"}}, double(t.dead)},
+                   {{{"status", "finished"}}, double(t.finished)}});
+  set_gauge("farm_total_envs", "Environments of the live workers.", one(double(t.envs)));
+  set_gauge("farm_total_env_steps_per_second", "Environment steps per second of the live workers together.",
+            one(t.steps_per_second));
+  set_gauge("farm_total_env_steps",
+            "Environment steps of the live workers' current sessions (falls when a worker leaves).",
+            one(double(t.env_steps)));
+  set_gauge("farm_total_batches_sent",
+            "Batches sent by the live workers' current sessions (falls when a worker leaves).", one(double(t.batches)));
 
   // Per learner, from its latest LearnerStats.
-  per_learner("farm_learner_last_stats_age_seconds", "gauge", "Seconds since the learner's last statistics arrived.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.age_s); });
-  per_learner("farm_learner_elapsed_seconds", "gauge", "Seconds the run has trained (resumed runs included).",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.elapsed_s); });
-  per_learner("farm_learner_env_steps_total", "counter", "Environment steps the learner has ingested.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.env_steps); });
-  per_learner("farm_learner_env_steps_per_second", "gauge", "Environment steps per second the learner ingests.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.env_steps_per_second); });
-  per_learner("farm_learner_updates_total", "counter", "Gradient updates the learner has made.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.updates); });
-  per_learner("farm_learner_updates_per_second", "gauge", "Gradient updates per second.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.updates_per_second); });
-  per_learner("farm_learner_buffer_fill_ratio", "gauge", "Fill of the replay buffer or rollout storage, 0 to 1.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.buffer_fill); });
-  per_learner("farm_learner_policy_lag_versions", "gauge",
-              "Mean policy versions between the learner's policy and the one that made each batch it accepted.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.policy_lag); });
-  per_learner("farm_learner_critic_loss", "gauge", "Latest critic (value) loss.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.critic_loss); });
-  per_learner("farm_learner_actor_loss", "gauge", "Latest actor (policy) loss.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.actor_loss); });
-  per_learner("farm_learner_mean_return", "gauge", "Mean return of the recent training episodes (absent: none yet).",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.mean_return); });
-  per_learner("farm_learner_eval_return", "gauge",
-              "Mean return of the latest deterministic evaluation (absent: none yet).",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, r.eval_return); });
-  e.family("farm_learner_batches_total", "counter",
-           "Transition batches the learner has accounted, by result: ok (accepted), lost (a gap in a worker's "
-           "sequence), duplicate, invalid (refused by validation).");
-  for (auto& [r, l] : learners) {
-    e.sample(l + ",result=\"ok\"", r->batches_ok);
-    e.sample(l + ",result=\"lost\"", r->batches_lost);
-    e.sample(l + ",result=\"duplicate\"", r->batches_duplicate);
-    e.sample(l + ",result=\"invalid\"", r->batches_invalid);
+  set_gauge("farm_learner_last_stats_age_seconds", "Seconds since the learner's last statistics arrived.",
+            per_learner([](const LearnerRow& r) { return r.age_s; }));
+  set_gauge("farm_learner_elapsed_seconds", "Seconds the run has trained (resumed runs included).",
+            per_learner([](const LearnerRow& r) { return r.elapsed_s; }));
+  set_counter("farm_learner_env_steps_total", "Environment steps the learner has ingested.",
+              per_learner([](const LearnerRow& r) { return double(r.env_steps); }));
+  set_gauge("farm_learner_env_steps_per_second", "Environment steps per second the learner ingests.",
+            per_learner([](const LearnerRow& r) { return r.env_steps_per_second; }));
+  set_counter("farm_learner_updates_total", "Gradient updates the learner has made.",
+              per_learner([](const LearnerRow& r) { return double(r.updates); }));
+  set_gauge("farm_learner_updates_per_second", "Gradient updates per second.",
+            per_learner([](const LearnerRow& r) { return r.updates_per_second; }));
+  set_gauge("farm_learner_buffer_fill_ratio", "Fill of the replay buffer or rollout storage, 0 to 1.",
+            per_learner([](const LearnerRow& r) { return r.buffer_fill; }));
+  set_gauge("farm_learner_policy_lag_versions",
+            "Mean policy versions between the learner's policy and the one that made each batch it accepted.",
+            per_learner([](const LearnerRow& r) { return r.policy_lag; }));
+  set_gauge("farm_learner_critic_loss", "Latest critic (value) loss.",
+            per_learner([](const LearnerRow& r) { return r.critic_loss; }));
+  set_gauge("farm_learner_actor_loss", "Latest actor (policy) loss.",
+            per_learner([](const LearnerRow& r) { return r.actor_loss; }));
+  set_gauge("farm_learner_mean_return", "Mean return of the recent training episodes (absent: none yet).",
+            per_learner([](const LearnerRow& r) { return r.mean_return; }));
+  set_gauge("farm_learner_eval_return", "Mean return of the latest deterministic evaluation (absent: none yet).",
+            per_learner([](const LearnerRow& r) { return r.eval_return; }));
+  Values batches;
+  for (const auto& [r, l] : learners) {
+    const std::pair<const char*, uint64_t> results[] = {{"ok", r->batches_ok},
+                                                        {"lost", r->batches_lost},
+                                                        {"duplicate", r->batches_duplicate},
+                                                        {"invalid", r->batches_invalid}};
+    for (const auto& [result, n] : results) {
+      prometheus::Labels with_result = l;
+      with_result["result"] = result;
+      batches[with_result] = double(n);
+    }
   }
-  per_learner("farm_learner_workers", "gauge", "Workers the learner counts live.",
-              [&](const LearnerRow& r, const std::string& l) { e.sample(l, uint64_t(r.workers)); });
-  return e.str();
+  set_counter("farm_learner_batches_total",
+              "Transition batches the learner has accounted, by result: ok (accepted), lost (a gap in a worker's "
+              "sequence), duplicate, invalid (refused by validation).",
+              batches);
+  set_gauge("farm_learner_workers", "Workers the learner counts live.",
+            per_learner([](const LearnerRow& r) { return double(r.workers); }));
+}
+
+std::string PrometheusMetrics::page() const {
+  // The registry leaves out a family without series; the page lists it with its HELP and TYPE.
+  std::map<std::string, prometheus::MetricFamily> collected;
+  for (prometheus::MetricFamily& f : registry_->Collect()) collected[f.name] = std::move(f);
+  std::vector<prometheus::MetricFamily> families;
+  for (const Header& h : order_) {
+    auto it = collected.find(h.name);
+    if (it != collected.end()) {
+      families.push_back(std::move(it->second));
+    } else {
+      prometheus::MetricFamily empty;
+      empty.name = h.name;
+      empty.help = h.help;
+      empty.type = h.type;
+      families.push_back(std::move(empty));
+    }
+  }
+  return prometheus::TextSerializer().Serialize(families);
+}
+
+std::string render_prometheus(const MonitorSnapshot& s, const PrometheusLimits& limits) {
+  PrometheusMetrics m(limits);
+  m.update(s);
+  return m.page();
 }
 
 }  // namespace farm

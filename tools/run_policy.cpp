@@ -1,5 +1,5 @@
 // The loader of a run's policy (run_policy.h): the checkpoint manifest, bounded and parsed with the
-// parser's first complaint, the task it names and the networks of its algorithm, on the CPU.
+// parser's first complaint, the task it names and the policy file beside it.
 #include "run_policy.h"
 
 #include <google/protobuf/io/tokenizer.h>
@@ -11,7 +11,7 @@
 #include <stdexcept>
 
 #include "config.h"
-#include "registry.h"
+#include "policy_file.h"
 
 namespace farm::tools {
 
@@ -54,36 +54,20 @@ config::CheckpointManifest read_manifest_file(const fs::path& file) {
   return m;
 }
 
-// The policy of the config's algorithm: its networks read from `dir` (a checkpoint folder, in the
-// algorithm's sub-folder) or, with an empty `dir`, as its learner initializes them, and their
-// update count. The networks load on the CPU whatever device they trained on.
-PolicyParams export_policy(config::ExperimentConfig cfg, const robots::TaskSpec& spec, const std::string& dir,
-                           uint64_t version, int64_t* updates) {
-  const std::string algorithm = cfg.algorithm();
-  const AlgorithmRegistration& a = find_algorithm(algorithm);  // unknown: names the known ones
-  if (!dir.empty()) {
-    const fs::path file = fs::path(dir) / algorithm / (algorithm + ".pt");
-    if (!fs::exists(file))
-      throw std::runtime_error(file.string() + " does not exist (the networks of algorithm \"" + algorithm +
-                               "\", which the experiment runs)");
-  }
-  cfg.mutable_sac()->set_device("cpu");
-  cfg.mutable_ppo()->set_device("cpu");
-  const std::string sub = dir.empty() ? std::string() : (fs::path(dir) / algorithm).string();
-  if (a.make_off_policy) {
-    auto algo = a.make_off_policy(cfg, spec);
-    if (!dir.empty()) algo->load(sub);
-    *updates = algo->updates();
-    return algo->export_policy(version);
-  }
-  // An algorithm with its own driver reads its networks itself (its registration's read_policy).
-  if (a.read_policy) return a.read_policy(cfg, spec, sub, version, updates);
-  throw std::runtime_error("cannot make a policy of algorithm \"" + algorithm + "\"" +
-                           (dir.empty() ? std::string() : " from " + dir) +
-                           ": its registration (learner/algorithms/registry.cpp) has no read_policy");
+// The policy must be the task's: observations in, and the outputs its head needs for the actions.
+void check_fits(const PolicyParams& p, const robots::TaskSpec& spec, const std::string& file) {
+  const int in = p.layout.sizes.front(), out = p.layout.sizes.back();
+  int want = spec.act_dim;
+  if (p.head == PolicyHead::kSquashedGaussian) want = 2 * spec.act_dim;
+  if (p.head == PolicyHead::kDiscreteQ) want = spec.num_actions;
+  if (in != spec.obs_dim || out != want)
+    throw std::runtime_error("policy file " + file + ": its network " + p.layout.describe() + " does not fit task " +
+                             spec.name + " (" + std::to_string(spec.obs_dim) + " observations in, " +
+                             std::to_string(want) + " outputs for its actions)");
 }
 
-// The config's task, built without writing any file its config names.
+}  // namespace
+
 RunPolicy with_task(config::ExperimentConfig cfg) {
   clear_output_paths(&cfg);
   RunPolicy r;
@@ -91,8 +75,6 @@ RunPolicy with_task(config::ExperimentConfig cfg) {
   r.task = robots::make_task(r.config.task());
   return r;
 }
-
-}  // namespace
 
 std::string run_policy_dir(const std::string& run, bool best) {
   const fs::path root(run);
@@ -111,14 +93,6 @@ std::string run_policy_dir(const std::string& run, bool best) {
                            " does not exist; a learner writes RUN/checkpoint and RUN/best" + hint);
 }
 
-RunPolicy config_policy(const std::string& config_path, const std::string& dir) {
-  if (!dir.empty() && !fs::is_directory(dir)) throw std::runtime_error("checkpoint folder " + dir + " does not exist");
-  RunPolicy r = with_task(load_config_file(config_path));
-  r.dir = dir;
-  r.policy = export_policy(r.config, r.task->spec(), dir, 0, &r.updates);
-  return r;
-}
-
 RunPolicy load_run_policy(const std::string& dir) {
   if (!fs::is_directory(dir)) throw std::runtime_error("checkpoint folder " + dir + " does not exist");
   const fs::path manifest = fs::path(dir) / "manifest.txtpb";
@@ -132,7 +106,21 @@ RunPolicy load_run_policy(const std::string& dir) {
   RunPolicy r = with_task(parse_config_text(m.config_text(), manifest.string() + " config_text"));
   r.dir = dir;
   r.manifest = m;
-  r.policy = export_policy(r.config, r.task->spec(), dir, r.manifest.policy_version(), &r.updates);
+  const fs::path file = fs::path(dir) / kPolicyFileName;
+  if (!fs::exists(file)) {
+    std::string networks;  // a checkpoint of a learner that wrote no policy file still has these
+    if (fs::exists(fs::path(dir) / r.config.algorithm()))
+      networks = " (it holds the networks in " + (fs::path(dir) / r.config.algorithm()).string() + "/)";
+    throw std::runtime_error("no policy file in " + dir + ": " + file.string() + " does not exist" + networks +
+                             "; a learner of this version writes it with every checkpoint and best policy: write it "
+                             "for this folder with `farm-policy-file " +
+                             dir +
+                             "`, or resume the run once (farm-learner --resume) to have it at its next checkpoint");
+  }
+  r.policy = read_policy_file(file.string());
+  check_fits(r.policy, r.task->spec(), file.string());
+  r.policy.version = r.manifest.policy_version();
+  r.updates = r.manifest.updates();
   return r;
 }
 

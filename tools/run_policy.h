@@ -1,7 +1,9 @@
 // A trained run's policy as the workers run it, read from a checkpoint folder (RUN/checkpoint or
-// RUN/best): the manifest's experiment config, the task it names, and the networks of whichever
-// algorithm trained it (SAC, DQN, PPO) exported with the observation normalizer. The one loader of
-// the programs that read a run's policy (farm-play, farm-export, farm-mobile-eval).
+// RUN/best): the manifest's experiment config, the task it names, and the policy file the learner
+// wrote there (policy.bin, common/policy_file.h: the networks of whichever algorithm trained it,
+// with the observation normalizer), without LibTorch. The one loader of the programs that read a
+// run's policy (farm-play, farm-export, farm-mobile-eval); config_policy.h reads networks that have
+// no policy file (with LibTorch).
 #pragma once
 
 #include <cstdint>
@@ -16,8 +18,7 @@ namespace farm::tools {
 
 struct RunPolicy {
   std::string dir;  // the checkpoint folder read ("" for an untrained policy)
-  // The experiment, its output paths cleared (building its task writes no file); the networks
-  // were built from a copy that loads them on the CPU whatever device they trained on.
+  // The experiment, its output paths cleared (building its task writes no file).
   config::ExperimentConfig config;
   config::CheckpointManifest manifest;  // empty for config_policy
   std::shared_ptr<robots::Task> task;
@@ -25,18 +26,15 @@ struct RunPolicy {
   int64_t updates = 0;  // the training updates of the networks read (0 untrained)
 };
 
-// Reads DIR/manifest.txtpb and the algorithm's networks in DIR/<algorithm>/<algorithm>.pt. Throws
-// std::runtime_error naming what is missing or wrong (no such folder, a run folder passed where its
-// checkpoint was meant, no manifest, one that does not parse (with its line and column) or is far
-// bigger than any manifest, an unknown task or algorithm, missing networks, networks that do not
-// fit the task).
+// Reads DIR/manifest.txtpb and the policy file DIR/policy.bin. Throws std::runtime_error naming
+// what is missing or wrong (no such folder, a run folder passed where its checkpoint was meant, no
+// manifest, one that does not parse (with its line and column) or is far bigger than any manifest,
+// an unknown task, no policy file (a checkpoint of a learner that wrote none: how to write it), a
+// policy file that is not one or does not fit the task).
 RunPolicy load_run_policy(const std::string& dir);
 
-// The experiment of a config file with the networks in DIR (a policy folder shipped without a
-// manifest, e.g. docs/data/mclari_terrain_policy) or, with an empty DIR, its untrained policy (the
-// networks its learner starts from, the config's seed), to look at a task before training. Throws as
-// load_run_policy does.
-RunPolicy config_policy(const std::string& config_path, const std::string& dir);
+// The config's task, built without writing any file its config names; no policy yet.
+RunPolicy with_task(config::ExperimentConfig cfg);
 
 // RUN/best with best = true, else RUN/checkpoint, when it holds a manifest. Otherwise throws naming
 // the missing manifest and what the run holds instead: a checkpoint (leave out --best), the

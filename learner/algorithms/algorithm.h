@@ -154,6 +154,9 @@ class Algorithm {
 
   // The networks, in their sub-folder of dir (the layout of <run dir>/best and of a checkpoint).
   virtual void save_networks(const std::string& dir) const = 0;
+  // The policy of those networks in the workers' layout, numbered version(): the checkpoint's
+  // policy file (common/policy_file.h), which the programs that run a trained policy read.
+  virtual PolicyParams policy() const = 0;
   // Everything a checkpoint holds of the algorithm (networks, and a replay buffer where there is
   // one), and what it adds to the manifest (random state, run counters).
   virtual void save(const std::string& dir) const { save_networks(dir); }

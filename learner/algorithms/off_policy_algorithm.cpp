@@ -160,6 +160,10 @@ class OffPolicyAlgorithm final : public Algorithm {
     std::filesystem::create_directories(std::filesystem::path(dir) / algo_->name());
     algo_->save((std::filesystem::path(dir) / algo_->name()).string());
   }
+  PolicyParams policy() const override {
+    settle();
+    return algo_->export_policy(version());
+  }
   void save(const std::string& dir) const override {
     save_networks(dir);
     replay_.save((std::filesystem::path(dir) / "replay.pt").string());

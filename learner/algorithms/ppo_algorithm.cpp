@@ -402,6 +402,7 @@ class PpoAlgorithm final : public Algorithm {
     fs::create_directories(fs::path(dir) / "ppo");
     ppo_.save((fs::path(dir) / "ppo").string());
   }
+  PolicyParams policy() const override { return ppo_.export_policy(version_); }
 
   void final_evaluation(Farm& farm, double elapsed) override {
     fit_what_is_held(farm, elapsed);

@@ -37,5 +37,11 @@ std::vector<std::string> algorithm_names();
 const AlgorithmRegistration& find_algorithm(const std::string& name);
 // The learner's side of cfg.algorithm() for a task of this spec.
 std::unique_ptr<Algorithm> make_algorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+// The policy of cfg's algorithm as the workers run it, numbered version: its networks read from dir
+// (a checkpoint or best folder, in the algorithm's sub-folder) or, with an empty dir, as its learner
+// initializes them; on the CPU whatever device they trained on. *updates: their update count.
+// Throws std::runtime_error naming a network file that is missing.
+PolicyParams read_saved_policy(config::ExperimentConfig cfg, const robots::TaskSpec& spec, const std::string& dir,
+                               uint64_t version, int64_t* updates);
 
 }  // namespace farm

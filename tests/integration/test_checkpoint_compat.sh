@@ -36,6 +36,8 @@ resume() {
   for f in $(cd "$data/$name/checkpoint" && find . -type f | sort); do
     [ -f "$run/checkpoint/$f" ] || fail "$name: the new checkpoint has no $f"
   done
+  # ... and the policy file the fixture predates (the programs that run a trained policy read it).
+  [ -s "$run/checkpoint/policy.bin" ] || fail "$name: the new checkpoint has no policy.bin"
 }
 
 resume sac

@@ -6,10 +6,12 @@
 # (the ELU one with Elu nodes); onnx.checker
 # accepts each model and OpenCV's DNN module computes from 1,000 observations of real episodes the
 # actions the worker's Eigen policy took there (within 1e-5; DQN: the same argmax, Q values within
-# 1e-5). Bad input gets an error naming what was wrong.
-#   tests/integration/test_export.sh EXPORT LEARNER WORKER SOURCE_DIR
+# 1e-5). The fixtures predate policy files: farm-policy-file writes theirs first. Bad input gets an
+# error naming what was wrong.
+#   tests/integration/test_export.sh EXPORT LEARNER WORKER SOURCE_DIR POLICY_FILE
 set -uo pipefail
 export_bin=$(readlink -f "$1") learner=$(readlink -f "$2") worker=$(readlink -f "$3") src=$(readlink -f "$4")
+policy_file=$(readlink -f "$5")
 data=$src/tests/data/checkpoint_v1
 check=$src/tests/integration/check_onnx_export.py
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
@@ -69,6 +71,11 @@ dqn_run dqn "learning_starts: 200" "max_seconds: 10"
 mkdir -p "$dir/sac" "$dir/ppo"
 cp -r "$data/sac/checkpoint" "$dir/sac/checkpoint"
 cp -r "$data/ppo/checkpoint" "$dir/ppo/checkpoint"
+for name in sac ppo; do
+  "$policy_file" "$dir/$name/checkpoint" >"$dir/$name-policy-file.log" 2>&1 ||
+    fail "$name: farm-policy-file exited $?: $(cat "$dir/$name-policy-file.log")"
+  [ -s "$dir/$name/checkpoint/policy.bin" ] || fail "$name: farm-policy-file wrote no policy.bin"
+done
 
 # export NAME ALGORITHM MIN_DISTINCT [--best]: the model and 1,000 recorded steps, then the
 # comparison (DQN: at least MIN_DISTINCT different actions among the 1,000).
@@ -121,9 +128,23 @@ expect_error "best of a run without one" "leave out --best" --run-dir "$dir/sac"
 mkdir -p "$dir/unknown" && cp -r "$data/sac/checkpoint" "$dir/unknown/checkpoint"
 sed -i 's/^config_text: "/config_text: "algorithm: \\"a2c\\"\\n/' "$dir/unknown/checkpoint/manifest.txtpb"
 expect_error "unknown algorithm" 'expected one of: sac, dqn, ppo; got "a2c"' --run-dir "$dir/unknown" --out "$dir/x.onnx"
-# The manifest without the networks it names.
+# A checkpoint of a learner that wrote no policy file: the error says how to write it.
+mkdir -p "$dir/old" && cp -r "$data/sac/checkpoint" "$dir/old/checkpoint"
+expect_error "no policy file" "$dir/old/checkpoint/policy.bin does not exist" --run-dir "$dir/old" --out "$dir/x.onnx"
+expect_error "no policy file" "with \`farm-policy-file $dir/old/checkpoint\`" --run-dir "$dir/old" --out "$dir/x.onnx"
+# A policy file that is not one, and one of another task's network.
+cp "$dir/sac/checkpoint/policy.bin" "$dir/sac-policy.bin"
+head -c 100 /dev/urandom >"$dir/old/checkpoint/policy.bin"
+expect_error "garbled policy file" "policy file $dir/old/checkpoint/policy.bin: not a PolicyFile" --run-dir "$dir/old" --out "$dir/x.onnx"
+mkdir -p "$dir/foreign" && cp -r "$dir/sac/checkpoint" "$dir/foreign/checkpoint"
+cp "$dir/ppo/checkpoint/policy.bin" "$dir/foreign/checkpoint/policy.bin"
+expect_error "policy of another task" "does not fit task pendulum" --run-dir "$dir/foreign" --out "$dir/x.onnx"
+# farm-policy-file on a manifest without the networks it names.
 mkdir -p "$dir/nonet" && cp -r "$data/sac/checkpoint" "$dir/nonet/checkpoint" && rm "$dir/nonet/checkpoint/sac/sac.pt"
-expect_error "missing network file" "$dir/nonet/checkpoint/sac/sac.pt does not exist" --run-dir "$dir/nonet" --out "$dir/x.onnx"
+out=$("$policy_file" "$dir/nonet/checkpoint" 2>&1); rc=$?
+[ $rc = 1 ] && grep -qF "$dir/nonet/checkpoint/sac/sac.pt does not exist" <<<"$out" ||
+  fail "farm-policy-file without networks: rc $rc, '$out'"
+[ -e "$dir/nonet/checkpoint/policy.bin" ] && fail "farm-policy-file without networks wrote a policy file"
 # A manifest that is not one: text that does not parse, and a file far bigger than any manifest.
 mkdir -p "$dir/garbled/checkpoint" && echo 'policy_version: "x" {' >"$dir/garbled/checkpoint/manifest.txtpb"
 expect_error "garbled manifest" "manifest.txtpb:1:17: Expected integer, got: \"x\" (not a checkpoint manifest)" --run-dir "$dir/garbled" --out "$dir/x.onnx"

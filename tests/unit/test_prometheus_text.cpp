@@ -1,8 +1,9 @@
-// farm-monitor's Prometheus page (tools/prometheus_text.h) from a snapshot: every family has its
-// HELP and TYPE before its samples, the values are the snapshot's, counters end in _total, label
-// values from the bus are bounded, valid UTF-8 and escaped, and workers whose bounded labels repeat
-// another's are left out and counted. Where promtool (Debian's prometheus package) is installed, it
-// must accept the page.
+// farm-monitor's Prometheus metrics (tools/prometheus_text.h) from snapshots: every family has its
+// HELP and TYPE before its samples, the values are the snapshot's, counters end in _total, series
+// of workers and learners that leave the snapshot leave the page, label values from the bus are
+// bounded, valid UTF-8 and escaped on the page, and workers whose bounded labels repeat another's
+// are left out and counted. Where promtool (Debian's prometheus package) is installed, it must
+// accept the page.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -67,12 +68,52 @@ farm::MonitorSnapshot sample_snapshot() {
   return s;
 }
 
+using Labels = std::map<std::string, std::string>;
+
 struct Page {
-  std::map<std::string, std::string> type, help;  // by family
-  std::map<std::string, std::string> value;       // by name{labels}
-  std::vector<std::string> order;                 // families in the order of their TYPE lines
-  std::string problem;                            // first structural fault found
+  std::map<std::string, std::string> type, help;               // by family
+  std::map<std::string, std::map<Labels, std::string>> value;  // by family, then label set
+  std::vector<std::string> order;                              // families in the order of their TYPE lines
+  std::string problem;                                         // first structural fault found
 };
+
+// One sample line: name, label set (escapes undone) and value; false when it is not one.
+bool parse_sample(const std::string& line, std::string& name, Labels& labels, std::string& value) {
+  size_t i = line.find_first_of("{ ");
+  if (i == std::string::npos) return false;
+  name = line.substr(0, i);
+  if (line[i] == '{') {
+    ++i;
+    while (i < line.size() && line[i] != '}') {
+      const size_t eq = line.find("=\"", i);
+      if (eq == std::string::npos) return false;
+      const std::string key = line.substr(i, eq - i);
+      std::string v;
+      for (i = eq + 2; i < line.size() && line[i] != '"'; ++i) {
+        if (line[i] != '\\') {
+          v += line[i];
+          continue;
+        }
+        if (++i == line.size()) return false;
+        if (line[i] == 'n')
+          v += '\n';
+        else if (line[i] == '\\' || line[i] == '"')
+          v += line[i];
+        else
+          return false;  // the text format knows no other escape
+      }
+      if (i == line.size() || labels.count(key)) return false;
+      labels[key] = v;
+      ++i;
+      if (i < line.size() && line[i] == ',') ++i;
+    }
+    if (i == line.size()) return false;
+    ++i;
+  }
+  if (i >= line.size() || line[i] != ' ') return false;
+  value = line.substr(i + 1);
+  return !value.empty() && value.find(' ') == std::string::npos;
+}
 
 // Reads the page the way the text format is defined: a family's HELP and TYPE, then its samples.
 Page parse(const std::string& text) {
@@ -91,24 +132,41 @@ Page parse(const std::string& text) {
       p.type[name] = line.substr(8 + name.size());
       p.order.push_back(name);
     } else if (!line.empty()) {
-      const size_t sp = line.rfind(' ');
-      const std::string series = line.substr(0, sp);
-      const std::string name = series.substr(0, series.find('{'));
-      if (name != current && p.problem.empty()) p.problem = "sample " + series + " outside its family";
-      if (p.value.count(series) && p.problem.empty()) p.problem = "series " + series + " twice";
-      p.value[series] = line.substr(sp + 1);
+      std::string name, value;
+      Labels labels;
+      if (!parse_sample(line, name, labels, value)) {
+        if (p.problem.empty()) p.problem = "not a sample: " + line;
+        continue;
+      }
+      if (name != current && p.problem.empty()) p.problem = "sample " + line + " outside its family";
+      if (p.value[name].count(labels) && p.problem.empty()) p.problem = "series " + line + " twice";
+      p.value[name][labels] = value;
     }
   }
   return p;
 }
 
-const char kWorkerA[] = "worker=\"host-b\",host=\"vm\",experiment=\"pendulum_sac\"";
-const char kWorkerC[] = "worker=\"host-c\",host=\"vm\",experiment=\"pendulum_sac\"";
-const char kLearner[] = "experiment=\"pendulum_sac\"";
+const Labels kWorkerA = {{"worker", "host-b"}, {"host", "vm"}, {"experiment", "pendulum_sac"}};
+const Labels kWorkerC = {{"worker", "host-c"}, {"host", "vm"}, {"experiment", "pendulum_sac"}};
+const Labels kLearner = {{"experiment", "pendulum_sac"}};
 
-std::string at(const Page& p, const std::string& name, const std::string& labels = "") {
-  auto it = p.value.find(labels.empty() ? name : name + "{" + labels + "}");
-  return it == p.value.end() ? "(absent)" : it->second;
+Labels with(Labels l, const std::string& key, const std::string& value) {
+  l[key] = value;
+  return l;
+}
+
+// The sample's value as written, or "(absent)".
+std::string at(const Page& p, const std::string& name, const Labels& labels = {}) {
+  auto f = p.value.find(name);
+  if (f == p.value.end()) return "(absent)";
+  auto it = f->second.find(labels);
+  return it == f->second.end() ? "(absent)" : it->second;
+}
+
+// The sample's value as a number (NaN when absent).
+double num(const Page& p, const std::string& name, const Labels& labels = {}) {
+  const std::string v = at(p, name, labels);
+  return v == "(absent)" ? NAN : std::strtod(v.c_str(), nullptr);
 }
 
 }  // namespace
@@ -125,41 +183,52 @@ TEST(PrometheusText, FamiliesHaveHelpAndTypeAndCountersEndInTotal) {
     const bool total = name.size() > 6 && name.compare(name.size() - 6, 6, "_total") == 0;
     EXPECT_EQ(t == "counter", total) << name << " is a " << t;
   }
+  EXPECT_EQ(p.type["farm_learner_eval_return"], "gauge") << "a family without a sample keeps its HELP and TYPE";
+  EXPECT_EQ(p.type["farm_learner_batches_total"], "counter");
+  EXPECT_EQ(p.help["farm_worker_up"], "1 while the worker's heartbeats arrive, 0 once it is silent past the timeout.");
 }
 
 TEST(PrometheusText, ValuesAreTheSnapshots) {
   const farm::MonitorSnapshot s = sample_snapshot();
   Page p = parse(farm::render_prometheus(s));
-  EXPECT_EQ(at(p, "farm_monitor_snapshot_timestamp_seconds"), "1764115200.123");
+  EXPECT_EQ(p.problem, "");
+  EXPECT_DOUBLE_EQ(num(p, "farm_monitor_snapshot_timestamp_seconds"), 1764115200.123);
+  EXPECT_EQ(at(p, "farm_monitor_worker_timeout_seconds"), "4");
   EXPECT_EQ(at(p, "farm_worker_env_steps_per_second", kWorkerA), "70777.5");
   EXPECT_EQ(at(p, "farm_worker_env_steps_total", kWorkerA), "12345678901");  // integers as integers
   EXPECT_EQ(at(p, "farm_worker_batches_sent_total", kWorkerA), "1664");
   EXPECT_EQ(at(p, "farm_worker_policy_version", kWorkerA), "87");
+  EXPECT_EQ(at(p, "farm_worker_envs", kWorkerA), "8");
   EXPECT_EQ(at(p, "farm_worker_up", kWorkerA), "1");
   EXPECT_EQ(at(p, "farm_worker_up", kWorkerC), "0");
   EXPECT_EQ(at(p, "farm_worker_env_steps_per_second", kWorkerC), "0");
   EXPECT_EQ(at(p, "farm_worker_last_heartbeat_age_seconds", kWorkerC), "9.25");
   // One state series per known state, exactly one of them 1.
-  for (const char* w : {kWorkerA, kWorkerC}) {
-    int on = 0;
-    for (const std::string& st : farm::prometheus_worker_states())
-      on += at(p, "farm_worker_state", std::string(w) + ",state=\"" + st + "\"") == "1";
-    EXPECT_EQ(on, 1) << w;
+  for (const Labels& w : {kWorkerA, kWorkerC}) {
+    int on = 0, series = 0;
+    for (const std::string& st : farm::prometheus_worker_states()) {
+      on += at(p, "farm_worker_state", with(w, "state", st)) == "1";
+      series += at(p, "farm_worker_state", with(w, "state", st)) != "(absent)";
+    }
+    EXPECT_EQ(on, 1) << w.at("worker");
+    EXPECT_EQ(series, int(farm::prometheus_worker_states().size())) << w.at("worker");
   }
-  EXPECT_EQ(at(p, "farm_worker_state", std::string(kWorkerA) + ",state=\"running\""), "1");
-  EXPECT_EQ(at(p, "farm_worker_state", std::string(kWorkerC) + ",state=\"dead\""), "1");
-  EXPECT_EQ(at(p, "farm_workers", "status=\"live\""), "1");
-  EXPECT_EQ(at(p, "farm_workers", "status=\"dead\""), "1");
+  EXPECT_EQ(at(p, "farm_worker_state", with(kWorkerA, "state", "running")), "1");
+  EXPECT_EQ(at(p, "farm_worker_state", with(kWorkerC, "state", "dead")), "1");
+  EXPECT_EQ(at(p, "farm_workers", {{"status", "live"}}), "1");
+  EXPECT_EQ(at(p, "farm_workers", {{"status", "dead"}}), "1");
+  EXPECT_EQ(at(p, "farm_workers", {{"status", "finished"}}), "0");
   EXPECT_EQ(at(p, "farm_total_env_steps_per_second"), "70777.5");
   EXPECT_EQ(at(p, "farm_total_batches_sent"), "1664");
   EXPECT_EQ(at(p, "farm_learner_env_steps_total", kLearner), "816600");
-  EXPECT_EQ(at(p, "farm_learner_buffer_fill_ratio", kLearner), "0.817");
+  EXPECT_DOUBLE_EQ(num(p, "farm_learner_buffer_fill_ratio", kLearner), 0.817);
   EXPECT_EQ(at(p, "farm_learner_mean_return", kLearner), "-176");
   EXPECT_EQ(at(p, "farm_learner_eval_return", kLearner), "(absent)") << "no evaluation yet: no sample, not NaN";
-  EXPECT_EQ(at(p, "farm_learner_batches_total", std::string(kLearner) + ",result=\"ok\""), "3565");
-  EXPECT_EQ(at(p, "farm_learner_batches_total", std::string(kLearner) + ",result=\"lost\""), "2");
-  EXPECT_EQ(at(p, "farm_learner_batches_total", std::string(kLearner) + ",result=\"duplicate\""), "1");
-  EXPECT_EQ(at(p, "farm_learner_batches_total", std::string(kLearner) + ",result=\"invalid\""), "4");
+  EXPECT_EQ(at(p, "farm_learner_batches_total", with(kLearner, "result", "ok")), "3565");
+  EXPECT_EQ(at(p, "farm_learner_batches_total", with(kLearner, "result", "lost")), "2");
+  EXPECT_EQ(at(p, "farm_learner_batches_total", with(kLearner, "result", "duplicate")), "1");
+  EXPECT_EQ(at(p, "farm_learner_batches_total", with(kLearner, "result", "invalid")), "4");
+  EXPECT_EQ(at(p, "farm_learner_workers", kLearner), "2");
   EXPECT_EQ(at(p, "farm_monitor_workers_not_exported"), "0");
 }
 
@@ -167,12 +236,51 @@ TEST(PrometheusText, AStateItDoesNotKnowIsOther) {
   farm::MonitorSnapshot s = sample_snapshot();
   s.workers[0].state = "dancing";
   Page p = parse(farm::render_prometheus(s));
-  EXPECT_EQ(at(p, "farm_worker_state", std::string(kWorkerA) + ",state=\"other\""), "1");
-  EXPECT_EQ(at(p, "farm_worker_state", std::string(kWorkerA) + ",state=\"dancing\""), "(absent)");
+  EXPECT_EQ(at(p, "farm_worker_state", with(kWorkerA, "state", "other")), "1");
+  EXPECT_EQ(at(p, "farm_worker_state", with(kWorkerA, "state", "dancing")), "(absent)");
 }
 
-TEST(PrometheusText, LabelValuesAreBoundedValidUtf8AndEscaped) {
-  EXPECT_EQ(farm::prometheus_label_value("a\"b\\c\nd", 64), "a\\\"b\\\\c\\nd");
+// One registry over several snapshots, as farm-monitor keeps it: a worker or learner that leaves
+// the snapshot leaves every family; a value that becomes NaN leaves its family; a counter that
+// starts over (a new session) shows the new count.
+TEST(PrometheusText, SeriesFollowTheSnapshotsOfOneRegistry) {
+  farm::PrometheusMetrics m;
+  farm::MonitorSnapshot s = sample_snapshot();
+  s.learners[0].eval_return = -150.5;
+  m.update(s);
+  Page p = parse(m.page());
+  EXPECT_EQ(at(p, "farm_worker_up", kWorkerC), "0");
+  EXPECT_EQ(at(p, "farm_learner_eval_return", kLearner), "-150.5");
+
+  s.workers.pop_back();         // host-c is forgotten
+  s.workers[0].env_steps = 10;  // host-b restarted: a new session counts from 0
+  s.learners[0].eval_return = NAN;
+  m.update(s);
+  p = parse(m.page());
+  EXPECT_EQ(p.problem, "");
+  for (const auto& [family, series] : p.value)
+    for (const auto& [labels, value] : series)
+      EXPECT_FALSE(labels.count("worker") && labels.at("worker") == "host-c") << family << " still has host-c";
+  EXPECT_EQ(at(p, "farm_worker_up", kWorkerA), "1");
+  EXPECT_EQ(at(p, "farm_worker_env_steps_total", kWorkerA), "10");
+  EXPECT_EQ(at(p, "farm_learner_eval_return", kLearner), "(absent)");
+  EXPECT_EQ(p.type["farm_learner_eval_return"], "gauge");
+
+  s.workers.clear();
+  s.learners.clear();
+  m.update(s);
+  p = parse(m.page());
+  EXPECT_EQ(p.problem, "");
+  for (const auto& [family, series] : p.value)
+    for (const auto& [labels, value] : series)
+      EXPECT_FALSE(labels.count("worker") || labels.count("experiment")) << family << " keeps a series of a gone "
+                                                                         << "worker or learner";
+  EXPECT_EQ(p.type["farm_worker_up"], "gauge") << "an empty family keeps its HELP and TYPE";
+  EXPECT_EQ(at(p, "farm_monitor_workers_not_exported"), "0");
+}
+
+TEST(PrometheusText, LabelValuesAreBoundedAndValidUtf8) {
+  EXPECT_EQ(farm::prometheus_label_value("a\"b\\c\nd", 64), "a\"b\\c\nd") << "the serializer escapes these";
   EXPECT_EQ(farm::prometheus_label_value("x\xff y\x01", 64), "x\xEF\xBF\xBD y\xEF\xBF\xBD");
   EXPECT_EQ(farm::prometheus_label_value("\xC0\xAF", 64), "\xEF\xBF\xBD\xEF\xBF\xBD") << "an overlong '/'";
   EXPECT_EQ(farm::prometheus_label_value("\xED\xA0\x80", 64), "\xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD") << "a surrogate";
@@ -180,6 +288,21 @@ TEST(PrometheusText, LabelValuesAreBoundedValidUtf8AndEscaped) {
   // Cut at the bound, never inside a character: 'é' is two bytes and does not fit after "abc" in 4.
   EXPECT_EQ(farm::prometheus_label_value("abc\xC3\xA9", 4), "abc");
   EXPECT_EQ(farm::prometheus_label_value(std::string(100000, 'w'), 128), std::string(128, 'w'));
+}
+
+// Quotes, backslashes and line feeds in labels from the bus are escaped on the page, so a worker id
+// cannot end its label, start a line or add a series; read back, the label is the id itself.
+TEST(PrometheusText, LabelValuesAreEscapedOnThePage) {
+  farm::MonitorSnapshot s = sample_snapshot();
+  s.workers[1].id = "evil\"} farm_worker_up 1\n# TYPE x counter\\";
+  const std::string page = farm::render_prometheus(s);
+  EXPECT_NE(page.find("worker=\"evil\\\"} farm_worker_up 1\\n# TYPE x counter\\\\\""), std::string::npos) << page;
+  EXPECT_EQ(page.find("\n# TYPE x counter"), std::string::npos) << page;
+  Page p = parse(page);
+  EXPECT_EQ(p.problem, "");
+  EXPECT_EQ(p.type.count("x"), 0u);
+  EXPECT_EQ(at(p, "farm_worker_up", with(kWorkerC, "worker", s.workers[1].id)), "0");
+  EXPECT_EQ(at(p, "farm_worker_up", kWorkerA), "1");
 }
 
 TEST(PrometheusText, WorkersWhoseBoundedLabelsRepeatAreLeftOutAndCounted) {
@@ -192,8 +315,7 @@ TEST(PrometheusText, WorkersWhoseBoundedLabelsRepeatAreLeftOutAndCounted) {
   Page p = parse(farm::render_prometheus(s));
   EXPECT_EQ(p.problem, "") << "a repeated series would make Prometheus refuse the whole scrape";
   EXPECT_EQ(at(p, "farm_monitor_workers_not_exported"), "1");
-  const std::string cut = "worker=\"" + std::string(128, 'z') + "\",host=\"vm\",experiment=\"pendulum_sac\"";
-  EXPECT_EQ(at(p, "farm_worker_up", cut), "1");
+  EXPECT_EQ(at(p, "farm_worker_up", with(kWorkerA, "worker", std::string(128, 'z'))), "1");
 
   farm::PrometheusLimits limits;
   limits.max_workers = 1;
