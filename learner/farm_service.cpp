@@ -117,6 +117,7 @@ int FarmService::run() {
     work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
+      drain_status();  // heartbeats that came during a long fit, before the line counts live workers
       size_t n = 0;
       intake_.with_ingest([&](Ingest& in) { n = in.expire(now, cfg_.account_expiry_seconds()); });
       if (n > 0)

@@ -11,22 +11,11 @@ Prints one line per fit long enough to hold two ingest events, then the totals. 
 the run has no events.jsonl or no fit.
 """
 import argparse
-import json
 import os
 import sys
 
-
-def read_events(run):
-    out = []
-    with open(os.path.join(run, "events.jsonl")) as f:
-        for line in f:
-            try:
-                e = json.loads(line)
-            except ValueError:
-                continue
-            if isinstance(e, dict):
-                out.append(e)
-    return out
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import run_events  # noqa: E402  (beside this file)
 
 
 def main():
@@ -34,11 +23,10 @@ def main():
     ap.add_argument("run")
     ap.add_argument("--min-fit-seconds", type=float, default=0.0)
     a = ap.parse_args()
-    try:
-        ev = read_events(a.run)
-    except OSError as e:
-        print(f"fit_ingest: {e}", file=sys.stderr)
+    if not os.path.exists(os.path.join(a.run, "events.jsonl")):
+        print(f"fit_ingest: no {a.run}/events.jsonl", file=sys.stderr)
         return 2
+    ev = run_events.read(a.run)
     fits = [e for e in ev if e.get("event") == "progress" and isinstance(e.get("fit_seconds"), (int, float))
             and e["fit_seconds"] >= a.min_fit_seconds]
     ingest = [e for e in ev if e.get("event") == "ingest"]

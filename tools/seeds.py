@@ -30,7 +30,6 @@ training's command (DIR/command.txt, written when training starts). Exit status 
 kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
 import argparse
 import csv
-import json
 import filecmp
 import math
 import os
@@ -41,6 +40,9 @@ import subprocess
 import sys
 import textwrap
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import run_events  # noqa: E402  (beside this file)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WALKING_LIN, WALKING_FELL = 0.6, 0.1
@@ -117,33 +119,15 @@ def walking(r):
 
 # ---- the measures -------------------------------------------------------------------------------
 
-def events(run, kind):
-    """The events of one kind in RUN/events.jsonl (the learner's record for programs), in order;
-    [] where the run has none. A line that is not JSON (a run killed mid-write) is skipped."""
-    out = []
-    try:
-        with open(os.path.join(run, "events.jsonl")) as f:
-            for line in f:
-                try:
-                    e = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(e, dict) and e.get("event") == kind:
-                    out.append(e)
-    except OSError:
-        pass
-    return out
-
-
 def summary_value(run, field):
     """A figure of the run's summary event ("wall_s", "env_steps"), NaN where absent."""
-    ev = events(run, "summary")
+    ev = run_events.read(run, "summary")
     return number(ev[-1].get(field)) if ev and ev[-1].get(field) is not None else math.nan
 
 
 def evaluations(run, labels=("eval",)):
     """The evaluation events of a run with episodes, of the given labels, in the order answered."""
-    return [e for e in events(run, "evaluation") if e.get("label") in labels and (e.get("episodes") or 0) > 0
+    return [e for e in run_events.read(run, "evaluation") if e.get("label") in labels and (e.get("episodes") or 0) > 0
             and e.get("mean") is not None]
 
 

@@ -83,21 +83,23 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
     EXPECT_EQ(std::stoll(m[1]), std::stoll(m[2]) + 1) << id;
   }
 
-  // Every fit's line carries version, steps used and carried, stale drops, KL, rate, clip
-  // fraction, value loss, entropy and mean return; steps used is the configured steps per fit,
-  // except in the last fit of what was held at the stop (at least a mini-batch).
-  const std::regex fit_line(
-      R"(fit (\d+) \| v(\d+) -> v(\d+) \| steps used (\d+) carried (\d+) \| stale dropped (\d+) \| lag [0-9:% ]+ \|)"
-      R"( kl [-0-9.e]+ lr [-0-9.e]+ clip [0-9.]+ \| value loss [-0-9.e+]+ entropy [-0-9.]+ \| return [-0-9.na]+)");
-  const int fits = count(log, fit_line);
-  EXPECT_GE(fits, 2) << log;
-  const size_t stop_fit = log.find("held at the stop go into a last fit");
-  for (auto it = std::sregex_iterator(log.begin(), log.end(), fit_line); it != std::sregex_iterator(); ++it) {
-    if (size_t(it->position()) < stop_fit) {
-      EXPECT_EQ((*it)[4], "8192") << it->str();
+  // Every fit is a progress event (its learner.csv row) with version, steps used and carried,
+  // stale drops, lag, KL, rate, clip fraction, value loss, entropy and mean return; steps used is
+  // the configured steps per fit, except in the last fit, of what was held at the stop (at least a
+  // mini-batch).
+  const auto fits = events(run, "progress");
+  ASSERT_GE(fits.size(), 2u) << log;
+  for (size_t i = 0; i < fits.size(); ++i) {
+    const auto& f = fits[i];
+    for (const char* k : {"fit", "policy_version", "steps_used", "steps_carried", "stale_dropped", "lag_mean", "kl",
+                          "learning_rate", "clip_fraction", "value_loss", "entropy", "fit_seconds"})
+      EXPECT_TRUE(f[k].is_number()) << k << " in " << f;
+    EXPECT_EQ(f.value("fit", 0), int(i) + 1) << f;
+    if (i + 1 < fits.size()) {
+      EXPECT_EQ(f.value("steps_used", 0), 8192) << f;
     } else {
-      EXPECT_GE(std::stoll((*it)[4]), 2048) << it->str();
-      EXPECT_LE(std::stoll((*it)[4]), 8192) << it->str();
+      EXPECT_GE(f.value("steps_used", 0), 2048) << f;
+      EXPECT_LE(f.value("steps_used", 0), 8192) << f;
     }
   }
   std::ifstream csv(run + "/learner.csv");
