@@ -3,7 +3,7 @@
 # LibTorch (deploy/build-gpu.sh) and to run the Debian-built benchmarks and workers there:
 #   KIT/include, KIT/lib        headers and shared libraries of Eigen, Protobuf, MuJoCo (with
 #                               libccd, lodepng, qhull_r, tinyxml2), Fast DDS, GoogleTest,
-#                               civetweb and OpenSSL's libcrypto
+#                               civetweb, OpenSSL's libcrypto and CLI11 (headers only)
 #   KIT/cmake/<pkg>             small package configs pointing into the kit
 #   KIT/bin/protoc              Debian's protoc (runs with KIT/lib on LD_LIBRARY_PATH)
 #   KIT/bin/fastddsgen          stands in for fastddsgen (Java): copies the sources generated
@@ -42,6 +42,8 @@ cp -a $arch/libcivetweb.so* "$kit/lib/"
 cp -a /usr/include/openssl "$kit/include/"
 cp -a /usr/include/x86_64-linux-gnu/openssl/* "$kit/include/openssl/" 2>/dev/null || true
 cp -a $arch/libcrypto.so* "$kit/lib/"
+# CLI11 (header-only): every program's command-line options (common/cli.h).
+cp -a /usr/include/CLI "$kit/include/"
 
 # IDL sources generated here (the GPU host has no Java for fastddsgen).
 fastddsgen -replace -d "$kit/idl-gen" "$root/idl/farm.idl" >/dev/null
@@ -97,6 +99,15 @@ if(NOT TARGET Eigen3::Eigen)
 endif()
 set(Eigen3_FOUND TRUE)
 set(Eigen3_VERSION 3.4.0)
+EOF
+mkdir -p "$kit/cmake/CLI11"
+cat >"$kit/cmake/CLI11/CLI11Config.cmake" <<'EOF'
+get_filename_component(_kit "${CMAKE_CURRENT_LIST_DIR}/../.." ABSOLUTE)
+if(NOT TARGET CLI11::CLI11)
+  add_library(CLI11::CLI11 INTERFACE IMPORTED)
+  set_target_properties(CLI11::CLI11 PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kit}/include")
+endif()
+set(CLI11_FOUND TRUE)
 EOF
 mkdir -p "$kit/cmake/GTest"
 cat >"$kit/cmake/GTest/GTestConfig.cmake" <<'EOF'
