@@ -1,5 +1,6 @@
 #include "dds.h"
 
+#include "cli.h"
 #include "paths.h"
 #include "shm_leftovers.h"
 #include "trust.h"
@@ -402,32 +403,13 @@ fdds::DataReaderQos Bus::reader_qos(const std::string& topic_name, const std::st
   return qos;
 }
 
-bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts) {
-  std::string a = argv[i];
-  auto value = [&]() -> std::string {
-    if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-    return argv[++i];
-  };
-  if (a == "--domain") {
-    std::string v = value();
-    try {
-      opts.domain = std::stoi(v);
-    } catch (...) {
-      throw std::invalid_argument("--domain expects an integer 0..232, got '" + v + "'");
-    }
-    if (opts.domain < 0 || opts.domain > 232)
-      throw std::invalid_argument("--domain expects an integer 0..232, got '" + v + "'");
-    return true;
-  }
-  if (a == "--dds-profiles") {
-    opts.profiles_file = value();
-    return true;
-  }
-  if (a == "--security") {
-    opts.security_dir = value();
-    return true;
-  }
-  return false;
+void add_bus_options(CLI::App& app, BusOptions& opts) {
+  app.add_option("--domain", opts.domain, "DDS domain of the farm")->check(CLI::Range(0, 232))->capture_default_str();
+  app.add_option("--dds-profiles", opts.profiles_file,
+                 "Fast DDS XML profiles (default: FASTRTPS_DEFAULT_PROFILES_FILE, else fastdds_profiles.xml next "
+                 "to the program or in deploy/)");
+  app.add_option("--security", opts.security_dir,
+                 "DDS Security folder made by deploy/make-pki.sh (default: FARM_SECURITY_DIR, else none)");
 }
 
 Bus::Bus(const BusOptions& opts, const std::string& participant_name) : domain_(opts.domain) {

@@ -29,6 +29,10 @@
 #include "farmPubSubTypes.h"
 #include "mlp.h"
 
+namespace CLI {
+class App;
+}
+
 namespace farm::dds {
 
 namespace fdds = eprosima::fastdds::dds;
@@ -67,9 +71,9 @@ struct BusOptions {
   std::string security_dir;
 };
 
-// Adds --domain N, --dds-profiles FILE and --security DIR to a main's flag handling; returns
-// true if consumed.
-bool parse_bus_flag(int argc, char** argv, int& i, BusOptions& opts);
+// Adds --domain D (0..232), --dds-profiles FILE and --security DIR to a main's options (cli.h),
+// read into opts.
+void add_bus_options(CLI::App& app, BusOptions& opts);
 
 // The DDS Security folder these options select (--security, else FARM_SECURITY_DIR), "" for none.
 std::string security_dir_of(const BusOptions& opts);

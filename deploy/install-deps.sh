@@ -20,6 +20,7 @@ PACKAGES=(
   libonnx-dev python3-onnx python3-opencv           # farm-export: ONNX schema/checker; OpenCV DNN cross-check
   libcivetweb-dev prometheus-cpp-dev prometheus     # farm-monitor --prometheus (HTTP, metrics) and its scrape test
   faketime                                          # the security test's worker on a clock an hour behind
+  libcli11-dev                                      # every program's command-line options (header-only)
 )
 
 missing=()

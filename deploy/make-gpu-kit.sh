@@ -3,7 +3,8 @@
 # LibTorch (deploy/build-gpu.sh) and to run the Debian-built benchmarks and workers there:
 #   KIT/include, KIT/lib        headers and shared libraries of Eigen, Protobuf, MuJoCo (with
 #                               libccd, lodepng, qhull_r, tinyxml2), Fast DDS, GoogleTest,
-#                               civetweb, prometheus-cpp's core and OpenSSL's libcrypto
+#                               civetweb, prometheus-cpp's core, OpenSSL's libcrypto, and the
+#                               headers of CLI11 and nlohmann-json
 #   KIT/cmake/<pkg>             small package configs pointing into the kit
 #   KIT/bin/protoc              Debian's protoc (runs with KIT/lib on LD_LIBRARY_PATH)
 #   KIT/bin/fastddsgen          stands in for fastddsgen (Java): copies the sources generated
@@ -43,6 +44,9 @@ cp -a $arch/libcivetweb.so* $arch/libprometheus-cpp-core.so* "$kit/lib/"
 cp -a /usr/include/openssl "$kit/include/"
 cp -a /usr/include/x86_64-linux-gnu/openssl/* "$kit/include/openssl/" 2>/dev/null || true
 cp -a $arch/libcrypto.so* "$kit/lib/"
+# Header-only: CLI11 (every program's command-line options, common/cli.h) and nlohmann-json (the
+# learner's events.jsonl).
+cp -a /usr/include/CLI /usr/include/nlohmann "$kit/include/"
 
 # IDL sources generated here (the GPU host has no Java for fastddsgen).
 fastddsgen -replace -d "$kit/idl-gen" "$root/idl/farm.idl" >/dev/null
@@ -83,17 +87,19 @@ endif()
 set($1_FOUND TRUE)
 EOF
 }
-# nlohmann-json is header-only: its headers and an INTERFACE target of Debian's name.
-cp -a /usr/include/nlohmann "$kit/include/"
-mkdir -p "$kit/cmake/nlohmann_json"
-cat >"$kit/cmake/nlohmann_json/nlohmann_jsonConfig.cmake" <<'EOF'
-get_filename_component(_kit "${CMAKE_CURRENT_LIST_DIR}/../.." ABSOLUTE)
-if(NOT TARGET nlohmann_json::nlohmann_json)
-  add_library(nlohmann_json::nlohmann_json INTERFACE IMPORTED)
-  set_target_properties(nlohmann_json::nlohmann_json PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kit}/include")
+header_only() {  # package target: an INTERFACE target of Debian's name on the kit's headers
+  mkdir -p "$kit/cmake/$1"
+  cat >"$kit/cmake/$1/$1Config.cmake" <<EOF
+get_filename_component(_kit "\${CMAKE_CURRENT_LIST_DIR}/../.." ABSOLUTE)
+if(NOT TARGET $2)
+  add_library($2 INTERFACE IMPORTED)
+  set_target_properties($2 PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "\${_kit}/include")
 endif()
-set(nlohmann_json_FOUND TRUE)
+set($1_FOUND TRUE)
 EOF
+}
+header_only nlohmann_json nlohmann_json::nlohmann_json
+header_only CLI11 CLI11::CLI11
 imported mujoco mujoco::mujoco "$(readlink $arch/libmujoco.so)" ""
 imported tinyxml2 tinyxml2::tinyxml2 "$(readlink $arch/libtinyxml2.so)" ""
 imported muparser muparser::muparser "$(readlink $arch/libmuparser.so)" ""

@@ -4,9 +4,9 @@
 
 #include <atomic>
 #include <cstdio>
-#include <iostream>
 #include <string>
 
+#include "cli.h"
 #include "compute.h"
 #include "config.h"
 #include "dds.h"
@@ -26,48 +26,29 @@ struct Options {
   std::string run_dir;  // default <run_root>/<experiment_id>
 };
 
-void usage() {
-  std::cout << "usage: farm-learner --config FILE [--resume] [--run-dir DIR] [--domain D]\n"
-               "                    [--dds-profiles FILE] [--security DIR]\n"
-               "Trains the experiment in FILE with the workers that join on DDS domain D.\n"
-               "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint;\n"
-               "the networks of the best evaluation so far to <run-dir>/best.\n"
-               "--resume carries on from the checkpoint in the run dir. Without it, an existing\n"
-               "run dir is moved aside (renamed with a time stamp), never overwritten.\n";
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--config")
-      o.config_path = value();
-    else if (a == "--resume")
-      o.resume = true;
-    else if (a == "--run-dir")
-      o.run_dir = value();
-    else if (a == "-h" || a == "--help") {
-      usage();
-      std::exit(0);
-    } else
-      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
-  }
-  if (o.config_path.empty()) throw std::invalid_argument("--config FILE is required (see --help)");
-  return o;
+// Declares the options; --config is required.
+void add_options(CLI::App& app, Options& o) {
+  app.description(
+      "Trains the experiment in FILE with the workers that join on DDS domain D.\n"
+      "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint;\n"
+      "the networks of the best evaluation so far to <run-dir>/best.");
+  app.add_option("--config", o.config_path, "The experiment's config (text protobuf)")->required();
+  app.add_flag("--resume", o.resume,
+               "Carry on from the checkpoint in the run dir. Without it, an existing run dir is moved aside "
+               "(renamed with a time stamp), never overwritten");
+  app.add_option("--run-dir", o.run_dir, "The run's folder (default <run_root>/<experiment_id>)");
+  farm::dds::add_bus_options(app, o.bus);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   Options opt;
+  farm::cli::App app("farm-learner");
+  add_options(app, opt);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   config::ExperimentConfig cfg;
   try {
-    opt = parse(argc, argv);
     cfg = load_config_file(opt.config_path);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-learner: %s\n", e.what());

@@ -12,6 +12,7 @@
 #include <utility>
 #include <vector>
 
+#include "cli.h"
 #include "onnx_policy.h"
 #include "run_policy.h"
 #include "task.h"
@@ -21,75 +22,34 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const char* kUsage =
-    "usage: farm-export --run-dir RUN [--best] --out POLICY.onnx [--record N FILE.csv] [--seed S]\n"
-    "Writes the policy of RUN/checkpoint (with --best: RUN/best, the networks of the learner's best\n"
-    "evaluation) as an ONNX model: input \"obs\" [N, obs_dim], output \"action\" (SAC, PPO: the\n"
-    "deterministic action in [-1, 1]; DQN: the argmax index, and \"q_values\"), the observation\n"
-    "normalizer included, the task's layout in the model's metadata.\n"
-    "--record N FILE.csv: also steps the task for N steps (episodes from seed S, default 1) with the\n"
-    "worker's own policy, deterministic, and writes each observation and its action (DQN: and its\n"
-    "Q values) as a CSV row.\n";
-
 struct Options {
-  std::string run_dir, out, record_file, which = "checkpoint";
-  long record_steps = 0;
+  std::string run_dir, out, which = "checkpoint";
+  std::pair<long, std::string> record{0, ""};  // --record N FILE.csv; N 0: none
   uint64_t seed = 1;
 };
 
 // Bound on --record N: 10 million rows is already a CSV of gigabytes.
 constexpr long kMaxRecordSteps = 10'000'000;
 
-long parse_count(const std::string& flag, const std::string& v, long max) {
-  size_t used = 0;
-  long n = 0;
-  try {
-    n = std::stol(v, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used != v.size() || n < 1 || n > max)
-    throw std::invalid_argument(flag + " expects a whole number in [1, " + std::to_string(max) + "], got '" + v + "'");
-  return n;
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (a == "--run-dir") {
-      o.run_dir = value();
-    } else if (a == "--best") {
-      o.which = "best";
-    } else if (a == "--out") {
-      o.out = value();
-    } else if (a == "--record") {
-      o.record_steps = parse_count("--record", value(), kMaxRecordSteps);
-      o.record_file = value();
-    } else if (a == "--seed") {
-      const std::string v = value();
-      size_t used = 0;
-      try {
-        o.seed = std::stoull(v, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used != v.size() || v.empty() || v[0] == '-')
-        throw std::invalid_argument("--seed expects a non-negative whole number, got '" + v + "'");
-    } else if (a == "-h" || a == "--help") {
-      std::cout << kUsage;
-      std::exit(0);
-    } else {
-      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
-    }
-  }
-  if (o.run_dir.empty()) throw std::invalid_argument("--run-dir RUN is required (see --help)");
-  if (o.out.empty()) throw std::invalid_argument("--out POLICY.onnx is required (see --help)");
-  return o;
+// Declares the options into o; --run-dir and --out are required.
+void add_options(CLI::App& app, Options& o) {
+  app.description(
+      "Writes the policy of RUN/checkpoint (with --best: RUN/best, the networks of the learner's best\n"
+      "evaluation) as an ONNX model: input \"obs\" [N, obs_dim], output \"action\" (SAC, PPO: the\n"
+      "deterministic action in [-1, 1]; DQN: the argmax index, and \"q_values\"), the observation\n"
+      "normalizer included, the task's layout in the model's metadata.");
+  app.add_option("--run-dir", o.run_dir, "The run folder")->required();
+  app.add_flag_callback(
+      "--best", [&o] { o.which = "best"; }, "RUN/best, the networks of the learner's best evaluation");
+  app.add_option("--out", o.out, "The ONNX model to write")->required();
+  app.add_option("--record", o.record,
+                 "N FILE.csv: also steps the task for N steps (episodes from --seed) with the worker's own "
+                 "policy, deterministic, and writes each observation and its action (DQN: and its Q values) as "
+                 "a CSV row")
+      ->check(CLI::Range(1L, kMaxRecordSteps).application_index(0));
+  app.add_option("--seed", o.seed, "Reset seed of the first recorded episode")
+      ->check(farm::cli::whole_number())
+      ->capture_default_str();
 }
 
 struct Layout {
@@ -236,8 +196,12 @@ void record(const robots::Task& task, const PolicyParams& params, long steps, ui
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("farm-export");
+  add_options(app, o);
+  // Every refusal of farm-export, bad usage included, exits 1 (tests/integration/test_export.sh).
+  if (const int rc = farm::cli::parse(app, argc, argv, 1); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
     const tools::RunPolicy rp = tools::load_run_policy(tools::run_policy_dir(o.run_dir, o.which == "best"));
     const config::CheckpointManifest& m = rp.manifest;
     const config::ExperimentConfig& cfg = rp.config;
@@ -257,7 +221,7 @@ int main(int argc, char** argv) {
                 spec.name.c_str(), rp.dir.c_str());
     std::printf("wrote             %s (%zu bytes, ONNX opset %d; onnx checker: accepted)\n", o.out.c_str(),
                 model.ByteSizeLong(), tools::kOnnxOpset);
-    if (o.record_steps > 0) record(task, params, o.record_steps, o.seed, o.record_file);
+    if (o.record.first > 0) record(task, params, o.record.first, o.seed, o.record.second);
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-export: %s\n", e.what());

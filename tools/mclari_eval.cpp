@@ -17,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "cli.h"
 #include "config.h"
 #include "config_policy.h"
 #include "mclari/mclari_task.h"
@@ -28,13 +29,6 @@
 namespace mclari = farm::robots::mclari;
 
 namespace {
-
-const char* kUsage =
-    "usage: farm-mclari-eval --config EXPERIMENT.txtpb --checkpoint DIR [--episodes 10]\n"
-    "         [--best SWEEP/best.csv] [--out TABLE.md] [--threads N] [--seed 7] [--trace STEPS.csv]\n"
-    "  --checkpoint  the learner's checkpoint directory (runs/<experiment>/checkpoint)\n"
-    "  --best        the sweep's best fixed point per terrain, for the comparison column\n"
-    "  --trace       also run one episode per terrain and write the gait and figures of each step\n";
 
 struct Best {
   std::string group_name;
@@ -116,41 +110,33 @@ struct TerrainResult {
 }  // namespace
 
 int main(int argc, char** argv) {
+  std::string config_path, checkpoint, best_path, out_path, trace_path;
+  int episodes = 10, threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  uint64_t seed = 7;
+  farm::cli::App app("farm-mclari-eval");
+  app.description(
+      "Evaluates a trained mCLARI policy on each of the six terrains: deterministic episodes from a "
+      "learner checkpoint, mean efficiency, falls and targets reached per terrain against the best fixed "
+      "(group, f) of a characterization sweep; prints a Markdown table.");
+  app.add_option("--config", config_path, "The experiment (EXPERIMENT.txtpb)")->required();
+  app.add_option("--checkpoint", checkpoint, "The learner's checkpoint directory (runs/<experiment>/checkpoint)")
+      ->required();
+  app.add_option("--episodes", episodes, "Deterministic episodes per terrain")
+      ->check(CLI::Range(1, INT32_MAX))
+      ->capture_default_str();
+  app.add_option("--best", best_path,
+                 "The sweep's best fixed point per terrain (SWEEP/best.csv), for the comparison column");
+  app.add_option("--out", out_path, "The table to write (TABLE.md)");
+  app.add_option("--threads", threads, "Threads, one terrain each")
+      ->check(CLI::Range(1, INT32_MAX))
+      ->capture_default_str();
+  app.add_option("--seed", seed, "Reset seed of the first episode")
+      ->check(farm::cli::whole_number())
+      ->capture_default_str();
+  app.add_option("--trace", trace_path,
+                 "Also run one episode per terrain and write the gait and figures of each step (STEPS.csv)");
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    std::string config_path, checkpoint, best_path, out_path, trace_path;
-    int episodes = 10, threads = int(std::max(1u, std::thread::hardware_concurrency()));
-    uint64_t seed = 7;
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto value = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-        return argv[++i];
-      };
-      if (a == "--config")
-        config_path = value();
-      else if (a == "--checkpoint")
-        checkpoint = value();
-      else if (a == "--episodes")
-        episodes = std::stoi(value());
-      else if (a == "--best")
-        best_path = value();
-      else if (a == "--out")
-        out_path = value();
-      else if (a == "--threads")
-        threads = std::stoi(value());
-      else if (a == "--seed")
-        seed = std::stoull(value());
-      else if (a == "--trace")
-        trace_path = value();
-      else if (a == "--help" || a == "-h") {
-        std::cout << kUsage;
-        return 0;
-      } else
-        throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
-    }
-    if (config_path.empty() || checkpoint.empty())
-      throw std::invalid_argument(std::string("--config and --checkpoint are required\n") + kUsage);
-    if (episodes < 1 || threads < 1) throw std::invalid_argument("--episodes and --threads must be >= 1");
     const auto cfg = farm::load_config_file(config_path);
     if (cfg.task().name() != "mclari")
       throw std::invalid_argument(config_path + ": task.name is '" + cfg.task().name() + "', expected 'mclari'");

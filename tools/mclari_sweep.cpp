@@ -22,6 +22,7 @@
 #include <tuple>
 #include <vector>
 
+#include "cli.h"
 #include "config.h"
 #include "mclari/mclari_task.h"
 #include "mclari/phase_groups.h"
@@ -32,14 +33,6 @@ using farm::robots::McLariTask;
 namespace mclari = farm::robots::mclari;
 
 namespace {
-
-const char* kUsage =
-    "usage: farm-mclari-sweep --out DIR [--config EXPERIMENT.txtpb] [--seconds 60]\n"
-    "         [--frequencies 1,20,40,60,80,100,120,150] [--groups all|reduced|G,G,...]\n"
-    "         [--terrains 0,1,2,3,4,5] [--steps-per-period N] [--threads N] [--seed 1]\n"
-    "  --config         take task.mclari from this experiment config (defaults: seed 001)\n"
-    "  --seconds        episode length in 1 s steps (seed 001 §5.1: 1 minute)\n"
-    "  --steps-per-period  override task.mclari.steps_per_period (timestep 1 / (N f))\n";
 
 std::vector<int> int_list(const std::string& s, const char* flag) {
   std::vector<int> v;
@@ -74,46 +67,30 @@ struct Result {
 }  // namespace
 
 int main(int argc, char** argv) {
+  std::string out, config_path;
+  int seconds = 60, threads = int(std::max(1u, std::thread::hardware_concurrency())), spp = 0;
+  uint64_t seed = 1;
+  std::vector<int> freqs = {1, 20, 40, 60, 80, 100, 120, 150};  // seed 001 §5.1
+  std::vector<int> groups, terrains = {0, 1, 2, 3, 4, 5};
+  std::string groups_arg = "all";
+  farm::cli::App app("farm-mclari-sweep");
+  app.description("Runs every phase group x frequency on each terrain as one fixed-action episode.");
+  app.add_option("--out", out, "Folder of the CSV files and the height field")->required();
+  app.add_option("--config", config_path, "Take task.mclari from this experiment config (defaults: seed 001)");
+  app.add_option("--seconds", seconds, "Episode length in 1 s steps (seed 001 §5.1: 1 minute)")
+      ->check(CLI::Range(1, INT32_MAX))
+      ->capture_default_str();
+  app.add_option("--frequencies", freqs, "Comma-separated frequencies in Hz")->delimiter(',')->capture_default_str();
+  app.add_option("--groups", groups_arg, "all, reduced or comma-separated phase groups G,G,...")->capture_default_str();
+  app.add_option("--terrains", terrains, "Comma-separated terrains")
+      ->delimiter(',')
+      ->check(CLI::Range(0, mclari::kNumTerrains - 1))
+      ->capture_default_str();
+  app.add_option("--steps-per-period", spp, "Override task.mclari.steps_per_period (timestep 1 / (N f))");
+  app.add_option("--threads", threads, "Threads")->check(CLI::Range(1, INT32_MAX))->capture_default_str();
+  app.add_option("--seed", seed, "Seed")->check(farm::cli::whole_number())->capture_default_str();
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    std::string out, config_path;
-    int seconds = 60, threads = int(std::max(1u, std::thread::hardware_concurrency())), spp = 0;
-    uint64_t seed = 1;
-    std::vector<int> freqs = {1, 20, 40, 60, 80, 100, 120, 150};  // seed 001 §5.1
-    std::vector<int> groups, terrains = {0, 1, 2, 3, 4, 5};
-    std::string groups_arg = "all";
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto value = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-        return argv[++i];
-      };
-      if (a == "--out")
-        out = value();
-      else if (a == "--config")
-        config_path = value();
-      else if (a == "--seconds")
-        seconds = std::stoi(value());
-      else if (a == "--frequencies")
-        freqs = int_list(value(), "--frequencies");
-      else if (a == "--groups")
-        groups_arg = value();
-      else if (a == "--terrains")
-        terrains = int_list(value(), "--terrains");
-      else if (a == "--steps-per-period")
-        spp = std::stoi(value());
-      else if (a == "--threads")
-        threads = std::stoi(value());
-      else if (a == "--seed")
-        seed = std::stoull(value());
-      else if (a == "--help" || a == "-h") {
-        std::cout << kUsage;
-        return 0;
-      } else
-        throw std::invalid_argument("unknown argument '" + a + "'\n" + kUsage);
-    }
-    if (out.empty()) throw std::invalid_argument(std::string("--out is required\n") + kUsage);
-    if (seconds < 1) throw std::invalid_argument("--seconds must be >= 1");
-    if (threads < 1) throw std::invalid_argument("--threads must be >= 1");
     if (groups_arg == "all") {
       for (int g = 0; g < mclari::kNumGroups; ++g) groups.push_back(g);
     } else if (groups_arg == "reduced") {
@@ -124,9 +101,6 @@ int main(int argc, char** argv) {
     for (int g : groups)
       if (g < 0 || g >= mclari::kNumGroups)
         throw std::invalid_argument("--groups: " + std::to_string(g) + " not in [0, 27)");
-    for (int t : terrains)
-      if (t < 0 || t >= mclari::kNumTerrains)
-        throw std::invalid_argument("--terrains: " + std::to_string(t) + " not in [0, 6)");
 
     farm::config::MclariConfig base;
     if (!config_path.empty()) base = farm::load_config_file(config_path).task().mclari();

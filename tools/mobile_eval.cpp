@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "cli.h"
 #include "mlp.h"
 #include "mobile/mobile_task.h"
 #include "png_canvas.h"
@@ -28,48 +29,22 @@ struct Options {
   bool failures = false;
 };
 
-void usage() {
-  std::cout << "usage: farm-mobile-eval --run-dir DIR [--best] [--episodes N] [--seed S]\n"
-               "                        [--plot FILE.png] [--plot-episodes K] [--failures]\n"
-               "Runs N episodes (default 100) of the deterministic policy in DIR/checkpoint\n"
-               "(with --best: in DIR/best, the networks of the learner's best evaluation) on\n"
-               "fresh random maps drawn from seed S, prints success rate, mean episode time and\n"
-               "path length, and with --plot draws the first K episodes (default 6) over their maps.\n"
-               "--failures lists every episode that did not reach the goal: where it ended, the\n"
-               "shortest lidar range then, and for a collision what the robot touched.\n";
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (a == "--run-dir")
-      o.run_dir = value();
-    else if (a == "--best")
-      o.checkpoint = "best";
-    else if (a == "--episodes")
-      o.episodes = std::stoi(value());
-    else if (a == "--seed")
-      o.seed = std::stoull(value());
-    else if (a == "--plot")
-      o.plot = value();
-    else if (a == "--plot-episodes")
-      o.plot_episodes = std::stoi(value());
-    else if (a == "--failures")
-      o.failures = true;
-    else if (a == "-h" || a == "--help") {
-      usage();
-      std::exit(0);
-    } else
-      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
-  }
-  if (o.run_dir.empty()) throw std::invalid_argument("--run-dir DIR is required (see --help)");
-  if (o.episodes < 1) throw std::invalid_argument("--episodes must be >= 1");
-  return o;
+// Declares the options into o; --run-dir is required.
+void add_options(CLI::App& app, Options& o) {
+  app.description(
+      "Runs N episodes of the deterministic policy in DIR/checkpoint (with --best: in DIR/best, the\n"
+      "networks of the learner's best evaluation) on fresh random maps drawn from seed S, prints success\n"
+      "rate, mean episode time and path length, and with --plot draws the first K episodes over their maps.");
+  app.add_option("--run-dir", o.run_dir, "The run folder")->required();
+  app.add_flag_callback(
+      "--best", [&o] { o.checkpoint = "best"; }, "DIR/best, the networks of the learner's best evaluation");
+  app.add_option("--episodes", o.episodes, "Episodes to run")->check(CLI::Range(1, INT32_MAX))->capture_default_str();
+  app.add_option("--seed", o.seed, "Seed of the random maps")->check(farm::cli::whole_number())->capture_default_str();
+  app.add_option("--plot", o.plot, "Draw the first K episodes over their maps (FILE.png)");
+  app.add_option("--plot-episodes", o.plot_episodes, "K: episodes drawn with --plot")->capture_default_str();
+  app.add_flag("--failures", o.failures,
+               "List every episode that did not reach the goal: where it ended, the shortest lidar range then, "
+               "and for a collision what the robot touched");
 }
 
 struct Episode {
@@ -148,8 +123,12 @@ void describe_failure(const MobileTask& task, const MobileState& s, int episode,
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("farm-mobile-eval");
+  add_options(app, o);
+  // Every refusal of farm-mobile-eval, bad usage included, exits 1.
+  if (const int rc = farm::cli::parse(app, argc, argv, 1); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
     const tools::RunPolicy rp = tools::load_run_policy(tools::run_policy_dir(o.run_dir, o.checkpoint == "best"));
     const config::CheckpointManifest& m = rp.manifest;
     const config::ExperimentConfig& cfg = rp.config;

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "cli.h"
 #include "config_policy.h"
 #include "mlp.h"
 #include "offscreen_renderer.h"
@@ -25,32 +26,6 @@
 using namespace farm;
 
 namespace {
-
-const char* kUsage =
-    "usage: farm-play (--run RUN [--best] | --checkpoint DIR | --config EXPERIMENT.txtpb)\n"
-    "                 [--config EXPERIMENT.txtpb --checkpoint DIR]\n"
-    "                 --out FILE.mp4|FILE.gif|FOLDER/\n"
-    "                 [--episodes 1] [--seed 1] [--width 640] [--height 480] [--fps 25] [--max-steps N]\n"
-    "                 [--max-seconds S]\n"
-    "                 [--distance D] [--azimuth 90] [--elevation DEG] [--no-overlay] [--view-check]\n"
-    "                 [--ffmpeg ffmpeg]\n"
-    "Plays the deterministic policy of RUN/checkpoint (--best: RUN/best, the learner's best\n"
-    "evaluation; --checkpoint: any such folder) for N episodes of its task and writes them to one\n"
-    "video: .mp4 (H.264), .gif (looping) or numbered PNG frames in a folder. Episode i starts from\n"
-    "the reset seed the worker's evaluation of N episodes from seed S gives its env i.\n"
-    "  --config       the experiment from this file, not from the checkpoint's manifest: with\n"
-    "                 --checkpoint, for a policy folder without one (docs/data/mclari_terrain_policy);\n"
-    "                 alone, the experiment's untrained policy (its learner's initial networks), to\n"
-    "                 look at a task and the camera before training\n"
-    "  --fps          frames per second of simulated time (the video plays in real time)\n"
-    "  --max-steps    end each episode after this many control steps (default: the task's limit)\n"
-    "  --max-seconds  end each episode once this much time is simulated\n"
-    "  --distance, --azimuth, --elevation   the camera that follows the robot (default: from the\n"
-    "                 robot's size; azimuth 90 looks along +y; elevation in degrees, negative: from above)\n"
-    "  --no-overlay   no text on the frames (return, step, time, the task's metrics)\n"
-    "  --view-check   also measure the share of each frame the robot covers; exit 3 when it leaves\n"
-    "                 the picture (covers fewer than 20 pixels)\n"
-    "  --ffmpeg       the ffmpeg program (default: ffmpeg on PATH)\n";
 
 // The pixels of a frame's scene below which --view-check says the robot is out of the picture.
 constexpr int64_t kMinRobotPixels = 20;
@@ -75,86 +50,52 @@ std::string fmt(const char* f, double v) {
   return text;
 }
 
-long long parse_integer(const std::string& flag, const std::string& text, long long lo, long long hi) {
-  size_t used = 0;
-  long long v = 0;
-  try {
-    v = std::stoll(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size()) throw std::invalid_argument(flag + ": expected an integer, got '" + text + "'");
-  if (v < lo || v > hi)
-    throw std::invalid_argument(flag + ": " + text + " is outside [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                                "]");
-  return v;
+// Declares the options into o.
+void add_options(CLI::App& app, Options& o) {
+  app.description(
+      "Plays the deterministic policy of RUN/checkpoint (--best: RUN/best, the learner's best\n"
+      "evaluation; --checkpoint: any such folder) for N episodes of its task and writes them to one\n"
+      "video: .mp4 (H.264), .gif (looping) or numbered PNG frames in a folder. Episode i starts from\n"
+      "the reset seed the worker's evaluation of N episodes from seed S gives its env i.");
+  app.add_option("--run", o.run, "The run folder whose checkpoint/ (or best/) holds the policy");
+  app.add_flag("--best", o.best, "With --run: RUN/best, the learner's best evaluation");
+  app.add_option("--checkpoint", o.checkpoint, "A checkpoint or best folder holding the policy");
+  app.add_option("--config", o.config,
+                 "The experiment from this file, not from the checkpoint's manifest: with --checkpoint, for a "
+                 "policy folder without one (docs/data/mclari_terrain_policy); alone, the experiment's untrained "
+                 "policy (its learner's initial networks), to look at a task and the camera before training");
+  app.add_option("--out", o.out, "FILE.mp4, FILE.gif or FOLDER/ (numbered PNG frames)");
+  app.add_option("--episodes", o.episodes, "Episodes to play")->check(CLI::Range(1, 10000))->capture_default_str();
+  app.add_option("--seed", o.seed, "Reset seed of the first episode")
+      ->check(CLI::Range(int64_t(0), INT64_MAX))
+      ->capture_default_str();
+  app.add_option("--width", o.width, "Frame width in pixels")->check(CLI::Range(16, 4096))->capture_default_str();
+  app.add_option("--height", o.height, "Frame height in pixels")->check(CLI::Range(16, 4096))->capture_default_str();
+  app.add_option("--fps", o.fps, "Frames per second of simulated time (the video plays in real time)")
+      ->check(CLI::Range(1, 240))
+      ->capture_default_str();
+  app.add_option("--max-steps", o.max_steps,
+                 "End each episode after this many control steps (default: the task's limit)")
+      ->check(CLI::Range(1, 100000000));
+  app.add_option("--max-seconds", o.max_seconds, "End each episode once this much time is simulated")
+      ->check(farm::cli::within(1e-6, 1e7));
+  app.add_option("--distance", o.camera.distance,
+                 "Distance of the camera that follows the robot (default: from the robot's size)")
+      ->check(farm::cli::within(1e-6, 1e6));
+  app.add_option("--azimuth", o.camera.azimuth, "Azimuth of the camera in degrees (90 looks along +y)")
+      ->check(farm::cli::within(-360, 360));
+  app.add_option("--elevation", o.camera.elevation, "Elevation of the camera in degrees (negative: from above)")
+      ->check(farm::cli::within(-90, 90));
+  app.add_flag_callback(
+      "--no-overlay", [&o] { o.overlay = false; }, "No text on the frames (return, step, time, the task's metrics)");
+  app.add_flag("--view-check", o.view_check,
+               "Also measure the share of each frame the robot covers; exit 3 when it leaves the picture (covers "
+               "fewer than 20 pixels)");
+  app.add_option("--ffmpeg", o.ffmpeg, "The ffmpeg program (default: ffmpeg on PATH)");
 }
 
-double parse_number(const std::string& flag, const std::string& text, double lo, double hi) {
-  size_t used = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != text.size() || !std::isfinite(v))
-    throw std::invalid_argument(flag + ": expected a number, got '" + text + "'");
-  if (v < lo || v > hi)
-    throw std::invalid_argument(flag + ": " + text + " is outside [" + fmt("%g", lo) + ", " + fmt("%g", hi) + "]");
-  return v;
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (a == "--run")
-      o.run = value();
-    else if (a == "--best")
-      o.best = true;
-    else if (a == "--checkpoint")
-      o.checkpoint = value();
-    else if (a == "--config")
-      o.config = value();
-    else if (a == "--out")
-      o.out = value();
-    else if (a == "--episodes")
-      o.episodes = int(parse_integer(a, value(), 1, 10000));
-    else if (a == "--seed")
-      o.seed = uint64_t(parse_integer(a, value(), 0, INT64_MAX));
-    else if (a == "--width")
-      o.width = int(parse_integer(a, value(), 16, 4096));
-    else if (a == "--height")
-      o.height = int(parse_integer(a, value(), 16, 4096));
-    else if (a == "--fps")
-      o.fps = int(parse_integer(a, value(), 1, 240));
-    else if (a == "--max-steps")
-      o.max_steps = int(parse_integer(a, value(), 1, 100000000));
-    else if (a == "--max-seconds")
-      o.max_seconds = parse_number(a, value(), 1e-6, 1e7);
-    else if (a == "--distance")
-      o.camera.distance = parse_number(a, value(), 1e-6, 1e6);
-    else if (a == "--azimuth")
-      o.camera.azimuth = parse_number(a, value(), -360, 360);
-    else if (a == "--elevation")
-      o.camera.elevation = parse_number(a, value(), -90, 90);
-    else if (a == "--no-overlay")
-      o.overlay = false;
-    else if (a == "--view-check")
-      o.view_check = true;
-    else if (a == "--ffmpeg")
-      o.ffmpeg = value();
-    else if (a == "-h" || a == "--help") {
-      std::cout << kUsage;
-      std::exit(0);
-    } else
-      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
-  }
+// The combinations of options that name one policy and an output.
+void check_combinations(const Options& o) {
   if (!o.run.empty() && !o.checkpoint.empty())
     throw std::invalid_argument("--run RUN and --checkpoint DIR both name a policy: give one (see --help)");
   if (o.run.empty() && o.checkpoint.empty() && o.config.empty())
@@ -162,14 +103,17 @@ Options parse(int argc, char** argv) {
         "name the policy with --run RUN, --checkpoint DIR or --config EXPERIMENT.txtpb (see --help)");
   if (o.best && o.run.empty()) throw std::invalid_argument("--best goes with --run RUN (it reads RUN/best)");
   if (o.out.empty()) throw std::invalid_argument("--out FILE.mp4|FILE.gif|FOLDER/ is required (see --help)");
-  return o;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("farm-play");
+  add_options(app, o);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
+    check_combinations(o);
     // What can fail quickly fails before the policy is loaded and anything is rendered.
     tools::video_kind(o.out);
     const std::string ffmpeg = tools::find_ffmpeg(o.ffmpeg);

@@ -8,10 +8,10 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
-#include <iostream>
 #include <stdexcept>
 #include <string>
 
+#include "cli.h"
 #include "config.h"
 #include "dds.h"
 #include "worker_app.h"
@@ -23,60 +23,33 @@ namespace {
 std::atomic<bool> g_stop{false};
 void on_signal(int) { g_stop = true; }
 
-void usage() {
-  std::cout << "usage: farm-worker [--envs N] [--threads N] [--id NAME] [--domain D] [--experiment ID]\n"
-               "                   [--dds-profiles FILE] [--security DIR] [--log-every SECONDS]\n"
-               "                   [--inject-nan-batch SEQ] [--inject-publish-delay MS]   (fault injection for tests)\n"
-               "Joins the learner on DDS domain D (default 0) and runs N environments (default:\n"
-               "the experiment's worker.envs_per_worker) on the given number of threads.\n"
-               "--id NAME: the worker's name (default HOST-PID); with --security DIR (or FARM_SECURITY_DIR)\n"
-               "it is the CN of DIR/cert.pem by default, and another --id is refused.\n"
-               "--experiment ID: serve only the experiment with this experiment_id; without it, the\n"
-               "worker serves the first experiment it joins on the domain. Either way it ignores any\n"
-               "other experiment on the domain and ends when its experiment ends.\n";
+// Declares the options into o.
+void add_options(CLI::App& app, WorkerOptions& o) {
+  app.description(
+      "Joins the learner on DDS domain D (default 0) and runs N environments on the given number of threads.\n"
+      "It ignores any other experiment on the domain and ends when its experiment ends.");
+  app.add_option("--envs", o.envs, "Environments to run (default: the experiment's worker.envs_per_worker)")
+      ->check(CLI::Range(1, farm::kMaxEnvsPerWorker));
+  app.add_option("--threads", o.threads, "Threads that step the environments")
+      ->check(CLI::Range(1, farm::kMaxThreadsPerWorker));
+  app.add_option("--id", o.id,
+                 "The worker's name (default HOST-PID); with --security DIR (or FARM_SECURITY_DIR) it is the CN "
+                 "of DIR/cert.pem by default, and another --id is refused");
+  app.add_option("--experiment", o.experiment,
+                 "Serve only the experiment with this experiment_id; without it, the worker serves the first "
+                 "experiment it joins on the domain")
+      ->check(farm::cli::non_empty("an experiment id"));
+  app.add_option("--log-every", o.log_every, "Seconds between log lines")->check(CLI::Range(1, 3600));
+  app.add_option("--inject-nan-batch", o.inject_nan_batch, "Fault injection for tests: a NaN in batch SEQ")
+      ->check(CLI::Range(0, 1 << 30));
+  app.add_option("--inject-publish-delay", o.inject_publish_delay_ms,
+                 "Fault injection for tests: delay each publish by MS milliseconds")
+      ->check(CLI::Range(0, 60000));
+  farm::dds::add_bus_options(app, o.bus);
 }
 
-int int_flag(const std::string& name, const std::string& v, int lo, int hi) {
-  try {
-    size_t pos = 0;
-    int x = std::stoi(v, &pos);
-    if (pos == v.size() && x >= lo && x <= hi) return x;
-  } catch (...) {
-  }
-  throw std::invalid_argument(name + " expects an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                              "], got '" + v + "'");
-}
-
-WorkerOptions parse(int argc, char** argv) {
-  WorkerOptions o;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--envs")
-      o.envs = int_flag(a, value(), 1, farm::kMaxEnvsPerWorker);
-    else if (a == "--threads")
-      o.threads = int_flag(a, value(), 1, farm::kMaxThreadsPerWorker);
-    else if (a == "--id")
-      o.id = value();
-    else if (a == "--experiment") {
-      o.experiment = value();
-      if (o.experiment.empty()) throw std::invalid_argument("--experiment needs a non-empty experiment id");
-    } else if (a == "--log-every")
-      o.log_every = int_flag(a, value(), 1, 3600);
-    else if (a == "--inject-nan-batch")
-      o.inject_nan_batch = int_flag(a, value(), 0, 1 << 30);
-    else if (a == "--inject-publish-delay")
-      o.inject_publish_delay_ms = int_flag(a, value(), 0, 60000);
-    else if (a == "-h" || a == "--help") {
-      usage();
-      std::exit(0);
-    } else
-      throw std::invalid_argument("unknown option '" + a + "' (see --help)");
-  }
+// The worker's id once the options are read.
+void settle_id(WorkerOptions& o) {
   // Under DDS Security a worker's id is its certificate's name (the learner refuses batches under
   // another id), so it defaults to that name and a different --id is refused here.
   if (const std::string sec = farm::dds::security_dir_of(o.bus); !sec.empty()) {
@@ -89,15 +62,17 @@ WorkerOptions parse(int argc, char** argv) {
                                   "or use the folder deploy/make-pki.sh made for '" + o.id + "'");
   }
   if (o.id.empty()) o.id = farm::dds::hostname() + "-" + std::to_string(getpid());
-  return o;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
   WorkerOptions opt;
+  farm::cli::App app("farm-worker");
+  add_options(app, opt);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    opt = parse(argc, argv);
+    settle_id(opt);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-worker: %s\n", e.what());
     return 2;

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "../unit/quadruped_testing.h"
+#include "bench_options.h"
 #include "embedded_mjcf.h"
 #include "quadruped/quadruped_task.h"
 #include "quadruped_rate.h"
@@ -325,38 +326,19 @@ int main(int argc, char** argv) {
   double seconds = 2.0;
   int rounds = 3;
   std::string robot = "a1", mjcf;
-  auto usage = [] {
-    std::fprintf(stderr,
-                 "usage: bench_a1_step [--robot a1|honey_badger|silver_badger | --mjcf FILE] [--seconds S] "
-                 "[--rounds N]\n");
-    return 2;
-  };
-  for (int i = 1; i < argc; ++i) {
-    const bool has_value = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--seconds") && has_value) {
-      seconds = std::atof(argv[++i]);
-      if (!(seconds > 0 && seconds <= 600)) {
-        std::fprintf(stderr, "bench_a1_step: --seconds must be in (0, 600], got '%s'\n", argv[i]);
-        return 2;
-      }
-    } else if (!std::strcmp(argv[i], "--rounds") && has_value) {
-      rounds = std::atoi(argv[++i]);
-      if (rounds < 1 || rounds > 100) {
-        std::fprintf(stderr, "bench_a1_step: --rounds must be 1..100, got '%s'\n", argv[i]);
-        return 2;
-      }
-    } else if (!std::strcmp(argv[i], "--robot") && has_value) {
-      robot = argv[++i];
-      if (robot != "a1" && robot != "honey_badger" && robot != "silver_badger") {
-        std::fprintf(stderr, "bench_a1_step: unknown --robot '%s'\n", robot.c_str());
-        return usage();
-      }
-    } else if (!std::strcmp(argv[i], "--mjcf") && has_value) {
-      mjcf = argv[++i];
-    } else {
-      return usage();
-    }
-  }
+  farm::cli::App app("bench_a1_step");
+  app.description(
+      "Where the time of a quadruped's physics step goes, for the shipped model and for the same model "
+      "without its collision list; --mjcf profiles another quadruped's model file the same way.");
+  app.add_option("--robot", robot, "The robot")
+      ->check(CLI::IsMember({"a1", "honey_badger", "silver_badger"}))
+      ->capture_default_str();
+  app.add_option("--mjcf", mjcf, "An MJCF file to measure instead (needs a keyframe, a trunk body and actuators)");
+  bench::add_seconds(app, seconds)->check(farm::cli::above(0, 600));
+  app.add_option("--rounds", rounds, "Rounds per figure (the median is shown)")
+      ->check(CLI::Range(1, 100))
+      ->capture_default_str();
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   if (!mjcf.empty()) {
     char err[1000] = "";
     ModelPtr m(mj_loadXML(mjcf.c_str(), nullptr, err, sizeof err));

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_options.h"
 #include "compute.h"
 #include "dqn.h"
 #include "replay_buffer.h"
@@ -65,41 +66,20 @@ int main(int argc, char** argv) {
   int batch = 256, threads = 1, obs = 20, actions = 7;
   std::vector<int> hidden{128, 128};
   std::string device = "cpu";
-  for (int i = 1; i < argc; ++i) {
-    const bool has_value = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--seconds") && has_value) {
-      seconds = std::atof(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--threads") && has_value) {
-      threads = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--batch") && has_value) {
-      batch = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--device") && has_value) {
-      device = argv[++i];
-    } else if (!std::strcmp(argv[i], "--obs") && has_value) {
-      obs = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--actions") && has_value) {
-      actions = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--hidden") && has_value) {
-      hidden.clear();
-      std::stringstream list(argv[++i]);
-      for (std::string t; std::getline(list, t, ',');) hidden.push_back(std::atoi(t.c_str()));
-    } else {
-      std::fprintf(stderr,
-                   "usage: %s [--seconds S] [--threads N] [--batch B] [--device cpu|cuda[:N]] "
-                   "[--obs N --actions N --hidden H[,H...]]\n",
-                   argv[0]);
-      return 2;
-    }
-  }
-  bool ok = seconds > 0 && batch > 0 && threads > 0 && obs > 0 && actions > 1 && !hidden.empty();
-  for (int h : hidden) ok = ok && h > 0;
-  if (!ok) {
-    std::fprintf(stderr,
-                 "%s: --seconds, --batch, --threads, --obs and every --hidden size must be positive, "
-                 "--actions at least 2\n",
-                 argv[0]);
-    return 2;
-  }
+  farm::cli::App app("bench_dqn");
+  app.description(
+      "DQN learner throughput, by default on Jetbot's shapes: updates/s on the CPU and, with --device "
+      "cuda, eagerly on the GPU and as CUDA graph replays.");
+  bench::add_seconds(app, seconds);
+  bench::add_threads(app, threads);
+  bench::add_batch(app, batch);
+  bench::add_device(app, device);
+  app.add_option("--obs", obs, "Observation size")->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  app.add_option("--actions", actions, "Number of discrete actions")
+      ->check(CLI::Range(2, 1 << 20))
+      ->capture_default_str();
+  bench::add_hidden(app, hidden);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
 
   farm::configure_compute(threads);
   farm::ReplayBuffer buf(100000, obs, 1);

@@ -40,6 +40,7 @@
 #include <vector>
 
 #include "bench_ingest.h"
+#include "bench_options.h"
 #include "compute.h"
 #include "config.h"
 #include "dds.h"
@@ -54,66 +55,41 @@
 namespace bench_ingest {
 namespace {
 
-double positive(const std::string& flag, const std::string& v) {
-  char* end = nullptr;
-  const double d = std::strtod(v.c_str(), &end);
-  if (v.empty() || *end != '\0' || !(d > 0) || !std::isfinite(d))
-    throw std::invalid_argument(flag + ": expected a positive number, got '" + v + "'");
-  return d;
+// Declares the options into o.
+void add_options(CLI::App& app, Options& o) {
+  app.description("The ingest ceiling of one learner: batches/s and MB/s its receive path takes.");
+  farm::dds::add_bus_options(app, o.bus);
+  app.add_option("--config", o.config, "The experiment whose task and batch shape the senders send")
+      ->capture_default_str();
+  bench::add_list(app, "--rates", o.rates, "Total offered batches/s of each step, shared by the senders")
+      ->check(farm::cli::above(0, 100000));
+  app.add_option("--senders", o.senders, "Sender processes")->check(CLI::Range(1, 64))->capture_default_str();
+  bench::add_seconds(app, o.seconds, "Seconds measured per step")->check(farm::cli::above(0, 600));
+  app.add_option("--warmup", o.warmup, "Seconds of warm-up before each step")
+      ->check(farm::cli::above(0, 60))
+      ->capture_default_str();
+  app.add_option("--tolerance", o.tolerance, "Taken below (1 - F) x offered: not keeping up (a fraction below 1)")
+      ->check(farm::cli::positive())
+      ->capture_default_str();
+  app.add_option("--max-update-drop", o.max_update_drop,
+                 "Updates/s below (1 - F) x the baseline: ingest slows training (a fraction below 1)")
+      ->check(farm::cli::positive())
+      ->capture_default_str();
+  app.add_flag("--with-updates", o.with_updates, "Run a real SAC update loop beside ingest and measure its rate");
+  app.add_flag("--expect-all", o.expect_all,
+               "Exit 1 unless every step took what was offered with nothing lost or invalid");
+  app.add_flag("--sender", o.sender, "Sender mode: publish batches at --rate (needs --experiment, --id, --rate)");
+  app.add_option("--experiment", o.experiment, "Sender mode: the experiment id of its batches");
+  app.add_option("--id", o.id, "Sender mode: the worker id of its batches");
+  app.add_option("--rate", o.rate, "Sender mode: batches/s")->check(farm::cli::positive());
 }
 
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--config") {
-      o.config = value();
-    } else if (a == "--rates") {
-      o.rates.clear();
-      std::stringstream in(value());
-      for (std::string t; std::getline(in, t, ',');) o.rates.push_back(positive(a, t));
-      if (o.rates.empty()) throw std::invalid_argument("--rates: expected a list like 20,50,100");
-    } else if (a == "--senders") {
-      const double k = positive(a, value());
-      if (k != std::floor(k) || k > 64) throw std::invalid_argument("--senders: expected a whole number 1..64");
-      o.senders = int(k);
-    } else if (a == "--seconds") {
-      o.seconds = positive(a, value());
-    } else if (a == "--warmup") {
-      o.warmup = positive(a, value());
-    } else if (a == "--tolerance") {
-      o.tolerance = positive(a, value());
-    } else if (a == "--max-update-drop") {
-      o.max_update_drop = positive(a, value());
-    } else if (a == "--with-updates") {
-      o.with_updates = true;
-    } else if (a == "--expect-all") {
-      o.expect_all = true;
-    } else if (a == "--sender") {
-      o.sender = true;
-    } else if (a == "--experiment") {
-      o.experiment = value();
-    } else if (a == "--id") {
-      o.id = value();
-    } else if (a == "--rate") {
-      o.rate = positive(a, value());
-    } else {
-      throw std::invalid_argument("unknown option '" + a + "'");
-    }
-  }
-  if (o.seconds > 600 || o.warmup > 60) throw std::invalid_argument("--seconds at most 600, --warmup at most 60");
+// The combinations of options that bench_ingest refuses.
+void check_combinations(const Options& o) {
   if (o.tolerance >= 1 || o.max_update_drop >= 1)
     throw std::invalid_argument("--tolerance and --max-update-drop are fractions below 1");
-  for (double r : o.rates)
-    if (r > 100000) throw std::invalid_argument("--rates: at most 100000 batches/s");
   if (o.sender && (o.experiment.empty() || o.id.empty() || o.rate <= 0))
     throw std::invalid_argument("--sender needs --experiment, --id and --rate");
-  return o;
 }
 
 // ---- the learner's side --------------------------------------------------------------------------
@@ -456,8 +432,12 @@ int run_learner(const Options& o) {
 }  // namespace bench_ingest
 
 int main(int argc, char** argv) {
+  bench_ingest::Options o;
+  farm::cli::App app("bench_ingest");
+  bench_ingest::add_options(app, o);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const bench_ingest::Options o = bench_ingest::parse(argc, argv);
+    bench_ingest::check_combinations(o);
     if (!o.bus.profiles_file.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);
     return o.sender ? bench_ingest::run_sender(o) : bench_ingest::run_learner(o);
   } catch (const std::exception& e) {

@@ -8,7 +8,9 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "cli.h"
 #include "mclari/mclari_task.h"
+#include "mclari/terrain.h"
 
 using farm::robots::McLariState;
 using farm::robots::McLariTask;
@@ -20,8 +22,17 @@ double now() { return std::chrono::duration<double>(std::chrono::steady_clock::n
 }  // namespace
 
 int main(int argc, char** argv) {
-  const double min_seconds = argc > 1 ? std::atof(argv[1]) : 3.0;
-  const int terrain = argc > 2 ? std::atoi(argv[2]) : 0;
+  double min_seconds = 3.0;
+  int terrain = 0;
+  farm::cli::App app("bench_mclari");
+  app.description("mCLARI RL steps per second of one thread at 1, 20 and 150 Hz, against a raw mj_step loop.");
+  app.add_option("seconds", min_seconds, "SECONDS: the least time measured per figure")
+      ->check(farm::cli::positive())
+      ->capture_default_str();
+  app.add_option("terrain", terrain, "TERRAIN: the terrain the robot walks on")
+      ->check(CLI::Range(0, farm::robots::mclari::kNumTerrains - 1))
+      ->capture_default_str();
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   std::printf("mCLARI, terrain %d, one thread; steps per period 500 (seed 001)\n", terrain);
   std::printf("%6s %14s %16s %16s %8s %22s\n", "f [Hz]", "RL steps/s", "mj_step/s (task)", "mj_step/s (raw)", "ratio",
               "seed 001 at 150 Hz");

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_options.h"
 #include "mobile/mobile_task.h"
 #include "task.h"
 
@@ -78,20 +79,15 @@ int main(int argc, char** argv) {
   double seconds = 3.0;
   int rays = 12, substeps = 0;
   double dt = 0;
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
-      seconds = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--rays") && i + 1 < argc)
-      rays = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--dt") && i + 1 < argc)
-      dt = std::atof(argv[++i]);
-    else if (!std::strcmp(argv[i], "--substeps") && i + 1 < argc)
-      substeps = std::atoi(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: bench_mobile [--seconds S] [--rays N] [--dt DT --substeps K]\n");
-      return 2;
-    }
-  }
+  farm::cli::App app("bench_mobile");
+  app.description(
+      "Mobile-robot env throughput on one core against the physics alone: env steps/s of the Jetbot "
+      "and Kaya goal-reaching tasks next to a raw mj_step loop of the same model.");
+  bench::add_seconds(app, seconds);
+  app.add_option("--rays", rays, "Lidar rays")->capture_default_str();
+  app.add_option("--dt", dt, "Physics timestep (with --substeps; default: the task's)");
+  app.add_option("--substeps", substeps, "Physics steps per control step (with --dt; default: the task's)");
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   std::printf("one core; lidar %d rays; figures are per core; physics dt %s\n", rays,
               dt > 0 ? std::to_string(dt).c_str() : "default");
   std::printf("%-7s %8s %14s %16s %14s %7s %9s\n", "robot", "substeps", "raw mj_step/s", "raw env-equiv/s",

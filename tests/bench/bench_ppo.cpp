@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_options.h"
 #include "compute.h"
 #include "ppo.h"
 #include "rollout_storage.h"
@@ -33,26 +34,16 @@ int main(int argc, char** argv) {
   int threads = 1, fits = 2;
   int64_t steps = 98304;  // seed 000 appendix: steps per fit
   std::vector<int> hidden{512, 256, 128};
-  for (int i = 1; i < argc; ++i) {
-    const bool v = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--device") && v)
-      device = argv[++i];
-    else if (!std::strcmp(argv[i], "--threads") && v)
-      threads = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--fits") && v)
-      fits = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--steps") && v)
-      steps = std::atoll(argv[++i]);
-    else if (!std::strcmp(argv[i], "--hidden") && v) {
-      hidden.clear();
-      std::stringstream list(argv[++i]);
-      for (std::string h; std::getline(list, h, ',');) hidden.push_back(std::atoi(h.c_str()));
-    } else {
-      std::fprintf(stderr, "usage: %s [--device cpu|cuda[:N]] [--threads N] [--fits K] [--steps S] [--hidden a,b,c]\n",
-                   argv[0]);
-      return 2;
-    }
-  }
+  farm::cli::App app("bench_ppo");
+  app.description("PPO fit time on random A1-sized data (seed 000 appendix).");
+  bench::add_device(app, device);
+  bench::add_threads(app, threads);
+  app.add_option("--fits", fits, "Fits measured after one warm-up fit")
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str();
+  app.add_option("--steps", steps, "Steps per fit")->capture_default_str();
+  bench::add_hidden(app, hidden);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   if (fits < 1 || steps < 16 || threads < 1) {
     std::fprintf(stderr, "bench_ppo: --fits >= 1, --steps >= 16 and --threads >= 1 expected\n");
     return 2;

@@ -12,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "bench_options.h"
 #include "quadruped/quadruped_task.h"
 #include "quadruped_rate.h"
 #include "task.h"
@@ -64,14 +65,10 @@ double env_steps_per_second(const QuadrupedTask& task, double seconds, uint64_t*
 
 int main(int argc, char** argv) {
   double seconds = 3.0;
-  for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--seconds") && i + 1 < argc)
-      seconds = std::atof(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: bench_quadruped [--seconds S]\n");
-      return 2;
-    }
-  }
+  farm::cli::App app("bench_quadruped");
+  app.description("Raw physics and env steps per second of each quadruped, one core.");
+  bench::add_seconds(app, seconds);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   std::printf("one core; figures are per core\n");
   std::printf("%-14s %10s %14s %16s %14s %7s %9s\n", "robot", "decimation", "raw mj_step/s", "raw env-equiv/s",
               "env steps/s", "ratio", "episodes");

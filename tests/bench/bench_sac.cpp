@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_options.h"
 #include "compute.h"
 #include "device_replay.h"
 #include "off_policy.h"
@@ -210,49 +211,26 @@ int main(int argc, char** argv) {
   std::vector<int> threads{1, 2};
   std::string device = "cpu";
   int check_updates = 200;
-  for (int i = 1; i < argc; ++i) {
-    const bool has_value = i + 1 < argc;
-    if (!std::strcmp(argv[i], "--seconds") && has_value) {
-      seconds = std::atof(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--device") && has_value) {
-      device = argv[++i];
-    } else if (!std::strcmp(argv[i], "--check") && has_value) {
-      check_updates = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--batch") && has_value) {
-      batch = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--tf32") || !std::strcmp(argv[i], "--no-tf32")) {
-      // sac.cuda_tf32 for every SAC of the run, eager and graph alike (default: the config's).
-      g_tf32 = !std::strcmp(argv[i], "--tf32");
-    } else if (!std::strcmp(argv[i], "--actor-on-previous-critic")) {
-      g_beside = true;
-    } else if (!std::strcmp(argv[i], "--obs") && has_value) {
-      g_obs = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--act") && has_value) {
-      g_act = std::atoi(argv[++i]);
-    } else if (!std::strcmp(argv[i], "--hidden") && has_value) {
-      std::vector<int> h;
-      std::stringstream list(argv[++i]);
-      for (std::string t; std::getline(list, t, ',');) h.push_back(std::atoi(t.c_str()));
-      g_hidden = {h};
-    } else if (!std::strcmp(argv[i], "--threads") && has_value) {
-      threads.clear();
-      std::stringstream list(argv[++i]);
-      for (std::string t; std::getline(list, t, ',');) threads.push_back(std::atoi(t.c_str()));
-    } else {
-      std::fprintf(stderr,
-                   "usage: %s [--seconds S] [--threads N[,N...]] [--batch B] "
-                   "[--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32] [--actor-on-previous-critic] "
-                   "[--obs N --act N --hidden H[,H...]]\n",
-                   argv[0]);
-      return 2;
-    }
-  }
-  bool shape_ok = g_obs > 0 && g_act > 0 && batch > 0;
-  for (int h : g_hidden.front()) shape_ok = shape_ok && h > 0;
-  if (!shape_ok) {
-    std::fprintf(stderr, "%s: --obs, --act, --batch and every --hidden size must be positive integers\n", argv[0]);
-    return 2;
-  }
+  std::vector<int> hidden;  // --hidden: one network size instead of the two of g_hidden
+  farm::cli::App app("bench_sac");
+  app.description(
+      "SAC learner throughput, by default on the pendulum shapes (obs 3, act 1; 64-64 and 256-256 "
+      "networks); --obs/--act/--hidden measure one other shape instead.");
+  bench::add_seconds(app, seconds);
+  bench::add_list(app, "--threads", threads, "Torch thread counts to measure")->check(CLI::Range(1, 4096));
+  bench::add_batch(app, batch);
+  bench::add_device(app, device);
+  app.add_option("--check", check_updates, "On CUDA: updates of the graph checked against eager ones (0: none)")
+      ->capture_default_str();
+  // sac.cuda_tf32 for every SAC of the run, eager and graph alike (default: the config's).
+  app.add_flag("--tf32,!--no-tf32", g_tf32, "Matrix products in TF32 on CUDA (default: the config's sac.cuda_tf32)");
+  app.add_flag("--actor-on-previous-critic", g_beside,
+               "The actor's step beside the critics' (against them before their step)");
+  app.add_option("--obs", g_obs, "Observation size")->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  app.add_option("--act", g_act, "Action size")->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  bench::add_hidden(app, hidden)->description("Hidden layer sizes, comma-separated (default: 64,64 and 256,256)");
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
+  if (!hidden.empty()) g_hidden = {hidden};
 
   const int kObs = g_obs, kAct = g_act;
   farm::ReplayBuffer buf(100000, kObs, kAct);

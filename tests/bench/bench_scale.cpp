@@ -26,6 +26,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_options.h"
 #include "dds.h"
 #include "ingest.h"
 #include "meter.h"
@@ -45,47 +46,22 @@ struct Options {
   std::string log_dir = "/tmp/bench_scale";
 };
 
-std::vector<int> parse_list(const std::string& s, const std::string& flag) {
-  std::vector<int> out;
-  std::stringstream in(s);
-  for (std::string t; std::getline(in, t, ',');) {
-    const int v = std::atoi(t.c_str());
-    if (v < 1) throw std::invalid_argument(flag + ": expected positive integers, got '" + t + "'");
-    out.push_back(v);
-  }
-  return out;
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--workers")
-      o.workers = parse_list(value(), a);
-    else if (a == "--envs")
-      o.envs = parse_list(value(), a).at(0);
-    else if (a == "--steps")
-      o.steps = parse_list(value(), a).at(0);
-    else if (a == "--seconds")
-      o.seconds = std::atof(value().c_str());
-    else if (a == "--warmup")
-      o.warmup = std::atof(value().c_str());
-    else if (a == "--worker-bin")
-      o.worker_bin = value();
-    else if (a == "--log-dir")
-      o.log_dir = value();
-    else
-      throw std::invalid_argument("unknown option '" + a + "'");
-  }
-  if (!(o.seconds > 0) || o.warmup < 0) throw std::invalid_argument("--seconds must be > 0, --warmup >= 0");
-  o.worker_bin =
-      farm::find_companion("farm-worker", o.worker_bin, "../worker/farm-worker", FARM_WORKER_BIN, "--worker-bin");
-  return o;
+// Declares the options into o.
+void add_options(CLI::App& app, Options& o) {
+  app.description(
+      "Farm scaling: total env steps/s arriving at a learner from 1, 2, 4, ... real farm-worker "
+      "processes, as a fraction of (1 worker's rate x workers).");
+  farm::dds::add_bus_options(app, o.bus);
+  bench::add_list(app, "--workers", o.workers, "Worker counts to measure")->check(CLI::Range(1, 100000));
+  app.add_option("--envs", o.envs, "Environments per worker")->check(CLI::Range(1, 100000))->capture_default_str();
+  app.add_option("--steps", o.steps, "Steps per batch")->check(CLI::Range(1, 100000))->capture_default_str();
+  bench::add_seconds(app, o.seconds, "Seconds measured per worker count");
+  app.add_option("--warmup", o.warmup, "Seconds of warm-up before each measurement")
+      ->check(farm::cli::within(0, 1e9))
+      ->capture_default_str();
+  app.add_option("--worker-bin", o.worker_bin,
+                 "The farm-worker program (default: next to this program, then the build tree's)");
+  app.add_option("--log-dir", o.log_dir, "Folder of the workers' logs")->capture_default_str();
 }
 
 pid_t spawn(const std::vector<std::string>& argv, const std::string& log) {
@@ -244,8 +220,13 @@ class Sink {
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("bench_scale");
+  add_options(app, o);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
+    o.worker_bin =
+        farm::find_companion("farm-worker", o.worker_bin, "../worker/farm-worker", FARM_WORKER_BIN, "--worker-bin");
     std::filesystem::create_directories(o.log_dir);
     // The workers read the same profiles through the standard variable.
     if (!o.bus.profiles_file.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", o.bus.profiles_file.c_str(), 1);

@@ -31,6 +31,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_options.h"
 #include "dds.h"
 
 namespace {
@@ -55,44 +56,20 @@ struct Options {
   std::string connect;         // tcp-writer: reader's address
 };
 
-std::vector<size_t> parse_sizes(const std::string& s) {
-  std::vector<size_t> out;
-  std::stringstream in(s);
-  for (std::string t; std::getline(in, t, ',');) {
-    char* end = nullptr;
-    const unsigned long long v = std::strtoull(t.c_str(), &end, 10);
-    if (t.empty() || *end || v < 64) throw std::invalid_argument("--sizes: bad size '" + t + "' (bytes, >= 64)");
-    out.push_back(size_t(v));
-  }
-  return out;
-}
-
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--sizes")
-      o.sizes = parse_sizes(value());
-    else if (a == "--seconds")
-      o.seconds = std::atof(value().c_str());
-    else if (a == "--role")
-      o.role = value();
-    else if (a == "--writer-prefix")
-      o.writer_prefix = value();
-    else if (a == "--tcp-limit")
-      o.tcp_limit_host = value();
-    else if (a == "--connect")
-      o.connect = value();
-    else
-      throw std::invalid_argument("unknown option '" + a + "'");
-  }
-  if (!(o.seconds > 0)) throw std::invalid_argument("--seconds must be > 0");
-  return o;
+// Declares the options into o.
+void add_options(CLI::App& app, Options& o) {
+  app.description("TransitionBatch throughput between two processes over DDS (and a plain TCP stream).");
+  farm::dds::add_bus_options(app, o.bus);
+  bench::add_list(app, "--sizes", o.sizes, "Sample sizes in bytes (>= 64)")->check(CLI::Range(size_t(64), SIZE_MAX));
+  bench::add_seconds(app, o.seconds, "Seconds measured per size");
+  app.add_option("--role", o.role, "reader, writer or tcp-writer")
+      ->check(CLI::IsMember({"reader", "writer", "tcp-writer"}))
+      ->capture_default_str();
+  app.add_option("--writer-prefix", o.writer_prefix,
+                 "The command the writer copy of this program runs under (e.g. \"ip netns exec farm_b\")");
+  app.add_option("--tcp-limit", o.tcp_limit_host,
+                 "Reader: also measure a plain TCP stream from a writer that connects to HOST, the limit across hosts");
+  app.add_option("--connect", o.connect, "Tcp-writer: the reader's address");
 }
 
 // A batch whose serialized payload is about `bytes`: pendulum-shaped transitions (obs 3, act 1),
@@ -368,8 +345,11 @@ int run_reader(const Options& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("bench_transport");
+  add_options(app, o);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
     if (o.role == "writer") return run_writer(o);
     if (o.role == "tcp-writer") return run_tcp_writer(o);
     if (o.role == "reader") return run_reader(o);

@@ -33,6 +33,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_options.h"
 #include "config.h"
 #include "mlp.h"
 #include "rollout.h"
@@ -271,34 +272,24 @@ int main(int argc, char** argv) {
   std::string task_name = "pendulum", config_path, against_path;
   bool raw_only = false, inference_only = false, envs_given = false, task_given = false;
   const int T = 32;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (i + 1 < argc && a == "--envs") {
-      envs = std::atoi(argv[++i]);
-      envs_given = true;
-    } else if (i + 1 < argc && a == "--threads") {
-      threads = std::atoi(argv[++i]);
-    } else if (i + 1 < argc && a == "--task") {
-      task_name = argv[++i];
-      task_given = true;
-    } else if (i + 1 < argc && a == "--config") {
-      config_path = argv[++i];
-    } else if (i + 1 < argc && a == "--against") {
-      against_path = argv[++i];
-    } else if (i + 1 < argc && a == "--seconds") {
-      seconds = std::atof(argv[++i]);
-    } else if (a == "--raw-only") {
-      raw_only = true;
-    } else if (a == "--inference-only") {
-      inference_only = true;
-    } else {
-      std::fprintf(stderr,
-                   "usage: %s [--task NAME | --config FILE [--against FILE]] [--envs N] [--threads K] "
-                   "[--seconds S] [--raw-only | --inference-only]\n",
-                   argv[0]);
-      return 2;
-    }
-  }
+  farm::cli::App app("bench_worker");
+  app.description(
+      "Worker throughput against the physics alone: how much of raw mj_step speed survives policy "
+      "inference, batching and threading.");
+  app.add_option("--task", task_name, "The task to run")
+      ->capture_default_str()
+      ->each([&task_given](const std::string&) { task_given = true; });
+  app.add_option("--config", config_path, "An experiment config whose task and worker settings to run");
+  app.add_option("--against", against_path, "A second config whose worker runs beside --config's");
+  app.add_option("--envs", envs, "Environments (default with --config: its worker.envs_per_worker)")
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str()
+      ->each([&envs_given](const std::string&) { envs_given = true; });
+  bench::add_threads(app, threads, "Threads that step the environments");
+  bench::add_seconds(app, seconds);
+  app.add_flag("--raw-only", raw_only, "Measure only the raw physics");
+  app.add_flag("--inference-only", inference_only, "Measure only the policy inference");
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   if (task_given && !config_path.empty()) {
     std::fprintf(stderr, "--task and --config both name the task: give one\n");
     return 2;
@@ -311,10 +302,6 @@ int main(int argc, char** argv) {
   }
   if (raw_only && inference_only) {
     std::fprintf(stderr, "--raw-only and --inference-only exclude each other: give one\n");
-    return 2;
-  }
-  if (envs < 1 || threads < 1 || !(seconds > 0)) {
-    std::fprintf(stderr, "--envs and --threads must be >= 1, --seconds > 0\n");
     return 2;
   }
 

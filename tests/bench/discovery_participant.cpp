@@ -27,6 +27,7 @@
 #include <string>
 #include <thread>
 
+#include "cli.h"
 #include "dds.h"
 
 namespace {
@@ -47,40 +48,21 @@ struct Options {
   double max_seconds = 600;
 };
 
-Options parse(int argc, char** argv) {
-  Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
-    if (farm::dds::parse_bus_flag(argc, argv, i, o.bus)) continue;
-    if (a == "--name") {
-      o.name = value();
-    } else if (a == "--role") {
-      o.role = value();
-    } else if (a == "--expect") {
-      const std::string v = value();
-      char* end = nullptr;
-      const long k = std::strtol(v.c_str(), &end, 10);
-      if (v.empty() || *end || k < 1 || k > 100000)
-        throw std::invalid_argument("--expect: expected a count 1..100000, got '" + v + "'");
-      o.expect = int(k);
-    } else if (a == "--max-seconds") {
-      const std::string v = value();
-      char* end = nullptr;
-      o.max_seconds = std::strtod(v.c_str(), &end);
-      if (v.empty() || *end || !(o.max_seconds > 0) || o.max_seconds > 86400)
-        throw std::invalid_argument("--max-seconds: expected seconds in (0, 86400], got '" + v + "'");
-    } else {
-      throw std::invalid_argument("unknown option '" + a + "'");
-    }
-  }
-  if (o.name.empty() || o.expect < 0) throw std::invalid_argument("--name and --expect are required");
-  if (o.role != "mesh" && o.role != "worker" && o.role != "learner")
-    throw std::invalid_argument("--role: expected mesh, worker or learner, got '" + o.role + "'");
-  return o;
+// Declares the options into o; --name and --expect are required.
+void add_options(CLI::App& app, Options& o) {
+  app.description("One participant of the discovery benchmark: reports when its endpoints matched the others.");
+  farm::dds::add_bus_options(app, o.bus);
+  app.add_option("--name", o.name, "The participant's name")->required();
+  app.add_option("--role", o.role, "mesh, worker or learner")
+      ->check(CLI::IsMember({"mesh", "worker", "learner"}))
+      ->capture_default_str();
+  app.add_option("--expect", o.expect,
+                 "Remote endpoints each of its writer and reader must match (mesh, learner: N-1; worker: 1)")
+      ->required()
+      ->check(CLI::Range(1, 100000));
+  app.add_option("--max-seconds", o.max_seconds, "Longest wait for the matches")
+      ->check(farm::cli::above(0, 86400))
+      ->capture_default_str();
 }
 
 using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
@@ -115,8 +97,11 @@ int run(const Options& o, farm::dds::Bus& bus, const char* write_topic, const ch
 }  // namespace
 
 int main(int argc, char** argv) {
+  Options o;
+  farm::cli::App app("discovery_participant");
+  add_options(app, o);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const Options o = parse(argc, argv);
     signal(SIGTERM, on_term);
     signal(SIGINT, on_term);
     const double start = unix_now();

@@ -60,6 +60,7 @@
 #include <string>
 #include <thread>
 
+#include "cli.h"
 #include "config.h"
 #include "dds.h"
 #include "meter.h"
@@ -276,69 +277,51 @@ int main(int argc, char** argv) {
   unsigned spec_steps = 4, spec_max_batches = 4;
   double forge_return = NAN;
   unsigned forge_length = 1, forge_metrics = 1, flood_streams = 0, flood_heartbeats = 0, host_bytes = 0, big_mib = 0;
-  try {
-    for (int i = 1; i < argc; ++i) {
-      std::string a = argv[i];
-      if (farm::dds::parse_bus_flag(argc, argv, i, bus_opts)) continue;
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      std::string v = argv[++i];
-      if (a == "--experiment")
-        experiment = v;
-      else if (a == "--id")
-        id = v;
-      else if (a == "--obs")
-        obs = std::stoul(v);
-      else if (a == "--act")
-        act = std::stoul(v);
-      else if (a == "--seconds")
-        seconds = std::stod(v);
-      else if (a == "--hostile")
-        hostile = v == "1";
-      else if (a == "--oversize")
-        oversize = v == "1";
-      else if (a == "--spec-config")
-        spec_config = v;
-      else if (a == "--spec-steps")
-        spec_steps = std::stoul(v);
-      else if (a == "--spec-finished")
-        spec_finished = v == "1";
-      else if (a == "--spec-max-batches")
-        spec_max_batches = std::stoul(v);
-      else if (a == "--spec-only")
-        spec_only = v == "1";
-      else if (a == "--status-host")
-        status_host = v;
-      else if (a == "--status-error")
-        status_error = v;
-      else if (a == "--try-writers")
-        try_writers = v == "1";
-      else if (a == "--heartbeat")
-        heartbeat = v == "1";
-      else if (a == "--eval-requests")
-        eval_worker = v;
-      else if (a == "--forge-answers")
-        forge_return = std::stof(v);
-      else if (a == "--forge-length")
-        forge_length = std::stoul(v);
-      else if (a == "--forge-metrics")
-        forge_metrics = std::stoul(v);
-      else if (a == "--flood-streams")
-        flood_streams = std::stoul(v);
-      else if (a == "--flood-heartbeats")
-        flood_heartbeats = std::stoul(v);
-      else if (a == "--status-host-bytes")
-        host_bytes = std::stoul(v);
-      else if (a == "--big-to-workers")
-        big_mib = std::stoul(v);
-      else if (a == "--token-name")
-        g_token_name = v;
-      else
-        throw std::invalid_argument("unknown flag " + a);
-    }
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "farm_intruder: %s\n", e.what());
-    return 2;
-  }
+  farm::cli::App app("farm_intruder");
+  app.description("A participant that does what no farm program does, for the reliability and security tests.");
+  farm::dds::add_bus_options(app, bus_opts);
+  // A switch given as 1 (on) or anything else (off), as the tests' scripts pass it.
+  auto add_switch = [&app](const char* name, bool& on, const char* what) {
+    app.add_option_function<std::string>(
+        name, [&on](const std::string& v) { on = v == "1"; }, what);
+  };
+  app.add_option("--experiment", experiment, "Experiment id of what it writes")->capture_default_str();
+  app.add_option("--id", id, "Participant and worker id")->capture_default_str();
+  app.add_option("--obs", obs, "Observation size of its batches")->capture_default_str();
+  app.add_option("--act", act, "Action size of its batches")->capture_default_str();
+  app.add_option("--seconds", seconds, "How long it runs")->capture_default_str();
+  add_switch("--hostile", hostile,
+             "1: batches of invented sessions and sequence numbers near 2^64 instead of a plain stream");
+  add_switch("--oversize", oversize,
+             "1: batches of 2^20 transitions, each dimension within its bound, instead of a plain stream");
+  app.add_option("--spec-config", spec_config,
+                 "Also publish an ExperimentSpec whose config text is this file's (a learner's impostor)");
+  app.add_option("--spec-steps", spec_steps, "steps_per_batch of the --spec-config spec")->capture_default_str();
+  add_switch("--spec-finished", spec_finished, "1: the spec marks the end of the experiment");
+  app.add_option("--spec-max-batches", spec_max_batches, "max_batches_per_version of the spec")->capture_default_str();
+  add_switch("--spec-only", spec_only, "1: send no batch: publish the spec and stay --seconds");
+  app.add_option("--status-host", status_host, "Host of its heartbeats (default: this host's name)");
+  app.add_option("--status-error", status_error, "last_error of its heartbeats");
+  add_switch("--try-writers", try_writers,
+             "1: try to create a writer on each farm topic, print which ones access control let it create, exit 0");
+  add_switch("--heartbeat", heartbeat, "1: also publish a WorkerStatus heartbeat with each batch, as a worker would");
+  app.add_option("--eval-requests", eval_worker,
+                 "WORKER: rounds of six evaluation requests to WORKER, each wrong in one way, instead of a stream");
+  app.add_option("--forge-answers", forge_return,
+                 "RETURN: answer every evaluation request of the experiment with episodes of this return");
+  app.add_option("--forge-length", forge_length, "Episode length of the forged answers")->capture_default_str();
+  app.add_option("--forge-metrics", forge_metrics, "Metrics (of value 1) of each forged episode")
+      ->capture_default_str();
+  app.add_option("--flood-streams", flood_streams,
+                 "N: one-step batches under N invented worker ids and sessions instead of a plain stream");
+  app.add_option("--flood-heartbeats", flood_heartbeats,
+                 "N: heartbeats of N invented worker sessions instead of a plain stream");
+  app.add_option("--status-host-bytes", host_bytes, "B: a host name of B characters in the flood's heartbeats");
+  app.add_option("--big-to-workers", big_mib,
+                 "MB: a spec, weights and an evaluation request of MB MiB each, instead of a stream");
+  app.add_option("--token-name", g_token_name,
+                 "NAME: its identity token says CN=NAME while it authenticates with the certificate of --security");
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     if (!g_token_name.empty()) g_own_name = farm::dds::certificate_name(farm::dds::security_dir_of(bus_opts));
     farm::dds::Bus bus(bus_opts, id);

@@ -47,9 +47,9 @@ sed -e "s|hfield_png: \"$dir/forged.png\"||" "$dir/forged.txtpb" >"$dir/huge.txt
 wait_text "$dir/worker3.log" "spec's steps_per_batch 1000000 x 4 envs is outside" 20 ||
   fail "the worker did not refuse a million steps per batch: $(tail -5 "$dir/worker3.log")"
 out=$(timeout 10 "$worker" --envs 100000 2>&1); rc=$?
-[ $rc = 2 ] && grep -q -- "--envs expects an integer in \[1, 4096\], got '100000'" <<<"$out" || fail "--envs 100000: rc $rc, '$out'"
+[ $rc = 2 ] && grep -q -- "--envs: Value 100000 not in range 1 to 4096" <<<"$out" || fail "--envs 100000: rc $rc, '$out'"
 out=$(timeout 10 "$worker" --threads 5000 2>&1); rc=$?
-[ $rc = 2 ] && grep -q -- "--threads expects an integer in \[1, 256\], got '5000'" <<<"$out" || fail "--threads 5000: rc $rc, '$out'"
+[ $rc = 2 ] && grep -q -- "--threads: Value 5000 not in range 1 to 256" <<<"$out" || fail "--threads 5000: rc $rc, '$out'"
 
 # 4. An experiment id that would name another folder.
 printf 'experiment_id: ".."\ntask { name: "pendulum" }\n' >"$dir/dots.txtpb"

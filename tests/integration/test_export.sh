@@ -150,7 +150,7 @@ mkdir -p "$dir/garbled/checkpoint" && echo 'policy_version: "x" {' >"$dir/garble
 expect_error "garbled manifest" "manifest.txtpb:1:17: Expected integer, got: \"x\" (not a checkpoint manifest)" --run-dir "$dir/garbled" --out "$dir/x.onnx"
 mkdir -p "$dir/huge/checkpoint" && truncate -s 20M "$dir/huge/checkpoint/manifest.txtpb"
 expect_error "oversized manifest" "bytes, more than a manifest's limit of 16777216" --run-dir "$dir/huge" --out "$dir/x.onnx"
-expect_error "bad --record" "--record expects a whole number" --run-dir "$dir/sac" --out "$dir/x.onnx" --record -5 "$dir/r.csv"
+expect_error "bad --record" "--record: Value -5 not in range 1 to 10000000" --run-dir "$dir/sac" --out "$dir/x.onnx" --record -5 "$dir/r.csv"
 [ -e "$dir/x.onnx" ] && fail "a failed export left $dir/x.onnx"
 
 farm_test_end "farm-export: SAC, PPO (tanh and ELU) and DQN models act as the worker under OpenCV's DNN"

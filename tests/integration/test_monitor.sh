@@ -20,9 +20,9 @@ done
 
 # 3. Errors.
 out=$("$monitor" --interval 0 2>&1); rc=$?
-[ $rc = 2 ] && grep -q -- "--interval expects a number of seconds" <<<"$out" || fail "bad --interval: rc $rc, '$out'"
+[ $rc = 2 ] && grep -q -- "--interval: Value 0 is not a number in \[0.1, 3600\]" <<<"$out" || fail "bad --interval: rc $rc, '$out'"
 out=$("$monitor" --frobnicate 2>&1); rc=$?
-[ $rc = 2 ] && grep -q "unknown option '--frobnicate'" <<<"$out" || fail "unknown flag: rc $rc, '$out'"
+[ $rc = 2 ] && grep -q "not expected: --frobnicate" <<<"$out" || fail "unknown flag: rc $rc, '$out'"
 out=$("$monitor" --once --wait 1 --domain $(( (domain + 100) % 200 + 20 )) 2>&1); rc=$?
 [ $rc = 1 ] && grep -q "nothing found on DDS domain" <<<"$out" || fail "empty domain: rc $rc, '$out'"
 

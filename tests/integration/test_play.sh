@@ -93,7 +93,7 @@ touch "$dir/file"
 expect_error "unwritable output" "cannot write --out $dir/file/x.mp4" "$play" --run "$dir/run" --out "$dir/file/x.mp4"
 expect_error "unknown output kind" "the extension '.avi'" "$play" --run "$dir/run" --out "$dir/x.avi"
 expect_error "odd MP4 size" "an even width and height" "$play" --run "$dir/run" --out "$dir/x.mp4" --width 321
-expect_error "bad number" "--fps: expected an integer, got '2x'" "$play" --run "$dir/run" --out "$dir/x.mp4" --fps 2x
+expect_error "bad number" "--fps: Value 2x not in range 1 to 240" "$play" --run "$dir/run" --out "$dir/x.mp4" --fps 2x
 [ -e "$dir/x.mp4" ] && [ -s "$dir/x.mp4" ] && fail "a failed run left $dir/x.mp4 behind"
 
 farm_test_end "farm-play: MP4 and GIF of the quickstart's run, errors named"

@@ -40,7 +40,7 @@ expect_error 2 "'9100': no port" --prometheus 9100
 expect_error 2 "port 70000 is out of range" --prometheus 127.0.0.1:70000
 expect_error 2 "port 0 is out of range" --prometheus 127.0.0.1:0
 expect_error 2 "'metrics.local' is not an IPv4 address" --prometheus metrics.local:9100
-expect_error 2 "needs a value" --prometheus
+expect_error 2 "--prometheus: 1 required .* missing" --prometheus
 expect_error 2 "cannot be combined with --once" --once --prometheus 127.0.0.1:$mport
 
 # The farm: the shipped pendulum experiment on this test's domain, statistics every second, and a
