@@ -210,7 +210,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   root.positive("log_every_seconds", c.log_every_seconds());
   root.positive("worker_timeout_seconds", c.worker_timeout_seconds());
   root.positive("account_expiry_seconds", c.account_expiry_seconds());
-  root.positive("ingest_queue_batches", c.ingest_queue_batches());
+  root.positive("ingest_queue_mib", c.ingest_queue_mib());
 }
 
 }  // namespace

@@ -40,7 +40,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
               std::min<uint64_t>(Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
                                                          cfg_.worker().steps_per_batch()),
                                  UINT32_MAX)),
-          size_t(cfg_.ingest_queue_batches()), [this](const std::string& m) { log(m); }, events_),
+          size_t(cfg_.ingest_queue_mib() * (1 << 20)), [this](const std::string& m) { log(m); }, events_),
       status_in_(
           bus_, farm::dds::kWorkerStatusTopic, "status_reader",
           [this](eprosima::fastdds::dds::DataReader* r) {
@@ -98,7 +98,7 @@ int FarmService::run() {
                           {"act_dim", act_dim_},
                           {"domain", bus_.domain()},
                           {"resumed", opt_.resume},
-                          {"ingest_queue_batches", intake_.capacity()}});
+                          {"ingest_queue_mib", cfg_.ingest_queue_mib()}});
   algo_->start(*this);
   log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
       ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " +

@@ -7,14 +7,14 @@
 
 namespace farm {
 
-IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity, Log log,
-                           EventLog& events)
+IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity_bytes,
+                           Log log, EventLog& events)
     : bus_(bus),
       ingest_(std::move(ingest)),
       // Samples over what this experiment's workers can send are refused before memory is taken for
       // them (docs/RELIABILITY.md, "size limits before memory").
       reader_(bus, farm::dds::kBatchTopic, "batch_reader", max_sample_bytes),
-      capacity_(std::max<size_t>(1, capacity)),
+      capacity_(std::max<size_t>(1, capacity_bytes)),
       log_(std::move(log)),
       events_(events) {}
 
@@ -41,9 +41,9 @@ void IngestThread::loop() {
   for (;;) {
     {
       std::unique_lock<std::mutex> lk(mu_);
-      if (!stop_ && queue_.size() >= capacity_) {
+      if (!stop_ && queued_bytes_ >= capacity_) {
         full_waits_.fetch_add(1);
-        room_cv_.wait(lk, [&] { return stop_ || queue_.size() < capacity_; });
+        room_cv_.wait(lk, [&] { return stop_ || queued_bytes_ < capacity_; });
       }
       if (stop_) return;
       if (const uint64_t refused = ingest_.count_refused_samples(reader_.refused())) {
@@ -91,6 +91,7 @@ bool IngestThread::accept() {
       a->num_envs = int(batch_.num_envs());
       a->truncated.assign(batch_.truncated().begin(), batch_.truncated().end());
       a->log_probs.assign(batch_.log_probs().begin(), batch_.log_probs().end());
+      queued_bytes_ += a->bytes();
       queue_.push_back(std::move(a));
     }
   }
@@ -132,11 +133,12 @@ void IngestThread::ingest_event(bool force) {
   const double now = now_seconds();
   if (!force && now - last_event_ < kEventEveryS) return;
   IngestCounters c;
-  size_t queued = 0;
+  size_t queued = 0, queued_bytes = 0;
   {
     std::lock_guard<std::mutex> lk(mu_);
     c = ingest_.counters();
     queued = queue_.size();
+    queued_bytes = queued_bytes_;
   }
   if (!force && c.ok == last_event_ok_ && c.invalid == last_event_invalid_) return;
   last_event_ = now;
@@ -148,6 +150,7 @@ void IngestThread::ingest_event(bool force) {
                            {"batches_invalid", c.invalid},
                            {"env_steps", c.env_steps},
                            {"queued", queued},
+                           {"queued_mib", double(queued_bytes) / (1 << 20)},
                            {"queue_full_waits", full_waits_.load()}});
 }
 
@@ -156,6 +159,7 @@ size_t IngestThread::pop(size_t max, const std::function<void(AcceptedBatch&)>& 
   {
     std::lock_guard<std::mutex> lk(mu_);
     while (got.size() < max && !queue_.empty()) {
+      queued_bytes_ -= queue_.front()->bytes();
       got.push_back(std::move(queue_.front()));
       queue_.pop_front();
     }
@@ -175,6 +179,7 @@ void IngestThread::settle(const std::function<void(AcceptedBatch&)>& take,
   {
     std::lock_guard<std::mutex> lk(mu_);
     while (!queue_.empty()) {
+      queued_bytes_ -= queue_.front()->bytes();
       take(*queue_.front());
       queue_.pop_front();
     }
@@ -197,6 +202,11 @@ IngestCounters IngestThread::counters() const {
 size_t IngestThread::queued() const {
   std::lock_guard<std::mutex> lk(mu_);
   return queue_.size();
+}
+
+size_t IngestThread::queued_bytes() const {
+  std::lock_guard<std::mutex> lk(mu_);
+  return queued_bytes_;
 }
 
 }  // namespace farm

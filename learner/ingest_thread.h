@@ -35,15 +35,23 @@ struct AcceptedBatch {
   Batch view() {
     return Batch{worker_id, policy_version, num_steps, num_envs, truncated.data(), log_probs.data(), &rows, &episodes};
   }
+  // What it holds, for the queue's bound: its rows and per-step arrays.
+  size_t bytes() const {
+    return 4 * (rows.obs.size() + rows.actions.size() + rows.rewards.size() + rows.next_obs.size() +
+                rows.horizon.size() + log_probs.size()) +
+           rows.terminated.size() + truncated.size() + 64 * episodes.size() + 256;
+  }
 };
 
 class IngestThread {
  public:
   using Log = std::function<void(const std::string&)>;
   // ingest: the accounts (restored from a checkpoint before start()). The batch reader is bounded
-  // by what this experiment's workers can send (Ingest::max_batch_bytes); capacity: the batches the
-  // queue holds before the thread stops taking.
-  IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity, Log log,
+  // by what this experiment's workers can send (Ingest::max_batch_bytes); capacity_bytes: what the
+  // queued batches may hold (AcceptedBatch::bytes) before the thread stops taking. The bound is in
+  // bytes, not batches, so that small batches are not held back at the DDS reader: while its
+  // history was full, 40 workers' heartbeats stopped reaching the learner (integration.heartbeats).
+  IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity_bytes, Log log,
                EventLog& events);
   ~IngestThread();
   IngestThread(const IngestThread&) = delete;
@@ -67,7 +75,8 @@ class IngestThread {
   // Env steps accepted so far, without a lock (read on every update).
   uint64_t env_steps() const { return env_steps_.load(std::memory_order_relaxed); }
   size_t queued() const;
-  size_t capacity() const { return capacity_; }
+  size_t queued_bytes() const;
+  size_t capacity_bytes() const { return capacity_; }
   uint32_t max_sample_bytes() const { return reader_.max_sample_bytes(); }
   // Batches the thread could not take because the queue was full, counted once per wait.
   uint64_t full_waits() const { return full_waits_.load(); }
@@ -82,12 +91,13 @@ class IngestThread {
   farm::dds::Bus& bus_;
   Ingest ingest_;  // guarded by mu_
   farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> reader_;
-  const size_t capacity_;
+  const size_t capacity_;  // bytes
   Log log_;
   EventLog& events_;
   mutable std::mutex mu_;
   std::condition_variable queued_cv_, room_cv_;
   std::deque<std::unique_ptr<AcceptedBatch>> queue_;  // guarded by mu_
+  size_t queued_bytes_ = 0;                           // of queue_; guarded by mu_
   bool stop_ = false;                                 // guarded by mu_
   std::atomic<uint64_t> version_{0}, env_steps_{0}, full_waits_{0};
   std::thread thread_;

@@ -30,7 +30,7 @@ struct Options {
 void add_options(CLI::App& app, Options& o) {
   app.description(
       "Trains the experiment in FILE with the workers that join on DDS domain D.\n"
-      "Logs to stdout and <run-dir>/learner.csv; checkpoints to <run-dir>/checkpoint;\n"
+      "Logs to stdout, <run-dir>/learner.csv and <run-dir>/events.jsonl; checkpoints to <run-dir>/checkpoint;\n"
       "the networks of the best evaluation so far to <run-dir>/best.");
   app.add_option("--config", o.config_path, "The experiment's config (text protobuf)")->required();
   app.add_flag("--resume", o.resume,

@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "cli.h"
 #include "config.h"
 #include "farm_config.pb.h"
 #include "policy_file.h"
@@ -21,15 +22,13 @@
 namespace fs = std::filesystem;
 
 int main(int argc, char** argv) {
-  if (argc != 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
-    std::fprintf(argc == 2 ? stdout : stderr,
-                 "usage: farm-policy-file CHECKPOINT_DIR\n"
-                 "Writes CHECKPOINT_DIR/%s, the policy in the workers' layout, from the folder's\n"
-                 "manifest.txtpb and its algorithm's networks (RUN/checkpoint or RUN/best of any learner).\n",
-                 farm::kPolicyFileName);
-    return argc == 2 ? 0 : 2;
-  }
-  const std::string dir = argv[1];
+  farm::cli::App app("farm-policy-file");
+  app.description(std::string("Writes CHECKPOINT_DIR/") + farm::kPolicyFileName +
+                  ", the policy in the workers' layout, from the folder's manifest.txtpb and its algorithm's "
+                  "networks (RUN/checkpoint or RUN/best of any learner).");
+  std::string dir;
+  app.add_option("checkpoint_dir", dir, "a checkpoint or best folder")->required()->check(CLI::ExistingDirectory);
+  if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
     const fs::path manifest_file = fs::path(dir) / "manifest.txtpb";
     std::ifstream in(manifest_file);

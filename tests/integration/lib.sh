@@ -50,5 +50,9 @@ batches_ok() {
     "$1/learner.csv" 2>/dev/null
 }
 
+# The events of one kind (RUN_DIR/events.jsonl, the learner's record for programs), one JSON object
+# a line as the learner writes them (keys sorted, no spaces).  events RUN_DIR KIND
+events() { grep -F "\"event\":\"$2\"" "$1/events.jsonl" 2>/dev/null; }
+
 # A process's peak resident memory in kB (VmHWM), or nothing once it has ended.  peak_kb PID
 peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }

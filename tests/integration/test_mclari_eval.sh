@@ -5,7 +5,7 @@
 # The learner's best policy (run/best) evaluates as the checkpoint when the final evaluation was its only one.
 # That evaluation (6 episodes, split over two workers) covers each terrain once, the second part
 # going on where the first ended, and the best is kept by its worst episode's share of the reference,
-# which the learner logs.
+# which the run's events record.
 # A small sweep's best.csv gives the comparison column, and the table says when the sweep's runs
 # were not as long as the episodes.
 # usage: test_mclari_eval.sh LEARNER WORKER EVAL SOURCE_DIR SWEEP
@@ -38,22 +38,39 @@ PIDS+=($!)
 PIDS+=($!)
 wait $L || { tail -20 "$T/learner.log"; fail "learner failed"; }
 [ -d "$T/run/checkpoint/sac" ] || fail "no checkpoint in $T/run"
-grep -q "6 in all" "$T/learner.log" || { cat "$T/learner.log"; fail "the final evaluation was not split"; }
-grep -q "marked dead" "$T/learner.log" && { grep -B3 "marked dead" "$T/learner.log"; grep "steps/s" "$T/worker.log"; fail "a live worker was marked dead during a long collect"; }
 grep -q "^evaluations       asked 2, answered 2, lost 0, invalid 0" "$T/run/summary.txt" \
     || { cat "$T/run/summary.txt"; fail "evaluations asked, answered or lost"; }
-# Terrains 0..5 once each: a mean terrain of 2.5 (both parts from terrain 0 would give 1.0).
-grep -q "^\[learner\] final: .* over 6 deterministic episodes.*, terrain 2.500," "$T/learner.log" \
-    || { grep "final:" "$T/learner.log"; fail "the final evaluation did not run each terrain once"; }
-grep -q "best evaluation so far (share (min) [0-9.]*, policy" "$T/learner.log" \
-    || { grep "best evaluation" "$T/learner.log"; fail "the best was not kept by the worst share"; }
 grep -q "^best eval share (min) *[0-9.]*$" "$T/run/summary.txt" || { cat "$T/run/summary.txt"; fail "summary: no best share"; }
 grep -q 'best_eval_measure: "share (min)"' "$T/run/best/manifest.txtpb" \
     || { cat "$T/run/best/manifest.txtpb"; fail "run/best does not say what it is the best of"; }
-# Each evaluation's score by that measure is logged (its curve along a run); the only one is the best.
-score=$(sed -n 's/^\[learner\] evaluation of policy v[0-9]* at [0-9.]* s: share (min) \([0-9.]*\)$/\1/p' "$T/learner.log")
+# From the run's events: the final evaluation split over both workers, terrains 0..5 once each (a
+# mean terrain of 2.5; both parts from terrain 0 would give 1.0), no live worker marked dead during a
+# long collect, and the best kept by the worst share: the score of the run's one evaluation.
 best=$(sed -n 's/^best eval share (min) *\([0-9.]*\)$/\1/p' "$T/run/summary.txt")
-[ -n "$score" ] && [ "$score" = "$best" ] || { grep "evaluation of policy" "$T/learner.log"; fail "score '$score' logged, best '$best'"; }
+python3 - "$T/run/events.jsonl" "$best" <<'PY' || { tail -20 "$T/learner.log"; fail "events: see above"; }
+import json, sys
+ev = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
+kind = lambda k: [e for e in ev if e["event"] == k]
+final = [e for e in kind("evaluation") if e.get("label") == "final"]
+bad = []
+if len(final) != 1 or final[0].get("episodes") != 6 or final[0].get("workers", 0) < 2:
+    bad.append("the final evaluation was not 6 episodes split over the 2 workers: %s" % final)
+elif abs(final[0]["metrics"]["terrain"] - 2.5) > 1e-6:
+    bad.append("the final evaluation did not run each terrain once: terrain %s" % final[0]["metrics"]["terrain"])
+if [e for e in kind("worker") if e.get("change") == "dead"]:
+    bad.append("a live worker was marked dead during a long collect")
+best = kind("best")
+if not best or best[-1]["measure"] != "share (min)":
+    bad.append("the best was not kept by the worst share: %s" % best)
+elif "%.4f" % best[-1]["score"] != sys.argv[2]:
+    bad.append("best event score %.4f, summary %s" % (best[-1]["score"], sys.argv[2]))
+evals = [e for e in kind("evaluation") if e.get("episodes", 0) > 0]
+if len(evals) != 1 or "%.4f" % evals[0]["metrics_min"]["share"] != sys.argv[2]:
+    bad.append("the one evaluation's worst share is not the best kept: %s" % evals)
+for b in bad:
+    print("FAIL:", b)
+sys.exit(1 if bad else 0)
+PY
 
 "$EVAL" --config "$T/c.txtpb" --checkpoint "$T/run/checkpoint" --episodes 2 --threads 2 \
     --trace "$T/trace.csv" > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }

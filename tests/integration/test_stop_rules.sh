@@ -33,10 +33,9 @@ run unevaluated 600
 cat "$dir/unevaluated/summary.txt"
 note="the run stopped on its env step limit before its first evaluation (eval.every_seconds 600)"
 grep -q "^note              $note" "$dir/unevaluated/summary.txt" || fail "no note in the summary"
-grep -q "$note" "$dir/unevaluated.log" || fail "no note in the learner's log"
 
 run evaluated 0.2
-grep -q "^\[learner\] eval: mean return" "$dir/evaluated.log" || fail "evaluated: no evaluation before the limit"
+events "$dir/evaluated" evaluation | grep -qF '"label":"eval"' || fail "evaluated: no evaluation before the limit"
 grep -q "^note" "$dir/evaluated/summary.txt" && fail "evaluated: a note where the run was evaluated: $(cat "$dir/evaluated/summary.txt")"
 
 farm_test_end

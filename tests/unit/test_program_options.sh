@@ -24,6 +24,7 @@ farm-export|tools/farm-export|--seed|abc|1
 farm-mclari-eval|tools/farm-mclari-eval|--episodes|abc|2
 farm-mclari-sweep|tools/farm-mclari-sweep|--seconds|abc|2
 farm-mobile-eval|tools/farm-mobile-eval|--episodes|abc|1
+farm-policy-file|learner/farm-policy-file|checkpoint_dir|/no/such/dir|2
 farm_intruder|tests/farm_intruder|--obs|abc|2
 bench_a1_step|tests/bench_a1_step|--seconds|abc|2
 bench_dqn|tests/bench_dqn|--batch|abc|2
