@@ -10,6 +10,7 @@
 #include <fastdds/rtps/participant/ParticipantDiscoveryInfo.h>
 #include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
 #include <fastdds/rtps/writer/WriterDiscoveryInfo.h>
+#include <malloc.h>
 #include <netinet/in.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
@@ -18,6 +19,7 @@
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
 #include <fastdds/dds/log/Log.hpp>
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <cstdio>
@@ -542,6 +544,20 @@ void count_samples_refused_for_size() {
 }
 
 uint64_t samples_refused_for_size() { return g_refused_for_size.load(std::memory_order_relaxed); }
+
+void with_mapped_allocations(size_t bytes, const std::function<void()>& make) {
+  constexpr size_t kMin = 128 << 10, kMax = 32 << 20;
+  mallopt(M_MMAP_THRESHOLD, int(std::clamp(bytes, kMin, kMax)));
+  try {
+    make();
+  } catch (...) {
+    mallopt(M_MMAP_THRESHOLD, int(kMax));
+    mallopt(M_TRIM_THRESHOLD, int(2 * kMax));
+    throw;
+  }
+  mallopt(M_MMAP_THRESHOLD, int(kMax));
+  mallopt(M_TRIM_THRESHOLD, int(2 * kMax));
+}
 
 void to_wire(const PolicyParams& p, const std::string& experiment_id, farm::msg::PolicyWeights& w) {
   w.experiment_id(experiment_id);

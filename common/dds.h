@@ -210,6 +210,15 @@ class BoundedType : public PubSubType {
 void count_samples_refused_for_size();
 uint64_t samples_refused_for_size();
 
+// Runs make() with glibc's mmap threshold at bytes (within 128 KiB..32 MiB), so that every
+// allocation of at least that size made meanwhile is a mapping of its own, whose untouched pages
+// take no memory and cost no clearing. Afterwards the threshold is left at 32 MiB and the trim
+// threshold at 64 MiB, the values glibc's own adjustment settles on in a long-running process.
+// Fast DDS's payload pool calloc()s each payload at the reader's bound: served from a heap (as
+// glibc's raised threshold would do once the process has freed a large block), that calloc clears
+// the whole bound, on the thread that receives, under the reader's lock.
+void with_mapped_allocations(size_t bytes, const std::function<void()>& make);
+
 template <class T, class PubSubType>
 class Reader : public fdds::DataReaderListener {
  public:
@@ -235,8 +244,14 @@ class Reader : public fdds::DataReaderListener {
   // listener of such a refusal (neither sample lost nor sample rejected fires); it logs one error
   // per sample, which refused() counts (samples_refused_for_size). The topic must not have been
   // created on this bus with another type size.
+  //
+  // preallocate: the history's whole pool (max_samples payloads of the bound) is made here, each a
+  // mapping of its own (with_mapped_allocations), so that the thread that receives never
+  // allocates. Without it the pool grows on that thread, one payload at a time, as samples pile up,
+  // and nothing else reaches the participant meanwhile (its heartbeats included). For the hot
+  // reader of a process (the learner's batches).
   Reader(Bus& bus, const std::string& topic_name, const std::string& profile, uint32_t max_sample_bytes,
-         OnData on_data = {})
+         OnData on_data = {}, bool preallocate = false)
       : bus_(bus), max_sample_bytes_(max_sample_bytes), on_data_(std::move(on_data)) {
     fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new BoundedType<PubSubType>(max_sample_bytes)));
     fdds::TypeSupport registered = bus.participant()->find_type(t->get_type_name());
@@ -247,7 +262,12 @@ class Reader : public fdds::DataReaderListener {
     fdds::DataReaderQos qos = bus.reader_qos(topic_name, profile);
     qos.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
     count_samples_refused_for_size();
-    reader_ = bus.subscriber()->create_datareader(t, qos, this);
+    if (preallocate && qos.resource_limits().max_samples > 0) {
+      qos.resource_limits().allocated_samples = qos.resource_limits().max_samples;
+      with_mapped_allocations(max_sample_bytes, [&] { reader_ = bus.subscriber()->create_datareader(t, qos, this); });
+    } else {
+      reader_ = bus.subscriber()->create_datareader(t, qos, this);
+    }
     if (!reader_) {
       throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" + profile + "'");
     }
