@@ -21,6 +21,8 @@ PACKAGES=(
   libcivetweb-dev prometheus-cpp-dev prometheus     # farm-monitor --prometheus (HTTP, metrics) and its scrape test
   faketime                                          # the security test's worker on a clock an hour behind
   libcli11-dev                                      # every program's command-line options (header-only)
+  pybind11-dev python3-dev python3-numpy            # the Python package farm (python/)
+  python3-pytest python3-pandas                     # ... its tests, and runs read as DataFrames
 )
 
 missing=()

@@ -16,7 +16,7 @@ EpisodeRecord& EpisodeEnds::add(int obs_dim, float** final_obs) {
 }
 
 VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t seed, uint64_t first_index)
-    : task_(std::move(task)) {
+    : task_(std::move(task)), first_index_(first_index) {
   if (!task_) throw std::invalid_argument("VecEnv: no task");
   if (num_envs <= 0) {
     throw std::invalid_argument("VecEnv: num_envs must be > 0, got " + std::to_string(num_envs));
@@ -26,12 +26,14 @@ VecEnv::VecEnv(std::shared_ptr<const robots::Task> task, int num_envs, uint64_t 
   act_dim_ = s.act_dim;
   num_metrics_ = int(s.metric_names.size());
   states_.reserve(num_envs);
-  seed_state_.resize(num_envs);
-  for (int i = 0; i < num_envs; ++i) {
-    states_.push_back(task_->make_state());
-    seed_state_[i] = mix_seed(seed, first_index + uint64_t(i));
-  }
+  for (int i = 0; i < num_envs; ++i) states_.push_back(task_->make_state());
+  reseed(seed);
   obs_.assign(size_t(num_envs) * obs_dim_, 0.f);
+}
+
+void VecEnv::reseed(uint64_t seed) {
+  seed_state_.resize(states_.size());
+  for (size_t i = 0; i < states_.size(); ++i) seed_state_[i] = mix_seed(seed, first_index_ + uint64_t(i));
 }
 
 void VecEnv::reset(int env) {

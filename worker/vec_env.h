@@ -65,6 +65,8 @@ class VecEnv {
 
   // Starts a new episode in every env (each with the next seed of its generator).
   void reset_all();
+  // Restarts every env's seed generator as the constructor does for `seed` (no env is reset).
+  void reseed(uint64_t seed);
   void reset(int env);
   // Starts a new episode in env `env` in the task's evaluation condition `condition`.
   void reset_in_condition(int env, int condition);
@@ -84,6 +86,7 @@ class VecEnv {
   std::shared_ptr<const robots::Task> task_;
   int obs_dim_ = 0, act_dim_ = 0, num_metrics_ = 0;
   std::vector<std::unique_ptr<robots::TaskState>> states_;
+  uint64_t first_index_ = 0;
   std::vector<uint64_t> seed_state_;  // per-env splitmix64 state for reset seeds
   std::vector<float> obs_;
 };

@@ -1,0 +1,15 @@
+"""The farm from Python.
+
+- ``make_vec(config, num_envs, threads=1, seed=0)``: a batch of environments of any task the farm
+  runs, on the farm's C++ vector env, in Gymnasium's ``VectorEnv`` conventions (``farm.vector``).
+- ``load_policy(path)``: a trained policy (``RUN/best``, ``RUN/checkpoint`` or a ``policy.bin``) as a
+  callable that computes the action a worker's evaluation computes (``farm.runs``).
+- ``read_run(folder)``: a run folder's CSV (pandas), events, summary and manifests (``farm.runs``).
+"""
+from ._farm import ConfigError, task_names
+from .runs import Policy, Run, load_policy, read_run
+from .spaces import Box, Discrete
+from .vector import VecEnv, make_vec
+
+__all__ = ["ConfigError", "task_names", "make_vec", "VecEnv", "Box", "Discrete", "load_policy", "Policy",
+           "read_run", "Run"]

@@ -1,0 +1,344 @@
+// farm._farm: the farm's C++ parts for Python. A vector of environments of any task the farm runs
+// (the C++ VecEnv, stepped by a thread pool with the GIL released), a trained policy as the
+// workers compute it (policy.bin), and a checkpoint manifest as JSON. The Python package
+// (python/farm/) wraps these in Gymnasium's conventions.
+#include <google/protobuf/text_format.h>
+#include <google/protobuf/util/json_util.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <condition_variable>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "config.h"
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "policy_file.h"
+#include "task.h"
+#include "vec_env.h"
+
+namespace py = pybind11;
+namespace fs = std::filesystem;
+
+namespace {
+
+// The task a config names: a config file (its task section, files of a task of terms read from
+// its folder), or a task name with that task's defaults.
+std::shared_ptr<const farm::robots::Task> task_of(const std::string& config) {
+  farm::config::TaskConfig task;
+  if (fs::is_regular_file(config)) {
+    task = farm::load_config_file(config).task();
+  } else if (config.find('/') != std::string::npos ||
+             (config.size() > 7 && config.substr(config.size() - 7) == ".txtpb")) {
+    throw std::invalid_argument("no config file " + config);
+  } else {
+    task = farm::parse_config_text("experiment_id: \"python\" task { name: \"" + config + "\" }", config).task();
+  }
+  return std::shared_ptr<const farm::robots::Task>(farm::robots::make_task(task));
+}
+
+// N environments stepped by `threads` threads (the calling one among them), each owning a
+// contiguous range of envs, as a worker's rollout splits them.
+class VecEnvPy {
+ public:
+  VecEnvPy(const std::string& config, int num_envs, int threads, uint64_t seed)
+      : env_(task_of(config), num_envs, seed), threads_(std::clamp(threads, 1, num_envs)) {
+    if (threads < 1) throw std::invalid_argument("threads must be >= 1, got " + std::to_string(threads));
+    const int n = env_.num_envs();
+    rewards_.assign(n, 0.f);
+    terminated_.assign(n, 0);
+    truncated_.assign(n, 0);
+    actions_.assign(size_t(n) * env_.act_dim(), 0.f);
+    for (int k = 0; k < threads_; ++k) {
+      Chunk c;
+      c.begin = int(int64_t(n) * k / threads_);
+      c.end = int(int64_t(n) * (k + 1) / threads_);
+      chunks_.push_back(std::move(c));
+    }
+    for (int k = 1; k < threads_; ++k) pool_.emplace_back([this, k] { thread_main(k); });
+  }
+  ~VecEnvPy() {
+    {
+      std::lock_guard<std::mutex> lk(mu_);
+      stop_ = true;
+    }
+    start_cv_.notify_all();
+    for (auto& t : pool_) t.join();
+  }
+
+  int num_envs() const { return env_.num_envs(); }
+  int obs_dim() const { return env_.obs_dim(); }
+  int act_dim() const { return env_.act_dim(); }
+  int num_actions() const { return env_.spec().num_actions; }
+  int threads() const { return threads_; }
+  std::vector<std::string> metric_names() const { return env_.spec().metric_names; }
+
+  // Views of the C++ buffers, kept alive by this object; the next step or reset overwrites them.
+  py::array obs(py::handle self) const {
+    return py::array_t<float>({env_.num_envs(), env_.obs_dim()}, env_.obs(), self);
+  }
+  py::array rewards(py::handle self) const { return py::array_t<float>({env_.num_envs()}, rewards_.data(), self); }
+  py::array terminated(py::handle self) const { return flags(terminated_, self); }
+  py::array truncated(py::handle self) const { return flags(truncated_, self); }
+
+  void reset(std::optional<uint64_t> seed) {
+    if (seed) env_.reseed(*seed);
+    py::gil_scoped_release nogil;
+    env_.reset_all();
+  }
+
+  // Copies actions in (checked against the shape and dtype the task takes), then steps every env
+  // with the GIL released.
+  void step(py::array actions) {
+    const int n = env_.num_envs();
+    const bool discrete = num_actions() > 0;
+    const std::string want =
+        discrete ? "(" + std::to_string(n) + ",) of integers in [0, " + std::to_string(num_actions()) + ")"
+                 : "(" + std::to_string(n) + ", " + std::to_string(act_dim()) + ") of float32";
+    auto bad = [&](const std::string& what) {
+      return py::value_error("actions: expected shape " + want + ", got " + what);
+    };
+    std::string got_shape = "(";
+    for (py::ssize_t d = 0; d < actions.ndim(); ++d) got_shape += (d ? ", " : "") + std::to_string(actions.shape(d));
+    got_shape += actions.ndim() == 1 ? ",)" : ")";
+    const std::string got = got_shape + " of " + std::string(py::str(actions.dtype()));
+    if (discrete) {
+      if (actions.ndim() != 1 || actions.shape(0) != n) throw bad(got);
+      if (actions.dtype().kind() != 'i' && actions.dtype().kind() != 'u') throw bad(got);
+      auto a = py::array_t<int64_t, py::array::c_style | py::array::forcecast>::ensure(actions);
+      const int64_t* p = a.data();
+      for (int i = 0; i < n; ++i) {
+        if (p[i] < 0 || p[i] >= num_actions())
+          throw py::value_error("actions: entry " + std::to_string(i) + " is " + std::to_string(p[i]) +
+                                ", outside [0, " + std::to_string(num_actions()) + ")");
+        actions_[i] = float(p[i]);
+      }
+    } else {
+      if (actions.ndim() != 2 || actions.shape(0) != n || actions.shape(1) != act_dim()) throw bad(got);
+      if (!actions.dtype().is(py::dtype::of<float>())) throw bad(got);
+      auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(actions);
+      std::copy(a.data(), a.data() + size_t(n) * act_dim(), actions_.begin());
+    }
+    py::gil_scoped_release nogil;
+    run_all();
+  }
+
+  // The episodes that ended in the last step: (env, return, length, terminated, final obs, metrics).
+  py::dict ended() const {
+    std::vector<int> env;
+    std::vector<float> ret, final_obs, metrics;
+    std::vector<int> length;
+    std::vector<uint8_t> term;
+    const int m = int(env_.spec().metric_names.size());
+    for (const Chunk& c : chunks_) {
+      for (int i = 0; i < c.ends.size(); ++i) {
+        const farm::EpisodeRecord& r = c.ends.record(i);
+        env.push_back(r.env);
+        ret.push_back(r.episode_return);
+        length.push_back(r.length);
+        term.push_back(r.terminated);
+        final_obs.insert(final_obs.end(), c.ends.final_obs(i), c.ends.final_obs(i) + env_.obs_dim());
+        for (int k = 0; k < m; ++k) metrics.push_back(k < int(r.metrics.size()) ? r.metrics[k] : 0.f);
+      }
+    }
+    const py::ssize_t e = py::ssize_t(env.size());
+    py::dict d;
+    d["env"] = py::array_t<int>(e, env.data());
+    d["episode_return"] = py::array_t<float>(e, ret.data());
+    d["episode_length"] = py::array_t<int>(e, length.data());
+    d["terminated"] = py::array_t<bool>(e, reinterpret_cast<const bool*>(term.data()));
+    d["final_obs"] = py::array_t<float>({e, py::ssize_t(env_.obs_dim())}, final_obs.data());
+    d["metrics"] = py::array_t<float>({e, py::ssize_t(m)}, metrics.data());
+    return d;
+  }
+
+ private:
+  struct Chunk {
+    int begin = 0, end = 0;
+    farm::EpisodeEnds ends;
+  };
+
+  static py::array flags(const std::vector<uint8_t>& v, py::handle self) {
+    return py::array(py::dtype::of<bool>(), {py::ssize_t(v.size())}, {py::ssize_t(1)}, v.data(), self);
+  }
+
+  void step_chunk(Chunk& c) {
+    c.ends.clear();
+    env_.step_range(c.begin, c.end, actions_.data(), rewards_.data(), terminated_.data(), truncated_.data(), c.ends);
+  }
+
+  void run_all() {
+    {
+      std::lock_guard<std::mutex> lk(mu_);
+      pending_ = threads_ - 1;
+      error_ = nullptr;
+      ++generation_;
+    }
+    start_cv_.notify_all();
+    std::exception_ptr mine;
+    try {
+      step_chunk(chunks_[0]);
+    } catch (...) {
+      mine = std::current_exception();
+    }
+    std::unique_lock<std::mutex> lk(mu_);
+    done_cv_.wait(lk, [&] { return pending_ == 0; });
+    if (mine) std::rethrow_exception(mine);
+    if (error_) std::rethrow_exception(error_);
+  }
+
+  void thread_main(int k) {
+    uint64_t seen = 0;
+    for (;;) {
+      {
+        std::unique_lock<std::mutex> lk(mu_);
+        start_cv_.wait(lk, [&] { return stop_ || generation_ != seen; });
+        if (stop_) return;
+        seen = generation_;
+      }
+      std::exception_ptr err;
+      try {
+        step_chunk(chunks_[k]);
+      } catch (...) {
+        err = std::current_exception();
+      }
+      {
+        std::lock_guard<std::mutex> lk(mu_);
+        if (err && !error_) error_ = err;
+        --pending_;
+      }
+      done_cv_.notify_all();
+    }
+  }
+
+  farm::VecEnv env_;
+  int threads_;
+  std::vector<float> actions_, rewards_;
+  std::vector<uint8_t> terminated_, truncated_;
+  std::vector<Chunk> chunks_;
+  std::vector<std::thread> pool_;
+  std::mutex mu_;
+  std::condition_variable start_cv_, done_cv_;
+  uint64_t generation_ = 0;
+  int pending_ = 0;
+  bool stop_ = false;
+  std::exception_ptr error_;
+};
+
+// A trained policy as the workers run it in evaluations: the deterministic action (the mode).
+class PolicyPy {
+ public:
+  explicit PolicyPy(const std::string& path) {
+    const fs::path p = fs::is_directory(path) ? fs::path(path) / farm::kPolicyFileName : fs::path(path);
+    params_ = farm::read_policy_file(p.string());
+    policy_ = farm::Policy(params_);
+  }
+  int obs_dim() const { return policy_.obs_dim(); }
+  int act_dim() const { return policy_.act_dim(); }
+  int num_actions() const { return policy_.num_actions(); }
+  uint64_t version() const { return params_.version; }
+  std::string describe() const { return params_.layout.describe(); }
+
+  py::array act(py::array_t<float, py::array::c_style | py::array::forcecast> obs) {
+    const bool single = obs.ndim() == 1;
+    if ((obs.ndim() != 1 && obs.ndim() != 2) || obs.shape(obs.ndim() - 1) != obs_dim())
+      throw py::value_error("observation: expected shape (" + std::to_string(obs_dim()) + ",) or (rows, " +
+                            std::to_string(obs_dim()) + ")");
+    const int rows = single ? 1 : int(obs.shape(0));
+    std::vector<float> out(size_t(rows) * act_dim());
+    {
+      py::gil_scoped_release nogil;
+      policy_.act(obs.data(), rows, rng_, true, out.data(), nullptr);
+    }
+    if (num_actions() > 0) {
+      std::vector<int64_t> idx(out.begin(), out.end());
+      return single ? py::array_t<int64_t>(py::ssize_t(1), idx.data())[py::int_(0)].cast<py::array>()
+                    : py::array_t<int64_t>(py::ssize_t(rows), idx.data());
+    }
+    if (single) return py::array_t<float>(py::ssize_t(act_dim()), out.data());
+    return py::array_t<float>({py::ssize_t(rows), py::ssize_t(act_dim())}, out.data());
+  }
+
+  // The layout and numbers, for checking or for building a PyTorch module from them.
+  py::dict params() const {
+    py::dict d;
+    d["version"] = params_.version;
+    d["head"] = int(params_.head);
+    d["sizes"] = params_.layout.sizes;
+    d["activation"] = int(params_.layout.activation);
+    d["obs_mean"] = params_.obs_mean;
+    d["obs_std"] = params_.obs_std;
+    d["params"] = py::array_t<float>(py::ssize_t(params_.params.size()), params_.params.data());
+    d["log_std"] = params_.log_std;
+    d["log_std_min"] = params_.log_std_min;
+    d["log_std_max"] = params_.log_std_max;
+    return d;
+  }
+
+ private:
+  farm::PolicyParams params_;
+  farm::Policy policy_;
+  std::mt19937_64 rng_;
+};
+
+std::string manifest_json(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("cannot read " + path);
+  std::stringstream text;
+  text << in.rdbuf();
+  farm::config::CheckpointManifest m;
+  if (!google::protobuf::TextFormat::ParseFromString(text.str(), &m))
+    throw std::runtime_error(path + " is not a checkpoint manifest");
+  std::string json;
+  google::protobuf::util::JsonPrintOptions o;
+  o.preserve_proto_field_names = true;
+  google::protobuf::util::MessageToJsonString(m, &json, o);
+  return json;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_farm, m) {
+  m.doc() = "The farm's C++ vector environments, policies and manifests (see the farm package)";
+  m.def("task_names", &farm::robots::task_names, "The tasks this build of the farm runs");
+  m.def("manifest_json", &manifest_json, py::arg("path"), "A checkpoint's manifest.txtpb as JSON text");
+  py::register_exception<farm::ConfigError>(m, "ConfigError", PyExc_ValueError);
+
+  py::class_<VecEnvPy>(m, "VecEnvCore")
+      .def(py::init<const std::string&, int, int, uint64_t>(), py::arg("config"), py::arg("num_envs"),
+           py::arg("threads"), py::arg("seed"))
+      .def_property_readonly("num_envs", &VecEnvPy::num_envs)
+      .def_property_readonly("obs_dim", &VecEnvPy::obs_dim)
+      .def_property_readonly("act_dim", &VecEnvPy::act_dim)
+      .def_property_readonly("num_actions", &VecEnvPy::num_actions)
+      .def_property_readonly("threads", &VecEnvPy::threads)
+      .def_property_readonly("metric_names", &VecEnvPy::metric_names)
+      .def("obs", [](py::object self) { return self.cast<VecEnvPy&>().obs(self); })
+      .def("rewards", [](py::object self) { return self.cast<VecEnvPy&>().rewards(self); })
+      .def("terminated", [](py::object self) { return self.cast<VecEnvPy&>().terminated(self); })
+      .def("truncated", [](py::object self) { return self.cast<VecEnvPy&>().truncated(self); })
+      .def("reset", &VecEnvPy::reset, py::arg("seed") = py::none())
+      .def("step", &VecEnvPy::step, py::arg("actions"))
+      .def("ended", &VecEnvPy::ended);
+
+  py::class_<PolicyPy>(m, "PolicyCore")
+      .def(py::init<const std::string&>(), py::arg("path"))
+      .def_property_readonly("obs_dim", &PolicyPy::obs_dim)
+      .def_property_readonly("act_dim", &PolicyPy::act_dim)
+      .def_property_readonly("num_actions", &PolicyPy::num_actions)
+      .def_property_readonly("version", &PolicyPy::version)
+      .def("describe", &PolicyPy::describe)
+      .def("act", &PolicyPy::act, py::arg("obs"))
+      .def("params", &PolicyPy::params);
+}
