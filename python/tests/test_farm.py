@@ -163,11 +163,11 @@ def test_two_threads_step_two_envs_faster_than_one_thread_both():
     # The GIL is released while the C++ envs step: two Python threads overlap on two cores.
     if (os.cpu_count() or 1) < 2:
         pytest.skip("one core")
-    envs = [farm.make_vec("a1", 8, seed=k) for k in range(2)]
+    envs = [farm.make_vec("a1", 32, seed=k) for k in range(2)]
     for e in envs:
         e.reset(seed=0)
     act = zeros(envs[0])
-    steps = 150
+    steps = 100
 
     def run(e):
         for _ in range(steps):
