@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <atomic>
 #include <condition_variable>
 #include <filesystem>
 #include <fstream>
@@ -71,7 +72,7 @@ class VecEnvPy {
   ~VecEnvPy() {
     {
       std::lock_guard<std::mutex> lk(mu_);
-      stop_ = true;
+      stop_.store(true);
     }
     start_cv_.notify_all();
     for (auto& t : pool_) t.join();
@@ -178,12 +179,23 @@ class VecEnvPy {
     env_.step_range(c.begin, c.end, actions_.data(), rewards_.data(), terminated_.data(), truncated_.data(), c.ends);
   }
 
+  // Spins for up to about half a millisecond until done() holds (the time a step's Python around it
+  // takes), so that a step hands over to the pool's threads without waking them from sleep.
+  template <class F>
+  static bool spin_until(F done) {
+    for (int i = 0; i < 20000; ++i) {
+      if (done()) return true;
+      __builtin_ia32_pause();
+    }
+    return done();
+  }
+
   void run_all() {
+    error_ = nullptr;
+    pending_.store(threads_ - 1);
     {
       std::lock_guard<std::mutex> lk(mu_);
-      pending_ = threads_ - 1;
-      error_ = nullptr;
-      ++generation_;
+      generation_.fetch_add(1);
     }
     start_cv_.notify_all();
     std::exception_ptr mine;
@@ -192,33 +204,39 @@ class VecEnvPy {
     } catch (...) {
       mine = std::current_exception();
     }
-    std::unique_lock<std::mutex> lk(mu_);
-    done_cv_.wait(lk, [&] { return pending_ == 0; });
+    if (!spin_until([&] { return pending_.load() == 0; })) {
+      std::unique_lock<std::mutex> lk(mu_);
+      done_cv_.wait(lk, [&] { return pending_.load() == 0; });
+    }
     if (mine) std::rethrow_exception(mine);
+    std::lock_guard<std::mutex> lk(mu_);
     if (error_) std::rethrow_exception(error_);
   }
 
   void thread_main(int k) {
     uint64_t seen = 0;
     for (;;) {
-      {
+      auto woken = [&] { return stop_.load() || generation_.load() != seen; };
+      if (!spin_until(woken)) {
         std::unique_lock<std::mutex> lk(mu_);
-        start_cv_.wait(lk, [&] { return stop_ || generation_ != seen; });
-        if (stop_) return;
-        seen = generation_;
+        start_cv_.wait(lk, woken);
       }
+      if (stop_.load()) return;
+      seen = generation_.load();
       std::exception_ptr err;
       try {
         step_chunk(chunks_[k]);
       } catch (...) {
         err = std::current_exception();
       }
-      {
+      if (err) {
         std::lock_guard<std::mutex> lk(mu_);
-        if (err && !error_) error_ = err;
-        --pending_;
+        if (!error_) error_ = err;
       }
-      done_cv_.notify_all();
+      if (pending_.fetch_sub(1) == 1) {
+        std::lock_guard<std::mutex> lk(mu_);  // the waiter checks pending_ under mu_: no lost wake-up
+        done_cv_.notify_all();
+      }
     }
   }
 
@@ -230,10 +248,10 @@ class VecEnvPy {
   std::vector<std::thread> pool_;
   std::mutex mu_;
   std::condition_variable start_cv_, done_cv_;
-  uint64_t generation_ = 0;
-  int pending_ = 0;
-  bool stop_ = false;
-  std::exception_ptr error_;
+  std::atomic<uint64_t> generation_{0};
+  std::atomic<int> pending_{0};
+  std::atomic<bool> stop_{false};
+  std::exception_ptr error_;  // under mu_
 };
 
 // A trained policy as the workers run it in evaluations: the deterministic action (the mode).
