@@ -2,8 +2,6 @@
 run folders. Run by ctest (python.pytest) with PYTHONPATH at build/python; FARM_POLICY_FILE names
 the farm-policy-file program, FARM_SOURCE_DIR the source tree."""
 import os
-import shutil
-import subprocess
 import threading
 import time
 
@@ -195,21 +193,6 @@ def test_two_threads_step_two_envs_faster_than_one_thread_both():
     assert both < 0.8 * one
 
 
-@pytest.fixture(scope="module")
-def checkpoints(tmp_path_factory):
-    """The SAC and PPO checkpoints of tests/data with their policy files written by farm-policy-file."""
-    prog = os.environ.get("FARM_POLICY_FILE")
-    if not prog:
-        pytest.skip("FARM_POLICY_FILE not set")
-    out = {}
-    for algo in ("sac", "ppo"):
-        dst = tmp_path_factory.mktemp(algo) / "checkpoint"
-        shutil.copytree(os.path.join(SOURCE, "tests", "data", "checkpoint_v1", algo, "checkpoint"), dst)
-        subprocess.run([prog, str(dst)], check=True, capture_output=True)
-        out[algo] = dst
-    return out
-
-
 def numpy_policy(p, obs):
     """The worker's computation written out in NumPy: normalizer, layers, head."""
     x = obs.astype(np.float64)
@@ -251,14 +234,8 @@ def test_policy_matches_the_workers_computation(checkpoints, algo):
         policy(np.zeros(policy.obs_dim + 1, np.float32))
 
 
-def test_run_folder(checkpoints, tmp_path):
-    run = tmp_path / "run"
-    run.mkdir()
-    shutil.copytree(checkpoints["sac"], run / "checkpoint")
-    (run / "learner.csv").write_text("elapsed_s,env_steps,updates\n1.0,100,0\n2.0,300,40\n")
-    (run / "events.jsonl").write_text('{"event":"start","elapsed_s":0.0}\n'
-                                      '{"event":"summary","elapsed_s":2.0,"batches_lost":0}\n')
-    r = farm.read_run(run)
+def test_run_folder(run_folder, tmp_path):
+    r = farm.read_run(run_folder)
     df = r.csv()
     assert list(df["env_steps"]) == [100, 300]
     assert [e["event"] for e in r.events()] == ["start", "summary"]

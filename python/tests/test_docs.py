@@ -1,0 +1,16 @@
+"""Every Python snippet of docs/PYTHON.md runs, in order, in one namespace, with run_dir a run folder."""
+import os
+import re
+
+from conftest import SOURCE
+
+
+def test_python_guide_snippets_run(run_folder, capsys):
+    text = open(os.path.join(SOURCE, "docs", "PYTHON.md")).read()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert len(blocks) >= 4
+    namespace = {"run_dir": str(run_folder)}
+    for i, code in enumerate(blocks):
+        exec(compile(code, "docs/PYTHON.md python block %d" % (i + 1), "exec"), namespace)
+    out = capsys.readouterr().out
+    assert "episodes ended:" in out and "returns" in out
