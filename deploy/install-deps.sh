@@ -22,7 +22,7 @@ PACKAGES=(
   faketime                                          # the security test's worker on a clock an hour behind
   libcli11-dev                                      # every program's command-line options (header-only)
   pybind11-dev python3-dev python3-numpy            # the Python package farm (python/)
-  python3-pytest python3-pandas                     # ... its tests, and runs read as DataFrames
+  python3-pytest python3-pandas python3-torch       # ... its tests, runs as DataFrames, the PyTorch example
 )
 
 missing=()

@@ -281,8 +281,8 @@ class PolicyPy {
     }
     if (num_actions() > 0) {
       std::vector<int64_t> idx(out.begin(), out.end());
-      return single ? py::array_t<int64_t>(py::ssize_t(1), idx.data())[py::int_(0)].cast<py::array>()
-                    : py::array_t<int64_t>(py::ssize_t(rows), idx.data());
+      if (single) return py::array_t<int64_t>(std::vector<py::ssize_t>{}, idx.data());  // 0-d: one action
+      return py::array_t<int64_t>(py::ssize_t(rows), idx.data());
     }
     if (single) return py::array_t<float>(py::ssize_t(act_dim()), out.data());
     return py::array_t<float>({py::ssize_t(rows), py::ssize_t(act_dim())}, out.data());
@@ -327,6 +327,10 @@ std::string manifest_json(const std::string& path) {
 
 }  // namespace
 
+#ifdef FARM_WITH_DDS
+void add_learner_bus(py::module_& m);  // learner_bus.cpp
+#endif
+
 PYBIND11_MODULE(_farm, m) {
   m.doc() = "The farm's C++ vector environments, policies and manifests (see the farm package)";
   m.def("task_names", &farm::robots::task_names, "The tasks this build of the farm runs");
@@ -359,4 +363,7 @@ PYBIND11_MODULE(_farm, m) {
       .def("describe", &PolicyPy::describe)
       .def("act", &PolicyPy::act, py::arg("obs"))
       .def("params", &PolicyPy::params);
+#ifdef FARM_WITH_DDS
+  add_learner_bus(m);
+#endif
 }

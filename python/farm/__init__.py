@@ -5,11 +5,19 @@
 - ``load_policy(path)``: a trained policy (``RUN/best``, ``RUN/checkpoint`` or a ``policy.bin``) as a
   callable that computes the action a worker's evaluation computes (``farm.runs``).
 - ``read_run(folder)``: a run folder's CSV (pandas), events, summary and manifests (``farm.runs``).
+- ``LearnerBus(config, domain)``: the learner's side of the bus for an algorithm in Python: the
+  experiment's spec out, the workers' checked and accounted batches in, policies out;
+  ``farm.torch_policy`` turns a PyTorch ``nn.Sequential`` into the workers' layout.
 """
 from ._farm import ConfigError, task_names
+
+try:
+    from ._farm import LearnerBus
+except ImportError:  # a build without DDS
+    LearnerBus = None
 from .runs import Policy, Run, load_policy, read_run
 from .spaces import Box, Discrete
 from .vector import VecEnv, make_vec
 
 __all__ = ["ConfigError", "task_names", "make_vec", "VecEnv", "Box", "Discrete", "load_policy", "Policy",
-           "read_run", "Run"]
+           "read_run", "Run", "LearnerBus"]

@@ -1,0 +1,216 @@
+// farm._farm.LearnerBus: the learner's side of the bus for an algorithm written in Python. It
+// publishes an experiment's spec, takes the workers' batches through the learner's own ingest
+// thread (checked and accounted per worker stream as farm-learner does: lost, duplicate, invalid)
+// and hands them over as NumPy arrays, and publishes policies.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "config.h"
+#include "dds.h"
+#include "events.h"
+#include "ingest.h"
+#include "ingest_thread.h"
+#include "meter.h"
+#include "mlp.h"
+#include "spec_publisher.h"
+#include "task_spec.h"
+
+namespace py = pybind11;
+
+namespace {
+
+template <class T>
+py::array_t<T> array_of(const std::vector<T>& v, std::vector<py::ssize_t> shape) {
+  py::array_t<T> a(shape);
+  std::copy(v.begin(), v.end(), a.mutable_data());
+  return a;
+}
+
+class LearnerBus {
+ public:
+  LearnerBus(const std::string& config, int domain, const std::string& profiles, const std::string& events_path)
+      : cfg_(farm::load_config_file(config)),
+        task_(farm::robots::task_spec(cfg_.task())),
+        bus_(
+            [&] {
+              farm::dds::BusOptions o;
+              o.domain = domain;
+              o.profiles_file = profiles;
+              return o;
+            }(),
+            "farm-python-learner"),
+        spec_(bus_, cfg_, task_.obs_dim, task_.act_dim),
+        weights_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
+        intake_(
+            bus_,
+            [&] {
+              farm::Ingest in(cfg_.experiment_id(), task_.obs_dim, task_.act_dim);
+              in.set_num_actions(task_.num_actions);
+              return in;
+            }(),
+            uint32_t(std::min<uint64_t>(
+                farm::Ingest::max_batch_bytes(task_.obs_dim, task_.act_dim, int(task_.metric_names.size()),
+                                              cfg_.worker().steps_per_batch()),
+                UINT32_MAX)),
+            size_t(cfg_.ingest_queue_mib() * (1 << 20)),
+            [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); }, events_) {
+    if (!events_path.empty()) events_.open(events_path);
+    events_.set_start(farm::now_seconds());
+    intake_.start();
+    spec_.publish(false);
+  }
+  ~LearnerBus() { finish(); }
+
+  int obs_dim() const { return task_.obs_dim; }
+  int act_dim() const { return task_.act_dim; }
+  int num_actions() const { return task_.num_actions; }
+  std::string experiment_id() const { return cfg_.experiment_id(); }
+  int domain() const { return bus_.domain(); }
+
+  // Up to max_batches accepted batches, waiting up to timeout seconds for the first. Each is a
+  // dict of NumPy arrays over its T*N rows (obs, actions, rewards, next_obs, terminated, truncated,
+  // log_probs) with its worker, policy version and the episodes that ended in it.
+  py::list take(int max_batches, double timeout) {
+    std::vector<std::unique_ptr<farm::AcceptedBatch>> got;
+    {
+      py::gil_scoped_release nogil;
+      spec_.republish_if_due(farm::now_seconds());
+      if (intake_.pop(size_t(max_batches), [&](farm::AcceptedBatch& a) {
+            got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
+          }) == 0 &&
+          timeout > 0) {
+        intake_.wait(timeout);
+        intake_.pop(size_t(max_batches), [&](farm::AcceptedBatch& a) {
+          got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
+        });
+      }
+    }
+    py::list out;
+    for (const auto& a : got) {
+      const farm::Transitions& r = a->rows;
+      const py::ssize_t n = r.n, od = task_.obs_dim, ad = task_.act_dim;
+      py::dict d;
+      d["worker_id"] = a->worker_id;
+      d["policy_version"] = a->policy_version;
+      d["num_steps"] = a->num_steps;
+      d["num_envs"] = a->num_envs;
+      d["obs"] = array_of(r.obs, {n, od});
+      d["actions"] = array_of(r.actions, {n, ad});
+      d["rewards"] = array_of(r.rewards, {n});
+      d["next_obs"] = array_of(r.next_obs, {n, od});
+      py::array_t<bool> term(n);
+      for (py::ssize_t i = 0; i < n; ++i) term.mutable_data()[i] = r.terminated[i] != 0;
+      d["terminated"] = term;
+      py::array_t<bool> trunc(py::ssize_t(a->truncated.size()));
+      for (size_t i = 0; i < a->truncated.size(); ++i) trunc.mutable_data()[i] = a->truncated[i] != 0;
+      d["truncated"] = trunc;
+      d["log_probs"] = array_of(a->log_probs, {py::ssize_t(a->log_probs.size())});
+      std::vector<float> returns;
+      for (const auto& e : a->episodes) returns.push_back(e.episode_return);
+      d["episode_returns"] = array_of(returns, {py::ssize_t(returns.size())});
+      out.append(d);
+    }
+    return out;
+  }
+
+  // Publishes a policy in the workers' layout: version (> the last), sizes, activation (0 relu,
+  // 1 tanh, 2 elu), head (0 squashed Gaussian, 1 Gaussian, 2 discrete Q), flat params (per layer
+  // weight [out x in] then bias), and optionally obs_mean/obs_std, log_std.
+  void publish(const py::dict& p) {
+    farm::PolicyParams pp;
+    pp.version = p["version"].cast<uint64_t>();
+    pp.layout.sizes = p["sizes"].cast<std::vector<int>>();
+    pp.layout.activation = farm::Activation(p.contains("activation") ? p["activation"].cast<int>() : 0);
+    pp.head = farm::PolicyHead(p.contains("head") ? p["head"].cast<int>() : 0);
+    pp.params = p["params"].cast<std::vector<float>>();
+    if (p.contains("obs_mean")) pp.obs_mean = p["obs_mean"].cast<std::vector<float>>();
+    if (p.contains("obs_std")) pp.obs_std = p["obs_std"].cast<std::vector<float>>();
+    if (p.contains("log_std")) pp.log_std = p["log_std"].cast<std::vector<float>>();
+    if (pp.version <= version_)
+      throw py::value_error("policy version " + std::to_string(pp.version) + " is not newer than the last published, " +
+                            std::to_string(version_));
+    try {
+      farm::Policy check(pp);  // the workers' own consistency checks, before it goes out
+      if (check.obs_dim() != task_.obs_dim || check.act_dim() != task_.act_dim)
+        throw std::invalid_argument("the policy maps " + std::to_string(check.obs_dim()) + " observations to " +
+                                    std::to_string(check.act_dim()) + " actions; the task has " +
+                                    std::to_string(task_.obs_dim) + " and " + std::to_string(task_.act_dim));
+    } catch (const std::invalid_argument& e) {
+      throw py::value_error(std::string("policy: ") + e.what());
+    }
+    farm::msg::PolicyWeights w;
+    farm::dds::to_wire(pp, cfg_.experiment_id(), w);
+    intake_.set_version(pp.version);
+    version_ = pp.version;
+    weights_.write(w);
+  }
+
+  // Batches and env steps accepted, and what was lost, duplicated or invalid, over every stream;
+  // per stream in "workers".
+  py::dict counters() {
+    py::dict d;
+    intake_.with_ingest([&](farm::Ingest& in) {
+      const farm::IngestCounters& c = in.counters();
+      d["batches_ok"] = c.ok;
+      d["batches_lost"] = c.lost;
+      d["batches_duplicate"] = c.duplicate;
+      d["batches_invalid"] = c.invalid;
+      d["env_steps"] = c.env_steps;
+      py::list workers;
+      for (const auto& [k, w] : in.workers()) {
+        py::dict a;
+        a["worker_id"] = w.worker_id;
+        a["session"] = w.session;
+        a["received"] = w.received;
+        a["lost"] = w.lost;
+        a["duplicates"] = w.duplicates;
+        a["invalid"] = w.invalid;
+        a["env_steps"] = w.env_steps;
+        workers.append(a);
+      }
+      d["workers"] = workers;
+    });
+    return d;
+  }
+
+  // Tells the workers the experiment has finished (they end); idempotent.
+  void finish() {
+    if (finished_) return;
+    finished_ = true;
+    spec_.publish(true);
+  }
+
+ private:
+  farm::config::ExperimentConfig cfg_;
+  farm::robots::TaskSpec task_;
+  farm::dds::Bus bus_;
+  farm::EventLog events_;
+  farm::SpecPublisher spec_;
+  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_;
+  farm::IngestThread intake_;
+  uint64_t version_ = 0;
+  bool finished_ = false;
+};
+
+}  // namespace
+
+void add_learner_bus(py::module_& m) {
+  py::class_<LearnerBus>(m, "LearnerBus")
+      .def(py::init<const std::string&, int, const std::string&, const std::string&>(), py::arg("config"),
+           py::arg("domain") = 0, py::arg("profiles") = "", py::arg("events") = "")
+      .def_property_readonly("obs_dim", &LearnerBus::obs_dim)
+      .def_property_readonly("act_dim", &LearnerBus::act_dim)
+      .def_property_readonly("num_actions", &LearnerBus::num_actions)
+      .def_property_readonly("experiment_id", &LearnerBus::experiment_id)
+      .def_property_readonly("domain", &LearnerBus::domain)
+      .def("take", &LearnerBus::take, py::arg("max_batches") = 256, py::arg("timeout") = 0.1)
+      .def("publish", &LearnerBus::publish, py::arg("policy"))
+      .def("counters", &LearnerBus::counters)
+      .def("finish", &LearnerBus::finish);
+}

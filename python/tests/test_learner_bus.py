@@ -1,0 +1,71 @@
+"""An algorithm in Python over the C++ workers: LearnerBus (spec out, checked batches in, policies
+out), the PyTorch layout helper, and the example SAC reaching the pendulum target with two
+farm-worker processes over DDS. FARM_WORKER names the worker program."""
+import json
+import os
+import random
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+import farm
+from farm.torch_policy import policy_params, sequential
+from conftest import SOURCE
+
+CONFIG = os.path.join(SOURCE, "deploy", "configs", "pendulum_sac.txtpb")
+
+
+def test_torch_layout_round_trip():
+    net = nn.Sequential(nn.Linear(3, 16), nn.Tanh(), nn.Linear(16, 8), nn.Tanh(), nn.Linear(16 // 2, 2))
+    p = policy_params(net, 4)
+    assert p["sizes"] == [3, 16, 8, 2] and p["activation"] == 1 and p["head"] == 0
+    back = sequential(p)
+    x = torch.randn(5, 3)
+    assert torch.allclose(net(x), back(x))
+    with pytest.raises(ValueError, match="layer 2: expected nn.Linear"):
+        policy_params(nn.Sequential(nn.Linear(3, 4), nn.ReLU(), nn.ReLU()), 1)
+    with pytest.raises(ValueError, match="one activation"):
+        policy_params(nn.Sequential(nn.Linear(3, 4), nn.ReLU(), nn.Linear(4, 4), nn.Tanh(), nn.Linear(4, 2)), 1)
+
+
+@pytest.mark.skipif(farm.LearnerBus is None, reason="built without DDS")
+def test_publish_refuses_what_workers_would():
+    bus = farm.LearnerBus(CONFIG, domain=random.randint(150, 200))
+    assert (bus.obs_dim, bus.act_dim) == (3, 1)
+    good = nn.Sequential(nn.Linear(3, 8), nn.ReLU(), nn.Linear(8, 2))
+    bus.publish(policy_params(good, 1))
+    with pytest.raises(ValueError, match="not newer"):
+        bus.publish(policy_params(good, 1))
+    with pytest.raises(ValueError, match="the task has 3 and 1"):
+        bus.publish(policy_params(nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 2)), 2))
+    assert bus.take(max_batches=4, timeout=0.0) == []
+    c = bus.counters()
+    assert c["batches_ok"] == 0 and c["workers"] == []
+    bus.finish()
+
+
+@pytest.mark.skipif(not os.environ.get("FARM_WORKER"), reason="FARM_WORKER not set")
+def test_python_sac_reaches_the_pendulum_target_from_two_cpp_workers(tmp_path):
+    domain = random.randint(150, 200)
+    workers = [subprocess.Popen([os.environ["FARM_WORKER"], "--domain", str(domain), "--id", "py-%d" % i],
+                                stdout=open(tmp_path / ("worker-%d.log" % i), "w"), stderr=subprocess.STDOUT)
+               for i in (1, 2)]
+    try:
+        example = os.path.join(SOURCE, "python", "examples", "sac_pendulum.py")
+        run = subprocess.run([sys.executable, example, CONFIG, "--domain", str(domain), "--max-seconds", "240"],
+                             capture_output=True, text=True, timeout=300)
+        print(run.stdout[-3000:], run.stderr[-3000:])
+        result = json.loads(run.stdout.strip().splitlines()[-1])
+        for w in workers:
+            w.wait(timeout=60)  # the finished spec ends them
+    finally:
+        for w in workers:
+            if w.poll() is None:
+                w.kill()
+    assert result["reached"], result
+    assert result["batches_ok"] > 0 and result["batches_lost"] == 0 and result["batches_invalid"] == 0, result
+    assert all(w.returncode == 0 for w in workers)
