@@ -6,13 +6,16 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cmath>
 #include <cstdio>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "config.h"
 #include "dds.h"
+#include "eval_answer.h"
 #include "events.h"
 #include "ingest.h"
 #include "ingest_thread.h"
@@ -59,7 +62,13 @@ class LearnerBus {
                                               cfg_.worker().steps_per_batch()),
                 UINT32_MAX)),
             size_t(cfg_.ingest_queue_mib() * (1 << 20)),
-            [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); }, events_) {
+            [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); }, events_),
+        status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader"),
+        eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
+        eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
+                 farm::max_eval_answer_bytes(cfg_.experiment_id().size(),
+                                             std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes()),
+                                             int(task_.metric_names.size()))) {
     if (!events_path.empty()) events_.open(events_path);
     events_.set_start(farm::now_seconds());
     intake_.start();
@@ -81,9 +90,10 @@ class LearnerBus {
     {
       py::gil_scoped_release nogil;
       spec_.republish_if_due(farm::now_seconds());
-      if (intake_.pop(size_t(max_batches), [&](farm::AcceptedBatch& a) {
-            got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
-          }) == 0 &&
+      if (intake_.pop(size_t(max_batches),
+                      [&](farm::AcceptedBatch& a) {
+                        got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
+                      }) == 0 &&
           timeout > 0) {
         intake_.wait(timeout);
         intake_.pop(size_t(max_batches), [&](farm::AcceptedBatch& a) {
@@ -123,6 +133,29 @@ class LearnerBus {
   // 1 tanh, 2 elu), head (0 squashed Gaussian, 1 Gaussian, 2 discrete Q), flat params (per layer
   // weight [out x in] then bias), and optionally obs_mean/obs_std, log_std.
   void publish(const py::dict& p) {
+    const farm::PolicyParams pp = params_of(p);
+    if (pp.version <= version_)
+      throw py::value_error("policy version " + std::to_string(pp.version) + " is not newer than the last published, " +
+                            std::to_string(version_));
+    farm::msg::PolicyWeights w;
+    farm::dds::to_wire(pp, cfg_.experiment_id(), w);
+    intake_.set_version(pp.version);
+    version_ = pp.version;
+    weights_.write(w);
+  }
+
+ private:
+  // The heartbeats that came since the last call.
+  void listen() {
+    farm::msg::WorkerStatus st;
+    while (status_in_.take(st)) {
+      if (st.experiment_id() != cfg_.experiment_id()) continue;
+      heard_[st.worker_id()] = Heard{st.worker_session(), farm::now_seconds()};
+    }
+  }
+
+  // A policy dict (publish()) as the workers' PolicyParams, checked as a worker checks one.
+  farm::PolicyParams params_of(const py::dict& p) const {
     farm::PolicyParams pp;
     pp.version = p["version"].cast<uint64_t>();
     pp.layout.sizes = p["sizes"].cast<std::vector<int>>();
@@ -132,9 +165,6 @@ class LearnerBus {
     if (p.contains("obs_mean")) pp.obs_mean = p["obs_mean"].cast<std::vector<float>>();
     if (p.contains("obs_std")) pp.obs_std = p["obs_std"].cast<std::vector<float>>();
     if (p.contains("log_std")) pp.log_std = p["log_std"].cast<std::vector<float>>();
-    if (pp.version <= version_)
-      throw py::value_error("policy version " + std::to_string(pp.version) + " is not newer than the last published, " +
-                            std::to_string(version_));
     try {
       farm::Policy check(pp);  // the workers' own consistency checks, before it goes out
       if (check.obs_dim() != task_.obs_dim || check.act_dim() != task_.act_dim)
@@ -144,13 +174,10 @@ class LearnerBus {
     } catch (const std::invalid_argument& e) {
       throw py::value_error(std::string("policy: ") + e.what());
     }
-    farm::msg::PolicyWeights w;
-    farm::dds::to_wire(pp, cfg_.experiment_id(), w);
-    intake_.set_version(pp.version);
-    version_ = pp.version;
-    weights_.write(w);
+    return pp;
   }
 
+ public:
   // Batches and env steps accepted, and what was lost, duplicated or invalid, over every stream;
   // per stream in "workers".
   py::dict counters() {
@@ -179,6 +206,94 @@ class LearnerBus {
     return d;
   }
 
+  // The ids of this experiment's workers heard within the config's worker_timeout_seconds.
+  std::vector<std::string> workers() {
+    listen();
+    std::vector<std::string> out;
+    const double now = farm::now_seconds();
+    for (const auto& [id, h] : heard_)
+      if (now - h.when <= cfg_.worker_timeout_seconds()) out.push_back(id);
+    return out;
+  }
+
+  // Asks a worker (worker_id, else the first one heard) to run `episodes` episodes of the policy
+  // (a dict as publish() takes) on evaluation envs of its own, and waits up to timeout seconds for
+  // the answer, checked as farm-learner checks one. Returns its returns, lengths and flags.
+  py::dict evaluate(const py::dict& policy, int episodes, std::string worker_id, uint64_t seed, double timeout) {
+    const int most = std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes());
+    if (episodes < 1 || episodes > most)
+      throw py::value_error("episodes: expected 1.." + std::to_string(most) +
+                            " (the config's eval.episodes / final_episodes), got " + std::to_string(episodes));
+    const farm::PolicyParams pp = params_of(policy);
+    const std::vector<std::string> live = workers();
+    if (worker_id.empty()) {
+      if (live.empty()) throw std::runtime_error("no worker of experiment '" + cfg_.experiment_id() + "' is heard");
+      worker_id = live.front();
+    } else if (std::find(live.begin(), live.end(), worker_id) == live.end()) {
+      throw std::runtime_error("worker '" + worker_id + "' is not heard");
+    }
+    farm::msg::EvaluationRequest q;
+    q.experiment_id(cfg_.experiment_id());
+    q.learner_session(eval_session_);
+    q.request_id(++request_id_);
+    q.worker_id(worker_id);
+    q.policy_version(pp.version);
+    q.episodes(uint32_t(episodes));
+    q.seed(seed);
+    farm::dds::to_wire(pp, cfg_.experiment_id(), q.policy());
+    q.first_episode(0);
+    farm::EvalExpected e;
+    e.experiment_id = cfg_.experiment_id();
+    e.learner_session = eval_session_;
+    e.worker_id = worker_id;
+    e.request_id = q.request_id();
+    e.worker_session = heard_[worker_id].session;
+    e.policy_version = pp.version;
+    e.episodes = episodes;
+    e.num_metrics = int(task_.metric_names.size());
+    e.max_episode_steps = task_.max_episode_steps;
+    e.reward_bound = task_.reward_bound;
+    farm::msg::EvaluationAnswer a;
+    std::string why;
+    bool got = false;
+    {
+      py::gil_scoped_release nogil;
+      // The writer's history is full only while workers have not taken earlier requests.
+      for (int tries = 0; !eval_out_.write(q); ++tries)
+        if (tries == 3) {
+          why = "the request could not be written (earlier requests not yet taken by the workers)";
+          got = true;
+          break;
+        }
+      for (const double end = farm::now_seconds() + timeout; !got && farm::now_seconds() < end;) {
+        if (!eval_in_.take(a)) {
+          eval_in_.wait(0.05);
+          continue;
+        }
+        if (a.learner_session() != eval_session_ || a.request_id() != q.request_id()) continue;
+        why = a.error().empty() ? farm::check_eval_answer(a, e) : "the worker says: " + a.error();
+        got = true;
+      }
+    }
+    if (!got)
+      throw py::value_error("evaluation " + std::to_string(q.request_id()) + " of worker '" + worker_id +
+                            "' not answered within " + std::to_string(timeout) + " s");
+    if (!why.empty()) throw std::runtime_error("evaluation " + std::to_string(q.request_id()) + " refused: " + why);
+    std::vector<float> returns;
+    std::vector<int> lengths;
+    for (const auto& ep : a.episodes()) {
+      returns.push_back(ep.episode_return());
+      lengths.push_back(int(ep.length()));
+    }
+    py::dict d;
+    d["worker_id"] = worker_id;
+    d["policy_version"] = pp.version;
+    d["returns"] = array_of(returns, {py::ssize_t(returns.size())});
+    d["lengths"] = array_of(lengths, {py::ssize_t(lengths.size())});
+    d["seconds"] = a.seconds();
+    return d;
+  }
+
   // Tells the workers the experiment has finished (they end); idempotent.
   void finish() {
     if (finished_) return;
@@ -194,6 +309,15 @@ class LearnerBus {
   farm::SpecPublisher spec_;
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_;
   farm::IngestThread intake_;
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
+  farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
+  struct Heard {
+    uint64_t session = 0;
+    double when = 0;
+  };
+  std::map<std::string, Heard> heard_;  // this experiment's workers, by id: their last heartbeat
+  uint64_t eval_session_ = farm::dds::random_session_id(), request_id_ = 0;
   uint64_t version_ = 0;
   bool finished_ = false;
 };
@@ -212,5 +336,8 @@ void add_learner_bus(py::module_& m) {
       .def("take", &LearnerBus::take, py::arg("max_batches") = 256, py::arg("timeout") = 0.1)
       .def("publish", &LearnerBus::publish, py::arg("policy"))
       .def("counters", &LearnerBus::counters)
+      .def("workers", &LearnerBus::workers)
+      .def("evaluate", &LearnerBus::evaluate, py::arg("policy"), py::arg("episodes"), py::arg("worker_id") = "",
+           py::arg("seed") = 0, py::arg("timeout") = 60.0)
       .def("finish", &LearnerBus::finish);
 }

@@ -6,7 +6,8 @@
 
 The workers collect with the published policy; batches arrive checked and accounted by the
 learner's C++ ingest; every few seconds the deterministic policy is evaluated on local envs
-(farm.make_vec). It stops at the target return or the time limit and prints one JSON line.
+(farm.make_vec). It stops at the target return or the time limit, has a worker evaluate the final
+policy, and prints one JSON line.
 """
 import argparse
 import json
@@ -143,9 +144,13 @@ def main():
                   flush=True)
             if best >= a.target:
                 break
+    seconds = time.time() - t0
+    # The final policy evaluated on a worker, by the workers' own code: 10 deterministic episodes.
+    answer = bus.evaluate(policy_params(actor, version), episodes=10, timeout=60)
     bus.finish()
     c = bus.counters()
-    print(json.dumps({"reached": best >= a.target, "eval_return": best, "seconds": time.time() - t0,
+    print(json.dumps({"reached": best >= a.target, "eval_return": best, "seconds": seconds,
+                      "worker_eval_return": float(answer["returns"].mean()), "worker": answer["worker_id"],
                       "updates": updates, "env_steps": c["env_steps"], "batches_ok": c["batches_ok"],
                       "batches_lost": c["batches_lost"], "batches_invalid": c["batches_invalid"]}), flush=True)
     return 0 if best >= a.target else 1

@@ -43,6 +43,11 @@ def test_publish_refuses_what_workers_would():
     with pytest.raises(ValueError, match="the task has 3 and 1"):
         bus.publish(policy_params(nn.Sequential(nn.Linear(4, 8), nn.ReLU(), nn.Linear(8, 2)), 2))
     assert bus.take(max_batches=4, timeout=0.0) == []
+    assert bus.workers() == []
+    with pytest.raises(ValueError, match=r"episodes: expected 1..50"):
+        bus.evaluate(policy_params(good, 2), episodes=51)
+    with pytest.raises(RuntimeError, match="no worker of experiment 'pendulum_sac' is heard"):
+        bus.evaluate(policy_params(good, 2), episodes=5)
     c = bus.counters()
     assert c["batches_ok"] == 0 and c["workers"] == []
     bus.finish()
@@ -67,5 +72,8 @@ def test_python_sac_reaches_the_pendulum_target_from_two_cpp_workers(tmp_path):
             if w.poll() is None:
                 w.kill()
     assert result["reached"], result
+    # The worker ran the published policy: its evaluation is of a trained pendulum, not of a random one
+    # (about -1,200) or of a layout read wrongly.
+    assert result["worker_eval_return"] > -400 and result["worker"] in ("py-1", "py-2"), result
     assert result["batches_ok"] > 0 and result["batches_lost"] == 0 and result["batches_invalid"] == 0, result
     assert all(w.returncode == 0 for w in workers)
