@@ -14,7 +14,7 @@ from torch import nn
 
 import farm
 from farm.torch_policy import policy_params, sequential
-from conftest import SOURCE
+from conftest import SOURCE  # noqa: F401 (checkpoints: a conftest fixture)
 
 CONFIG = os.path.join(SOURCE, "deploy", "configs", "pendulum_sac.txtpb")
 
@@ -77,3 +77,35 @@ def test_python_sac_reaches_the_pendulum_target_from_two_cpp_workers(tmp_path):
     assert result["worker_eval_return"] > -400 and result["worker"] in ("py-1", "py-2"), result
     assert result["batches_ok"] > 0 and result["batches_lost"] == 0 and result["batches_invalid"] == 0, result
     assert all(w.returncode == 0 for w in workers)
+
+
+@pytest.mark.skipif(not os.environ.get("FARM_WORKER"), reason="FARM_WORKER not set")
+def test_policy_callable_reproduces_a_workers_evaluation(checkpoints, tmp_path):
+    # A worker's evaluation of seed S runs episode i on VecEnv env i of seed S with the
+    # deterministic action of all rows at once; make_vec(seed=S) and the policy callable do the
+    # same, so the returns agree only if every action does.
+    policy = farm.load_policy(checkpoints["sac"])
+    params = policy.params()
+    domain = random.randint(150, 200)
+    bus = farm.LearnerBus(CONFIG, domain=domain)
+    worker = subprocess.Popen([os.environ["FARM_WORKER"], "--domain", str(domain), "--id", "py-eval"],
+                              stdout=open(tmp_path / "worker.log", "w"), stderr=subprocess.STDOUT)
+    try:
+        bus.publish(dict(params, version=1))
+        for _ in range(200):
+            if bus.workers():
+                break
+            bus.take(max_batches=64, timeout=0.05)
+        answer = bus.evaluate(dict(params, version=1), episodes=5, seed=77, timeout=60)
+    finally:
+        bus.finish()
+        worker.wait(timeout=30)
+    env = farm.make_vec("pendulum", 5, seed=77)
+    obs, _ = env.reset()
+    total = np.zeros(5)
+    for _ in range(200):
+        obs, r, term, trunc, _ = env.step(policy(obs))
+        total += r
+    assert trunc.all()
+    assert np.max(np.abs(total - answer["returns"])) < 1e-3, (total, answer["returns"])
+    assert list(answer["lengths"]) == [200] * 5
