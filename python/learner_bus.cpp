@@ -90,15 +90,12 @@ class LearnerBus {
     {
       py::gil_scoped_release nogil;
       spec_.republish_if_due(farm::now_seconds());
-      if (intake_.pop(size_t(max_batches),
-                      [&](farm::AcceptedBatch& a) {
-                        got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
-                      }) == 0 &&
-          timeout > 0) {
+      const auto keep = [&](farm::AcceptedBatch& a) {
+        got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
+      };
+      if (intake_.pop(size_t(max_batches), keep) == 0 && timeout > 0) {
         intake_.wait(timeout);
-        intake_.pop(size_t(max_batches), [&](farm::AcceptedBatch& a) {
-          got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
-        });
+        intake_.pop(size_t(max_batches), keep);
       }
     }
     py::list out;
