@@ -135,8 +135,12 @@ class VecEnvPy {
     run_all();
   }
 
-  // The episodes that ended in the last step: (env, return, length, terminated, final obs, metrics).
-  py::dict ended() const {
+  // The episodes that ended in the last step: (env, return, length, terminated, final obs, metrics);
+  // None when none did (most steps), so a step makes no arrays for them.
+  py::object ended() const {
+    bool any = false;
+    for (const Chunk& c : chunks_) any = any || c.ends.size() > 0;
+    if (!any) return py::none();
     std::vector<int> env;
     std::vector<float> ret, final_obs, metrics;
     std::vector<int> length;

@@ -59,7 +59,7 @@ class VecEnv:
 
     def _infos(self):
         ended = self._core.ended()
-        if len(ended["env"]) == 0:
+        if ended is None:
             return {}
         n = self.num_envs
         mask = np.zeros(n, dtype=bool)
