@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -143,9 +144,16 @@ int main(int argc, char** argv) {
     std::map<int, Best> best;
     if (!best_path.empty()) best = read_best(best_path);
 
-    const farm::tools::RunPolicy rp = farm::tools::config_policy(config_path, checkpoint);
+    // A learner's checkpoint names its updates in its manifest; a policy folder without one has
+    // them as its policy file's version (farm-policy-file --config).
+    const bool has_manifest = std::filesystem::exists(std::filesystem::path(checkpoint) / "manifest.txtpb");
+    const farm::tools::RunPolicy rp =
+        has_manifest ? farm::tools::load_run_policy(checkpoint) : farm::tools::config_policy(config_path, checkpoint);
+    if (has_manifest && rp.config.task().name() != "mclari")
+      throw std::invalid_argument(checkpoint + ": its manifest's task is '" + rp.config.task().name() +
+                                  "', expected 'mclari'");
     farm::PolicyParams policy = rp.policy;
-    policy.version = uint64_t(rp.updates);  // no manifest: the networks' update count
+    policy.version = uint64_t(rp.updates);
 
     std::vector<TerrainResult> results(mclari::kNumTerrains);
     std::atomic<int> next{0};

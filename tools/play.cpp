@@ -62,8 +62,8 @@ void add_options(CLI::App& app, Options& o) {
   app.add_option("--checkpoint", o.checkpoint, "A checkpoint or best folder holding the policy");
   app.add_option("--config", o.config,
                  "The experiment from this file, not from the checkpoint's manifest: with --checkpoint, for a "
-                 "policy folder without one (docs/data/mclari_terrain_policy); alone, the experiment's untrained "
-                 "policy (its learner's initial networks), to look at a task and the camera before training");
+                 "policy folder without one (docs/data/mclari_terrain_policy); alone, an untrained policy of the "
+                 "experiment's algorithm, to look at a task and the camera before training");
   app.add_option("--out", o.out, "FILE.mp4, FILE.gif or FOLDER/ (numbered PNG frames)");
   app.add_option("--episodes", o.episodes, "Episodes to play")->check(CLI::Range(1, 10000))->capture_default_str();
   app.add_option("--seed", o.seed, "Reset seed of the first episode")

@@ -54,7 +54,8 @@ config::CheckpointManifest read_manifest_file(const fs::path& file) {
   return m;
 }
 
-// The policy must be the task's: observations in, and the outputs its head needs for the actions.
+}  // namespace
+
 void check_fits(const PolicyParams& p, const robots::TaskSpec& spec, const std::string& file) {
   const int in = p.layout.sizes.front(), out = p.layout.sizes.back();
   int want = spec.act_dim;
@@ -65,8 +66,6 @@ void check_fits(const PolicyParams& p, const robots::TaskSpec& spec, const std::
                              spec.name + " (" + std::to_string(spec.obs_dim) + " observations in, " +
                              std::to_string(want) + " outputs for its actions)");
 }
-
-}  // namespace
 
 RunPolicy with_task(config::ExperimentConfig cfg) {
   clear_output_paths(&cfg);

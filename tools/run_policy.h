@@ -2,8 +2,8 @@
 // RUN/best): the manifest's experiment config, the task it names, and the policy file the learner
 // wrote there (policy.bin, common/policy_file.h: the networks of whichever algorithm trained it,
 // with the observation normalizer), without LibTorch. The one loader of the programs that read a
-// run's policy (farm-play, farm-export, farm-mobile-eval); config_policy.h reads networks that have
-// no policy file (with LibTorch).
+// run's policy (farm-play, farm-export, farm-mobile-eval); config_policy.h reads a policy file that
+// has no manifest beside it, or makes an untrained policy.
 #pragma once
 
 #include <cstdint>
@@ -32,6 +32,10 @@ struct RunPolicy {
 // an unknown task, no policy file (a checkpoint of a learner that wrote none: how to write it), a
 // policy file that is not one or does not fit the task).
 RunPolicy load_run_policy(const std::string& dir);
+
+// Throws std::runtime_error naming `file` unless policy p fits the task: its observations in, and
+// the outputs its head needs for the task's actions.
+void check_fits(const PolicyParams& p, const robots::TaskSpec& spec, const std::string& file);
 
 // The config's task, built without writing any file its config names; no policy yet.
 RunPolicy with_task(config::ExperimentConfig cfg);

@@ -11,6 +11,7 @@
 
 #include "compute.h"
 #include "config.h"
+#include "policy_shape.h"
 
 #ifdef FARM_CUDA_GRAPHS
 #include "cuda_graph_update.h"
@@ -37,11 +38,6 @@ struct QNetImpl : torch::nn::Module {
   std::vector<torch::nn::Linear> layers;
 };
 TORCH_MODULE(QNet);
-
-std::vector<int> dqn_hidden(const config::DqnConfig& c) {
-  if (c.hidden_size() == 0) return {64, 64};  // sb3 DQN net_arch
-  return {c.hidden().begin(), c.hidden().end()};
-}
 
 }  // namespace
 
@@ -316,13 +312,8 @@ double Dqn::epsilon() const { return dqn_epsilon(impl_->cfg, env_steps_); }
 
 PolicyParams Dqn::export_policy(uint64_t version) const {
   const Impl& s = *impl_;
-  PolicyParams p;
+  PolicyParams p = dqn_policy_shape(s.obs_dim, s.num_actions, s.cfg);
   p.version = version;
-  p.head = PolicyHead::kDiscreteQ;
-  p.layout.activation = Activation::kRelu;
-  p.layout.sizes.push_back(s.obs_dim);
-  p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
-  p.layout.sizes.push_back(s.num_actions);
   p.epsilon = float(epsilon());
   for (const auto& layer : s.online->layers) {
     const auto w = layer->weight.detach().to(torch::kCPU).contiguous();

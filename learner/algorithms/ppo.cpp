@@ -8,6 +8,7 @@
 
 #include "compute.h"
 #include "config.h"
+#include "policy_shape.h"
 
 namespace farm {
 
@@ -63,11 +64,6 @@ double adapt_learning_rate(double lr, double kl, const config::PpoConfig& c) {
   else if (kl < c.desired_kl() / c.kl_band())
     lr *= c.lr_factor();
   return std::clamp(lr, c.lr_min(), c.lr_max());
-}
-
-std::vector<int> ppo_hidden(const config::PpoConfig& c) {
-  if (c.hidden_size() == 0) return {64, 64};
-  return {c.hidden().begin(), c.hidden().end()};
 }
 
 struct Ppo::Impl {
@@ -266,15 +262,8 @@ PpoStats Ppo::fit(const PpoSamples& d) {
 
 PolicyParams Ppo::export_policy(uint64_t version) const {
   const Impl& s = *impl_;
-  PolicyParams p;
+  PolicyParams p = ppo_policy_shape(s.cfg, s.obs_dim, s.act_dim);
   p.version = version;
-  p.head = PolicyHead::kGaussian;
-  p.layout.activation = s.actor->hidden_activation;
-  p.layout.sizes.push_back(s.obs_dim);
-  p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
-  p.layout.sizes.push_back(s.act_dim);
-  p.log_std_min = float(s.cfg.log_std_min());
-  p.log_std_max = float(s.cfg.log_std_max());
   for (auto& l : s.actor->layers) {
     auto w = l->weight.detach().cpu().contiguous(), b = l->bias.detach().cpu().contiguous();
     p.params.insert(p.params.end(), w.data_ptr<float>(), w.data_ptr<float>() + w.numel());

@@ -24,8 +24,6 @@ namespace farm {
 // desired_kl, multiplied by lr_factor when kl < desired_kl / kl_band, kept in [lr_min, lr_max].
 double adapt_learning_rate(double lr, double kl, const config::PpoConfig& cfg);
 
-std::vector<int> ppo_hidden(const config::PpoConfig& cfg);  // default [64, 64]
-
 // One fit's data, flattened: row i is one step.
 struct PpoSamples {
   int64_t n = 0;

@@ -14,6 +14,7 @@
 #include <utility>
 
 #include "config.h"
+#include "policy_shape.h"
 
 #include <ATen/Context.h>
 
@@ -208,15 +209,8 @@ SacStats Sac::update(const SampledBatch& sampled) {
 
 PolicyParams Sac::export_policy(uint64_t version) const {
   const Impl& s = *impl_;
-  PolicyParams p;
+  PolicyParams p = sac_policy_shape(s.cfg, s.obs_dim, s.act_dim);
   p.version = version;
-  p.head = PolicyHead::kSquashedGaussian;
-  p.layout.activation = tanh_hidden(s.cfg) ? Activation::kTanh : Activation::kRelu;
-  p.layout.sizes.push_back(s.obs_dim);
-  p.layout.sizes.insert(p.layout.sizes.end(), s.hidden.begin(), s.hidden.end());
-  p.layout.sizes.push_back(2 * s.act_dim);
-  p.log_std_min = float(s.cfg.log_std_min());
-  p.log_std_max = float(s.cfg.log_std_max());
   // The actor's flat buffer is already in the workers' order: per layer, weight [out x in]
   // row-major, then bias.
   const torch::Tensor flat = s.actor_p.flat.detach().to(torch::kCPU);

@@ -3,12 +3,23 @@
 # deploy/configs/mclari_sac_terrain.txtpb at 70,864 env steps, docs/MCLARI.md step 11) still meets
 # the goal on every terrain: >= 90 % of the 180 s sweep's best fixed point and no fall, over 2
 # episodes per terrain (10 in the docs). Fails when the model, the task or the policy loading
-# changes what the policy does.
-# usage: test_mclari_policy.sh EVAL SOURCE_DIR
+# changes what the policy does. The folder's policy file (read by farm-mclari-eval without LibTorch)
+# is the one farm-policy-file --config writes from the folder's networks, and a folder of networks
+# without it is refused with the command that writes it.
+# usage: test_mclari_policy.sh EVAL SOURCE_DIR POLICY_FILE_PROGRAM
 set -euo pipefail
-EVAL=$1 SRC=$2
+EVAL=$1 SRC=$2 POLICY_FILE=$3
 T=$(mktemp -d); trap 'rm -rf "$T"' EXIT
 fail() { echo "FAIL: $*"; exit 1; }
+cfg=$SRC/deploy/configs/mclari_sac_terrain.txtpb
+mkdir "$T/networks" && cp -r "$SRC/docs/data/mclari_terrain_policy/sac" "$T/networks/"
+if "$EVAL" --config "$cfg" --checkpoint "$T/networks" --episodes 1 > "$T/no_file.out" 2> "$T/no_file.err"; then
+  fail "a folder without a policy file was evaluated"
+fi
+grep -q "farm-policy-file --config $cfg $T/networks" "$T/no_file.err" || fail "no command named: $(cat "$T/no_file.err")"
+"$POLICY_FILE" --config "$cfg" "$T/networks" > "$T/policy_file.out" || fail "farm-policy-file --config failed"
+cmp "$T/networks/policy.bin" "$SRC/docs/data/mclari_terrain_policy/policy.bin" ||
+  fail "the shipped policy.bin is not the policy of the shipped networks"
 "$EVAL" --config "$SRC/deploy/configs/mclari_sac_terrain.txtpb" --checkpoint "$SRC/docs/data/mclari_terrain_policy" \
     --best "$SRC/docs/data/mclari_best_180s.csv" --episodes 2 --threads 2 --out "$T/table.md" \
     > "$T/eval.out" 2> "$T/eval.err" || { cat "$T/eval.err"; fail "evaluation failed"; }

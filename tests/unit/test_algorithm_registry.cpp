@@ -1,7 +1,8 @@
 // The algorithm registry: every registered algorithm builds for a task that fits it, refuses one
 // that does not, saves and loads its networks in its own sub-folder (one with its own driver also
-// reads them back as the workers' policy, for the tools), and the config's algorithm sections and
-// the registry name the same algorithms.
+// reads them back as the workers' policy, for the tools), exports its policy in the shape the
+// Torch-free tools build from the config (common/policy_shape.h), and the config's algorithm
+// sections and the registry name the same algorithms.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -13,6 +14,7 @@
 
 #include "config.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
+#include "policy_shape.h"
 #include "registry.h"
 
 namespace {
@@ -128,6 +130,53 @@ TEST(AlgorithmRegistry, UnknownNamesAndNonOffPolicyAdaptersAreRefused) {
       EXPECT_THROW(farm::make_off_policy(config_for(a.name), continuous_spec()), std::invalid_argument) << a.name;
     }
   }
+}
+
+// What the learner exports is what common/policy_shape.h gives for the config: the tools that show
+// an untrained policy (farm-play --config) build it from that shape without LibTorch.
+void expect_same_shape(const farm::PolicyParams& shape, const farm::PolicyParams& policy) {
+  EXPECT_EQ(int(shape.head), int(policy.head));
+  EXPECT_EQ(shape.layout.sizes, policy.layout.sizes);
+  EXPECT_EQ(int(shape.layout.activation), int(policy.layout.activation));
+  EXPECT_EQ(shape.log_std_min, policy.log_std_min);
+  EXPECT_EQ(shape.log_std_max, policy.log_std_max);
+  EXPECT_EQ(shape.log_std, policy.log_std);  // PPO: its initial log-std
+  EXPECT_EQ(shape.obs_mean.size(), policy.obs_mean.size());
+  EXPECT_EQ(shape.obs_std.size(), policy.obs_std.size());
+  EXPECT_TRUE(shape.params.empty());
+  EXPECT_EQ(policy.params.size(), policy.layout.num_params());
+}
+
+TEST(AlgorithmRegistry, ExportedPoliciesHaveTheConfigsShape) {
+  for (const auto& a : farm::algorithms()) {
+    SCOPED_TRACE(a.name);
+    auto cfg = config_for(a.name);
+    const auto spec = wants_discrete(a.name) ? discrete_spec() : continuous_spec();
+    for (const char* activation : {"relu", "tanh"}) {
+      cfg.mutable_sac()->set_activation(activation);
+      cfg.mutable_ppo()->set_activation(activation);
+      cfg.mutable_ppo()->set_initial_log_std(-0.5);
+      int64_t updates = -1;
+      expect_same_shape(farm::policy_shape(cfg, spec), farm::read_saved_policy(cfg, spec, "", 0, &updates));
+      const farm::PolicyParams untrained = farm::untrained_policy(cfg, spec);
+      expect_same_shape(farm::policy_shape(cfg, spec), untrained);
+      EXPECT_NO_THROW(farm::Policy{untrained});
+    }
+  }
+}
+
+TEST(AlgorithmRegistry, UntrainedPoliciesFollowTheSeed) {
+  auto cfg = config_for("sac");
+  const auto a = farm::untrained_policy(cfg, continuous_spec());
+  EXPECT_EQ(a.params, farm::untrained_policy(cfg, continuous_spec()).params);
+  cfg.set_seed(cfg.seed() + 1);
+  EXPECT_NE(a.params, farm::untrained_policy(cfg, continuous_spec()).params);
+  // Within +-1/sqrt(fan_in) of each layer: the first layer's fan-in is the 3 observations.
+  for (int i = 0; i < 8 * 3; ++i) EXPECT_LE(std::abs(a.params[i]), 1 / std::sqrt(3.f));
+  auto dqn = config_for("dqn");
+  EXPECT_THROW(farm::policy_shape(dqn, continuous_spec()), std::invalid_argument);
+  dqn.set_algorithm("a2c");
+  EXPECT_THROW(farm::policy_shape(dqn, discrete_spec()), std::invalid_argument);
 }
 
 }  // namespace

@@ -1,0 +1,34 @@
+// The policy an experiment's learner hands its workers, from the config alone: the head, the
+// network layout and the bounds its algorithm's section gives (no parameters), and an untrained
+// policy of that shape. The algorithms export their trained policies in this shape; the programs
+// that show a task before training (farm-play --config) build the untrained one without LibTorch.
+#pragma once
+
+#include <vector>
+
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "task_spec.h"
+
+namespace farm {
+
+// Hidden sizes of the DQN Q network and of the PPO actor and critic (each section's default when
+// its list is empty); SAC's are sac_hidden() in config.h.
+std::vector<int> dqn_hidden(const config::DqnConfig& dqn);
+std::vector<int> ppo_hidden(const config::PpoConfig& ppo);
+
+// Each algorithm's policy without parameters (params empty; PPO's log_std at its initial value and,
+// where it normalizes observations, the normalizer of no data: mean 0, std 1).
+PolicyParams sac_policy_shape(const config::SacConfig& sac, int obs_dim, int act_dim);
+PolicyParams dqn_policy_shape(int obs_dim, int num_actions, const config::DqnConfig& dqn);
+PolicyParams ppo_policy_shape(const config::PpoConfig& ppo, int obs_dim, int act_dim);
+
+// The shape of cfg.algorithm()'s policy for a task of this spec. Throws std::invalid_argument
+// naming an algorithm it does not know.
+PolicyParams policy_shape(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+// An untrained policy of that shape, version 0: every weight and bias uniform in
+// +-1/sqrt(fan_in) (the learners' default initialization of a layer), drawn from cfg.seed().
+PolicyParams untrained_policy(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+
+}  // namespace farm
