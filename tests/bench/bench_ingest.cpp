@@ -9,10 +9,13 @@
 // rate of a real SAC (1 compute thread) in this process, next to its rate with no ingest, measured
 // just before each step in the same run. The ceiling is the first step where taken < offered (by
 // more than --tolerance) or the update rate drops by more than --max-update-drop; the run stops
-// after two steps past it in a row.
+// after two steps past it in a row. --learner both runs each step twice, with the learner's loop
+// taking the batches itself (one-thread, the learner before its ingest thread) and with the
+// learner's IngestThread taking them (ingest-thread), so the two stand side by side in one run.
 //
 //   bench_ingest [--config FILE] [--rates R1,R2,...] [--senders K] [--seconds S] [--warmup S]
-//                [--with-updates] [--tolerance F] [--max-update-drop F] [--expect-all]
+//                [--with-updates] [--learner one-thread|ingest-thread|both] [--tolerance F]
+//                [--max-update-drop F] [--expect-all]
 //                [--domain D] [--dds-profiles FILE]
 //   bench_ingest --sender --config FILE --experiment ID --id NAME --rate R [--domain D] [--dds-profiles FILE]
 //
@@ -31,7 +34,9 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -44,7 +49,9 @@
 #include "compute.h"
 #include "config.h"
 #include "dds.h"
+#include "events.h"
 #include "ingest.h"
+#include "ingest_thread.h"
 #include "meter.h"
 #include "registry.h"
 #include "replay_buffer.h"
@@ -76,6 +83,12 @@ void add_options(CLI::App& app, Options& o) {
       ->check(farm::cli::positive())
       ->capture_default_str();
   app.add_flag("--with-updates", o.with_updates, "Run a real SAC update loop beside ingest and measure its rate");
+  app.add_option("--learner", o.learner,
+                 "How the learner's loop meets the batches: one-thread (it takes them off the reader itself, as "
+                 "the learner did before its ingest thread), ingest-thread (the learner's IngestThread takes them), "
+                 "or both, one after the other at each step")
+      ->check(CLI::IsMember({"one-thread", "ingest-thread", "both"}))
+      ->capture_default_str();
   app.add_flag("--expect-all", o.expect_all,
                "Exit 1 unless every step took what was offered with nothing lost or invalid");
   app.add_flag("--sender", o.sender, "Sender mode: publish batches at --rate (needs --experiment, --id, --rate)");
@@ -118,11 +131,11 @@ std::string self_exe() {
   return "/proc/self/exe";
 }
 
-// A real SAC update loop on its own thread: the task's SAC settings (defaults for a PPO task), a
-// replay buffer filled with random rows, 1 compute thread.
-class UpdateLoop {
+// A real SAC: the task's SAC settings (defaults for a PPO task), a replay buffer filled with random
+// rows, 1 compute thread; step() is one update.
+class Updater {
  public:
-  UpdateLoop(const Shape& s)
+  explicit Updater(const Shape& s)
       : cfg_(s.cfg.algorithm() == "sac" ? s.cfg.sac() : farm::config::SacConfig()),
         sac_(cfg_, s.spec.obs_dim, s.spec.act_dim, 1),
         buf_(100000, s.spec.obs_dim, s.spec.act_dim) {
@@ -135,32 +148,39 @@ class UpdateLoop {
       for (float& x : *v) x = g(rng);
     for (float& x : act) x = std::tanh(g(rng));
     buf_.add_n(n, obs.data(), act.data(), rew.data(), term.data(), next.data());
-    thread_ = std::thread([this] {
-      std::mt19937_64 r(3);
-      while (!stop_) {
-        sac_.update(buf_.sample(cfg_.batch_size(), r));
-        ++updates_;
-      }
-    });
   }
-  ~UpdateLoop() {
-    stop_ = true;
-    thread_.join();
+  void step() {
+    sac_.update(buf_.sample(cfg_.batch_size(), rng_));
+    updates_.fetch_add(1, std::memory_order_relaxed);
   }
-  uint64_t updates() const { return updates_; }
+  uint64_t updates() const { return updates_.load(std::memory_order_relaxed); }
   std::string describe() const {
     std::string h;
     for (int x : farm::sac_hidden(cfg_)) h += (h.empty() ? "" : "-") + std::to_string(x);
     return "SAC " + h + ", batch " + std::to_string(cfg_.batch_size());
+  }
+  // Its rate alone, over `seconds` on a thread of its own (the machine's load may change between
+  // steps, so it is measured before each).
+  double alone(double seconds) {
+    std::atomic<bool> stop{false};
+    std::thread t([&] {
+      while (!stop) step();
+    });
+    const uint64_t u0 = updates();
+    const auto t0 = Clock::now();
+    std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+    const double rate = double(updates() - u0) / since(t0);
+    stop = true;
+    t.join();
+    return rate;
   }
 
  private:
   farm::config::SacConfig cfg_;
   farm::Sac sac_;
   farm::ReplayBuffer buf_;
-  std::atomic<bool> stop_{false};
+  std::mt19937_64 rng_{3};
   std::atomic<uint64_t> updates_{0};
-  std::thread thread_;
 };
 
 // The algorithm's own take of an accepted batch: the off-policy driver's (n-step fold, replay buffer)
@@ -175,24 +195,15 @@ class Path {
     return algo_ ? "replay buffer (" + s_.cfg.algorithm() + " driver's take: n-step fold, insert)"
                  : "rollout storage (PPO, emptied every " + std::to_string(s_.cfg.ppo().steps_per_fit()) + " steps)";
   }
-  void take(const farm::msg::TransitionBatch& m, farm::Transitions& rows, std::vector<farm::FinishedEpisode>& eps) {
-    if (rows.n == 0) return;
+  void take(const farm::Batch& b) {
+    if (b.rows->n == 0) return;
     if (algo_) {
-      farm::Batch b;
-      b.worker_id = m.worker_id();
-      b.policy_version = m.policy_version();
-      b.num_steps = int(m.num_steps());
-      b.num_envs = int(m.num_envs());
-      b.truncated = m.truncated().data();
-      b.log_probs = m.log_probs().data();
-      b.rows = &rows;
-      b.episodes = &eps;
       algo_->take(b);
       return;
     }
-    storage_.add(int(m.num_steps()), int(m.num_envs()), rows.obs.data(), rows.actions.data(), rows.rewards.data(),
-                 rows.terminated.data(), m.truncated().data(), m.log_probs().data(), rows.next_obs.data(),
-                 m.policy_version());
+    const farm::Transitions& r = *b.rows;
+    storage_.add(b.num_steps, b.num_envs, r.obs.data(), r.actions.data(), r.rewards.data(), r.terminated.data(),
+                 b.truncated, b.log_probs, r.next_obs.data(), b.policy_version);
     if (storage_.steps() >= s_.cfg.ppo().steps_per_fit()) storage_.clear();
   }
 
@@ -200,6 +211,98 @@ class Path {
   const Shape& s_;
   std::unique_ptr<farm::Algorithm> algo_;
   farm::RolloutStorage storage_;
+};
+
+// How the learner's loop meets the batches:
+//   one-thread     the learner before ingest had a thread of its own: one loop takes up to 256
+//                  batches off the reader (checks, accounts, the algorithm's take), then updates
+//   ingest-thread  the learner's IngestThread takes, checks and accounts on its own thread; the
+//                  loop pops up to 256 accepted batches into the algorithm, then updates
+enum class LearnerShape { kOneThread, kIngestThread };
+const char* shape_name(LearnerShape l) { return l == LearnerShape::kOneThread ? "one-thread" : "ingest-thread"; }
+constexpr size_t kDrainMax = 256;  // the learner loop's batches per pass
+
+// One step's receive side and learner loop, running from construction to destruction.
+class Intake {
+ public:
+  Intake(farm::dds::Bus& bus, const Shape& s, LearnerShape shape, const std::string& id, Path& path, Updater* upd)
+      : shape_(shape), path_(path), upd_(upd) {
+    farm::Ingest ingest(id, s.spec.obs_dim, s.spec.act_dim);
+    ingest.set_num_actions(s.spec.num_actions);
+    const uint32_t bound = uint32_t(
+        farm::Ingest::max_batch_bytes(s.spec.obs_dim, s.spec.act_dim, int(s.spec.metric_names.size()), s.steps));
+    if (shape == LearnerShape::kOneThread) {
+      ingest_ = std::make_unique<farm::Ingest>(std::move(ingest));
+      reader_ = std::make_unique<Reader>(bus, farm::dds::kBatchTopic, "batch_reader", bound);
+    } else {
+      thread_in_ = std::make_unique<farm::IngestThread>(
+          bus, std::move(ingest), bound, size_t(s.cfg.ingest_queue_mib() * 1024 * 1024),
+          [](const std::string& line) { std::fprintf(stderr, "bench_ingest: %s\n", line.c_str()); }, events_);
+      thread_in_->start();
+    }
+    loop_ = std::thread([this] { loop(); });
+  }
+  ~Intake() {
+    stop_ = true;
+    loop_.join();
+  }
+  // f on the accounts, with the loop held.
+  void with_ingest(const std::function<void(const farm::Ingest&)>& f) {
+    if (thread_in_) {
+      thread_in_->with_ingest([&](farm::Ingest& in) { f(in); });
+      return;
+    }
+    std::lock_guard<std::mutex> lk(mu_);
+    ingest_->count_refused_samples(reader_->refused());
+    f(*ingest_);
+  }
+  uint64_t ok() {
+    uint64_t n = 0;
+    with_ingest([&](const farm::Ingest& in) { n = in.counters().ok; });
+    return n;
+  }
+
+ private:
+  using Reader = farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType>;
+
+  void loop() {
+    farm::msg::TransitionBatch m;
+    farm::Transitions rows;
+    std::vector<farm::FinishedEpisode> eps;
+    while (!stop_) {
+      size_t n = 0;
+      if (thread_in_) {
+        n = thread_in_->pop(kDrainMax, [&](farm::AcceptedBatch& a) { path_.take(a.view()); });
+      } else {
+        while (n < kDrainMax && reader_->take(m)) {
+          ++n;
+          rows.clear();
+          eps.clear();
+          std::lock_guard<std::mutex> lk(mu_);
+          if (!ingest_->accept(m, 0, farm::now_seconds(), rows, eps).empty()) continue;
+          path_.take(farm::Batch{m.worker_id(), m.policy_version(), int(m.num_steps()), int(m.num_envs()),
+                                 m.truncated().data(), m.log_probs().data(), &rows, &eps});
+        }
+      }
+      if (upd_)
+        upd_->step();
+      else if (n == 0 && thread_in_)
+        thread_in_->wait(0.01);
+      else if (n == 0)
+        reader_->wait(0.01);
+    }
+  }
+
+  LearnerShape shape_;
+  Path& path_;
+  Updater* upd_;
+  farm::EventLog events_;                 // not opened: the learner's events are not this benchmark's
+  std::unique_ptr<farm::Ingest> ingest_;  // one-thread: guarded by mu_
+  std::unique_ptr<Reader> reader_;        // one-thread
+  std::unique_ptr<farm::IngestThread> thread_in_;
+  std::mutex mu_;
+  std::atomic<bool> stop_{false};
+  std::thread loop_;
 };
 
 struct Step {
@@ -210,23 +313,17 @@ struct Step {
 
 class Learner {
  public:
-  Learner(const Options& o, const Shape& s)
-      : o_(o),
-        s_(s),
-        bus_(o.bus, "bench_ingest"),
-        batches_in_(bus_, farm::dds::kBatchTopic, "batch_reader",
-                    uint32_t(farm::Ingest::max_batch_bytes(s.spec.obs_dim, s.spec.act_dim,
-                                                           int(s.spec.metric_names.size()), s.steps))),
-        path_(s) {}
+  Learner(const Options& o, const Shape& s, double batch_mb)
+      : o_(o), s_(s), batch_mb_(batch_mb), bus_(o.bus, "bench_ingest"), path_(s) {}
 
   const Path& path() const { return path_; }
 
-  Step run(int step, double rate, const UpdateLoop* updates) {
+  Step run(int step, double rate, LearnerShape shape, Updater* updates) {
     Step r;
     r.offered = rate;
-    const std::string id = "bench_ingest_" + std::to_string(getpid()) + "_" + std::to_string(step);
-    farm::Ingest ingest(id, s_.spec.obs_dim, s_.spec.act_dim);
-    ingest.set_num_actions(s_.spec.num_actions);
+    const std::string id =
+        "bench_ingest_" + std::to_string(getpid()) + "_" + std::to_string(step) + "_" + shape_name(shape);
+    auto intake = std::make_unique<Intake>(bus_, s_, shape, id, path_, updates);
     std::vector<pid_t> pids;
     const std::string exe = self_exe();
     for (int k = 0; k < o_.senders; ++k) {
@@ -245,58 +342,41 @@ class Learner {
       if (!o_.bus.profiles_file.empty()) argv.insert(argv.end(), {"--dds-profiles", o_.bus.profiles_file});
       pids.push_back(spawn(argv, "/tmp/" + id + "_s" + std::to_string(k) + ".log"));
     }
-    farm::Transitions rows;
-    std::vector<farm::FinishedEpisode> eps;
-    farm::msg::TransitionBatch b;
-    farm::msg::TransitionBatchPubSubType type;
-    uint64_t ok0 = 0, bytes = 0, upd0 = 0;
-    bool measuring = false;
     const auto t_start = Clock::now();
-    Clock::time_point t_active{}, t0{};
-    auto drain = [&] {
-      while (batches_in_.take(b)) {
-        rows.clear();
-        eps.clear();
-        if (!ingest.accept(b, 0, farm::now_seconds(), rows, eps).empty()) continue;
-        path_.take(b, rows, eps);
-        if (measuring) bytes += type.getSerializedSizeProvider(&b)();
-      }
-    };
     for (;;) {
-      batches_in_.wait(0.01);
-      drain();
-      if (t_active == Clock::time_point{}) {
-        int active = 0;
-        for (const auto& [key, acc] : ingest.workers()) active += acc.received >= 1;
-        if (active == o_.senders) {
-          t_active = Clock::now();
-        } else if (since(t_start) > 60) {
-          std::fprintf(stderr, "only %d of %d senders delivered within 60 s (logs /tmp/%s_s*.log)\n", active,
-                       o_.senders, id.c_str());
-          r.failed = true;
-          break;
-        }
-      } else if (!measuring && since(t_active) >= o_.warmup) {
-        measuring = true;
-        ok0 = ingest.counters().ok;
-        upd0 = updates ? updates->updates() : 0;
-        t0 = Clock::now();
-      } else if (measuring && since(t0) >= o_.seconds) {
-        const double dt = since(t0);
-        r.taken = double(ingest.counters().ok - ok0) / dt;
-        r.mbps = double(bytes) / 1e6 / dt;
-        if (updates) r.updates = double(updates->updates() - upd0) / dt;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      int active = 0;
+      intake->with_ingest([&](const farm::Ingest& in) {
+        for (const auto& [key, acc] : in.workers()) active += acc.received >= 1;
+      });
+      if (active == o_.senders) break;
+      if (since(t_start) > 60) {
+        std::fprintf(stderr, "only %d of %d senders delivered within 60 s (logs /tmp/%s_s*.log)\n", active, o_.senders,
+                     id.c_str());
+        r.failed = true;
         break;
       }
+    }
+    if (!r.failed) {
+      std::this_thread::sleep_for(std::chrono::duration<double>(o_.warmup));
+      const uint64_t ok0 = intake->ok(), upd0 = updates ? updates->updates() : 0;
+      const auto t0 = Clock::now();
+      std::this_thread::sleep_for(std::chrono::duration<double>(o_.seconds));
+      const double dt = since(t0);
+      r.taken = double(intake->ok() - ok0) / dt;
+      r.mbps = r.taken * batch_mb_;
+      if (updates) r.updates = double(updates->updates() - upd0) / dt;
     }
     for (pid_t p : pids) kill(p, SIGTERM);
     // Every stream's end is taken, so lost counts every number a sender used and never delivered.
     const auto t_stop = Clock::now();
     for (;;) {
-      batches_in_.wait(0.02);
-      drain();
-      bool all_ended = int(ingest.workers().size()) == o_.senders;
-      for (const auto& [key, acc] : ingest.workers()) all_ended = all_ended && acc.ended;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      bool all_ended = false;
+      intake->with_ingest([&](const farm::Ingest& in) {
+        all_ended = int(in.workers().size()) == o_.senders;
+        for (const auto& [key, acc] : in.workers()) all_ended = all_ended && acc.ended;
+      });
       if (all_ended || since(t_stop) > 20) {
         if (!all_ended) {
           std::fprintf(stderr, "step %d: not every sender closed its stream within 20 s\n", step);
@@ -325,18 +405,20 @@ class Learner {
     // The senders' logs are kept only when a step failed.
     for (int k = 0; k < o_.senders && !r.failed; ++k)
       std::remove(("/tmp/" + id + "_s" + std::to_string(k) + ".log").c_str());
-    const auto& c = ingest.counters();
-    r.lost = c.lost;
-    r.invalid = c.invalid + ingest.count_refused_samples(batches_in_.refused());
-    r.duplicate = c.duplicate;
+    intake->with_ingest([&](const farm::Ingest& in) {
+      const auto& c = in.counters();
+      r.lost = c.lost;
+      r.invalid = c.invalid;
+      r.duplicate = c.duplicate;
+    });
     return r;
   }
 
  private:
   const Options& o_;
   const Shape& s_;
+  double batch_mb_;
   farm::dds::Bus bus_;
-  farm::dds::Reader<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_in_;
   Path path_;
 };
 
@@ -359,68 +441,79 @@ int run_learner(const Options& o) {
   std::printf("bench_ingest: %s (%s), obs %d act %d, batch %d steps x %d envs = %d transitions, %.4f MB serialized\n",
               s.spec.name.c_str(), o.config.c_str(), s.spec.obs_dim, s.spec.act_dim, s.steps, s.envs, s.steps * s.envs,
               batch_mb);
-  Learner learner(o, s);
+  Learner learner(o, s, batch_mb);
   std::printf("bench_ingest: path: batch reader (learner QoS and size bound) -> Ingest -> %s\n",
               learner.path().describe().c_str());
   std::printf("bench_ingest: %d sender processes, %.1f s measured per step after %.1f s warm-up\n", o.senders,
               o.seconds, o.warmup);
-  std::unique_ptr<UpdateLoop> updates;
-  // The update rate with no ingest, measured over --seconds before each step (the machine's load
-  // may change between steps).
-  auto baseline_rate = [&]() {
-    const uint64_t u0 = updates->updates();
-    const auto t0 = Clock::now();
-    std::this_thread::sleep_for(std::chrono::duration<double>(o.seconds));
-    return double(updates->updates() - u0) / since(t0);
-  };
+  std::vector<LearnerShape> shapes;
+  if (o.learner != "ingest-thread") shapes.push_back(LearnerShape::kOneThread);
+  if (o.learner != "one-thread") shapes.push_back(LearnerShape::kIngestThread);
+  std::printf("bench_ingest: learner %s: %s\n", o.learner.c_str(),
+              o.learner == "both" ? "each step with one-thread (the loop takes up to 256 batches, then updates), then "
+                                    "ingest-thread (IngestThread takes; the loop pops up to 256, then updates)"
+              : o.learner == "one-thread"
+                  ? "the loop takes up to 256 batches off the reader, then updates"
+                  : "IngestThread takes; the loop pops up to 256 accepted batches, then updates");
+  std::unique_ptr<Updater> updates;
   if (o.with_updates) {
-    updates = std::make_unique<UpdateLoop>(s);
-    std::this_thread::sleep_for(std::chrono::duration<double>(o.warmup));
-    std::printf(
-        "bench_ingest: update loop %s, 1 thread, beside ingest; 'base' is its rate with no ingest, "
-        "measured just before each step\n",
-        updates->describe().c_str());
+    updates = std::make_unique<Updater>(s);
+    updates->alone(o.warmup);
+    std::printf("bench_ingest: update loop %s, 1 thread; 'base' is its rate alone, measured just before each step\n",
+                updates->describe().c_str());
   }
-  std::printf("%10s %10s %10s %8s %6s %8s %8s %10s %8s  %s\n", "offered/s", "taken/s", "MB/s", "steps/s", "lost",
-              "invalid", "base/s", "updates/s", "vs base", "verdict");
-  bool all_ok = true, ceiling_found = false;
-  int past_ceiling = 0;  // steps in a row past the ceiling
-  Step last_ok;
-  bool any_ok = false;
+  std::printf("%-13s %10s %10s %10s %8s %6s %8s %8s %10s %8s  %s\n", "learner", "offered/s", "taken/s", "MB/s",
+              "steps/s", "lost", "invalid", "base/s", "updates/s", "vs base", "verdict");
+  struct Verdicts {
+    bool ceiling_found = false, any_ok = false;
+    int past_ceiling = 0;  // steps in a row past the ceiling
+    Step last_ok;
+  };
+  std::vector<Verdicts> verdicts(shapes.size());
+  bool all_ok = true;
   for (size_t i = 0; i < o.rates.size(); ++i) {
-    const double baseline = updates ? baseline_rate() : 0.0;
-    const Step r = learner.run(int(i), o.rates[i], updates.get());
-    const bool behind = r.taken < (1 - o.tolerance) * r.offered;
-    const bool slowed = updates && r.updates < (1 - o.max_update_drop) * baseline;
-    const bool bad = r.failed || r.lost > 0 || r.invalid > 0 || r.duplicate > 0;
-    std::string verdict = r.failed ? "FAILED" : behind ? "CEILING (taken < offered)" : "keeps up";
-    if (!r.failed && slowed) verdict += behind ? ", updates slowed" : ", CEILING (updates slowed)";
-    char base[32] = "-", upd[32] = "-", vs[32] = "-";
-    if (updates) {
-      std::snprintf(base, sizeof base, "%.1f", baseline);
-      std::snprintf(upd, sizeof upd, "%.1f", r.updates);
-      std::snprintf(vs, sizeof vs, "%.3f", baseline > 0 ? r.updates / baseline : 0.0);
+    bool all_past = true;
+    for (size_t k = 0; k < shapes.size(); ++k) {
+      Verdicts& v = verdicts[k];
+      if (v.past_ceiling >= 2) continue;
+      const double baseline = updates ? updates->alone(o.seconds) : 0.0;
+      const Step r = learner.run(int(i), o.rates[i], shapes[k], updates.get());
+      const bool behind = r.taken < (1 - o.tolerance) * r.offered;
+      const bool slowed = updates && r.updates < (1 - o.max_update_drop) * baseline;
+      const bool bad = r.failed || r.lost > 0 || r.invalid > 0 || r.duplicate > 0;
+      std::string verdict = r.failed ? "FAILED" : behind ? "CEILING (taken < offered)" : "keeps up";
+      if (!r.failed && slowed) verdict += behind ? ", updates slowed" : ", CEILING (updates slowed)";
+      char base[32] = "-", upd[32] = "-", vs[32] = "-";
+      if (updates) {
+        std::snprintf(base, sizeof base, "%.1f", baseline);
+        std::snprintf(upd, sizeof upd, "%.1f", r.updates);
+        std::snprintf(vs, sizeof vs, "%.3f", baseline > 0 ? r.updates / baseline : 0.0);
+      }
+      std::printf("%-13s %10.1f %10.1f %10.3f %8.0f %6llu %8llu %8s %10s %8s  %s\n", shape_name(shapes[k]), r.offered,
+                  r.taken, r.mbps, r.taken * s.steps * s.envs, (unsigned long long)r.lost,
+                  (unsigned long long)(r.invalid + r.duplicate), base, upd, vs, verdict.c_str());
+      std::fflush(stdout);
+      all_ok = all_ok && !bad && !behind;
+      v.past_ceiling = (r.failed || behind || slowed) ? v.past_ceiling + 1 : 0;
+      if (!r.failed && !behind && !slowed && !v.ceiling_found) {
+        v.last_ok = r;
+        v.any_ok = true;
+      } else if (!v.ceiling_found) {
+        v.ceiling_found = true;
+      }
+      all_past = all_past && v.past_ceiling >= 2;
     }
-    std::printf("%10.1f %10.1f %10.3f %8.0f %6llu %8llu %8s %10s %8s  %s\n", r.offered, r.taken, r.mbps,
-                r.taken * s.steps * s.envs, (unsigned long long)r.lost, (unsigned long long)(r.invalid + r.duplicate),
-                base, upd, vs, verdict.c_str());
-    std::fflush(stdout);
-    all_ok = all_ok && !bad && !behind;
-    past_ceiling = (r.failed || behind || slowed) ? past_ceiling + 1 : 0;
-    if (!r.failed && !behind && !slowed && !ceiling_found) {
-      last_ok = r;
-      any_ok = true;
-    } else if (!ceiling_found) {
-      ceiling_found = true;
-    }
-    if (past_ceiling >= 2) break;
+    if (all_past) break;
   }
-  if (any_ok)
-    std::printf("bench_ingest: highest step kept up: %.1f batches/s, %.3f MB/s, %.0f env steps/s%s\n", last_ok.taken,
-                last_ok.mbps, last_ok.taken * s.steps * s.envs,
-                ceiling_found ? "" : " (no ceiling within the rates tried)");
-  else
-    std::printf("bench_ingest: no step kept up\n");
+  for (size_t k = 0; k < shapes.size(); ++k) {
+    const Verdicts& v = verdicts[k];
+    if (v.any_ok)
+      std::printf("bench_ingest: %s: highest step kept up: %.1f batches/s, %.3f MB/s, %.0f env steps/s%s\n",
+                  shape_name(shapes[k]), v.last_ok.taken, v.last_ok.mbps, v.last_ok.taken * s.steps * s.envs,
+                  v.ceiling_found ? "" : " (no ceiling within the rates tried)");
+    else
+      std::printf("bench_ingest: %s: no step kept up\n", shape_name(shapes[k]));
+  }
   if (o.expect_all && !all_ok) {
     std::fprintf(stderr, "bench_ingest: --expect-all: a step did not take everything offered, or lost or refused\n");
     return 1;

@@ -24,8 +24,9 @@ struct Options {
   int senders = 4;
   double seconds = 5, warmup = 1.5;
   bool with_updates = false, expect_all = false;
-  double tolerance = 0.03;        // taken below (1 - tolerance) x offered: not keeping up
-  double max_update_drop = 0.10;  // updates/s below (1 - this) x the baseline: ingest slows training
+  std::string learner = "ingest-thread";  // one-thread, ingest-thread or both
+  double tolerance = 0.03;                // taken below (1 - tolerance) x offered: not keeping up
+  double max_update_drop = 0.10;          // updates/s below (1 - this) x the baseline: ingest slows training
   // Sender mode.
   bool sender = false;
   std::string experiment, id;
