@@ -1,12 +1,20 @@
 // The learner's record for programs: RUN/events.jsonl, one JSON object a line, each with "event"
 // (its kind) and "elapsed_s" (seconds of the run, as learner.csv counts them). Kinds:
 //   start       the run's experiment, task, algorithm and domain
-//   progress    one per learner.csv row, the row's fields under the CSV's column names
+//   progress    one per learner.csv row, the row's fields under the CSV's column names, and the
+//               live workers throttled or in backpressure (workers_throttled, workers_backpressure)
 //   ingest      from the ingest thread, at most once a second while batches arrive: its counters
 //               (batches_ok, batches_lost, batches_duplicate, batches_invalid, env_steps, queued)
-//   refusal     a batch or sample refused (the first ones; the ingest counters count them all)
-//   worker      a worker joined, came back or was marked dead (roster; bounded as its log lines)
+//   refusal     a batch, batch sample or heartbeat refused (the first ones; the ingest counters
+//               count every batch)
+//   worker      a worker joined, came back, built its environments ("sized": envs known) or was
+//               marked dead (roster; bounded as its log lines)
+//   answer      one worker's answer to a part of an evaluation: who, its episodes and seconds
+//   busy        a training pass of the loop that took at least 0.1 s (a PPO fit): its seconds, and
+//               the batches and env steps the ingest thread accepted meanwhile (queued: held for
+//               the loop at its end)
 //   evaluation  an evaluation's report: label, policy_version, episodes, mean, min, max, metrics
+//   grants      the worker grants read again on SIGHUP (security): what changed, who is granted
 //   best        a new best policy kept in RUN/best
 //   checkpoint  a checkpoint written (ok) or failed (error)
 //   stop        why the run stopped

@@ -66,7 +66,7 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
   // evaluated on the same maps), and a task's evaluation conditions go round the whole evaluation,
   // not each part.
   const int min_each = cfg_.eval().min_episodes_per_worker();
-  const int ready = int(eval_ready_workers(group.asked_at).size());
+  const int ready = int(eval_ready_workers().size());
   int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
   // Under security, two workers at least where two are ready (confirmation()).
   if (!bus_.security_dir().empty() && ready >= 2 && ask.episodes >= 2) parts = std::max(parts, 2);
@@ -95,10 +95,10 @@ bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask)
   return true;
 }
 
-std::vector<std::pair<std::string, const WorkerRoster::View*>> FarmService::eval_ready_workers(double now) const {
-  std::vector<std::pair<std::string, const WorkerRoster::View*>> ready;
-  for (const auto& [key, v] : roster_.views())
-    if (roster_.live(v, now) && v.last.envs() > 0 && v.last.state() != "error") ready.emplace_back(key, &v);
+std::vector<RosterThread::Worker> FarmService::eval_ready_workers() const {
+  std::vector<RosterThread::Worker> ready;
+  for (auto& w : roster_.workers())
+    if (w.live && w.view.last.envs() > 0 && w.view.last.state() != "error") ready.push_back(std::move(w));
   return ready;
 }
 
@@ -106,20 +106,20 @@ bool FarmService::send_evaluation(EvalRequest& r) {
   const double now = now_seconds();
   // Live workers that have built their environments, in roster order; the turn goes on from the
   // one asked last, and a retry goes to another worker than the one that lost it where it can.
-  const auto ready = eval_ready_workers(now);
+  const auto ready = eval_ready_workers();
   if (ready.empty()) return false;
   const EvalGroup& group = eval_groups_.at(r.group);
-  std::vector<std::pair<std::string, const WorkerRoster::View*>> others;
+  std::vector<RosterThread::Worker> others;
   for (const auto& c : ready)
-    if (c.second->last.worker_id() != r.avoid) others.push_back(c);
+    if (c.view.last.worker_id() != r.avoid) others.push_back(c);
   const auto& pool = others.empty() ? ready : others;
-  auto next = std::find_if(pool.begin(), pool.end(), [this](const auto& c) { return c.first > eval_last_key_; });
+  auto next = std::find_if(pool.begin(), pool.end(), [this](const auto& c) { return c.key > eval_last_key_; });
   if (next == pool.end()) next = pool.begin();
-  eval_last_key_ = next->first;
-  r.roster_key = next->first;
-  r.worker_id = next->second->last.worker_id();
-  r.worker_session = next->second->last.worker_session();
-  r.writer = next->second->writer;
+  eval_last_key_ = next->key;
+  r.roster_key = next->key;
+  r.worker_id = next->view.last.worker_id();
+  r.worker_session = next->view.last.worker_session();
+  r.writer = next->view.writer;
   r.asked_at = now;
 
   farm::msg::EvaluationRequest m;
@@ -161,8 +161,8 @@ void FarmService::poll_evaluations() {
       ++i;
       continue;
     }
-    const auto v = roster_.views().find(r.roster_key);
-    const bool dead = v == roster_.views().end() || !roster_.live(v->second, now);
+    const auto w = roster_.find(r.roster_key);
+    const bool dead = !w || !w->live;
     if (!dead && now - r.asked_at < timeout) {
       ++i;
       continue;
@@ -234,6 +234,13 @@ void FarmService::take_answer() {
   ++evals_answered_;
   log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
       " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
+  events_.write("answer", {{"request_id", r.id},
+                           {"worker_id", r.worker_id},
+                           {"label", r.ask.label},
+                           {"part", r.part},
+                           {"episodes", r.episodes},
+                           {"worker_seconds", answer_.seconds()},
+                           {"since_asked_s", now_seconds() - r.asked_at}});
   // Every part out has its group: giving a group up takes its other parts out (evaluation_given_up).
   const auto g = eval_groups_.find(r.group);
   EvalGroup& group = g->second;
@@ -383,7 +390,6 @@ void FarmService::wait_for_evaluations() {
       break;
     }
     drain_batches(256);
-    drain_status();
     poll_evaluations();
     eval_in_.wait(0.05);
   }

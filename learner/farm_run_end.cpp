@@ -97,6 +97,8 @@ void FarmService::write_summary(double elapsed, const std::string& reason) {
                  {"evals_answered", evals_answered_},
                  {"evals_lost", evals_lost_},
                  {"evals_invalid", evals_invalid_},
+                 {"checkpoints_failed", checkpoints_failed_},
+                 {"events_unwritten", events_.failures()},
                  {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},
                  {"best_measure", f.best_measure}});
   log("summary written to " + run_dir_ + "/summary.txt");
@@ -112,7 +114,6 @@ void FarmService::drain_before_interrupted_stop() {
   size_t taken = 0;
   while (now_seconds() < t_end) {
     const size_t got = drain_batches(1024);
-    drain_status();
     const double now = now_seconds();
     if (got > 0) {
       taken += got;
@@ -120,8 +121,7 @@ void FarmService::drain_before_interrupted_stop() {
       continue;
     }
     bool running = false;
-    for (const auto& [k, v] : roster_.views())
-      running = running || (roster_.live(v, now) && v.last.state() == "running");
+    for (const auto& w : roster_.workers()) running = running || (w.live && w.view.last.state() == "running");
     if (now - last >= 3.0 || (now - last >= 0.5 && !running)) break;
     intake_.wait(0.05);
   }
@@ -137,13 +137,12 @@ void FarmService::drain_until_workers_end() {
   const double t_end = now_seconds() + 15.0, quiet = cfg_.worker_timeout_seconds();
   while (now_seconds() < t_end) {
     drain_batches(1024);
-    drain_status();
     const double now = now_seconds();
     const auto waited_for = [&](const WorkerAccount& w) {
       if (w.ended) return false;
       if (now - w.last_seen < quiet) return true;
-      const auto v = roster_.views().find(w.worker_id + "#" + std::to_string(w.session));
-      return v != roster_.views().end() && now - v->second.seen < quiet;
+      const auto v = roster_.find(w.worker_id + "#" + std::to_string(w.session));
+      return v && now - v->view.seen < quiet;
     };
     bool all_ended = false;
     intake_.with_ingest([&](const Ingest& in) {

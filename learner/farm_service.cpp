@@ -41,30 +41,6 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                                                          cfg_.worker().steps_per_batch()),
                                  UINT32_MAX)),
           size_t(cfg_.ingest_queue_mib() * (1 << 20)), [this](const std::string& m) { log(m); }, events_),
-      status_in_(
-          bus_, farm::dds::kWorkerStatusTopic, "status_reader",
-          [this](eprosima::fastdds::dds::DataReader* r) {
-            farm::msg::WorkerStatus s;
-            eprosima::fastdds::dds::SampleInfo info;
-            while (decltype(status_in_)::take_from(r, s, info)) {
-              std::lock_guard<std::mutex> lk(heard_mu_);
-              // Under DDS Security, as for batches: only from the participant whose
-              // certificate bears the worker id (no invented workers in the roster).
-              if (!bus_.security_dir().empty()) {
-                std::string why;
-                const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid(), &why);
-                if (by != s.worker_id()) {
-                  ++heartbeats_refused_;
-                  heartbeat_refused_note_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) +
-                                            "'" + (by.empty() ? ": " + why : "");
-                  continue;
-                }
-              }
-              WorkerRoster::cut(s);
-              if (heard_.size() >= kMaxHeard) heard_.pop_front();
-              heard_.push_back({s, now_seconds(), farm::dds::participant_key(info.sample_identity.writer_guid())});
-            }
-          }),
       eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
       // Answers over what this experiment's evaluations can hold are refused before memory is taken.
       eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
@@ -72,20 +48,27 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                                      std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes()),
                                      int(task_spec_.metric_names.size()))),
       roster_(
-          cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id(),
-          cfg_.account_expiry_seconds()),
+          bus_,
+          [this] {
+            WorkerRoster r(
+                cfg_.worker_timeout_seconds(), [this](const std::string& m) { log(m); }, cfg_.experiment_id(),
+                cfg_.account_expiry_seconds());
+            r.on_event([this](const nlohmann::json& e) { events_.write("worker", e); });
+            return r;
+          }(),
+          [this](const std::string& m) { log(m); }, events_),
       algo_(make_algorithm(cfg_, task_spec_)) {
   run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   best_dir_ = (fs::path(run_dir_) / "best").string();
   eval_dir_ = (fs::path(run_dir_) / "evaluating").string();
   eval_session_ = farm::dds::random_session_id();
-  roster_.on_event([this](const nlohmann::json& e) { events_.write("worker", e); });
 }
 
 int FarmService::run() {
   prepare_run_dir();
   intake_.start();
+  roster_.start();
   drop_snapshot(eval_dir_);  // what a learner that crashed mid-evaluation left
   algo_->warm_up(*this);     // workers are not told of the run yet, so none waits on it
   spec_.publish(false);
@@ -117,7 +100,6 @@ int FarmService::run() {
     work();
     const double now = now_seconds();
     if (now - last_log >= cfg_.log_every_seconds()) {
-      drain_status();  // heartbeats that came during a long fit, before the line counts live workers
       size_t n = 0;
       intake_.with_ingest([&](Ingest& in) { n = in.expire(now, cfg_.account_expiry_seconds()); });
       if (n > 0)
@@ -171,11 +153,25 @@ int FarmService::run() {
 
 void FarmService::work() {
   // SIGHUP: the permissions document again (deploy/make-pki.sh --revoke); names it drops are refused.
-  if (const std::string reloaded = bus_.reload_grants_if_requested(); !reloaded.empty()) log(reloaded);
+  if (const std::string reloaded = bus_.reload_grants_if_requested(); !reloaded.empty()) {
+    log(reloaded);
+    const std::set<std::string> granted = bus_.granted_workers();
+    events_.write("grants",
+                  {{"note", reloaded}, {"granted", std::vector<std::string>(granted.begin(), granted.end())}});
+  }
   const size_t got = drain_batches(256);
-  drain_status();
   poll_evaluations();
+  // A long pass (a PPO fit): what the ingest thread accepted meanwhile, as an event.
+  const IngestCounters before = intake_.counters();
+  const double t = now_seconds();
   const double wait = algo_->train(*this, got > 0);
+  if (const double busy = now_seconds() - t; busy >= kBusyEventS) {
+    const IngestCounters after = intake_.counters();
+    events_.write("busy", {{"seconds", busy},
+                           {"batches_accepted", after.ok - before.ok},
+                           {"env_steps_accepted", after.env_steps - before.env_steps},
+                           {"queued", intake_.queued()}});
+  }
   if (wait > 0) intake_.wait(wait);
 }
 
@@ -219,9 +215,9 @@ void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
 
 std::vector<Farm::LiveWorker> FarmService::live_workers() const {
   std::vector<LiveWorker> out;
-  const double now = now_seconds();
-  for (const auto& [k, v] : roster_.views()) {
-    if (!roster_.live(v, now)) continue;
+  for (const auto& w : roster_.workers()) {
+    if (!w.live) continue;
+    const auto& v = w.view;
     out.push_back({v.last.worker_id(), v.last.state(), v.last.policy_version(), int(v.last.envs())});
   }
   return out;
@@ -252,7 +248,12 @@ double FarmService::elapsed() const { return now_seconds() - t0_; }
 void FarmService::csv_row(const std::string& row) {
   csv_ << row << '\n';
   csv_.flush();
-  events_.write("progress", EventLog::from_csv(csv_header_, row));
+  // The row's fields, and the live workers that wait on the learner (the log line's waiting note).
+  nlohmann::json e = EventLog::from_csv(csv_header_, row);
+  const Waiting w = waiting();
+  e["workers_throttled"] = w.throttled;
+  e["workers_backpressure"] = w.backpressure;
+  events_.write("progress", std::move(e));
 }
 
 void FarmService::checkpoint(double elapsed) {
@@ -279,15 +280,20 @@ void FarmService::checkpoint(double elapsed) {
 
 // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
 // learner is the bottleneck and the workers are held back instead of piling up data.
-std::string FarmService::waiting_note() const {
-  int throttled = 0, backpressure = 0;
+FarmService::Waiting FarmService::waiting() const {
+  Waiting n;
   for (const auto& w : live_workers()) {
-    throttled += w.state == "throttled";
-    backpressure += w.state == "backpressure";
+    n.throttled += w.state == "throttled";
+    n.backpressure += w.state == "backpressure";
   }
+  return n;
+}
+
+std::string FarmService::waiting_note() const {
+  const Waiting w = waiting();
   std::string note;
-  if (throttled) note += ", " + std::to_string(throttled) + " throttled";
-  if (backpressure) note += ", " + std::to_string(backpressure) + " in backpressure";
+  if (w.throttled) note += ", " + std::to_string(w.throttled) + " throttled";
+  if (w.backpressure) note += ", " + std::to_string(w.backpressure) + " in backpressure";
   return note.empty() ? "" : " (" + note.substr(2) + ")";
 }
 
@@ -296,6 +302,7 @@ bool FarmService::try_checkpoint(double elapsed) {
     checkpoint(elapsed);
     return true;
   } catch (const std::exception& e) {
+    ++checkpoints_failed_;
     events_.write("checkpoint", {{"dir", ckpt_dir_}, {"ok", false}, {"error", e.what()}});
     log(std::string("checkpoint failed: ") + e.what() + "; the last good checkpoint" +
         (checkpoint_exists(ckpt_dir_) ? " (" + usable_checkpoint(ckpt_dir_) + ")" : std::string(" (none yet)")) +
@@ -353,30 +360,7 @@ void FarmService::prepare_run_dir() {
   events_.open((fs::path(run_dir_) / "events.jsonl").string());
 }
 
-void FarmService::drain_status() {
-  std::deque<Heard> got;
-  uint64_t refused = 0;
-  std::string refused_note;
-  {
-    std::lock_guard<std::mutex> lk(heard_mu_);
-    got.swap(heard_);
-    refused = heartbeats_refused_;
-    refused_note = heartbeat_refused_note_;
-  }
-  if (refused > heartbeats_refused_logged_ && ++heartbeat_notes_ <= 20) {
-    log("ignored " + std::to_string(refused - heartbeats_refused_logged_) +
-        " heartbeat(s) whose worker id is not the certificate name of the participant that wrote them (last: " +
-        refused_note + ")");
-  }
-  heartbeats_refused_logged_ = refused;
-  for (const auto& h : got) {
-    // Only a worker of this experiment counts as heard (another experiment's may share the domain).
-    if (roster_.heard(h.status, h.when, h.writer) && first_heard_ == 0) first_heard_ = now_seconds();
-  }
-  roster_.check(now_seconds());
-}
-
-int FarmService::live_count() const { return roster_.live_count(now_seconds()); }
+int FarmService::live_count() const { return roster_.live_count(); }
 
 void FarmService::record_episode(float episode_return) {
   recent_returns_.push_back(episode_return);

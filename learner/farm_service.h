@@ -26,6 +26,7 @@
 #include "farm_config.pb.h"
 #include "ingest.h"
 #include "ingest_thread.h"
+#include "roster_thread.h"
 #include "spec_publisher.h"
 #include "task_spec.h"
 #include "worker_roster.h"
@@ -47,7 +48,7 @@ class FarmService final : public Farm {
   // --- Farm: what the algorithm may ask ---
   void publish(const PolicyParams& policy, uint32_t batch_quota) override;
   std::vector<LiveWorker> live_workers() const override;
-  double first_worker_heard() const override { return first_heard_; }
+  double first_worker_heard() const override { return roster_.first_heard(); }
   FarmFigures figures() const override;
   uint64_t env_steps() const override { return intake_.env_steps(); }
   double elapsed() const override;
@@ -69,7 +70,6 @@ class FarmService final : public Farm {
   void take(AcceptedBatch& a);
   // Takes batches while they come, until none came for `quiet` seconds or `most` seconds passed.
   void drain_while_arriving(double quiet, double most);
-  void drain_status();
   int live_count() const;
   void record_episode(float episode_return);
   double mean_recent_return() const;
@@ -85,7 +85,12 @@ class FarmService final : public Farm {
   bool try_checkpoint(double elapsed);
   // The manifest fields every checkpoint carries, but the accounts (accounts_to_manifest).
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
-  // Live workers that wait on the learner (for new weights, or for room in the batch queue).
+  // Live workers that wait on the learner: for new weights (throttled), or for room in the batch
+  // queue (backpressure); and as the progress line says it.
+  struct Waiting {
+    int throttled = 0, backpressure = 0;
+  };
+  Waiting waiting() const;
   std::string waiting_note() const;
 
   // --- The end of a run (farm_run_end.cpp) ---
@@ -133,7 +138,7 @@ class FarmService final : public Farm {
     bool skips_noted = false;  // a training evaluation skipped while this one is out was logged
   };
   // Live workers that have built their environments, by roster key.
-  std::vector<std::pair<std::string, const WorkerRoster::View*>> eval_ready_workers(double now) const;
+  std::vector<RosterThread::Worker> eval_ready_workers() const;
   // The evaluation of a group ended without a report (a part given up, or not answered at the end):
   // the algorithm is told, its snapshot dropped. Its other parts' answers are not used.
   void evaluation_given_up(uint64_t group);
@@ -165,29 +170,13 @@ class FarmService final : public Farm {
   farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
   EventLog events_;  // before intake_, whose thread writes to it
   IngestThread intake_;
-  // Heartbeats are taken on Fast DDS's listener thread as they arrive, with their arrival time, so
-  // a long fit or evaluation cannot let them be overwritten in the reader's history (16 deep for
-  // all workers together) and live workers be marked dead; the main loop hands them to roster_.
-  std::mutex heard_mu_;
-  struct Heard {
-    farm::msg::WorkerStatus status;
-    double when = 0;
-    std::string writer;  // its participant (dds::participant_key)
-  };
-  std::deque<Heard> heard_;  // bounded: kMaxHeard
-  // Under DDS Security, heartbeats whose worker id is not their writer's certificate name: not heard.
-  uint64_t heartbeats_refused_ = 0;     // guarded by heard_mu_
-  std::string heartbeat_refused_note_;  // the last one, "'ID' from 'NAME'"; guarded by heard_mu_
-  uint64_t heartbeats_refused_logged_ = 0;
-  int heartbeat_notes_ = 0;
-  static constexpr size_t kMaxHeard = 65536;
   static constexpr size_t kMaxSummaryStreams = 64;   // worker streams listed in the summary
   static constexpr size_t kMaxOpenStreamLines = 10;  // streams not closed at the end, named in the log
   static constexpr size_t kMaxLogLine = 8192;        // bytes of one log line; a longer one is cut
-  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  static constexpr double kBusyEventS = 0.1;         // a training pass this long writes a busy event
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
   farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
-  WorkerRoster roster_;
+  RosterThread roster_;
   std::unique_ptr<Algorithm> algo_;
   std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;
@@ -196,7 +185,7 @@ class FarmService final : public Farm {
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
   uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
-  double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0, first_heard_ = 0;
+  double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0;
   std::string goal_reached_;                   // the stop reason once an evaluation met every stop.eval_goal
   bool last_eval_confirmed_ = true;            // the last report handed to the algorithm (confirmation())
   std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
@@ -211,6 +200,7 @@ class FarmService final : public Farm {
   uint64_t eval_session_ = 0, next_eval_id_ = 0, evals_asked_ = 0, evals_answered_ = 0, evals_lost_ = 0,
            evals_invalid_ = 0, evals_late_ = 0;
   int eval_rejections_logged_ = 0;
+  uint64_t checkpoints_failed_ = 0;  // the summary event's count (their events may be lost with the disk)
   bool eval_waiting_noted_ = false;
 };
 

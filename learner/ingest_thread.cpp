@@ -109,15 +109,19 @@ bool IngestThread::accept() {
            "' (another learner's, on this domain) are not used here; the summary counts them");
     return false;
   }
+  // Under security: why the writer has no name (a revoked worker), and an identity token that names
+  // another than the writer's certificate.
+  const std::string detail = (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
+                             token_note(info_.sample_identity.writer_guid(), writer);
   if (++rejections_logged_ <= kMaxRefusalLines)
     log_("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
-         ": " + why + (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
-         token_note(info_.sample_identity.writer_guid(), writer));
+         ": " + why + detail);
   if (++refusal_events_ <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch"},
                               {"worker_id", printable(batch_.worker_id(), 100)},
                               {"sequence_number", batch_.sequence_number()},
-                              {"reason", printable(why, 500)}});
+                              {"reason", printable(why, 500)},
+                              {"detail", printable(detail, 500)}});
   return false;
 }
 

@@ -1,6 +1,6 @@
 // Ingest on its own thread: takes the workers' batches off the bus, checks and accounts them
 // (Ingest), and hands each accepted batch, owned, to a bounded queue that the learner's loop pops.
-// A fit or a checkpoint on the loop's thread no longer stops the door: batches keep being taken,
+// A fit or a checkpoint on the loop's thread does not stop the door: batches keep being taken,
 // checked and accounted meanwhile. When the queue is full the thread takes nothing more, so the
 // reliable DDS history fills and the workers' writers wait (their backpressure): nothing is dropped.
 #pragma once

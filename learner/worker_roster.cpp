@@ -63,11 +63,12 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& in, double now, const st
   if (v.dead) note(who + " is back after " + seconds(now - v.seen) + " s", now);
   if (!s.last_error().empty() && s.last_error() != v.last.last_error())
     note("worker " + printable(s.worker_id(), 100) + " reports: " + printable(s.last_error(), 500), now);
-  const bool joined = v.seen == 0, back = v.dead;
+  const bool joined = v.seen == 0, back = v.dead, sized = !joined && s.envs() > 0 && v.last.envs() == 0;
   v.last = std::move(s);
   v.seen = now;
   v.dead = false;
   if (joined || back) note("", now, joined ? "joined" : "back", &v);
+  if (sized) note("", now, "sized", &v);
   return true;
 }
 
@@ -128,7 +129,8 @@ void WorkerRoster::note(const std::string& line, double now, const char* change,
             {"worker_id", printable(v->last.worker_id(), 100)},
             {"session", v->last.worker_session()},
             {"host", printable(v->last.host(), 100)},
-            {"envs", v->last.envs()}});
+            {"envs", v->last.envs()},
+            {"threads", v->last.threads()}});
 }
 
 // A worker that could not run a spec has joined no experiment. Its error is the user's only clue

@@ -3,12 +3,14 @@
 
 Each PPO fit is a progress event (a learner.csv row) with its start (elapsed_s) and length
 (fit_seconds); the ingest thread writes its counters (batches_ok, env_steps) at most once a second.
-Two ingest events inside one fit's window bound from below what was accepted during that fit.
+Two ingest events inside one fit's window bound from below what was accepted during that fit. The
+learner also writes a busy event for each pass of its loop of 0.1 s or more (a fit), with the
+batches the ingest thread accepted during it: exact, for fits shorter than a second too.
 
   tools/fit_ingest.py RUN_DIR [--min-fit-seconds S]
 
-Prints one line per fit long enough to hold two ingest events, then the totals. Exit code 0; 2 when
-the run has no events.jsonl or no fit.
+Prints one line per fit long enough to hold two ingest events, the totals, then the busy passes'
+totals. Exit code 0; 2 when the run has no events.jsonl or no fit.
 """
 import argparse
 import os
@@ -49,6 +51,12 @@ def main():
         print(f"{f.get('fit', '?'):>5} {t0:9.2f} {f['fit_seconds']:7.2f} {len(inside):14d} {b:15d} {s:10d}")
     print(f"fit_ingest: {len(fits)} fits, {total_s:.1f} s fitting; {with_data} fits with batches accepted while "
           f"they ran; at least {batches} batches ({steps} env steps) accepted during fits")
+    busy = [e for e in ev if e.get("event") == "busy" and e.get("seconds", 0) >= a.min_fit_seconds]
+    if busy:
+        taken = [e.get("batches_accepted", 0) for e in busy]
+        print(f"fit_ingest: busy passes {len(busy)}, {sum(e['seconds'] for e in busy):.1f} s; "
+              f"{sum(1 for b in taken if b > 0)} with batches accepted during them; {sum(taken)} batches "
+              f"({sum(e.get('env_steps_accepted', 0) for e in busy)} env steps) accepted during them")
     return 0
 
 

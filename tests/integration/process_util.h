@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <deque>
@@ -119,8 +120,6 @@ inline std::string best_policy_problem(const std::string& run, const std::string
   return "";
 }
 
-// A DDS domain of our own (offset keeps test suites apart), so parallel runs and a running farm
-// do not see each other.
 // The events of one kind in RUN/events.jsonl, the learner's record for programs ("" kind: all),
 // in order; a line that is not JSON is skipped.
 inline std::vector<nlohmann::json> events(const std::string& run, const std::string& kind = "") {
@@ -141,6 +140,49 @@ inline nlohmann::json event_with(const std::string& run, const std::string& kind
   return nullptr;
 }
 
+// The workers the roster announced (worker events with change "joined"), by worker id, in order.
+inline std::vector<std::string> workers_joined(const std::string& run) {
+  std::vector<std::string> ids;
+  for (const auto& e : events(run, "worker"))
+    if (e.value("change", "") == "joined") ids.push_back(e.value("worker_id", ""));
+  return ids;
+}
+
+inline bool joined(const std::string& run, const std::string& worker_id) {
+  const auto ids = workers_joined(run);
+  return std::find(ids.begin(), ids.end(), worker_id) != ids.end();
+}
+
+// Whether the roster marked worker_id dead (a worker event with change "dead").
+inline bool marked_dead(const std::string& run, const std::string& worker_id) {
+  for (const auto& e : events(run, "worker"))
+    if (e.value("worker_id", "") == worker_id && e.value("change", "") == "dead") return true;
+  return false;
+}
+
+// Polls until done() holds; false after timeout_s.
+template <class Done>
+inline bool wait_until(Done done, double timeout_s) {
+  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < until) {
+    if (done()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  return done();
+}
+
+// Polls RUN/events.jsonl until worker_id has joined; false after timeout_s.
+inline bool wait_for_join(const std::string& run, const std::string& worker_id, double timeout_s) {
+  return wait_until([&] { return joined(run, worker_id); }, timeout_s);
+}
+
+// Polls RUN/events.jsonl until it holds at least `count` events of `kind`; false after timeout_s.
+inline bool wait_for_events(const std::string& run, const std::string& kind, size_t count, double timeout_s) {
+  return wait_until([&] { return events(run, kind).size() >= count; }, timeout_s);
+}
+
+// A DDS domain of our own (offset keeps test suites apart), so parallel runs and a running farm
+// do not see each other.
 inline int private_domain(int offset) { return 20 + static_cast<int>((getpid() + offset) % 200); }
 
 // A temporary directory with the processes started in it; everything is killed at the end and

@@ -215,8 +215,11 @@ TEST_F(FarmProcesses, CleanStopAndResumeLoseNothing) {
   Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
   Proc& wa = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sa"}, "worker-a");
   Proc& wb = start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-sb"}, "worker-b");
-  ASSERT_TRUE(wait_for_match(dir_ + "/learner-1.log", R"(upd/s \([1-9][0-9]{3,})", 120))
-      << slurp(dir_ + "/learner-1.log");
+  auto updates = [&] {
+    const auto p = events(run, "progress");
+    return p.empty() ? 0 : p.back().value("updates", 0);
+  };
+  ASSERT_TRUE(wait_until([&] { return updates() >= 1000; }, 120)) << slurp(dir_ + "/learner-1.log");
   kill(first.pid, SIGINT);
   ASSERT_EQ(wait_for(first, 60), 130) << slurp(dir_ + "/learner-1.log");
   Proc& second =

@@ -63,7 +63,7 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
       set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
   Proc& b = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
-  ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker it-b on", 30)) << set.log("learner");
+  ASSERT_TRUE(wait_for_join(run, "it-b", 30)) << set.log("learner");
   // it-b is producing: its status line counts batches sent. Not its state word: on a busy machine a
   // worker that outpaces the learner is "throttled" at every status line while it sends.
   ASSERT_TRUE(wait_for_match(d + "/worker-b.log", R"(: \d+ steps/s.*, [1-9]\d* batches sent)", 30))
@@ -74,9 +74,8 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   wait_for(b, 5);
   const long long updates_at_kill = last_updates(run + "/learner.csv");
   // Marked dead within a few seconds (heartbeat every 1 s, timeout 4 s, log check every loop).
-  EXPECT_TRUE(wait_for_text(d + "/learner.log", "worker it-b on", 1) &&
-              wait_for_text(d + "/learner.log", "marked dead", 8))
-      << set.log("learner");
+  EXPECT_TRUE(joined(run, "it-b") && wait_until([&] { return marked_dead(run, "it-b"); }, 8))
+      << slurp(run + "/events.jsonl");
   std::this_thread::sleep_for(std::chrono::seconds(3));
   EXPECT_GT(last_updates(run + "/learner.csv"), updates_at_kill + 300) << "training stopped after a worker died";
 
@@ -107,7 +106,7 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   }
   EXPECT_EQ(open, 1) << summary;
   EXPECT_EQ(closed_with_data, 1) << summary;
-  EXPECT_NE(set.log("learner").find("worker it-b on"), std::string::npos);
+  EXPECT_TRUE(joined(d + "/run", "it-b")) << slurp(d + "/run/events.jsonl");
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -120,8 +119,8 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   Proc& first = set.start(learner_argv, "learner-1");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-a"}, "worker-a");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
-  ASSERT_TRUE(wait_for_text(d + "/learner-1.log", "checkpoint " + run, 60)) << set.log("learner-1");
-  ASSERT_TRUE(wait_for_text(d + "/learner-1.log", "checkpoint " + run + "/checkpoint", 1));
+  ASSERT_TRUE(wait_for_events(run, "checkpoint", 1, 60)) << set.log("learner-1");
+  EXPECT_EQ(events(run, "checkpoint")[0].value("ok", false), true) << slurp(run + "/events.jsonl");
   std::this_thread::sleep_for(std::chrono::seconds(4));  // a second checkpoint, then more work that it lacks
   kill(first.pid, SIGKILL);
   wait_for(first, 5);
@@ -145,8 +144,10 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   ASSERT_EQ(wait_for(second, 180), 0) << set.log("learner-2");
   EXPECT_EQ(wait_for(set.procs()[1], 30), 0) << set.log("worker-a");
   EXPECT_EQ(wait_for(set.procs()[2], 30), 0) << set.log("worker-b");
-  const std::string log2 = set.log("learner-2");
-  EXPECT_NE(log2.find("resumed from"), std::string::npos) << log2;
+  const auto starts = events(run, "start");
+  ASSERT_EQ(starts.size(), 2u) << slurp(run + "/events.jsonl");
+  EXPECT_FALSE(starts[0].value("resumed", true));
+  EXPECT_TRUE(starts[1].value("resumed", false));
   for (const char* w : {"worker-a", "worker-b"})
     EXPECT_NE(set.log(w).find("learner restarted"), std::string::npos) << set.log(w);
 

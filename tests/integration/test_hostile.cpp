@@ -217,8 +217,9 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   EXPECT_EQ(m[2], "0") << summary;
   EXPECT_EQ(m[3], "0") << summary;
   EXPECT_EQ(std::stoll(m[4]), sent) << summary << set.log("learner");
-  const std::string llog = set.log("learner");
-  EXPECT_NE(llog.find("batch sample(s) larger than"), std::string::npos) << llog;
+  const nlohmann::json refused = event_with(d + "/run", "refusal", "what", "batch sample");
+  ASSERT_FALSE(refused.is_null()) << slurp(d + "/run/events.jsonl");
+  EXPECT_GE(refused.value("count", 0), 1) << refused.dump();
   const std::string wlog = set.log("worker");
   std::smatch ws;
   ASSERT_TRUE(std::regex_search(wlog, ws, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
@@ -287,8 +288,10 @@ TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
       << summary;
   EXPECT_EQ(m[1], sent) << summary;
   EXPECT_NE(summary.find("evaluations       asked 1, answered 1, lost 0, invalid 0"), std::string::npos) << summary;
-  const std::string llog = set.log("learner");
-  EXPECT_NE(llog.find("final: mean return"), std::string::npos) << llog;
+  const nlohmann::json final_eval = event_with(d + "/run", "evaluation", "label", "final");
+  ASSERT_FALSE(final_eval.is_null()) << slurp(d + "/run/events.jsonl");
+  EXPECT_GT(final_eval.value("episodes", 0), 0) << final_eval.dump();
+  EXPECT_TRUE(final_eval["mean"].is_number()) << final_eval.dump();
   set.cleanup(::testing::Test::HasFailure());
 }
 

@@ -48,7 +48,7 @@ lpid=$!; pids+=($lpid)
 "$worker" --domain "$domain" --id local-1 --dds-profiles "$local_profile" >"$dir/worker.log" 2>&1 &
 pids+=($!)
 # Sockets are looked at once the worker's batches arrive, so every transport is open by then.
-if wait_text "$dir/learner.log" 'local-1' 60; then
+if wait_text "$dir/run/events.jsonl" '"worker_id":"local-1"' 60; then
   sleep 2
   bad=$(outside_sockets "$lpid")
   [ -z "$bad" ] || fail "the learner with $local_profile has sockets off loopback: $(echo $bad)"

@@ -29,10 +29,6 @@ std::string config(const std::string& id, const std::string& stop) {
   return text + "checkpoint_every_seconds: 30\n";
 }
 
-int count(const std::string& text, const std::regex& re) {
-  return int(std::distance(std::sregex_iterator(text.begin(), text.end(), re), std::sregex_iterator()));
-}
-
 // A swing-up that stays up scores about 1 per step (250 steps); the untrained policy about 10, and
 // one that only now and then gets the pole up 40-60. The target sits well above those.
 constexpr double kTargetReturn = 150.0;
@@ -187,6 +183,11 @@ TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
   }
   EXPECT_GE(rows, 2);
   EXPECT_GT(lagged, 0) << "no fit used an older version's steps";
+  // The ingest thread took the workers' batches while the loop fitted: the busy events (passes of
+  // 0.1 s or more) count what it accepted meanwhile.
+  uint64_t during_fits = 0;
+  for (const auto& e : events(run, "busy")) during_fits += e.value("batches_accepted", uint64_t(0));
+  EXPECT_GT(during_fits, 0u) << slurp(run + "/events.jsonl");
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -200,18 +201,22 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   Proc& victim = set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-b"}, "worker-b");
   // The victim must have joined before it is killed: on a loaded host the learner fits with the
   // first worker alone, and a worker that never joined is never marked dead.
-  ASSERT_TRUE(wait_for_text(d + "/learner.log", "worker ppo-b on", 120)) << slurp(d + "/learner.log");
-  ASSERT_TRUE(wait_for_text(d + "/learner.log", "fit 2 |", 120)) << slurp(d + "/learner.log");
+  ASSERT_TRUE(wait_for_join(run, "ppo-b", 120)) << slurp(d + "/learner.log");
+  // The last fit a progress record names (a fit's record may wait for the evaluation asked at it).
+  auto last_fit = [&] {
+    const auto p = events(run, "progress");
+    return p.empty() ? 0 : p.back().value("fit", 0);
+  };
+  ASSERT_TRUE(wait_until([&] { return last_fit() >= 2; }, 120)) << slurp(d + "/learner.log");
   kill(victim.pid, SIGKILL);
   wait_for(victim, 10);
-  const std::regex fit_line(R"(\] fit (\d+) \|)");
-  const int fits_at_kill = count(slurp(d + "/learner.log"), fit_line);
-  ASSERT_TRUE(wait_for_text(d + "/learner.log", "marked dead", 30)) << slurp(d + "/learner.log");
+  const int fits_at_kill = last_fit();
+  ASSERT_TRUE(wait_until([&] { return marked_dead(run, "ppo-b"); }, 30)) << slurp(run + "/events.jsonl");
   const int rc = wait_for(learner, 120);
   const std::string log = slurp(d + "/learner.log");
   ASSERT_EQ(rc, 0) << log;
   // At least two more fits after the kill, made with one worker's data.
-  EXPECT_GE(count(log, fit_line), fits_at_kill + 2) << log;
+  EXPECT_GE(last_fit(), fits_at_kill + 2) << slurp(run + "/events.jsonl");
   const std::string summary = slurp(run + "/summary.txt");
   std::smatch m;
   ASSERT_TRUE(
@@ -239,47 +244,59 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
       set.start({FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain}, "learner-1");
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "ppo-r", "--log-every", "1"}, "worker");
   // A fit after the latest checkpoint: the killed learner published a version the checkpoint lacks.
-  auto fit_after_checkpoint = [](const std::string& log) {
-    const size_t c = log.rfind("] checkpoint ");
-    return c != std::string::npos && log.find("] fit ", c) != std::string::npos;
+  auto fit_after_checkpoint = [&] {
+    const auto c = events(run, "checkpoint");
+    const auto p = events(run, "progress");
+    return !c.empty() && !p.empty() && p.back().value("elapsed_s", 0.0) > c.back().value("elapsed_s", 0.0);
   };
-  ASSERT_TRUE(poll_log(d + "/learner-1.log", fit_after_checkpoint, 180)) << slurp(d + "/learner-1.log");
+  ASSERT_TRUE(wait_until(fit_after_checkpoint, 180)) << slurp(run + "/events.jsonl") << set.log("learner-1");
   kill(first.pid, SIGKILL);
   wait_for(first, 10);
-  const std::string log1 = slurp(d + "/learner-1.log");
-  const std::regex fit_line(R"(\] fit \d+ \| v(\d+) -> v(\d+) \|)");
-  uint64_t published = 0;
-  for (auto it = std::sregex_iterator(log1.begin(), log1.end(), fit_line); it != std::sregex_iterator(); ++it)
-    published = std::max<uint64_t>(published, std::stoull((*it)[2]));
-  ASSERT_GT(published, 0u) << log1;
+  // The versions the killed learner published: each fit's row names the version fitted, and the
+  // fit publishes the next; rows that waited for an evaluation at the kill are in the worker's log.
+  const std::regex status_version(R"(policy v(\d+))");
+  auto highest_version = [&](const std::string& text) {
+    uint64_t v = 0;
+    for (auto it = std::sregex_iterator(text.begin(), text.end(), status_version); it != std::sregex_iterator(); ++it)
+      v = std::max<uint64_t>(v, std::stoull((*it)[1]));
+    return v;
+  };
+  uint64_t published = highest_version(set.log("worker"));
+  for (const auto& e : events(run, "progress"))
+    published = std::max<uint64_t>(published, e.value("policy_version", uint64_t(0)) + 1);
+  ASSERT_GT(published, 0u) << slurp(run + "/events.jsonl");
+  const size_t events_of_first = events(run).size();
+  // The resumed learner's events: those after the first learner's.
+  auto resumed = [&](const std::string& kind) {
+    std::vector<nlohmann::json> out;
+    const auto all = events(run);
+    for (size_t i = events_of_first; i < all.size(); ++i)
+      if (all[i].value("event", "") == kind) out.push_back(all[i]);
+    return out;
+  };
 
   Proc& second = set.start(
       {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run, "--domain", domain, "--resume"}, "learner-2");
-  ASSERT_TRUE(poll_log(
-      d + "/learner-2.log", [&](const std::string& t) { return count(t, fit_line) >= 2; }, 180))
+  ASSERT_TRUE(wait_until([&] { return resumed("progress").size() >= 2; }, 180))
       << slurp(d + "/learner-2.log") << "\nthe worker's log:\n"
       << set.log("worker");
   kill(second.pid, SIGINT);
   EXPECT_EQ(wait_for(second, 60), 130) << slurp(d + "/learner-2.log");
-  const std::string log2 = slurp(d + "/learner-2.log");
+  const auto starts = resumed("start");
+  ASSERT_EQ(starts.size(), 1u) << slurp(run + "/events.jsonl");
+  EXPECT_TRUE(starts[0].value("resumed", false));
   // The first version the resumed learner fitted is the first it published.
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(log2, m, fit_line)) << log2;
-  const uint64_t next = std::stoull(m[1]);
-  EXPECT_GT(next, published) << "the resumed learner reuses version numbers the killed one published\n" << log2;
-  // Every fit of the resumed learner was made on its own versions.
-  int fits = 0;
-  for (auto it = std::sregex_iterator(log2.begin(), log2.end(), fit_line); it != std::sregex_iterator(); ++it, ++fits)
-    EXPECT_GE(std::stoull((*it)[1]), next) << (*it)[0];
-  EXPECT_GE(fits, 2) << log2;
-  EXPECT_EQ(log2.find("rejected batch"), std::string::npos) << log2;
+  const auto fits = resumed("progress");
+  ASSERT_GE(fits.size(), 2u) << slurp(run + "/events.jsonl");
+  const uint64_t next = fits[0].value("policy_version", uint64_t(0));
+  EXPECT_GT(next, published) << "the resumed learner reuses version numbers the killed one published\n"
+                             << slurp(run + "/events.jsonl");
+  // Every fit of the resumed learner was made on its own versions, and no batch was refused.
+  for (const auto& f : fits) EXPECT_GE(f.value("policy_version", uint64_t(0)), next) << f.dump();
+  EXPECT_TRUE(resumed("refusal").empty()) << slurp(run + "/events.jsonl");
   // The worker ran the resumed learner's weights.
   const std::string wlog = set.log("worker");
-  uint64_t worker_latest = 0;
-  const std::regex status_version(R"(policy v(\d+))");
-  for (auto it = std::sregex_iterator(wlog.begin(), wlog.end(), status_version); it != std::sregex_iterator(); ++it)
-    worker_latest = std::max<uint64_t>(worker_latest, std::stoull((*it)[1]));
-  EXPECT_GE(worker_latest, next) << wlog;
+  EXPECT_GE(highest_version(wlog), next) << wlog;
   set.cleanup(::testing::Test::HasFailure());
 }
 

@@ -60,10 +60,11 @@ for way in var flag both; do
   [ $rc = 0 ] || fail "$way: learner exited $rc: $(tail -5 "$out/learner.log")"
   grep -q "batches  *ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$out/run/summary.txt" ||
     fail "$way: summary: $(cat "$out/run/summary.txt" 2>/dev/null)"
-  # The join line: what is known of the worker's size, then its 3 envs; never "0 envs".
-  grep "worker pw " "$out/learner.log" | grep -q "0 envs" && fail "$way: join line says 0 envs: $(grep 'worker pw ' "$out/learner.log")"
-  grep -Eq "worker pw on .* (joined \(session [0-9]+, 3 envs on 1 threads\)|runs 3 envs on 1 threads)" "$out/learner.log" ||
-    fail "$way: no line gives the worker's 3 envs: $(grep 'worker pw ' "$out/learner.log")"
+  # The roster's events of the worker: its join, then (once it built them) its 3 envs on 1 thread.
+  events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -q '"change":"joined"' ||
+    fail "$way: no join event of pw: $(events "$out/run" worker)"
+  events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -Eq '"change":"(joined|sized)".*"envs":3,.*"threads":1' ||
+    fail "$way: no event gives the worker's 3 envs on 1 thread: $(events "$out/run" worker)"
   kill -INT $wp 2>/dev/null; wait $wp 2>/dev/null
 
   run_with $way "$bench_scale" --workers 1 --envs 4 --seconds 1 --warmup 1 --domain $d \

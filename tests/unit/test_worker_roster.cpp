@@ -1,10 +1,23 @@
 // The learner's worker roster: the join line says what is known of a worker's size, and the size
 // once the worker has built its environments; silence marks a worker dead, a heartbeat brings it back.
+// On its own thread over a real DDS bus (two participants in this process), the roster hears a
+// worker and marks it dead while the learner's loop does nothing (a long fit).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
+#include "events.h"
+#include "meter.h"
+#include "roster_thread.h"
 #include "worker_roster.h"
 
 namespace {
@@ -190,4 +203,62 @@ TEST(WorkerRoster, InventedSessionsAreBoundedAndTheirLinesLimited) {
   ASSERT_GE(l.lines.size(), size_t(farm::WorkerRoster::kLogBurst) + 2);
   EXPECT_NE(l.lines[farm::WorkerRoster::kLogBurst].find("roster line(s) held back"), std::string::npos)
       << l.lines[farm::WorkerRoster::kLogBurst];
+}
+
+TEST(RosterThread, HearsAndMarksDeadWhileTheLoopIsBusy) {
+  const std::string events_path =
+      (std::filesystem::temp_directory_path() / ("farm_roster_" + std::to_string(getpid()) + ".jsonl")).string();
+  farm::dds::BusOptions o;
+  o.domain = 120 + int(getpid() % 80);
+  farm::dds::Bus learner_bus(o, "test learner"), worker_bus(o, "test worker");
+  farm::EventLog events;
+  events.open(events_path);
+  std::vector<std::string> lines;
+  std::mutex lines_mu;
+  auto log = [&](const std::string& l) {
+    std::lock_guard<std::mutex> lk(lines_mu);
+    lines.push_back(l);
+  };
+  farm::WorkerRoster roster(1.0, log, "exp");
+  roster.on_event([&](const nlohmann::json& e) { events.write("worker", e); });
+  farm::RosterThread thread(learner_bus, std::move(roster), log, events);
+  thread.start();
+  farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> out(
+      worker_bus, farm::dds::kWorkerStatusTopic, "status_writer");
+  farm::msg::WorkerStatus s;
+  s.experiment_id("exp");
+  s.worker_id("w1");
+  s.worker_session(1);
+  s.host("h");
+  s.envs(4);
+  s.threads(1);
+  s.state("running");
+  // Beats every 0.1 s until the roster has it live (10 s at most), then 1 s more.
+  const double t0 = farm::now_seconds();
+  while (thread.live_count() == 0 && farm::now_seconds() - t0 < 10) {
+    out.write(s);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(thread.live_count(), 1);
+  for (int i = 0; i < 10; ++i) {
+    out.write(s);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  const auto live = thread.find("w1#1");
+  ASSERT_TRUE(live.has_value());
+  EXPECT_TRUE(live->live);
+  EXPECT_EQ(live->view.last.envs(), 4u);
+  EXPECT_GT(thread.first_heard(), 0);
+  // The worker goes silent and this thread, the learner's loop, calls nothing for 2.5 s: the
+  // roster's own thread marks it dead within the 1 s timeout.
+  std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  EXPECT_EQ(thread.live_count(), 0);
+  std::ifstream in(events_path);
+  std::vector<std::string> changes;
+  for (std::string line; std::getline(in, line);) {
+    const auto e = nlohmann::json::parse(line, nullptr, false);
+    if (e.is_object() && e.value("worker_id", "") == "w1") changes.push_back(e.value("change", ""));
+  }
+  EXPECT_EQ(changes, (std::vector<std::string>{"joined", "dead"}));
+  std::remove(events_path.c_str());
 }

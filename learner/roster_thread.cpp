@@ -1,0 +1,98 @@
+// The roster on its own thread (roster_thread.h).
+#include "roster_thread.h"
+
+#include "meter.h"
+#include "printable.h"
+
+namespace farm {
+
+RosterThread::RosterThread(farm::dds::Bus& bus, WorkerRoster roster, Log log, EventLog& events)
+    : bus_(bus),
+      reader_(bus, farm::dds::kWorkerStatusTopic, "status_reader"),
+      log_(std::move(log)),
+      events_(events),
+      roster_(std::move(roster)) {}
+
+RosterThread::~RosterThread() {
+  stop_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+void RosterThread::start() {
+  thread_ = std::thread([this] { loop(); });
+}
+
+void RosterThread::loop() {
+  double last_check = 0;
+  while (!stop_) {
+    reader_.wait(0.05);
+    take_all();
+    const double now = now_seconds();
+    if (now - last_check >= kCheckEveryS) {
+      last_check = now;
+      std::lock_guard<std::mutex> lk(mu_);
+      roster_.check(now);
+    }
+    const uint64_t refused = refused_for_name_.load();
+    if (refused > refused_noted_ && refusal_notes_ < kMaxRefusalNotes) {
+      ++refusal_notes_;
+      log_("ignored " + std::to_string(refused - refused_noted_) +
+           " heartbeat(s) whose worker id is not the certificate name of the participant that wrote them (last: " +
+           refused_last_ + ")");
+      events_.write("refusal", {{"what", "heartbeat"},
+                                {"count", refused - refused_noted_},
+                                {"reason", "worker id is not the certificate name of the participant that wrote it"},
+                                {"last", refused_last_}});
+      refused_noted_ = refused;
+    }
+  }
+}
+
+void RosterThread::take_all() {
+  farm::msg::WorkerStatus s;
+  eprosima::fastdds::dds::SampleInfo info;
+  while (reader_.take(s, info)) {
+    const double now = now_seconds();
+    // Under DDS Security, as for batches: only from the participant whose certificate bears the
+    // worker id (no invented workers in the roster).
+    if (!bus_.security_dir().empty()) {
+      std::string why;
+      const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid(), &why);
+      if (by != s.worker_id()) {
+        refused_for_name_.fetch_add(1);
+        refused_last_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'" +
+                        (by.empty() ? ": " + why : "");
+        continue;
+      }
+    }
+    std::lock_guard<std::mutex> lk(mu_);
+    if (roster_.heard(s, now, farm::dds::participant_key(info.sample_identity.writer_guid())) &&
+        first_heard_.load() == 0)
+      first_heard_.store(now);
+  }
+}
+
+std::vector<RosterThread::Worker> RosterThread::workers() const {
+  const double now = now_seconds();
+  std::lock_guard<std::mutex> lk(mu_);
+  std::vector<Worker> out;
+  out.reserve(roster_.views().size());
+  for (const auto& [key, v] : roster_.views()) out.push_back({key, v, roster_.live(v, now)});
+  return out;
+}
+
+std::optional<RosterThread::Worker> RosterThread::find(const std::string& key) const {
+  const double now = now_seconds();
+  std::lock_guard<std::mutex> lk(mu_);
+  const auto it = roster_.views().find(key);
+  if (it == roster_.views().end()) return std::nullopt;
+  return Worker{key, it->second, roster_.live(it->second, now)};
+}
+
+int RosterThread::live_count() const {
+  const double now = now_seconds();
+  std::lock_guard<std::mutex> lk(mu_);
+  return roster_.live_count(now);
+}
+
+}  // namespace farm
