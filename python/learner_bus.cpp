@@ -6,6 +6,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -21,6 +22,7 @@
 #include "ingest_thread.h"
 #include "meter.h"
 #include "mlp.h"
+#include "roster_thread.h"
 #include "spec_publisher.h"
 #include "task_spec.h"
 
@@ -63,7 +65,17 @@ class LearnerBus {
                 UINT32_MAX)),
             size_t(cfg_.ingest_queue_mib() * (1 << 20)),
             [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); }, events_),
-        status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader"),
+        roster_(
+            bus_,
+            [&] {
+              farm::WorkerRoster r(
+                  cfg_.worker_timeout_seconds(),
+                  [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); },
+                  cfg_.experiment_id(), cfg_.account_expiry_seconds());
+              r.on_event([this](const nlohmann::json& e) { events_.write("worker", e); });
+              return r;
+            }(),
+            [](const std::string& m) { std::fprintf(stderr, "[learner-bus] %s\n", m.c_str()); }, events_),
         eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
         eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
                  farm::max_eval_answer_bytes(cfg_.experiment_id().size(),
@@ -72,6 +84,7 @@ class LearnerBus {
     if (!events_path.empty()) events_.open(events_path);
     events_.set_start(farm::now_seconds());
     intake_.start();
+    roster_.start();
     spec_.publish(false);
   }
   ~LearnerBus() { finish(); }
@@ -142,15 +155,6 @@ class LearnerBus {
   }
 
  private:
-  // The heartbeats that came since the last call.
-  void listen() {
-    farm::msg::WorkerStatus st;
-    while (status_in_.take(st)) {
-      if (st.experiment_id() != cfg_.experiment_id()) continue;
-      heard_[st.worker_id()] = Heard{st.worker_session(), farm::now_seconds()};
-    }
-  }
-
   // A policy dict (publish()) as the workers' PolicyParams, checked as a worker checks one.
   farm::PolicyParams params_of(const py::dict& p) const {
     farm::PolicyParams pp;
@@ -203,14 +207,26 @@ class LearnerBus {
     return d;
   }
 
-  // The ids of this experiment's workers heard within the config's worker_timeout_seconds.
+  // The ids of this experiment's live workers (the learner's roster: heard within the config's
+  // worker_timeout_seconds, not finished), once each.
   std::vector<std::string> workers() {
-    listen();
     std::vector<std::string> out;
-    const double now = farm::now_seconds();
-    for (const auto& [id, h] : heard_)
-      if (now - h.when <= cfg_.worker_timeout_seconds()) out.push_back(id);
+    for (const auto& w : roster_.workers())
+      if (w.live && std::find(out.begin(), out.end(), w.view.last.worker_id()) == out.end())
+        out.push_back(w.view.last.worker_id());
     return out;
+  }
+
+  // The session of worker_id's latest live heartbeat.
+  uint64_t session_of(const std::string& worker_id) {
+    uint64_t session = 0;
+    double seen = -1;
+    for (const auto& w : roster_.workers())
+      if (w.live && w.view.last.worker_id() == worker_id && w.view.seen > seen) {
+        seen = w.view.seen;
+        session = w.view.last.worker_session();
+      }
+    return session;
   }
 
   // Asks a worker (worker_id, else the first one heard) to run `episodes` episodes of the policy
@@ -244,7 +260,7 @@ class LearnerBus {
     e.learner_session = eval_session_;
     e.worker_id = worker_id;
     e.request_id = q.request_id();
-    e.worker_session = heard_[worker_id].session;
+    e.worker_session = session_of(worker_id);
     e.policy_version = pp.version;
     e.episodes = episodes;
     e.num_metrics = int(task_.metric_names.size());
@@ -306,14 +322,9 @@ class LearnerBus {
   farm::SpecPublisher spec_;
   farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_;
   farm::IngestThread intake_;
-  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_in_;
+  farm::RosterThread roster_;
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
   farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
-  struct Heard {
-    uint64_t session = 0;
-    double when = 0;
-  };
-  std::map<std::string, Heard> heard_;  // this experiment's workers, by id: their last heartbeat
   uint64_t eval_session_ = farm::dds::random_session_id(), request_id_ = 0;
   uint64_t version_ = 0;
   bool finished_ = false;
