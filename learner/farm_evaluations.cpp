@@ -1,387 +1,43 @@
-// The learner's evaluations, run on its workers (FarmService, farm_service.h): each one is split
-// into parts over the live workers of the roster (eval.min_episodes_per_worker episodes each at
-// least), each part going to the next worker in turn with the policy to evaluate, the networks of
-// that moment kept aside for <run dir>/best; each answer is checked (eval_answer.h), and once every
-// part is answered their episodes are handed to the algorithm as one report. A part whose worker is
-// marked dead or that is not answered in eval.answer_timeout_seconds is counted lost and asked once
-// more of another worker; a part lost twice gives up its whole evaluation. Training never waits for
-// an answer; only the final evaluation is waited for, within the same timeout.
+// The learner's side of its evaluations (FarmService, farm_service.h): the algorithm asks through
+// Farm::ask_evaluation, the Evaluator (evaluator.h) asks the workers and merges their answers, and
+// what ended goes back to the algorithm here, with the stop rule's evaluation goal. Training never
+// waits for an answer; only the final evaluation is waited for, within eval.answer_timeout_seconds.
 #include <algorithm>
 #include <cmath>
-#include <filesystem>
-#include <iterator>
-#include <sstream>
 
-#include "checkpoint.h"
-#include "eval_answer.h"
 #include "farm_service.h"
 #include "meter.h"
-#include "policy_file.h"
-#include "printable.h"
 
 namespace farm {
 
-namespace fs = std::filesystem;
-
-namespace {
-constexpr size_t kMaxClosedIds = 1024;  // lost or given-up request ids remembered for late answers
-constexpr int kMaxEvalRejectionsLogged = 20;
-}  // namespace
-
 bool FarmService::ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) {
-  if (ask.label != "final") {
-    for (auto& r : evals_out_) {
-      if (r.ask.label == ask.label) {
-        if (r.skips_noted) return false;
-        r.skips_noted = true;
-        log("evaluation of policy v" + std::to_string(ask.version) + " not asked: the one of v" +
-            std::to_string(r.ask.version) + " is still out, nor any other until it is answered" +
-            (r.worker_id.empty()
-                 ? " (no live worker yet)"
-                 : " (asked of " + r.worker_id + " " + fmt("%.0f", now_seconds() - r.asked_at) + " s ago)"));
-        return false;
-      }
-    }
-  }
-  const uint64_t g = ++next_eval_group_;
-  EvalGroup& group = eval_groups_[g];
-  group.ask = ask;
-  group.policy = policy;
-  group.asked_at = now_seconds();
-  group.snapshot = (fs::path(eval_dir_) / std::to_string(g)).string();
-  try {
-    fs::create_directories(group.snapshot);
-    algo_->save_networks(group.snapshot);
-    write_policy_file((fs::path(group.snapshot) / kPolicyFileName).string(), policy);
-  } catch (const std::exception& e) {
-    log("the networks of policy v" + std::to_string(ask.version) + " could not be kept for best/ (" + e.what() +
-        "); the evaluation goes on");
-    drop_snapshot(group.snapshot);
-    group.snapshot.clear();
-  }
-  // As many parts as there are workers ready now, each of at least min_episodes_per_worker
-  // episodes; every part has the evaluation's seed and its first episode numbered after the parts
-  // before it, and a worker resets episode k of the evaluation from (seed, k) (evaluate_policy): the
-  // evaluation is the same episodes however many parts it is split into (2 workers or 15 are
-  // evaluated on the same maps), and a task's evaluation conditions go round the whole evaluation,
-  // not each part.
-  const int min_each = cfg_.eval().min_episodes_per_worker();
-  const int ready = int(eval_ready_workers().size());
-  int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
-  // Under security, two workers at least where two are ready (confirmation()).
-  if (!bus_.security_dir().empty() && ready >= 2 && ask.episodes >= 2) parts = std::max(parts, 2);
-  group.parts = group.parts_left = parts;
-  const uint64_t seed = cfg_.seed() + 1000003ull * ++evals_;
-  bool sent = true;
-  int first = 0;
-  for (int k = 0; k < parts; ++k) {
-    EvalRequest r;
-    r.id = ++next_eval_id_;
-    r.group = g;
-    r.part = k + 1;
-    r.episodes = ask.episodes / parts + (k < ask.episodes % parts ? 1 : 0);
-    r.first_episode = first;
-    first += r.episodes;
-    r.seed = seed;
-    r.ask = ask;
-    sent = send_evaluation(r) && sent;
-    evals_out_.push_back(std::move(r));
-  }
-  if (!sent && !eval_waiting_noted_) {
-    log(ask.label + " evaluation of policy v" + std::to_string(ask.version) +
-        " waits for a live worker (none now); training goes on");
-    eval_waiting_noted_ = true;
-  }
-  return true;
-}
-
-std::vector<RosterThread::Worker> FarmService::eval_ready_workers() const {
-  std::vector<RosterThread::Worker> ready;
-  for (auto& w : roster_.workers())
-    if (w.live && w.view.last.envs() > 0 && w.view.last.state() != "error") ready.push_back(std::move(w));
-  return ready;
-}
-
-bool FarmService::send_evaluation(EvalRequest& r) {
-  const double now = now_seconds();
-  // Live workers that have built their environments, in roster order; the turn goes on from the
-  // one asked last, and a retry goes to another worker than the one that lost it where it can.
-  const auto ready = eval_ready_workers();
-  if (ready.empty()) return false;
-  const EvalGroup& group = eval_groups_.at(r.group);
-  std::vector<RosterThread::Worker> others;
-  for (const auto& c : ready)
-    if (c.view.last.worker_id() != r.avoid) others.push_back(c);
-  const auto& pool = others.empty() ? ready : others;
-  auto next = std::find_if(pool.begin(), pool.end(), [this](const auto& c) { return c.key > eval_last_key_; });
-  if (next == pool.end()) next = pool.begin();
-  eval_last_key_ = next->key;
-  r.roster_key = next->key;
-  r.worker_id = next->view.last.worker_id();
-  r.worker_session = next->view.last.worker_session();
-  r.writer = next->view.writer;
-  r.asked_at = now;
-
-  farm::msg::EvaluationRequest m;
-  m.experiment_id(cfg_.experiment_id());
-  m.learner_session(eval_session_);
-  m.request_id(r.id);
-  m.worker_id(r.worker_id);
-  m.policy_version(r.ask.version);
-  m.episodes(uint32_t(r.episodes));
-  m.seed(r.seed);
-  m.first_episode(uint32_t(r.first_episode));
-  farm::dds::to_wire(group.policy, cfg_.experiment_id(), m.policy());
-  if (!eval_out_.write(m)) {
-    // The reliable history is full (a reader that does not acknowledge): counted as asked, and
-    // lost when its time is up.
-    log("evaluation request " + std::to_string(r.id) + " to " + r.worker_id + " could not be written now");
-  }
-  ++evals_asked_;
-  eval_waiting_noted_ = false;
-  log("evaluation " + std::to_string(r.id) + " (" + r.ask.label + ", policy v" + std::to_string(r.ask.version) + ", " +
-      std::to_string(r.episodes) + " episodes" +
-      (group.parts > 1 ? ", part " + std::to_string(r.part) + " of " + std::to_string(group.parts) + ", " +
-                             std::to_string(r.ask.episodes) + " in all"
-                       : std::string()) +
-      (r.attempt > 1 ? ", second try" : "") + ", #" + std::to_string(r.first_episode) + "-" +
-      std::to_string(r.first_episode + r.episodes - 1) + " of seed " + std::to_string(r.seed) + ") asked of worker " +
-      r.worker_id);
-  return true;
+  return evaluator_.ask(policy, ask, [this](const std::string& dir) { algo_->save_networks(dir); });
 }
 
 void FarmService::poll_evaluations() {
-  if (evals_out_.empty() && !eval_in_.matched()) return;
-  while (eval_in_.take(answer_, answer_info_)) take_answer();
-  const double now = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
-  for (size_t i = 0; i < evals_out_.size();) {
-    EvalRequest& r = evals_out_[i];
-    if (r.worker_id.empty()) {
-      send_evaluation(r);
-      ++i;
-      continue;
-    }
-    const auto w = roster_.find(r.roster_key);
-    const bool dead = !w || !w->live;
-    if (!dead && now - r.asked_at < timeout) {
-      ++i;
-      continue;
-    }
-    EvalRequest lost = std::move(r);
-    evals_out_.erase(evals_out_.begin() + long(i));
-    evaluation_lost(std::move(lost),
-                    dead ? "its worker is no longer live"
-                         : "not answered within " + fmt("%.0f", timeout) + " s (eval.answer_timeout_seconds)");
-  }
+  for (auto& d : evaluator_.poll()) report(d);
 }
 
-void FarmService::take_answer() {
-  // Another learner's, on this domain (another experiment, or one before this on this one): not
-  // ours to count. Its request ids may be ours too.
-  if (answer_.experiment_id() != cfg_.experiment_id() || answer_.learner_session() != eval_session_) return;
-  const auto it = std::find_if(evals_out_.begin(), evals_out_.end(),
-                               [this](const EvalRequest& r) { return r.id == answer_.request_id(); });
-  if (it == evals_out_.end() || it->worker_id.empty()) {
-    if (evals_closed_.count(answer_.request_id())) {
-      ++evals_late_;
-      log("evaluation " + std::to_string(answer_.request_id()) + " answered by " + answer_.worker_id().substr(0, 64) +
-          " after it was counted lost: not used");
-      return;
-    }
-    ++evals_invalid_;
-    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
-      log("refused an evaluation answer from " + answer_.worker_id().substr(0, 64) + ": request " +
-          std::to_string(answer_.request_id()) + " was not asked");
-    return;
+void FarmService::report(Evaluator::Done& d) {
+  if (d.given_up) {
+    algo_->not_evaluated(*this, d.ask);
+  } else {
+    last_eval_confirmed_ = d.report.confirmed;
+    if (d.ask.label == "eval" && d.report.episodes > 0 && d.report.confirmed) note_goal(d.ask, d.report);
+    eval_snapshot_ = &d.snapshot;
+    algo_->evaluated(*this, d.ask, d.report);
+    eval_snapshot_ = nullptr;
   }
-  // Only the participant asked answers: every field of a request can be read off the bus, so an
-  // answer that merely matches them may come from anyone. It is bound to the participant whose
-  // heartbeats put the worker in the roster (and, under DDS Security, whose certificate bears the
-  // worker's id). Not used; the request stays out for the worker asked.
-  const auto& guid = answer_info_.sample_identity.writer_guid();
-  std::string not_asked;
-  if (!it->writer.empty() && farm::dds::participant_key(guid) != it->writer)
-    not_asked = "written by another participant than worker " + it->worker_id + "'s, the one asked";
-  else if (!bus_.security_dir().empty() && bus_.authenticated_name(guid) != it->worker_id)
-    not_asked = "written by a participant whose certificate name is '" + printable(bus_.authenticated_name(guid), 100) +
-                "', not '" + it->worker_id + "'";
-  if (!not_asked.empty()) {
-    ++evals_invalid_;
-    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
-      log("refused an answer to evaluation " + std::to_string(it->id) + ": " + not_asked);
-    return;
-  }
-  EvalExpected e;
-  e.experiment_id = cfg_.experiment_id();
-  e.learner_session = eval_session_;
-  e.worker_id = it->worker_id;
-  e.request_id = it->id;
-  e.worker_session = it->worker_session;
-  e.policy_version = it->ask.version;
-  e.episodes = it->episodes;
-  e.num_metrics = int(task_spec_.metric_names.size());
-  e.max_episode_steps = task_spec_.max_episode_steps;
-  e.reward_bound = task_spec_.reward_bound;
-  if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
-    // Not used; the request stays out, so it is answered again or counted lost in its time.
-    ++evals_invalid_;
-    if (++eval_rejections_logged_ <= kMaxEvalRejectionsLogged)
-      log("refused the answer to evaluation " + std::to_string(e.request_id) + ": " + why);
-    return;
-  }
-  EvalRequest r = std::move(*it);
-  evals_out_.erase(it);
-  ++evals_answered_;
-  log("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
-      " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
-  events_.write("answer", {{"request_id", r.id},
-                           {"worker_id", r.worker_id},
-                           {"label", r.ask.label},
-                           {"part", r.part},
-                           {"episodes", r.episodes},
-                           {"worker_seconds", answer_.seconds()},
-                           {"since_asked_s", now_seconds() - r.asked_at}});
-  // Every part out has its group: giving a group up takes its other parts out (evaluation_given_up).
-  const auto g = eval_groups_.find(r.group);
-  EvalGroup& group = g->second;
-  auto& returns = group.returns_by_worker[r.worker_id];
-  for (const auto& ep : answer_.episodes()) returns.push_back(ep.episode_return());
-  group.episodes.insert(group.episodes.end(), std::make_move_iterator(answer_.episodes().begin()),
-                        std::make_move_iterator(answer_.episodes().end()));
-  if (--group.parts_left > 0) return;
-
-  EvalReport rep;
-  rep.episodes = int(group.episodes.size());
-  rep.metrics.assign(e.num_metrics, 0.0);
-  rep.metrics_min.assign(e.num_metrics, NAN);
-  double sum = 0, len = 0;
-  for (const auto& ep : group.episodes) {
-    const bool first = &ep == &group.episodes.front();
-    sum += ep.episode_return();
-    len += ep.length();
-    rep.min = std::isnan(rep.min) ? ep.episode_return() : std::min<double>(rep.min, ep.episode_return());
-    rep.max = std::isnan(rep.max) ? ep.episode_return() : std::max<double>(rep.max, ep.episode_return());
-    for (int k = 0; k < e.num_metrics; ++k) {
-      const double v = ep.metrics()[k];
-      rep.metrics[k] += v;
-      // The lowest episode's value; a NaN (a metric the task cannot compute) makes it NaN, as the mean.
-      rep.metrics_min[k] = first                                             ? v
-                           : std::isnan(rep.metrics_min[k]) || std::isnan(v) ? NAN
-                                                                             : std::min(rep.metrics_min[k], v);
-    }
-  }
-  if (rep.episodes > 0) {
-    rep.mean = sum / rep.episodes;
-    rep.mean_length = len / rep.episodes;
-    for (auto& m : rep.metrics) m /= rep.episodes;
-  }
-  if (group.parts > 1)
-    log("evaluation of policy v" + std::to_string(group.ask.version) + " complete: " + std::to_string(rep.episodes) +
-        " episodes from " + std::to_string(group.parts) + " workers, " + fmt("%.1f", now_seconds() - group.asked_at) +
-        " s since asked");
-  if (!bus_.security_dir().empty()) {
-    const std::string why = confirmation(group);
-    rep.confirmed = why.empty();
-    if (!rep.confirmed)
-      log("evaluation of policy v" + std::to_string(group.ask.version) + " not confirmed: " + why +
-          "; it keeps no best and stops nothing");
-  }
-  last_eval_confirmed_ = rep.confirmed;
-  const EvalGroup done = std::move(group);
-  eval_groups_.erase(g);
-  if (done.ask.label == "eval" && rep.episodes > 0 && rep.confirmed) note_goal(done.ask, rep);
-  {
-    const auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
-    nlohmann::json metrics = nlohmann::json::object(), metrics_min = nlohmann::json::object();
-    for (size_t k = 0; k < task_spec_.metric_names.size() && k < rep.metrics.size(); ++k) {
-      metrics[task_spec_.metric_names[k]] = num(rep.metrics[k]);
-      metrics_min[task_spec_.metric_names[k]] = num(rep.metrics_min[k]);
-    }
-    events_.write("evaluation", {{"label", done.ask.label},
-                                 {"policy_version", done.ask.version},
-                                 {"updates", done.ask.updates},
-                                 {"asked_elapsed_s", done.ask.elapsed},
-                                 {"episodes", rep.episodes},
-                                 {"workers", done.returns_by_worker.size()},
-                                 {"mean", num(rep.mean)},
-                                 {"min", num(rep.min)},
-                                 {"max", num(rep.max)},
-                                 {"mean_length", num(rep.mean_length)},
-                                 {"metrics", metrics},
-                                 {"metrics_min", metrics_min},
-                                 {"confirmed", rep.confirmed}});
-  }
-  eval_snapshot_ = &done.snapshot;
-  algo_->evaluated(*this, done.ask, rep);
-  eval_snapshot_ = nullptr;
-  drop_snapshot(done.snapshot);
-}
-
-void FarmService::evaluation_lost(EvalRequest r, const std::string& why) {
-  ++evals_lost_;
-  close_eval_id(r.id);
-  if (r.attempt == 1) {
-    log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
-        r.worker_id + " lost: " + why + "; asked again");
-    r.avoid = r.worker_id;
-    r.worker_id.clear();
-    r.roster_key.clear();
-    r.attempt = 2;
-    r.id = ++next_eval_id_;
-    if (!send_evaluation(r))
-      log(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " waits for a live worker");
-    evals_out_.push_back(std::move(r));
-    return;
-  }
-  log("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
-      r.worker_id + " lost: " + why + "; given up after a second try");
-  evaluation_given_up(r.group);
-}
-
-void FarmService::evaluation_given_up(uint64_t group) {
-  const auto g = eval_groups_.find(group);
-  if (g == eval_groups_.end()) return;  // already given up with another of its parts
-  const EvalGroup done = std::move(g->second);
-  eval_groups_.erase(g);
-  // Its other parts are not waited for: counted lost, and an answer that still comes is late.
-  for (auto it = evals_out_.begin(); it != evals_out_.end();) {
-    if (it->group != group) {
-      ++it;
-      continue;
-    }
-    if (!it->worker_id.empty()) {
-      ++evals_lost_;
-      close_eval_id(it->id);
-    }
-    it = evals_out_.erase(it);
-  }
-  events_.write("evaluation",
-                {{"label", done.ask.label}, {"policy_version", done.ask.version}, {"episodes", 0}, {"given_up", true}});
-  algo_->not_evaluated(*this, done.ask);
-  drop_snapshot(done.snapshot);
-}
-
-void FarmService::close_eval_id(uint64_t id) {
-  if (evals_closed_.size() >= kMaxClosedIds) evals_closed_.erase(evals_closed_.begin());
-  evals_closed_.insert(id);
-}
-
-void FarmService::drop_snapshot(const std::string& dir) {
-  if (dir.empty()) return;
-  try {
-    remove_tree(dir);  // not fs::remove_all: it crashes the GPU build (checkpoint.cpp)
-  } catch (const std::exception&) {
-    // a leftover costs only space; the next run's start removes it
-  }
+  Evaluator::drop_snapshot(d.snapshot);
 }
 
 void FarmService::wait_for_evaluations() {
-  if (evals_out_.empty()) return;
+  if (evaluator_.out() == 0) return;
   const double t0 = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
   double last_live = t0;
-  log("waiting for " + std::to_string(evals_out_.size()) + " evaluation(s) on the workers (at most " +
+  log("waiting for " + std::to_string(evaluator_.out()) + " evaluation(s) on the workers (at most " +
       fmt("%.0f", timeout) + " s)");
-  while (!evals_out_.empty() && !interrupted_) {
+  while (evaluator_.out() > 0 && !interrupted_) {
     const double now = now_seconds();
     if (live_count() > 0) last_live = now;
     if (now - t0 >= timeout) break;
@@ -391,51 +47,9 @@ void FarmService::wait_for_evaluations() {
     }
     drain_batches(256);
     poll_evaluations();
-    eval_in_.wait(0.05);
+    evaluator_.wait(0.05);
   }
-  while (!evals_out_.empty()) {
-    EvalRequest r = std::move(evals_out_.front());
-    evals_out_.pop_front();
-    if (!r.worker_id.empty()) ++evals_lost_;  // one never asked is not counted
-    log(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
-        (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
-        fmt("%.0f", now_seconds() - t0) + " s: not reported");
-    evaluation_given_up(r.group);
-  }
-}
-
-std::string FarmService::confirmation(const EvalGroup& group) const {
-  const auto& by = group.returns_by_worker;
-  if (by.size() < 2)
-    return "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")";
-  const auto stats = [](const std::vector<double>& v) {
-    double m = 0, q = 0;
-    for (double x : v) m += x;
-    m /= double(v.size());
-    for (double x : v) q += (x - m) * (x - m);
-    return std::pair<double, double>{m, v.size() > 1 ? q / double(v.size() - 1) : 0.0};
-  };
-  for (auto a = by.begin(); a != by.end(); ++a) {
-    for (auto b = std::next(a); b != by.end(); ++b) {
-      const auto [ma, va] = stats(a->second);
-      const auto [mb, vb] = stats(b->second);
-      const double se = std::sqrt(va / double(a->second.size()) + vb / double(b->second.size()));
-      const double room = kAgreeSigmas * se + kAgreeRelative * 0.5 * (std::abs(ma) + std::abs(mb)) + 1e-6;
-      if (std::abs(ma - mb) > room)
-        return a->first + "'s episodes (mean return " + fmt("%.1f", ma) + ") and " + b->first + "'s (" +
-               fmt("%.1f", mb) + ") disagree by more than " + fmt("%.1f", room);
-    }
-  }
-  return "";
-}
-
-std::string FarmService::eval_summary() const {
-  std::ostringstream o;
-  o << "evaluations       asked " << evals_asked_ << ", answered " << evals_answered_ << ", lost " << evals_lost_
-    << ", invalid " << evals_invalid_;
-  if (evals_late_ > 0) o << ", late " << evals_late_;
-  o << " (on the workers)\n";
-  return o.str();
+  for (auto& d : evaluator_.give_up_all(now_seconds() - t0)) report(d);
 }
 
 // stop.eval_goal: the first training evaluation that meets every bound ends the run (should_stop).

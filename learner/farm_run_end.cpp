@@ -79,7 +79,7 @@ std::string FarmService::summary_workers() {
 void FarmService::write_summary(double elapsed, const std::string& reason) {
   FarmFigures f = figures();
   const std::string text =
-      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + eval_summary() + summary_workers();
+      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + evaluator_.summary() + summary_workers();
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
   const IngestCounters c = intake_.counters();
@@ -93,10 +93,10 @@ void FarmService::write_summary(double elapsed, const std::string& reason) {
                  {"batches_invalid", c.invalid},
                  {"updates", algo_->updates()},
                  {"policy_version", algo_->version()},
-                 {"evals_asked", evals_asked_},
-                 {"evals_answered", evals_answered_},
-                 {"evals_lost", evals_lost_},
-                 {"evals_invalid", evals_invalid_},
+                 {"evals_asked", evaluator_.asked()},
+                 {"evals_answered", evaluator_.answered()},
+                 {"evals_lost", evaluator_.lost()},
+                 {"evals_invalid", evaluator_.invalid()},
                  {"checkpoints_failed", checkpoints_failed_},
                  {"events_unwritten", events_.failures()},
                  {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},

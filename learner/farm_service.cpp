@@ -17,6 +17,13 @@ namespace farm {
 
 namespace fs = std::filesystem;
 
+namespace {
+// --run-dir, or <run_root>/<experiment_id>.
+std::string run_dir_of(const LearnerRunOptions& o, const config::ExperimentConfig& cfg) {
+  return o.run_dir.empty() ? (fs::path(cfg.run_root()) / cfg.experiment_id()).string() : o.run_dir;
+}
+}  // namespace
+
 FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentConfig& cfg,
                          const std::atomic<bool>& interrupted)
     : opt_(o),
@@ -41,12 +48,6 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                                                          cfg_.worker().steps_per_batch()),
                                  UINT32_MAX)),
           size_t(cfg_.ingest_queue_mib() * (1 << 20)), [this](const std::string& m) { log(m); }, events_),
-      eval_out_(bus_, farm::dds::kEvalRequestTopic, "batch_writer"),
-      // Answers over what this experiment's evaluations can hold are refused before memory is taken.
-      eval_in_(bus_, farm::dds::kEvalAnswerTopic, "batch_reader",
-               max_eval_answer_bytes(cfg_.experiment_id().size(),
-                                     std::max(cfg_.eval().episodes(), cfg_.eval().final_episodes()),
-                                     int(task_spec_.metric_names.size()))),
       roster_(
           bus_,
           [this] {
@@ -57,20 +58,21 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             return r;
           }(),
           [this](const std::string& m) { log(m); }, events_),
+      evaluator_(
+          bus_, cfg_, task_spec_, roster_, events_, [this](const std::string& m) { log(m); },
+          (fs::path(run_dir_of(o, cfg_)) / "evaluating").string()),
       algo_(make_algorithm(cfg_, task_spec_)) {
-  run_dir_ = opt_.run_dir.empty() ? (fs::path(cfg_.run_root()) / cfg_.experiment_id()).string() : opt_.run_dir;
+  run_dir_ = run_dir_of(opt_, cfg_);
   ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
   best_dir_ = (fs::path(run_dir_) / "best").string();
-  eval_dir_ = (fs::path(run_dir_) / "evaluating").string();
-  eval_session_ = farm::dds::random_session_id();
 }
 
 int FarmService::run() {
   prepare_run_dir();
   intake_.start();
   roster_.start();
-  drop_snapshot(eval_dir_);  // what a learner that crashed mid-evaluation left
-  algo_->warm_up(*this);     // workers are not told of the run yet, so none waits on it
+  Evaluator::drop_snapshot(evaluator_.dir());  // what a learner that crashed mid-evaluation left
+  algo_->warm_up(*this);                       // workers are not told of the run yet, so none waits on it
   spec_.publish(false);
   t0_ = now_seconds() - elapsed_offset_;
   events_.set_start(t0_);
@@ -122,7 +124,7 @@ int FarmService::run() {
     // Workers stay and wait: a resumed learner picks them up again. What the reader already
     // acknowledged goes into the checkpoint first, or the resumed learner counts it lost.
     drain_before_interrupted_stop();
-    drop_snapshot(eval_dir_);  // evaluations still out are not waited for
+    Evaluator::drop_snapshot(evaluator_.dir());  // evaluations still out are not waited for
     if (!try_checkpoint(elapsed)) return 1;
     log("checkpoint written; resume with --resume");
     return 130;
@@ -139,11 +141,11 @@ int FarmService::run() {
   // a second, three seconds at most.
   drain_while_arriving(0.5, 3.0);
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
-  evaluated_in_training_ = evals_ > 0 || !std::isnan(best_eval_);
+  evaluated_in_training_ = evaluator_.evaluations() > 0 || !std::isnan(best_eval_);
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
   algo_->final_evaluation(*this, elapsed);
   wait_for_evaluations();  // on the workers, which stay until the spec says finished
-  drop_snapshot(eval_dir_);
+  Evaluator::drop_snapshot(evaluator_.dir());
   spec_.publish(true);
   drain_until_workers_end();
   const bool saved = try_checkpoint(elapsed);
@@ -236,10 +238,10 @@ FarmFigures FarmService::figures() const {
   f.mean_return = mean_recent_return();
   f.best_eval = best_eval_;
   f.best_measure = best_measure();
-  f.evals_asked = evals_asked_;
-  f.evals_answered = evals_answered_;
-  f.evals_lost = evals_lost_;
-  f.evals_invalid = evals_invalid_;
+  f.evals_asked = evaluator_.asked();
+  f.evals_answered = evaluator_.answered();
+  f.evals_lost = evaluator_.lost();
+  f.evals_invalid = evaluator_.invalid();
   return f;
 }
 

@@ -1,9 +1,11 @@
-// The farm side of the learner: publishes the experiment, takes and accounts the workers'
-// batches (ingest), hears their heartbeats (roster), publishes the weights the algorithm hands it,
-// asks workers for evaluations and hands the answers back (farm_evaluations.cpp: the learner
-// steps no simulation and links no robot), and runs the main loop (progress lines, checkpoints,
-// the best policy, stop rules, Ctrl-C), resumes from a checkpoint, closes the workers' streams at
-// the end and writes the summary (farm_run_end.cpp). What it trains with is an Algorithm
+// The farm side of the learner, a runner of parts: the ingest thread takes and accounts the
+// workers' batches (ingest_thread.h), the roster thread hears their heartbeats (roster_thread.h),
+// the spec publisher publishes the experiment, the evaluator asks workers for evaluations and
+// merges their answers (evaluator.h: the learner steps no simulation and links no robot). This
+// class runs the main loop: hands accepted batches and finished evaluations to the algorithm,
+// publishes the weights it hands back, writes progress lines, checkpoints and the best policy,
+// applies the stop rules and Ctrl-C, resumes from a checkpoint, closes the workers' streams at the
+// end and writes the summary (farm_run_end.cpp). What it trains with is an Algorithm
 // (algorithms/algorithm.h) from the registry.
 #pragma once
 
@@ -22,6 +24,7 @@
 
 #include "algorithm.h"
 #include "dds.h"
+#include "evaluator.h"
 #include "events.h"
 #include "farm_config.pb.h"
 #include "ingest.h"
@@ -105,59 +108,15 @@ class FarmService final : public Farm {
   // On Ctrl-C / SIGTERM, before the checkpoint: the batches already on their way.
   void drain_before_interrupted_stop();
 
-  // --- Evaluations on workers (farm_evaluations.cpp) ---
-  // One evaluation (one EvalAsk), spread over one or more workers as parts (eval.min_episodes_per_worker),
-  // reported once every part is answered.
-  struct EvalGroup {
-    EvalAsk ask;
-    PolicyParams policy;
-    std::string snapshot;  // the algorithm's networks when it asked (for best/); "" if not kept
-    int parts = 1, parts_left = 1;
-    double asked_at = 0;
-    std::vector<farm::msg::EvaluationEpisode> episodes;            // of the parts answered so far
-    std::map<std::string, std::vector<double>> returns_by_worker;  // the answered parts' returns
-  };
-  // Under DDS Security a kept best or a stop rests on the word of two workers: an evaluation's
-  // parts go to two workers at least where two are ready, and the report is confirmed only when
-  // two answered and each pair's mean returns agree within kAgreeSigmas standard errors of their
-  // episodes (plus kAgreeRelative of their size). "" when confirmed; else why not.
-  std::string confirmation(const EvalGroup& group) const;
-  static constexpr double kAgreeSigmas = 4.0, kAgreeRelative = 0.05;
-  // One part of an evaluation asked of one worker; a lost one is asked once more (attempt 2) under
-  // a new id.
-  struct EvalRequest {
-    uint64_t id = 0, seed = 0, worker_session = 0, group = 0;
-    int episodes = 0, part = 1, first_episode = 0;
-    std::string worker_id, roster_key;  // empty while no live worker could take it
-    // The participant of the worker asked (its roster entry's): only an answer it wrote counts.
-    std::string writer;
-    double asked_at = 0;
-    int attempt = 1;
-    std::string avoid;  // the worker that lost attempt 1: another one is asked where there is one
-    EvalAsk ask;
-    bool skips_noted = false;  // a training evaluation skipped while this one is out was logged
-  };
-  // Live workers that have built their environments, by roster key.
-  std::vector<RosterThread::Worker> eval_ready_workers() const;
-  // The evaluation of a group ended without a report (a part given up, or not answered at the end):
-  // the algorithm is told, its snapshot dropped. Its other parts' answers are not used.
-  void evaluation_given_up(uint64_t group);
-  // Remembers a request id lost or given up (bounded), so an answer that still comes counts late.
-  void close_eval_id(uint64_t id);
-  // Takes the answers that arrived, hands the good ones to the algorithm, counts lost the requests
-  // whose worker died or that timed out (asking them again once), and sends the waiting ones.
+  // --- Evaluations on workers (farm_evaluations.cpp; the asking and merging: evaluator.h) ---
+  // Takes what the evaluator finished and hands it to the algorithm.
   void poll_evaluations();
-  // Sends r to a live worker of the roster, in turn (another than r.avoid where possible); false
-  // when there is none.
-  bool send_evaluation(EvalRequest& r);
-  void take_answer();
-  // A request no worker answered: asked again once, else given up (the algorithm is told).
-  void evaluation_lost(EvalRequest r, const std::string& why);
-  void drop_snapshot(const std::string& dir);
+  // One finished evaluation to the algorithm (its report, or that it was given up), with the stop
+  // rule's evaluation goal and the networks asked for a new best; its snapshot dropped after.
+  void report(Evaluator::Done& d);
   // After the final evaluation is asked: evaluations out are answered or counted lost, within
   // eval.answer_timeout_seconds (sooner when no worker is live for worker_timeout_seconds).
   void wait_for_evaluations();
-  std::string eval_summary() const;
 
   LearnerRunOptions opt_;
   config::ExperimentConfig cfg_;
@@ -174,34 +133,21 @@ class FarmService final : public Farm {
   static constexpr size_t kMaxOpenStreamLines = 10;  // streams not closed at the end, named in the log
   static constexpr size_t kMaxLogLine = 8192;        // bytes of one log line; a longer one is cut
   static constexpr double kBusyEventS = 0.1;         // a training pass this long writes a busy event
-  farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
-  farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
   RosterThread roster_;
+  Evaluator evaluator_;
   std::unique_ptr<Algorithm> algo_;
   std::string run_dir_, ckpt_dir_, best_dir_;
   std::ofstream csv_;
   std::string csv_header_;
   std::deque<float> recent_returns_;
-  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0, evals_ = 0;
+  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0;
   uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
   double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0;
-  std::string goal_reached_;                   // the stop reason once an evaluation met every stop.eval_goal
-  bool last_eval_confirmed_ = true;            // the last report handed to the algorithm (confirmation())
-  std::deque<EvalRequest> evals_out_;          // parts asked, not yet answered or given up
-  std::map<uint64_t, EvalGroup> eval_groups_;  // evaluations with parts out
-  uint64_t next_eval_group_ = 0;
-  std::set<uint64_t> evals_closed_;             // ids lost or given up, for answers that come late (bounded)
-  std::string eval_dir_;                        // <run dir>/evaluating: the networks of each request
-  std::string eval_last_key_;                   // the roster key asked last, for the turn
+  std::string goal_reached_;                    // the stop reason once an evaluation met every stop.eval_goal
+  bool last_eval_confirmed_ = true;             // the last report handed to the algorithm (confirmation())
   const std::string* eval_snapshot_ = nullptr;  // while the algorithm reports: the networks asked
-  farm::msg::EvaluationAnswer answer_;
-  eprosima::fastdds::dds::SampleInfo answer_info_;  // of answer_: its writer
-  uint64_t eval_session_ = 0, next_eval_id_ = 0, evals_asked_ = 0, evals_answered_ = 0, evals_lost_ = 0,
-           evals_invalid_ = 0, evals_late_ = 0;
-  int eval_rejections_logged_ = 0;
-  uint64_t checkpoints_failed_ = 0;  // the summary event's count (their events may be lost with the disk)
-  bool eval_waiting_noted_ = false;
+  uint64_t checkpoints_failed_ = 0;             // the summary event's count (their events may be lost with the disk)
 };
 
 }  // namespace farm
