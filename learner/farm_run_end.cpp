@@ -97,7 +97,7 @@ void FarmService::write_summary(double elapsed, const std::string& reason) {
                  {"evals_answered", evaluator_.answered()},
                  {"evals_lost", evaluator_.lost()},
                  {"evals_invalid", evaluator_.invalid()},
-                 {"checkpoints_failed", checkpoints_failed_},
+                 {"checkpoints_failed", checkpointer_.failed()},
                  {"events_unwritten", events_.failures()},
                  {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},
                  {"best_measure", f.best_measure}});

@@ -61,10 +61,9 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       evaluator_(
           bus_, cfg_, task_spec_, roster_, events_, [this](const std::string& m) { log(m); },
           (fs::path(run_dir_of(o, cfg_)) / "evaluating").string()),
+      checkpointer_(cfg_, task_spec_, run_dir_of(o, cfg_), events_, [this](const std::string& m) { log(m); }),
       algo_(make_algorithm(cfg_, task_spec_)) {
   run_dir_ = run_dir_of(opt_, cfg_);
-  ckpt_dir_ = (fs::path(run_dir_) / "checkpoint").string();
-  best_dir_ = (fs::path(run_dir_) / "best").string();
 }
 
 int FarmService::run() {
@@ -141,7 +140,7 @@ int FarmService::run() {
   // a second, three seconds at most.
   drain_while_arriving(0.5, 3.0);
   // A resumed run counts the evaluations before its checkpoint through the best return it kept.
-  evaluated_in_training_ = evaluator_.evaluations() > 0 || !std::isnan(best_eval_);
+  evaluated_in_training_ = evaluator_.evaluations() > 0 || !std::isnan(checkpointer_.best());
   if (const std::string n = untrained_stop_note(stop_reason); !n.empty()) log(n);
   algo_->final_evaluation(*this, elapsed);
   wait_for_evaluations();  // on the workers, which stay until the spec says finished
@@ -236,8 +235,8 @@ FarmFigures FarmService::figures() const {
   f.episodes = episodes_total_;
   f.workers = live_count();
   f.mean_return = mean_recent_return();
-  f.best_eval = best_eval_;
-  f.best_measure = best_measure();
+  f.best_eval = checkpointer_.best();
+  f.best_measure = checkpointer_.measure();
   f.evals_asked = evaluator_.asked();
   f.evals_answered = evaluator_.answered();
   f.evals_lost = evaluator_.lost();
@@ -256,28 +255,6 @@ void FarmService::csv_row(const std::string& row) {
   e["workers_throttled"] = w.throttled;
   e["workers_backpressure"] = w.backpressure;
   events_.write("progress", std::move(e));
-}
-
-void FarmService::checkpoint(double elapsed) {
-  // The accounts as of the last batch the algorithm took: every batch they count accepted is in
-  // what it saves (a resumed learner counts the rest lost, and none silently).
-  config::CheckpointManifest accounts;
-  intake_.settle([this](AcceptedBatch& a) { take(a); },
-                 [&accounts](const Ingest& in) { accounts_to_manifest(in, accounts); });
-  config::CheckpointManifest m = base_manifest(algo_->version(), algo_->updates(), elapsed);
-  m.MergeFrom(accounts);
-  algo_->to_manifest(m);
-  const double t = now_seconds();
-  write_checkpoint(ckpt_dir_, m, [this](const std::string& tmp) {
-    algo_->save(tmp);
-    write_policy_file((fs::path(tmp) / kPolicyFileName).string(), algo_->policy());
-  });
-  log("checkpoint " + ckpt_dir_ + " (" + fmt("%.2f", now_seconds() - t) + " s)");
-  events_.write("checkpoint", {{"dir", ckpt_dir_},
-                               {"ok", true},
-                               {"seconds", now_seconds() - t},
-                               {"policy_version", m.policy_version()},
-                               {"updates", m.updates()}});
 }
 
 // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
@@ -300,17 +277,22 @@ std::string FarmService::waiting_note() const {
 }
 
 bool FarmService::try_checkpoint(double elapsed) {
-  try {
-    checkpoint(elapsed);
-    return true;
-  } catch (const std::exception& e) {
-    ++checkpoints_failed_;
-    events_.write("checkpoint", {{"dir", ckpt_dir_}, {"ok", false}, {"error", e.what()}});
-    log(std::string("checkpoint failed: ") + e.what() + "; the last good checkpoint" +
-        (checkpoint_exists(ckpt_dir_) ? " (" + usable_checkpoint(ckpt_dir_) + ")" : std::string(" (none yet)")) +
-        " is kept, training goes on, next try in " + fmt("%.0f", cfg_.checkpoint_every_seconds()) + " s");
-    return false;
-  }
+  return checkpointer_.save(
+      [&] {
+        // The accounts as of the last batch the algorithm took: every batch they count accepted is
+        // in what it saves (a resumed learner counts the rest lost, and none silently).
+        config::CheckpointManifest accounts;
+        intake_.settle([this](AcceptedBatch& a) { take(a); },
+                       [&accounts](const Ingest& in) { accounts_to_manifest(in, accounts); });
+        config::CheckpointManifest m = base_manifest(algo_->version(), algo_->updates(), elapsed);
+        m.MergeFrom(accounts);
+        algo_->to_manifest(m);
+        return m;
+      },
+      [this](const std::string& tmp) {
+        algo_->save(tmp);
+        write_policy_file((fs::path(tmp) / kPolicyFileName).string(), algo_->policy());
+      });
 }
 
 void FarmService::log(const std::string& s) const {
@@ -322,26 +304,12 @@ void FarmService::log(const std::string& s) const {
 
 void FarmService::prepare_run_dir() {
   if (opt_.resume) {
-    if (!checkpoint_exists(ckpt_dir_)) throw std::runtime_error("--resume: no checkpoint in " + ckpt_dir_);
-    const config::CheckpointManifest m = read_manifest(ckpt_dir_, cfg_.experiment_id());
-    algo_->load(usable_checkpoint(ckpt_dir_));
+    const std::string& dir = checkpointer_.checkpoint_dir();
+    if (!checkpoint_exists(dir)) throw std::runtime_error("--resume: no checkpoint in " + dir);
+    const config::CheckpointManifest m = read_manifest(dir, cfg_.experiment_id());
+    algo_->load(usable_checkpoint(dir));
     elapsed_offset_ = m.elapsed_seconds();
-    // A best kept by another measure (the config's eval.best_metric changed) is no bar for this one.
-    const auto same_measure = [this](const config::CheckpointManifest& k) {
-      return (k.has_best_eval_measure() ? k.best_eval_measure() : std::string("return")) == best_measure();
-    };
-    if (m.has_best_eval_return() && same_measure(m)) best_eval_ = m.best_eval_return();
-    // A best policy kept after the checkpoint (the learner stopped before the next one) stays the
-    // one to beat: it is not overwritten by a weaker one after the resume.
-    if (checkpoint_exists(best_dir_)) {
-      const config::CheckpointManifest b = read_manifest(best_dir_, cfg_.experiment_id());
-      if (b.has_best_eval_return() && !same_measure(b))
-        log("the best kept in " + best_dir_ + " was by " +
-            (b.has_best_eval_measure() ? b.best_eval_measure() : std::string("return")) + ", this run keeps by " +
-            best_measure() + ": the next evaluation replaces it");
-      else if (b.has_best_eval_return() && (std::isnan(best_eval_) || b.best_eval_return() > best_eval_))
-        best_eval_ = b.best_eval_return();
-    }
+    checkpointer_.resume(m);
     episodes_total_ = m.episodes();
     intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in); });
     // The first progress line's rates count from the restored counters, not from zero.
@@ -349,7 +317,7 @@ void FarmService::prepare_run_dir() {
     last_steps_ = c.env_steps;
     last_ok_ = c.ok;
     last_lag_sum_ = c.lag_sum;
-    log("resumed from " + ckpt_dir_ + " " + algo_->resumed(m, c.env_steps));
+    log("resumed from " + dir + " " + algo_->resumed(m, c.env_steps));
   } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
@@ -370,57 +338,12 @@ void FarmService::record_episode(float episode_return) {
   ++episodes_total_;
 }
 
-std::string FarmService::best_measure() const {
-  const auto& e = cfg_.eval();
-  return e.best_metric().empty() ? std::string("return") : e.best_metric() + " (" + e.best_reduce() + ")";
-}
-
-double FarmService::evaluation_score(const EvalReport& r) const {
-  if (r.episodes <= 0) return NAN;
-  const auto& e = cfg_.eval();
-  if (e.best_metric().empty()) return r.mean;
-  const auto& names = task_spec_.metric_names;
-  const size_t k = size_t(std::find(names.begin(), names.end(), e.best_metric()) - names.begin());
-  const auto& values = e.best_reduce() == "min" ? r.metrics_min : r.metrics;
-  return k < values.size() ? values[k] : NAN;  // the config check named a metric of the task
-}
-
 void FarmService::record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) {
-  if (!report.confirmed) return;  // under security: a second worker did not agree (confirmation())
-  const double score = evaluation_score(report);
-  const std::string what = best_measure() + " " + fmt(cfg_.eval().best_metric().empty() ? "%.1f" : "%.4f", score);
-  // A named measure is not in the evaluation's own line (that gives means): each one is logged, so
-  // its curve along the run can be read from the log (tools/seeds.py plots it).
-  if (!cfg_.eval().best_metric().empty() && !std::isnan(score))
-    log("evaluation of policy v" + std::to_string(version) + " at " + fmt("%.1f", elapsed) + " s: " + what +
-        (std::isnan(best_eval_) ? "" : ", best so far " + fmt("%.4f", best_eval_)));
-  if (std::isnan(score) || score <= best_eval_) return;
-  const double previous_best = best_eval_;
-  best_eval_ = score;
-  const double t = now_seconds();
-  try {
-    // The networks as they were when this version was asked (training went on meanwhile).
-    if (!eval_snapshot_ || eval_snapshot_->empty())
-      throw std::runtime_error("the networks of policy v" + std::to_string(version) +
-                               " were not kept when it was asked");
-    const std::string snapshot = *eval_snapshot_;
+  checkpointer_.offer(report, version, updates, elapsed, eval_snapshot_, [&] {
     config::CheckpointManifest m = base_manifest(version, updates, elapsed);
     intake_.with_ingest([&m](const Ingest& in) { accounts_to_manifest(in, m); });
-    write_checkpoint(best_dir_, m, [&snapshot](const std::string& tmp) {
-      fs::copy(snapshot, tmp, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
-    });
-  } catch (const std::exception& e) {
-    best_eval_ = previous_best;  // the folder still holds the previous best: it stays the bar
-    log(std::string("best evaluation so far (") + what + ") not kept: " + e.what() + "; training goes on");
-    return;
-  }
-  log("best evaluation so far (" + what + ", policy v" + std::to_string(version) + "): kept in " + best_dir_ + " (" +
-      fmt("%.2f", now_seconds() - t) + " s)");
-  events_.write("best", {{"measure", best_measure()},
-                         {"score", score},
-                         {"policy_version", version},
-                         {"updates", updates},
-                         {"dir", best_dir_}});
+    return m;
+  });
 }
 
 double FarmService::mean_recent_return() const {
@@ -484,9 +407,9 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   m.set_policy_version(version);
   m.set_updates(updates);
   m.set_elapsed_seconds(elapsed);
-  if (!std::isnan(best_eval_)) {
-    m.set_best_eval_return(best_eval_);
-    m.set_best_eval_measure(best_measure());
+  if (!std::isnan(checkpointer_.best())) {
+    m.set_best_eval_return(checkpointer_.best());
+    m.set_best_eval_measure(checkpointer_.measure());
   }
   m.set_config_text(config_to_text(cfg_));
   m.set_episodes(episodes_total_);

@@ -1,12 +1,12 @@
 // The farm side of the learner, a runner of parts: the ingest thread takes and accounts the
 // workers' batches (ingest_thread.h), the roster thread hears their heartbeats (roster_thread.h),
 // the spec publisher publishes the experiment, the evaluator asks workers for evaluations and
-// merges their answers (evaluator.h: the learner steps no simulation and links no robot). This
-// class runs the main loop: hands accepted batches and finished evaluations to the algorithm,
-// publishes the weights it hands back, writes progress lines, checkpoints and the best policy,
-// applies the stop rules and Ctrl-C, resumes from a checkpoint, closes the workers' streams at the
-// end and writes the summary (farm_run_end.cpp). What it trains with is an Algorithm
-// (algorithms/algorithm.h) from the registry.
+// merges their answers (evaluator.h: the learner steps no simulation and links no robot), the
+// checkpointer keeps RUN/checkpoint and RUN/best (checkpointer.h). This class runs the main loop:
+// hands accepted batches and finished evaluations to the algorithm, publishes the weights it hands
+// back, writes progress lines, asks for checkpoints, applies the stop rules and Ctrl-C, resumes from
+// a checkpoint, closes the workers' streams at the end and writes the summary (farm_run_end.cpp). What it trains with
+// is an Algorithm (algorithms/algorithm.h) from the registry.
 #pragma once
 
 #include <atomic>
@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "algorithm.h"
+#include "checkpointer.h"
 #include "dds.h"
 #include "evaluator.h"
 #include "events.h"
@@ -57,10 +58,6 @@ class FarmService final : public Farm {
   double elapsed() const override;
   bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) override;
   void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) override;
-  // What the kept best is the best of: "return", or "<eval.best_metric> (<best_reduce>)".
-  std::string best_measure() const;
-  // An evaluation's score by that measure; NaN for one without episodes.
-  double evaluation_score(const EvalReport& r) const;
   void log(const std::string& s) const override;
   void csv_row(const std::string& row) override;
 
@@ -82,9 +79,8 @@ class FarmService final : public Farm {
   std::string should_stop(double elapsed) const;
   // A training evaluation's report against stop.eval_goal: goal_reached_ says so once all are met.
   void note_goal(const EvalAsk& ask, const EvalReport& rep);
-  void checkpoint(double elapsed);
-  // checkpoint() that survives a failure (a full disk): logged, the last good checkpoint kept;
-  // false when it failed.
+  // RUN/checkpoint with the algorithm's state, the policy file and the accounts (checkpointer.h);
+  // a failure (a full disk) is logged and the last good checkpoint kept: false.
   bool try_checkpoint(double elapsed);
   // The manifest fields every checkpoint carries, but the accounts (accounts_to_manifest).
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
@@ -135,19 +131,19 @@ class FarmService final : public Farm {
   static constexpr double kBusyEventS = 0.1;         // a training pass this long writes a busy event
   RosterThread roster_;
   Evaluator evaluator_;
+  Checkpointer checkpointer_;
   std::unique_ptr<Algorithm> algo_;
-  std::string run_dir_, ckpt_dir_, best_dir_;
+  std::string run_dir_;
   std::ofstream csv_;
   std::string csv_header_;
   std::deque<float> recent_returns_;
   uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0;
   uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
-  double last_lag_sum_ = 0, elapsed_offset_ = 0, best_eval_ = NAN, t0_ = 0;
+  double last_lag_sum_ = 0, elapsed_offset_ = 0, t0_ = 0;
   std::string goal_reached_;                    // the stop reason once an evaluation met every stop.eval_goal
   bool last_eval_confirmed_ = true;             // the last report handed to the algorithm (confirmation())
   const std::string* eval_snapshot_ = nullptr;  // while the algorithm reports: the networks asked
-  uint64_t checkpoints_failed_ = 0;             // the summary event's count (their events may be lost with the disk)
 };
 
 }  // namespace farm
