@@ -163,16 +163,14 @@ void FarmService::work() {
   const size_t got = drain_batches(256);
   poll_evaluations();
   // A long pass (a PPO fit): what the ingest thread accepted meanwhile, as an event.
-  const IngestCounters before = intake_.counters();
+  const uint64_t accepted = intake_.accepted(), steps = intake_.env_steps();
   const double t = now_seconds();
   const double wait = algo_->train(*this, got > 0);
-  if (const double busy = now_seconds() - t; busy >= kBusyEventS) {
-    const IngestCounters after = intake_.counters();
+  if (const double busy = now_seconds() - t; busy >= kBusyEventS)
     events_.write("busy", {{"seconds", busy},
-                           {"batches_accepted", after.ok - before.ok},
-                           {"env_steps_accepted", after.env_steps - before.env_steps},
+                           {"batches_accepted", intake_.accepted() - accepted},
+                           {"env_steps_accepted", intake_.env_steps() - steps},
                            {"queued", intake_.queued()}});
-  }
   if (wait > 0) intake_.wait(wait);
 }
 

@@ -31,6 +31,7 @@ void IngestThread::start() {
   {
     std::lock_guard<std::mutex> lk(mu_);
     env_steps_.store(ingest_.counters().env_steps);
+    accepted_.store(ingest_.counters().ok);
     last_event_ok_ = ingest_.counters().ok;
     last_event_invalid_ = ingest_.counters().invalid;
   }
@@ -84,6 +85,7 @@ bool IngestThread::accept() {
     if (ingest_.retired() > retired) retired_note = ingest_.last_retired();
     foreign = ingest_.counters().foreign > foreign_before;
     env_steps_.store(ingest_.counters().env_steps, std::memory_order_relaxed);
+    accepted_.store(ingest_.counters().ok, std::memory_order_relaxed);
     if (why.empty()) {
       a->worker_id = batch_.worker_id();
       a->policy_version = batch_.policy_version();
@@ -196,6 +198,7 @@ void IngestThread::with_ingest(const std::function<void(Ingest&)>& f) {
   std::lock_guard<std::mutex> lk(mu_);
   f(ingest_);
   env_steps_.store(ingest_.counters().env_steps, std::memory_order_relaxed);
+  accepted_.store(ingest_.counters().ok, std::memory_order_relaxed);
 }
 
 IngestCounters IngestThread::counters() const {

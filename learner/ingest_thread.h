@@ -74,6 +74,8 @@ class IngestThread {
   IngestCounters counters() const;
   // Env steps accepted so far, without a lock (read on every update).
   uint64_t env_steps() const { return env_steps_.load(std::memory_order_relaxed); }
+  // Batches accepted so far, without a lock (read around every training pass).
+  uint64_t accepted() const { return accepted_.load(std::memory_order_relaxed); }
   size_t queued() const;
   size_t queued_bytes() const;
   size_t capacity_bytes() const { return capacity_; }
@@ -99,7 +101,7 @@ class IngestThread {
   std::deque<std::unique_ptr<AcceptedBatch>> queue_;  // guarded by mu_
   size_t queued_bytes_ = 0;                           // of queue_; guarded by mu_
   bool stop_ = false;                                 // guarded by mu_
-  std::atomic<uint64_t> version_{0}, env_steps_{0}, full_waits_{0};
+  std::atomic<uint64_t> version_{0}, env_steps_{0}, accepted_{0}, full_waits_{0};
   std::thread thread_;
   // The loop thread's own:
   farm::msg::TransitionBatch batch_;

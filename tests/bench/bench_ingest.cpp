@@ -226,7 +226,7 @@ constexpr size_t kDrainMax = 256;  // the learner loop's batches per pass
 class Intake {
  public:
   Intake(farm::dds::Bus& bus, const Shape& s, LearnerShape shape, const std::string& id, Path& path, Updater* upd)
-      : shape_(shape), path_(path), upd_(upd) {
+      : path_(path), upd_(upd) {
     farm::Ingest ingest(id, s.spec.obs_dim, s.spec.act_dim);
     ingest.set_num_actions(s.spec.num_actions);
     const uint32_t bound = uint32_t(
@@ -293,7 +293,6 @@ class Intake {
     }
   }
 
-  LearnerShape shape_;
   Path& path_;
   Updater* upd_;
   farm::EventLog events_;                 // not opened: the learner's events are not this benchmark's
