@@ -10,9 +10,9 @@
 #include <functional>
 #include <string>
 
-#include "algorithm.h"
 #include "events.h"
 #include "farm_config.pb.h"
+#include "pacing.h"
 #include "task_spec.h"
 
 namespace farm {

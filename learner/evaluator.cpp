@@ -149,7 +149,7 @@ bool Evaluator::send(Request& r) {
     // lost when its time is up.
     log_("evaluation request " + std::to_string(r.id) + " to " + r.worker_id + " could not be written now");
   }
-  ++asked_;
+  ++n_.asked;
   waiting_noted_ = false;
   log_("evaluation " + std::to_string(r.id) + " (" + r.ask.label + ", policy v" + std::to_string(r.ask.version) + ", " +
        std::to_string(r.episodes) + " episodes" +
@@ -200,12 +200,12 @@ void Evaluator::take_answer() {
       std::find_if(out_.begin(), out_.end(), [this](const Request& r) { return r.id == answer_.request_id(); });
   if (it == out_.end() || it->worker_id.empty()) {
     if (closed_.count(answer_.request_id())) {
-      ++late_;
+      ++n_.late;
       log_("evaluation " + std::to_string(answer_.request_id()) + " answered by " + answer_.worker_id().substr(0, 64) +
            " after it was counted lost: not used");
       return;
     }
-    ++invalid_;
+    ++n_.invalid;
     if (++rejections_logged_ <= kMaxEvalRejectionsLogged)
       log_("refused an evaluation answer from " + answer_.worker_id().substr(0, 64) + ": request " +
            std::to_string(answer_.request_id()) + " was not asked");
@@ -223,7 +223,7 @@ void Evaluator::take_answer() {
     not_asked = "written by a participant whose certificate name is '" + printable(bus_.authenticated_name(guid), 100) +
                 "', not '" + it->worker_id + "'";
   if (!not_asked.empty()) {
-    ++invalid_;
+    ++n_.invalid;
     if (++rejections_logged_ <= kMaxEvalRejectionsLogged)
       log_("refused an answer to evaluation " + std::to_string(it->id) + ": " + not_asked);
     return;
@@ -241,14 +241,14 @@ void Evaluator::take_answer() {
   e.reward_bound = spec_.reward_bound;
   if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
     // Not used; the request stays out, so it is answered again or counted lost in its time.
-    ++invalid_;
+    ++n_.invalid;
     if (++rejections_logged_ <= kMaxEvalRejectionsLogged)
       log_("refused the answer to evaluation " + std::to_string(e.request_id) + ": " + why);
     return;
   }
   Request r = std::move(*it);
   out_.erase(it);
-  ++answered_;
+  ++n_.answered;
   log_("evaluation " + std::to_string(r.id) + " answered by " + r.worker_id + " (" + fmt("%.1f", answer_.seconds()) +
        " s on the worker, " + fmt("%.1f", now_seconds() - r.asked_at) + " s since asked)");
   events_.write("answer", {{"request_id", r.id},
@@ -330,7 +330,7 @@ void Evaluator::take_answer() {
 }
 
 void Evaluator::lost(Request r, const std::string& why) {
-  ++lost_;
+  ++n_.lost;
   close_id(r.id);
   if (r.attempt == 1) {
     log_("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
@@ -362,7 +362,7 @@ void Evaluator::given_up(uint64_t group) {
       continue;
     }
     if (!it->worker_id.empty()) {
-      ++lost_;
+      ++n_.lost;
       close_id(it->id);
     }
     it = out_.erase(it);
@@ -376,7 +376,7 @@ std::vector<Evaluator::Done> Evaluator::give_up_all(double waited_seconds) {
   while (!out_.empty()) {
     Request r = std::move(out_.front());
     out_.pop_front();
-    if (!r.worker_id.empty()) ++lost_;  // one never asked is not counted
+    if (!r.worker_id.empty()) ++n_.lost;  // one never asked is not counted
     log_(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
          (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
          fmt("%.0f", waited_seconds) + " s: not reported");
@@ -428,9 +428,9 @@ std::string Evaluator::confirmation(const Group& group) const {
 
 std::string Evaluator::summary() const {
   std::ostringstream o;
-  o << "evaluations       asked " << asked_ << ", answered " << answered_ << ", lost " << lost_ << ", invalid "
-    << invalid_;
-  if (late_ > 0) o << ", late " << late_;
+  o << "evaluations       asked " << n_.asked << ", answered " << n_.answered << ", lost " << n_.lost << ", invalid "
+    << n_.invalid;
+  if (n_.late > 0) o << ", late " << n_.late;
   o << " (on the workers)\n";
   return o.str();
 }

@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
-#include "algorithm.h"
 #include "dds.h"
 #include "events.h"
 #include "farm_config.pb.h"
+#include "pacing.h"
 #include "roster_thread.h"
 #include "task_spec.h"
 
@@ -61,10 +61,10 @@ class Evaluator {
   const std::string& dir() const { return dir_; }
 
   uint64_t evaluations() const { return evaluations_; }  // evaluations asked (each of one or more parts)
-  uint64_t asked() const { return asked_; }              // parts sent to workers, retries included
-  uint64_t answered() const { return answered_; }
-  uint64_t lost() const { return lost_; }
-  uint64_t invalid() const { return invalid_; }
+  uint64_t asked() const { return n_.asked; }            // parts sent to workers, retries included
+  uint64_t answered() const { return n_.answered; }
+  uint64_t lost() const { return n_.lost; }
+  uint64_t invalid() const { return n_.invalid; }
   // The summary's "evaluations       asked ..." line.
   std::string summary() const;
 
@@ -132,7 +132,10 @@ class Evaluator {
   farm::msg::EvaluationAnswer answer_;
   eprosima::fastdds::dds::SampleInfo answer_info_;  // of answer_: its writer
   uint64_t session_, next_group_ = 0, next_id_ = 0, evaluations_ = 0;
-  uint64_t asked_ = 0, answered_ = 0, lost_ = 0, invalid_ = 0, late_ = 0;
+  // Parts asked (retries included), answered, lost, refused as invalid, and answers that came late.
+  struct Counts {
+    uint64_t asked = 0, answered = 0, lost = 0, invalid = 0, late = 0;
+  } n_;
   int rejections_logged_ = 0;
   bool waiting_noted_ = false;
 };

@@ -30,23 +30,20 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       cfg_(cfg),
       interrupted_(interrupted),
       task_spec_(robots::task_spec(cfg_.task())),
-      obs_dim_(task_spec_.obs_dim),
-      act_dim_(task_spec_.act_dim),
       bus_(o.bus, "farm-learner " + cfg_.experiment_id()),
-      spec_(bus_, cfg_, obs_dim_, act_dim_),
-      weights_out_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
-      stats_out_(bus_, farm::dds::kLearnerStatsTopic, "status_writer"),
+      spec_(bus_, cfg_, task_spec_.obs_dim, task_spec_.act_dim),
+      weights_(bus_, cfg_.experiment_id()),
       intake_(
           bus_,
           [this] {
-            Ingest in(cfg_.experiment_id(), obs_dim_, act_dim_);
+            Ingest in(cfg_.experiment_id(), task_spec_.obs_dim, task_spec_.act_dim);
             in.set_num_actions(task_spec_.num_actions);
             return in;
           }(),
-          static_cast<uint32_t>(
-              std::min<uint64_t>(Ingest::max_batch_bytes(obs_dim_, act_dim_, int(task_spec_.metric_names.size()),
-                                                         cfg_.worker().steps_per_batch()),
-                                 UINT32_MAX)),
+          static_cast<uint32_t>(std::min<uint64_t>(
+              Ingest::max_batch_bytes(task_spec_.obs_dim, task_spec_.act_dim, int(task_spec_.metric_names.size()),
+                                      cfg_.worker().steps_per_batch()),
+              UINT32_MAX)),
           size_t(cfg_.ingest_queue_mib() * (1 << 20)), [this](const std::string& m) { log(m); }, events_),
       roster_(
           bus_,
@@ -62,7 +59,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
           bus_, cfg_, task_spec_, roster_, events_, [this](const std::string& m) { log(m); },
           (fs::path(run_dir_of(o, cfg_)) / "evaluating").string()),
       checkpointer_(cfg_, task_spec_, run_dir_of(o, cfg_), events_, [this](const std::string& m) { log(m); }),
-      algo_(make_algorithm(cfg_, task_spec_)) {
+      algo_(make_pacing(cfg_, task_spec_)) {
   run_dir_ = run_dir_of(opt_, cfg_);
 }
 
@@ -78,15 +75,15 @@ int FarmService::run() {
   events_.write("start", {{"experiment_id", cfg_.experiment_id()},
                           {"task", cfg_.task().name()},
                           {"algorithm", cfg_.algorithm()},
-                          {"obs_dim", obs_dim_},
-                          {"act_dim", act_dim_},
+                          {"obs_dim", task_spec_.obs_dim},
+                          {"act_dim", task_spec_.act_dim},
                           {"domain", bus_.domain()},
                           {"resumed", opt_.resume},
                           {"ingest_queue_mib", cfg_.ingest_queue_mib()}});
   algo_->start(*this);
-  log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " + std::to_string(obs_dim_) +
-      ", act " + std::to_string(act_dim_) + "), " + algo_->describe() + ", DDS domain " +
-      std::to_string(bus_.domain()) + " (" + bus_.participant_label() + "), run dir " + run_dir_ +
+  log("experiment '" + cfg_.experiment_id() + "': task " + cfg_.task().name() + " (obs " +
+      std::to_string(task_spec_.obs_dim) + ", act " + std::to_string(task_spec_.act_dim) + "), " + algo_->describe() +
+      ", DDS domain " + std::to_string(bus_.domain()) + " (" + bus_.participant_label() + "), run dir " + run_dir_ +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
   log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
 
@@ -182,7 +179,7 @@ size_t FarmService::drain_batches(size_t max) {
 void FarmService::take(AcceptedBatch& a) {
   const Batch b = a.view();
   if (!algo_->take(b)) return;
-  for (const auto& e : a.episodes) record_episode(e.episode_return);
+  for (const auto& e : a.episodes) returns_.add(e.episode_return);
 }
 
 void FarmService::drain_while_arriving(double quiet, double most) {
@@ -196,20 +193,9 @@ void FarmService::drain_while_arriving(double quiet, double most) {
 }
 
 void FarmService::publish(const PolicyParams& policy, uint32_t batch_quota) {
-  farm::msg::PolicyWeights w;
-  farm::dds::to_wire(policy, cfg_.experiment_id(), w);
-  if (batch_quota > 0) w.batch_quota(batch_quota);
-  // Workers refuse larger weights before reading them (dds::kMaxPolicyBytes); the first publish
-  // comes at the start, so a network too large for them ends the run there, saying so.
-  const uint64_t bytes = 4 * (uint64_t(w.parameters().size()) + w.obs_mean().size() + w.obs_std().size() +
-                              w.log_std().size() + w.layer_sizes().size()) +
-                         4096;
-  if (bytes > farm::dds::kMaxPolicyBytes)
-    throw std::runtime_error("the policy is " + std::to_string(bytes) + " bytes on the bus, more than the " +
-                             std::to_string(farm::dds::kMaxPolicyBytes) + " a worker takes: a smaller network");
   // The ingest thread knows a version before any worker can send a batch made with it.
   intake_.set_version(std::max<uint64_t>(policy.version, algo_->version()));
-  weights_out_.write(w);
+  weights_.publish(policy, batch_quota);
 }
 
 std::vector<Farm::LiveWorker> FarmService::live_workers() const {
@@ -230,9 +216,9 @@ FarmFigures FarmService::figures() const {
   f.lost = c.lost;
   f.duplicate = c.duplicate;
   f.invalid = c.invalid;
-  f.episodes = episodes_total_;
+  f.episodes = returns_.total;
   f.workers = live_count();
-  f.mean_return = mean_recent_return();
+  f.mean_return = returns_.mean();
   f.best_eval = checkpointer_.best();
   f.best_measure = checkpointer_.measure();
   f.evals_asked = evaluator_.asked();
@@ -245,10 +231,10 @@ FarmFigures FarmService::figures() const {
 double FarmService::elapsed() const { return now_seconds() - t0_; }
 
 void FarmService::csv_row(const std::string& row) {
-  csv_ << row << '\n';
-  csv_.flush();
+  csv_.out << row << '\n';
+  csv_.out.flush();
   // The row's fields, and the live workers that wait on the learner (the log line's waiting note).
-  nlohmann::json e = EventLog::from_csv(csv_header_, row);
+  nlohmann::json e = EventLog::from_csv(csv_.header, row);
   const Waiting w = waiting();
   e["workers_throttled"] = w.throttled;
   e["workers_backpressure"] = w.backpressure;
@@ -308,32 +294,30 @@ void FarmService::prepare_run_dir() {
     algo_->load(usable_checkpoint(dir));
     elapsed_offset_ = m.elapsed_seconds();
     checkpointer_.resume(m);
-    episodes_total_ = m.episodes();
+    returns_.total = m.episodes();
     intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in); });
     // The first progress line's rates count from the restored counters, not from zero.
     const IngestCounters c = intake_.counters();
-    last_steps_ = c.env_steps;
-    last_ok_ = c.ok;
-    last_lag_sum_ = c.lag_sum;
+    last_counters_ = c;
     log("resumed from " + dir + " " + algo_->resumed(m, c.env_steps));
   } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
   fs::create_directories(run_dir_);
   const bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
-  csv_.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
-  if (!csv_) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
-  csv_header_ = algo_->csv_header();
-  if (new_csv) csv_ << csv_header_ << '\n';
+  csv_.out.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
+  if (!csv_.out) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
+  csv_.header = algo_->csv_header();
+  if (new_csv) csv_.out << csv_.header << '\n';
   events_.open((fs::path(run_dir_) / "events.jsonl").string());
 }
 
 int FarmService::live_count() const { return roster_.live_count(); }
 
-void FarmService::record_episode(float episode_return) {
-  recent_returns_.push_back(episode_return);
-  if (recent_returns_.size() > 100) recent_returns_.pop_front();
-  ++episodes_total_;
+void FarmService::Returns::add(float episode_return) {
+  recent.push_back(episode_return);
+  if (recent.size() > 100) recent.pop_front();
+  ++total;
 }
 
 void FarmService::record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) {
@@ -344,22 +328,21 @@ void FarmService::record_evaluation(const EvalReport& report, uint64_t version, 
   });
 }
 
-double FarmService::mean_recent_return() const {
-  if (recent_returns_.empty()) return NAN;
+double FarmService::Returns::mean() const {
+  if (recent.empty()) return NAN;
   double s = 0;
-  for (float x : recent_returns_) s += x;
-  return s / double(recent_returns_.size());
+  for (float x : recent) s += x;
+  return s / double(recent.size());
 }
 
 void FarmService::progress(double elapsed, double window) {
   const IngestCounters c = intake_.counters();
   FarmFigures f = figures();
-  f.in_rate = double(c.env_steps - last_steps_) / window;
-  f.lag = c.ok > last_ok_ ? (c.lag_sum - last_lag_sum_) / double(c.ok - last_ok_) : 0.0;
+  const IngestCounters& l = last_counters_;
+  f.in_rate = double(c.env_steps - l.env_steps) / window;
+  f.lag = c.ok > l.ok ? (c.lag_sum - l.lag_sum) / double(c.ok - l.ok) : 0.0;
   f.waiting_note = waiting_note();
-  last_steps_ = c.env_steps;
-  last_ok_ = c.ok;
-  last_lag_sum_ = c.lag_sum;
+  last_counters_ = c;
   AlgorithmStats a;
   algo_->progress(*this, f, elapsed, &a);
   farm::msg::LearnerStats st;
@@ -380,7 +363,7 @@ void FarmService::progress(double elapsed, double window) {
   st.critic_loss(a.critic_loss);
   st.actor_loss(a.actor_loss);
   st.eval_return(a.eval_return);
-  stats_out_.write(st);
+  weights_.publish_stats(st);
 }
 
 std::string FarmService::should_stop(double elapsed) const {
@@ -410,7 +393,7 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
     m.set_best_eval_measure(checkpointer_.measure());
   }
   m.set_config_text(config_to_text(cfg_));
-  m.set_episodes(episodes_total_);
+  m.set_episodes(returns_.total);
   return m;
 }
 

@@ -6,7 +6,7 @@
 // hands accepted batches and finished evaluations to the algorithm, publishes the weights it hands
 // back, writes progress lines, asks for checkpoints, applies the stop rules and Ctrl-C, resumes from
 // a checkpoint, closes the workers' streams at the end and writes the summary (farm_run_end.cpp). What it trains with
-// is an Algorithm (algorithms/algorithm.h) from the registry.
+// is an Algorithm (algorithms/algorithm.h) from the registry, in its pacing (pacing.h).
 #pragma once
 
 #include <atomic>
@@ -22,7 +22,6 @@
 #include <utility>
 #include <vector>
 
-#include "algorithm.h"
 #include "checkpointer.h"
 #include "dds.h"
 #include "evaluator.h"
@@ -30,9 +29,11 @@
 #include "farm_config.pb.h"
 #include "ingest.h"
 #include "ingest_thread.h"
+#include "pacing.h"
 #include "roster_thread.h"
 #include "spec_publisher.h"
 #include "task_spec.h"
+#include "weight_publisher.h"
 #include "worker_roster.h"
 
 namespace farm {
@@ -71,8 +72,6 @@ class FarmService final : public Farm {
   // Takes batches while they come, until none came for `quiet` seconds or `most` seconds passed.
   void drain_while_arriving(double quiet, double most);
   int live_count() const;
-  void record_episode(float episode_return);
-  double mean_recent_return() const;
   void progress(double elapsed, double window);
   // The stop limits of the experiment's stop block (target return, evaluation goals, time, env
   // steps, updates).
@@ -118,11 +117,9 @@ class FarmService final : public Farm {
   config::ExperimentConfig cfg_;
   const std::atomic<bool>& interrupted_;
   robots::TaskSpec task_spec_;  // from the config alone: the learner builds no task
-  int obs_dim_, act_dim_;
   farm::dds::Bus bus_;
   SpecPublisher spec_;
-  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_out_;
-  farm::dds::Writer<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType> stats_out_;
+  WeightPublisher weights_;
   EventLog events_;  // before intake_, whose thread writes to it
   IngestThread intake_;
   static constexpr size_t kMaxSummaryStreams = 64;   // worker streams listed in the summary
@@ -132,15 +129,23 @@ class FarmService final : public Farm {
   RosterThread roster_;
   Evaluator evaluator_;
   Checkpointer checkpointer_;
-  std::unique_ptr<Algorithm> algo_;
+  std::unique_ptr<Pacing> algo_;  // the algorithm, in its pacing
   std::string run_dir_;
-  std::ofstream csv_;
-  std::string csv_header_;
-  std::deque<float> recent_returns_;
-  uint64_t last_steps_ = 0, last_ok_ = 0, episodes_total_ = 0;
+  struct Csv {
+    std::ofstream out;   // RUN/learner.csv
+    std::string header;  // its columns, which name the progress events' fields
+  } csv_;
+  // Finished training episodes: how many, and the returns of the last 100.
+  struct Returns {
+    uint64_t total = 0;
+    std::deque<float> recent;
+    void add(float episode_return);
+    double mean() const;  // NaN before the first
+  } returns_;
+  IngestCounters last_counters_;       // at the last progress line, for its rates
   uint64_t steps_at_stop_ = 0;         // env steps when a stop rule ended the run (0: still running)
   bool evaluated_in_training_ = true;  // set when training stops, before the final evaluation
-  double last_lag_sum_ = 0, elapsed_offset_ = 0, t0_ = 0;
+  double elapsed_offset_ = 0, t0_ = 0;
   std::string goal_reached_;                    // the stop reason once an evaluation met every stop.eval_goal
   bool last_eval_confirmed_ = true;             // the last report handed to the algorithm (confirmation())
   const std::string* eval_snapshot_ = nullptr;  // while the algorithm reports: the networks asked

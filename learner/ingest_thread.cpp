@@ -32,8 +32,8 @@ void IngestThread::start() {
     std::lock_guard<std::mutex> lk(mu_);
     env_steps_.store(ingest_.counters().env_steps);
     accepted_.store(ingest_.counters().ok);
-    last_event_ok_ = ingest_.counters().ok;
-    last_event_invalid_ = ingest_.counters().invalid;
+    last_event_.ok = ingest_.counters().ok;
+    last_event_.invalid = ingest_.counters().invalid;
   }
   thread_ = std::thread([this] { loop(); });
 }
@@ -49,11 +49,11 @@ void IngestThread::loop() {
       if (stop_) return;
       if (const uint64_t refused = ingest_.count_refused_samples(reader_.refused())) {
         lk.unlock();
-        if (++rejections_logged_ <= kMaxRefusalLines)
+        if (++said_.rejections <= kMaxRefusalLines)
           log_("refused " + std::to_string(refused) + " batch sample(s) larger than " +
                std::to_string(reader_.max_sample_bytes()) +
                " bytes serialized (the most this experiment's workers send) before deserialization");
-        if (++refusal_events_ <= kMaxRefusalEvents)
+        if (++said_.refusal_events <= kMaxRefusalEvents)
           events_.write("refusal",
                         {{"what", "batch sample"},
                          {"count", refused},
@@ -98,15 +98,15 @@ bool IngestThread::accept() {
     }
   }
   if (why.empty()) queued_cv_.notify_all();
-  if (!retired_note.empty() && ++retirements_logged_ <= kMaxRefusalLines)
+  if (!retired_note.empty() && ++said_.retirements <= kMaxRefusalLines)
     log_("worker stream " + printable(retired_note, 200) + " retired to make room for " +
          printable(batch_.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) +
          " streams open, " + std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
-         (retirements_logged_ == kMaxRefusalLines ? "; no more such lines (the summary counts them)" : ""));
+         (said_.retirements == kMaxRefusalLines ? "; no more such lines (the summary counts them)" : ""));
   if (why.empty()) return true;
   if (foreign) {
     // Another experiment shares the domain: said once per experiment, not once per batch.
-    if (foreign_noted_.size() < 16 && foreign_noted_.insert(batch_.experiment_id()).second)
+    if (said_.foreign.size() < 16 && said_.foreign.insert(batch_.experiment_id()).second)
       log_("batches of experiment '" + printable(batch_.experiment_id(), 100) +
            "' (another learner's, on this domain) are not used here; the summary counts them");
     return false;
@@ -115,10 +115,10 @@ bool IngestThread::accept() {
   // another than the writer's certificate.
   const std::string detail = (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
                              token_note(info_.sample_identity.writer_guid(), writer);
-  if (++rejections_logged_ <= kMaxRefusalLines)
+  if (++said_.rejections <= kMaxRefusalLines)
     log_("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
          ": " + why + detail);
-  if (++refusal_events_ <= kMaxRefusalEvents)
+  if (++said_.refusal_events <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch"},
                               {"worker_id", printable(batch_.worker_id(), 100)},
                               {"sequence_number", batch_.sequence_number()},
@@ -137,7 +137,7 @@ std::string IngestThread::token_note(const eprosima::fastrtps::rtps::GUID_t& wri
 
 void IngestThread::ingest_event(bool force) {
   const double now = now_seconds();
-  if (!force && now - last_event_ < kEventEveryS) return;
+  if (!force && now - last_event_.t < kEventEveryS) return;
   IngestCounters c;
   size_t queued = 0, queued_bytes = 0;
   {
@@ -146,10 +146,10 @@ void IngestThread::ingest_event(bool force) {
     queued = queue_.size();
     queued_bytes = queued_bytes_;
   }
-  if (!force && c.ok == last_event_ok_ && c.invalid == last_event_invalid_) return;
-  last_event_ = now;
-  last_event_ok_ = c.ok;
-  last_event_invalid_ = c.invalid;
+  if (!force && c.ok == last_event_.ok && c.invalid == last_event_.invalid) return;
+  last_event_.t = now;
+  last_event_.ok = c.ok;
+  last_event_.invalid = c.invalid;
   events_.write("ingest", {{"batches_ok", c.ok},
                            {"batches_lost", c.lost},
                            {"batches_duplicate", c.duplicate},

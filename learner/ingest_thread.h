@@ -106,10 +106,17 @@ class IngestThread {
   // The loop thread's own:
   farm::msg::TransitionBatch batch_;
   eprosima::fastdds::dds::SampleInfo info_;
-  int rejections_logged_ = 0, retirements_logged_ = 0, refusal_events_ = 0;
-  std::set<std::string> foreign_noted_;  // other experiments whose batches were seen (bounded)
-  double last_event_ = 0;
-  uint64_t last_event_ok_ = 0, last_event_invalid_ = 0;
+  // What the log and the events have said, to keep them bounded: refusal lines and events, stream
+  // retirements, other experiments whose batches were seen.
+  struct Said {
+    int rejections = 0, retirements = 0, refusal_events = 0;
+    std::set<std::string> foreign;
+  } said_;
+  // The last ingest event: when, and the counts it gave.
+  struct LastEvent {
+    double t = 0;
+    uint64_t ok = 0, invalid = 0;
+  } last_event_;
   static constexpr int kMaxRefusalLines = 20, kMaxRefusalEvents = 100;
   static constexpr double kEventEveryS = 1.0;
 };

@@ -6,6 +6,7 @@
 #include <initializer_list>
 #include <string>
 #include <utility>
+#include <vector>
 
 namespace farm {
 
@@ -13,5 +14,7 @@ namespace farm {
 // of them is NaN or infinite. The learner then stops; the last checkpoint written stays as it was.
 void require_finite_update(const std::string& algorithm, int64_t update,
                            std::initializer_list<std::pair<const char*, double>> figures);
+void require_finite_update(const std::string& algorithm, int64_t update,
+                           const std::vector<std::pair<std::string, double>>& figures);
 
 }  // namespace farm

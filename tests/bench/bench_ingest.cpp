@@ -183,22 +183,22 @@ class Updater {
   std::atomic<uint64_t> updates_{0};
 };
 
-// The algorithm's own take of an accepted batch: the off-policy driver's (n-step fold, replay buffer)
-// through the registry for an off-policy algorithm, or else PPO's rollout storage, emptied at each
-// fit's worth of steps as a fit would.
+// The algorithm's own insert of an accepted batch: an off-policy algorithm's from the registry
+// (n-step fold, replay buffer), or else PPO's rollout storage, emptied at each fit's worth of steps
+// as a fit would.
 class Path {
  public:
   explicit Path(const Shape& s) : s_(s), storage_(s.spec.obs_dim, s.spec.act_dim) {
-    if (farm::find_algorithm(s.cfg.algorithm()).make_off_policy) algo_ = farm::make_algorithm(s.cfg, s.spec);
+    if (!farm::find_algorithm(s.cfg.algorithm()).on_policy) algo_ = farm::make_algorithm(s.cfg, s.spec);
   }
   std::string describe() const {
-    return algo_ ? "replay buffer (" + s_.cfg.algorithm() + " driver's take: n-step fold, insert)"
+    return algo_ ? "replay buffer (" + s_.cfg.algorithm() + "'s insert: n-step fold, replay)"
                  : "rollout storage (PPO, emptied every " + std::to_string(s_.cfg.ppo().steps_per_fit()) + " steps)";
   }
   void take(const farm::Batch& b) {
     if (b.rows->n == 0) return;
     if (algo_) {
-      algo_->take(b);
+      algo_->insert(b);
       return;
     }
     const farm::Transitions& r = *b.rows;

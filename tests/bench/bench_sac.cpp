@@ -27,7 +27,7 @@
 #include "bench_options.h"
 #include "compute.h"
 #include "device_replay.h"
-#include "off_policy.h"
+#include "pacing.h"  // kUpdatesPerGroup
 #include "replay_buffer.h"
 #include "sac.h"
 
@@ -295,7 +295,7 @@ int main(int argc, char** argv) {
       std::printf("sac update (%s, batch %d, %s): cuda graph / eager = %.2fx, fused kernels / torch's ops = %.2fx\n",
                   net.c_str(), batch, device.c_str(), (graph.n / graph.elapsed) / (eager.n / eager.elapsed),
                   (graph.n / graph.elapsed) / (torch_ops.n / torch_ops.elapsed));
-      // The learner's path: groups of queued replays (off_policy_algorithm.cpp), a fresh SAC.
+      // The learner's path: groups of queued replays (replay_pacing.cpp), a fresh SAC.
       farm::Sac grouped(cfg, kObs, kAct, 1);
       const Rate queued = measure(grouped, buf, batch, seconds, rng, farm::kUpdatesPerGroup);
       print_rate(" cuda graph, 8 queued", net, batch, device, n_threads, queued);

@@ -1,6 +1,6 @@
 // The algorithm registry: every registered algorithm builds for a task that fits it, refuses one
-// that does not, saves and loads its networks in its own sub-folder (one with its own driver also
-// reads them back as the workers' policy, for the tools), exports its policy in the shape the
+// that does not, saves and loads its networks in its own sub-folder, reads them back as the
+// workers' policy (for farm-policy-file), runs in the pacing of its kind, exports its policy in the
 // Torch-free tools build from the config (common/policy_shape.h), and the config's algorithm
 // sections and the registry name the same algorithms.
 #include <gtest/gtest.h>
@@ -13,6 +13,7 @@
 #include <string>
 
 #include "config.h"
+#include "pacing.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "policy_shape.h"
 #include "registry.h"
@@ -47,15 +48,12 @@ farm::config::ExperimentConfig config_for(const std::string& algorithm) {
 // The spec an algorithm is meant for: DQN takes discrete actions, the others continuous ones.
 bool wants_discrete(const std::string& name) { return name == "dqn"; }
 
-TEST(AlgorithmRegistry, NamesAreUniqueAndEachHasOneWayToRun) {
+TEST(AlgorithmRegistry, NamesAreUniqueAndEachHasAMaker) {
   std::set<std::string> seen;
   ASSERT_FALSE(farm::algorithms().empty());
   for (const auto& a : farm::algorithms()) {
     EXPECT_TRUE(seen.insert(a.name).second) << "registered twice: " << a.name;
-    EXPECT_NE(a.make == nullptr, a.make_off_policy == nullptr)
-        << a.name << ": exactly one of make (own driver) and make_off_policy (replay driver)";
-    EXPECT_EQ(a.make != nullptr, a.read_policy != nullptr)
-        << a.name << ": an algorithm with its own driver, and only one, reads its policy for the tools (read_policy)";
+    EXPECT_NE(a.make, nullptr) << a.name;
   }
 }
 
@@ -76,27 +74,31 @@ TEST(AlgorithmRegistry, EveryAlgorithmBuildsSavesAndLoads) {
     const auto spec = wants_discrete(a.name) ? discrete_spec() : continuous_spec();
     auto algo = farm::make_algorithm(cfg, spec);
     ASSERT_NE(algo, nullptr);
+    EXPECT_EQ(algo->name(), a.name);
     EXPECT_FALSE(algo->describe().empty());
-    EXPECT_EQ(algo->csv_header().rfind("elapsed_s,", 0), 0u) << algo->csv_header();
     EXPECT_EQ(algo->updates(), 0);
-    EXPECT_TRUE(std::isnan(algo->last_eval()));
+    EXPECT_EQ(algo->ready(), 0) << "no data, no update";
     farm::remove_tree(dir.string());
     fs::create_directories(dir);
     algo->save_networks(dir.string());
     EXPECT_TRUE(fs::is_directory(dir / a.name)) << "networks go to the sub-folder named for the algorithm";
-    // What the programs that read a trained run load: the saved networks as the workers' policy.
-    if (a.read_policy) {
-      int64_t updates = -1;
-      const farm::PolicyParams p = a.read_policy(cfg, spec, (dir / a.name).string(), 7, &updates);
-      EXPECT_EQ(p.version, 7u);
-      EXPECT_EQ(updates, 0);
-      EXPECT_EQ(farm::Policy(p).obs_dim(), spec.obs_dim);
-      EXPECT_EQ(farm::Policy(p).act_dim(), spec.act_dim);
-      EXPECT_ANY_THROW(a.read_policy(cfg, spec, (dir / "no_such_folder").string(), 7, &updates));
-    }
+    // What the programs that write a policy file load: the saved networks as the workers' policy.
+    int64_t updates = -1;
+    const farm::PolicyParams p = farm::read_saved_policy(cfg, spec, dir.string(), 7, &updates);
+    EXPECT_EQ(p.version, 7u);
+    EXPECT_EQ(updates, 0);
+    EXPECT_EQ(farm::Policy(p).obs_dim(), spec.obs_dim);
+    EXPECT_EQ(farm::Policy(p).act_dim(), spec.act_dim);
+    EXPECT_THROW(farm::read_saved_policy(cfg, spec, (dir / "no_such_folder").string(), 7, &updates),
+                 std::runtime_error);
     auto again = farm::make_algorithm(cfg, spec);
     algo->save(dir.string());
     EXPECT_NO_THROW(again->load(dir.string()));
+    // A pacing of the registration's kind runs it (learner/pacing.h).
+    const auto paced = farm::make_pacing(cfg, spec);
+    EXPECT_EQ(paced->csv_header().rfind("elapsed_s,", 0), 0u) << paced->csv_header();
+    EXPECT_TRUE(std::isnan(paced->last_eval()));
+    EXPECT_EQ(paced->describe(), algo->describe());
   }
   farm::remove_tree(dir.string());
 }
@@ -114,21 +116,13 @@ TEST(AlgorithmRegistry, ATaskOfTheWrongActionSpaceIsRefusedByName) {
   }
 }
 
-TEST(AlgorithmRegistry, UnknownNamesAndNonOffPolicyAdaptersAreRefused) {
+TEST(AlgorithmRegistry, UnknownNamesAreRefused) {
   try {
     farm::find_algorithm("a3c");
     FAIL() << "unknown algorithm accepted";
   } catch (const std::invalid_argument& e) {
     const std::string what = e.what();
     for (const auto& n : farm::algorithm_names()) EXPECT_NE(what.find(n), std::string::npos) << what;
-  }
-  for (const auto& a : farm::algorithms()) {
-    if (a.make_off_policy) {
-      EXPECT_NE(farm::make_off_policy(config_for(a.name), wants_discrete(a.name) ? discrete_spec() : continuous_spec()),
-                nullptr);
-    } else {
-      EXPECT_THROW(farm::make_off_policy(config_for(a.name), continuous_spec()), std::invalid_argument) << a.name;
-    }
   }
 }
 

@@ -51,6 +51,7 @@ class Dqn {
 
   // The learner's environment step count, which sets the exploration of exported policies.
   void set_env_steps(int64_t env_steps) { env_steps_ = env_steps; }
+  int64_t env_steps() const { return env_steps_; }
   double epsilon() const;
 
   // The online Q network as the workers run it: layout {obs, hidden..., num_actions} relu,

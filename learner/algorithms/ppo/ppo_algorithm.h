@@ -1,6 +1,4 @@
-// PPO in the learner: tells the workers how much to produce for each policy version (a quota of
-// batches per worker), gates batches by the version that made them, fits when the fit scheduler
-// says so, evaluates every few fits and writes one log line and CSV row per fit.
+// PPO in the learner (ppo_algorithm.cpp): the networks, their rollout storage and fit scheduler.
 #pragma once
 
 #include <memory>

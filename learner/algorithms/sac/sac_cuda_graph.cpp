@@ -196,10 +196,8 @@ struct Sac::Impl::CudaGraph {
         actor_adam(*s.actor_opt, {s.actor_p.flat}),
         critic_adam(*s.critic_opt, {s.critic_p.flat}),
         alpha_adam(*s.alpha_opt, {s.log_alpha}),
-        capture_stream(c10::cuda::getStreamFromPool(false, device_index)),
-        target_stream(c10::cuda::getStreamFromPool(false, device_index)),
-        alpha_stream(c10::cuda::getStreamFromPool(false, device_index)),
-        actor_stream(c10::cuda::getStreamFromPool(false, device_index)),
+        streams{c10::cuda::getStreamFromPool(false, device_index), c10::cuda::getStreamFromPool(false, device_index),
+                c10::cuda::getStreamFromPool(false, device_index), c10::cuda::getStreamFromPool(false, device_index)},
         fused(s.use_fused_kernels()) {
     const int64_t o = s.obs_dim, a = s.act_dim;
     widths = {o, a, 1, 1, o};
@@ -259,7 +257,7 @@ struct Sac::Impl::CudaGraph {
 
   // The update of Sac::update with the temperature kept on the device (no item()) and the three
   // Adam steps as GraphAdam steps; writes the figures into `out`.
-  // Runs with capture_stream current. Every tensor that one stream makes and another uses is held
+  // Runs with streams.capture current. Every tensor that one stream makes and another uses is held
   // by a local until the end, after the joins, so the allocator cannot hand its memory to a later
   // kernel while another stream may still read it. The two noise draws are issued in the eager
   // order (obs, then next_obs), which is what fixes their philox offsets.
@@ -272,10 +270,10 @@ struct Sac::Impl::CudaGraph {
     // (forward, and backward to the action) before their step writes them, and writes the actor's
     // weights after the target branch read them.
     const bool beside = s.cfg.actor_on_previous_critic();
-    const c10::cuda::CUDAStream sampled_on = beside ? actor_stream : main;
+    const c10::cuda::CUDAStream sampled_on = beside ? streams.actor : main;
     const auto alpha = s.log_alpha.detach().exp();  // the temperature before this update's step
-    order_after(events[0], main, target_stream);
-    if (beside) order_after(events[6], main, actor_stream);
+    order_after(events[0], main, streams.target);
+    if (beside) order_after(events[6], main, streams.actor);
     torch::Tensor pi_action, log_prob;
     {
       c10::cuda::CUDAStreamGuard on(sampled_on);
@@ -284,12 +282,12 @@ struct Sac::Impl::CudaGraph {
 
     torch::Tensor target;
     {
-      c10::cuda::CUDAStreamGuard on_side(target_stream);
+      c10::cuda::CUDAStreamGuard on_side(streams.target);
       torch::NoGradGuard no_grad;
       // Main joins this stream before either step reads its count (and so does the actor's branch).
       torch::_foreach_add_(std::vector<torch::Tensor>{critic_adam.step_count[0], actor_adam.step_count[0]}, 1);
       auto [next_action, next_log_prob] = sample(s, next_obs, fused);
-      if (beside) events[8].record(target_stream);  // the actor's weights read: its Adam step waits
+      if (beside) events[8].record(streams.target);  // the actor's weights read: its Adam step waits
       const auto next_q = s.critic_target->forward(next_obs, next_action);
 #ifdef FARM_CUDA_KERNELS
       if (fused) target = fused_soft_target(next_q, next_log_prob, alpha, rewards, terminated, s.cfg.gamma());
@@ -301,9 +299,9 @@ struct Sac::Impl::CudaGraph {
     }
 
     torch::Tensor alpha_loss, entropy;
-    order_after(events[1], sampled_on, alpha_stream);
+    order_after(events[1], sampled_on, streams.alpha);
     {
-      c10::cuda::CUDAStreamGuard on_side(alpha_stream);
+      c10::cuda::CUDAStreamGuard on_side(streams.alpha);
       alpha_loss = sac_temperature_loss(s.log_alpha, log_prob, s.target_entropy);
       const auto grad = torch::autograd::grad({alpha_loss}, {s.log_alpha})[0];
       alpha_adam.advance_device_steps();
@@ -321,39 +319,39 @@ struct Sac::Impl::CudaGraph {
       if (!actor_loss.defined()) actor_loss = (alpha * log_prob - torch::min(q_pi[0], q_pi[1])).mean();
       const auto grad = flat_grad(actor_loss, s.actor_p);
       if (beside) {
-        events[7].record(actor_stream);  // the critics' weights read; main waits before their step
-        events[8].block(actor_stream);
+        events[7].record(streams.actor);  // the critics' weights read; main waits before their step
+        events[8].block(streams.actor);
       }
       actor_adam.step({grad});
     };
     if (beside) {
-      c10::cuda::CUDAStreamGuard on_side(actor_stream);
+      c10::cuda::CUDAStreamGuard on_side(streams.actor);
       actor_step();
     }
 
     const auto q = s.critic->forward(obs, actions);
-    order_after(events[2], target_stream, main);
+    order_after(events[2], streams.target, main);
     const auto critic_loss = torch::mse_loss(q, target.unsqueeze(0).expand_as(q));
     const auto critic_grad = flat_grad(critic_loss, s.critic_p);
     if (beside) events[7].block(main);
     critic_adam.step({critic_grad});
 
     torch::Tensor q_mean;
-    order_after(events[3], main, target_stream);
+    order_after(events[3], main, streams.target);
     {
-      c10::cuda::CUDAStreamGuard on_side(target_stream);
+      c10::cuda::CUDAStreamGuard on_side(streams.target);
       torch::NoGradGuard no_grad;
       s.target_p.flat.lerp_(s.critic_p.flat, s.cfg.tau());
       q_mean = q.mean();
     }
 
     if (beside)
-      order_after(events[9], actor_stream, main);
+      order_after(events[9], streams.actor, main);
     else
       actor_step();
 
-    order_after(events[4], target_stream, main);
-    order_after(events[5], alpha_stream, main);
+    order_after(events[4], streams.target, main);
+    order_after(events[5], streams.alpha, main);
     torch::NoGradGuard no_grad;
     torch::cat_out(out, {critic_loss.reshape({1}), actor_loss.reshape({1}), alpha_loss.reshape({1}),
                          entropy.reshape({1}), q_mean.reshape({1}), alpha.reshape({1})});
@@ -430,7 +428,10 @@ struct Sac::Impl::CudaGraph {
   std::array<torch::Tensor, kSlots> host_in, host_out;
   torch::Tensor dev_in, obs, actions, rewards, terminated, next_obs, out;
   GraphAdam actor_adam, critic_adam, alpha_adam;
-  c10::cuda::CUDAStream capture_stream, target_stream, alpha_stream, actor_stream;
+  // The stream the graph is captured on, and those its side branches run on.
+  struct Streams {
+    c10::cuda::CUDAStream capture, target, alpha, actor;
+  } streams;
   std::array<at::cuda::CUDAEvent, 10> events;
   std::unique_ptr<at::cuda::CUDAGraph> graph;
   int warmups_left = kWarmupUpdates;
@@ -468,7 +469,7 @@ SacStats Sac::Impl::graph_update_one(const GraphInput& in) {
   CudaGraph& g = *graph;
   c10::cuda::CUDAGuard device_guard(g.device_index);
   if (!in.replay) g.stage(in.host, 0);
-  run_graph_update(g.graph, g.warmups_left, g.device_index, g.capture_stream, [&] { g.body(*this); });
+  run_graph_update(g.graph, g.warmups_left, g.device_index, g.streams.capture, [&] { g.body(*this); });
   g.queue_figures(0);
   c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
   ++updates;

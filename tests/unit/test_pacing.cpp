@@ -1,8 +1,7 @@
-// sac.max_step_scale: the rule that picks the step scale, SAC's adapter keeping the seed's step on
-// the CPU, and the replay driver growing and shrinking the step against the env steps a farm
-// reports (learner/algorithms/off_policy.cpp, off_policy_algorithm.cpp). And the driver's side of
-// updates that are still running on a GPU when update_n returns: their figures are checked before
-// any weights leave the learner.
+// The replay pacing (learner/replay_pacing.cpp, samples_per_insert.h): the samples-per-insert
+// limiter; sac.max_step_scale's rule, SAC keeping the seed's step on the CPU, and the pacing growing
+// and shrinking the step against the env steps a farm reports; and updates that are still running
+// on a GPU when update() returns: their figures are checked before any weights leave the learner.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -16,10 +15,11 @@
 
 #include <unistd.h>
 
-#include "algorithm.h"
 #include "config.h"
 #include "meter.h"
-#include "off_policy.h"
+#include "pacing.h"
+#include "registry.h"
+#include "samples_per_insert.h"
 
 namespace farm {
 namespace {
@@ -62,55 +62,51 @@ class StepScaleFarm final : public Farm {
   mutable std::vector<std::string> lines_;
 };
 
-// SAC's adapter as it is, but with what it would do on a GPU, so that the driver's side runs here:
-// the step scale (its own keeps the seed's step on the CPU), and, with `held` > 0, update_n
-// returning before the figures of its last `held` updates are in (they come with the next call or
-// finish_updates(), as a CUDA graph's queued replays do). Update `nan_at` (counted from 1) has a
-// critic loss of NaN.
-class StepScaleOnAnyDevice final : public OffPolicy {
+// SAC as it is, but with what it would do on a GPU, so that the pacing's side runs here: the step
+// scale (SAC keeps the seed's step on the CPU), and, with `held` > 0, update() returning before the
+// figures of its last `held` updates are in (they come with the next call or finish(), as a CUDA
+// graph's queued replays do). Update `nan_at` (counted from 1) has a critic loss of NaN.
+class StepScaleOnAnyDevice final : public Algorithm {
  public:
-  StepScaleOnAnyDevice(std::unique_ptr<OffPolicy> sac, int most, int held = 0, int64_t nan_at = 0)
+  StepScaleOnAnyDevice(std::unique_ptr<Algorithm> sac, int most, int held = 0, int64_t nan_at = 0)
       : sac_(std::move(sac)), most_(most), held_(held), nan_at_(nan_at) {}
   std::string name() const override { return sac_->name(); }
-  OffPolicyStats update(const SampledBatch& b) override { return sac_->update(b); }
-  std::vector<OffPolicyStats> update_n(int n, const std::function<SampledBatch()>& next) override {
-    for (const OffPolicyStats& f : sac_->update_n(n, next)) {
+  std::string describe() const override { return sac_->describe(); }
+  void insert(const Batch& b) override { sac_->insert(b); }
+  Holding holding() const override { return sac_->holding(); }
+  int64_t ready() const override { return sac_->ready(); }
+  std::vector<UpdateFigures> update(int n, uint64_t v) override {
+    for (const UpdateFigures& f : sac_->update(n, v)) {
       in_flight_.push_back(f);
-      if (++made_ == nan_at_) in_flight_.back().critic_loss = NAN;
+      if (++made_ == nan_at_) in_flight_.back().values[0].second = NAN;
     }
-    std::vector<OffPolicyStats> out;
+    std::vector<UpdateFigures> out;
     while (int(in_flight_.size()) > held_) {
       out.push_back(in_flight_.front());
       in_flight_.pop_front();
     }
     return out;
   }
-  int64_t updates_in_flight() const override { return int64_t(in_flight_.size()); }
-  std::vector<OffPolicyStats> finish_updates() override {
-    std::vector<OffPolicyStats> out(in_flight_.begin(), in_flight_.end());
+  std::vector<UpdateFigures> finish() override {
+    std::vector<UpdateFigures> out(in_flight_.begin(), in_flight_.end());
     in_flight_.clear();
     return out;
   }
-  PolicyParams export_policy(uint64_t v) const override { return sac_->export_policy(v); }
   int64_t updates() const override { return sac_->updates(); }
-  void save(const std::string& dir) const override { sac_->save(dir); }
-  void load(const std::string& dir) override { sac_->load(dir); }
-  int batch_size() const override { return sac_->batch_size(); }
-  int64_t buffer_size() const override { return sac_->buffer_size(); }
-  int64_t learning_starts() const override { return sac_->learning_starts(); }
-  double max_updates_per_step() const override { return sac_->max_updates_per_step(); }
-  int publish_every_updates() const override { return sac_->publish_every_updates(); }
   int max_step_scale() const override { return most_; }
-  int step_scale() const override { return sac_->step_scale(); }
   void set_step_scale(int s) override { sac_->set_step_scale(s); }
-  double gamma() const override { return sac_->gamma(); }
-  std::string describe() const override { return sac_->describe(); }
+  PolicyParams policy(uint64_t v) const override { return sac_->policy(v); }
+  void save_networks(const std::string& dir) const override { sac_->save_networks(dir); }
+  void save(const std::string& dir) const override { sac_->save(dir); }
+  void load_networks(const std::string& dir) override { sac_->load_networks(dir); }
+  void to_manifest(config::CheckpointManifest& m) const override { sac_->to_manifest(m); }
+  std::string from_manifest(const config::CheckpointManifest& m) override { return sac_->from_manifest(m); }
 
  private:
-  std::unique_ptr<OffPolicy> sac_;
+  std::unique_ptr<Algorithm> sac_;
   int most_, held_;
   int64_t nan_at_, made_ = 0;
-  std::deque<OffPolicyStats> in_flight_;
+  std::deque<UpdateFigures> in_flight_;
 };
 
 config::ExperimentConfig step_scale_config() {
@@ -148,29 +144,42 @@ struct OneStep {
   Batch batch;
 };
 
-// On the CPU a batch four times as large costs nearly four times the time, so SAC's adapter keeps
-// the seed's step there whatever sac.max_step_scale says, and its start line says so.
+// On the CPU a batch four times as large costs nearly four times the time, so SAC keeps the
+// seed's step there whatever sac.max_step_scale says, and its start line says so.
 TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
   auto cfg = step_scale_config();
   cfg.mutable_sac()->set_device("cpu");
-  const auto sac = make_sac(cfg, step_scale_spec());
+  const auto sac = make_algorithm(cfg, step_scale_spec());
   EXPECT_EQ(sac->max_step_scale(), 1);
   EXPECT_NE(sac->describe().find("the seed's step (sac.max_step_scale is for a GPU learner)"), std::string::npos)
       << sac->describe();
-  sac->set_step_scale(4);  // the driver never asks it here; if asked, the batch follows
-  EXPECT_EQ(sac->batch_size(), 64);
+  // The pacing never asks it here; if asked, the minibatch follows: 32 rows are two of 16, no x4.
+  sac->insert(OneStep(32).batch);
+  EXPECT_GT(sac->ready(), 0);
+  sac->set_step_scale(4);
+  EXPECT_EQ(sac->ready(), 0);
 }
 
-// sac.n_step reaches the replay driver (which folds the rows it stores, fold_n_step) and the
-// start line; 1, the seed's, says nothing.
-TEST(SacStepScale, MultiStepReturnsAreTheAdaptersToAsk) {
+// sac.n_step reaches the start line; 1, the seed's, says nothing.
+TEST(SacStepScale, MultiStepReturnsAreSaid) {
   auto cfg = step_scale_config();
-  EXPECT_EQ(make_sac(cfg, step_scale_spec())->n_step(), 1);
-  EXPECT_EQ(make_sac(cfg, step_scale_spec())->describe().find("-step returns"), std::string::npos);
+  EXPECT_EQ(make_algorithm(cfg, step_scale_spec())->describe().find("-step returns"), std::string::npos);
   cfg.mutable_sac()->set_n_step(3);
-  const auto sac = make_sac(cfg, step_scale_spec());
-  EXPECT_EQ(sac->n_step(), 3);
+  const auto sac = make_algorithm(cfg, step_scale_spec());
   EXPECT_NE(sac->describe().find(", 3-step returns"), std::string::npos) << sac->describe();
+}
+
+// The samples-per-insert limiter: nothing before min_rows; then updates within per_step x env steps
+// (+1), and none past max_updates.
+TEST(SamplesPerInsert, HoldsUpdatesToTheDataAndTheLimit) {
+  const SamplesPerInsert lim(100, 0.5, 1000);
+  EXPECT_EQ(lim.allowed(0, 99, 1000000, 8), 0) << "below min_rows";
+  EXPECT_EQ(lim.allowed(0, 100, 0, 8), 1) << "the first update needs rows only";
+  EXPECT_EQ(lim.allowed(0, 100, 10, 8), 6) << "updates 0..5 are below 0.5 x 10 + 1";
+  EXPECT_EQ(lim.allowed(6, 100, 10, 8), 0);
+  EXPECT_EQ(lim.allowed(0, 100, 1000000, 8), 8) << "at most `most`";
+  EXPECT_EQ(lim.allowed(996, 100, 1000000, 8), 4) << "none past max_updates";
+  EXPECT_EQ(SamplesPerInsert(0, 2.0, 0).allowed(5000, 1, 10000, 3), 3) << "no max_updates";
 }
 
 // The driver's side of sac.max_step_scale: while the env steps received allow far more updates
@@ -178,7 +187,7 @@ TEST(SacStepScale, MultiStepReturnsAreTheAdaptersToAsk) {
 TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
   const auto cfg = step_scale_config();
   const auto spec = step_scale_spec();
-  auto algo = make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 4), cfg, spec);
+  auto algo = make_replay_pacing(std::make_unique<StepScaleOnAnyDevice>(make_algorithm(cfg, spec), 4), cfg, spec);
   StepScaleFarm farm;
   algo->start(farm);
   ASSERT_TRUE(algo->take(OneStep(256).batch));
@@ -208,13 +217,13 @@ TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
 // The replay driver over SAC whose groups return with their last 3 updates' figures still out (as
 // on a GPU), update `nan_at` NaN, publishing every `publish_every` updates; started, with data for
 // a million updates and one batch taken.
-std::unique_ptr<Algorithm> driver_with_updates_held(int64_t nan_at, int publish_every, StepScaleFarm& farm) {
+std::unique_ptr<Pacing> driver_with_updates_held(int64_t nan_at, int publish_every, StepScaleFarm& farm) {
   auto cfg = step_scale_config();
   cfg.mutable_sac()->set_max_step_scale(1);
   cfg.mutable_sac()->set_publish_every_updates(publish_every);
   const auto spec = step_scale_spec();
   auto algo =
-      make_off_policy_algorithm(std::make_unique<StepScaleOnAnyDevice>(make_sac(cfg, spec), 1, 3, nan_at), cfg, spec);
+      make_replay_pacing(std::make_unique<StepScaleOnAnyDevice>(make_algorithm(cfg, spec), 1, 3, nan_at), cfg, spec);
   farm.env_steps_ = 1000000;
   algo->start(farm);
   EXPECT_TRUE(algo->take(OneStep(128).batch));
@@ -225,7 +234,7 @@ std::unique_ptr<Algorithm> driver_with_updates_held(int64_t nan_at, int publish_
 // those must stop the run before the next publish sends its weights to the workers (the driver
 // waits for them and checks their figures first), naming the update, though update_n never
 // returned its figures.
-TEST(OffPolicyDriver, ChecksUpdatesStillRunningBeforeWeightsLeave) {
+TEST(ReplayPacing, ChecksUpdatesStillRunningBeforeWeightsLeave) {
   StepScaleFarm farm;
   // Groups of kUpdatesPerGroup (8): the second group's updates 9-13 come back, 14-16 are held.
   auto algo = driver_with_updates_held(15, 4, farm);
@@ -245,7 +254,7 @@ TEST(OffPolicyDriver, ChecksUpdatesStillRunningBeforeWeightsLeave) {
 // A divergence that a periodic checkpoint finds (the farm logs a failed checkpoint and goes on)
 // stays found: the next train() and the next weights for the workers throw it again, though its
 // figures have been read, and nothing is published.
-TEST(OffPolicyDriver, ADivergenceACheckpointFoundStopsWhatFollows) {
+TEST(ReplayPacing, ADivergenceACheckpointFoundStopsWhatFollows) {
   StepScaleFarm farm;
   // The first group's updates 1-5 come back, 6-8 (update 7 NaN) are held.
   auto algo = driver_with_updates_held(7, 100, farm);

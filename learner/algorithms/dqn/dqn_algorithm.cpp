@@ -1,0 +1,100 @@
+// DQN as the learner runs it: the Q networks (dqn.h) over the shared replay storage
+// (replay_store.h). Exploration follows the env steps inserted; a policy version keeps the epsilon
+// it was first exported with, so that one version is one policy.
+#include <filesystem>
+#include <limits>
+#include <stdexcept>
+
+#include "algorithm.h"
+#include "dqn.h"
+#include "replay_store.h"
+#include "task_spec.h"
+
+namespace farm {
+
+namespace {
+
+class DqnAlgorithm final : public Algorithm {
+ public:
+  DqnAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : cfg_(cfg.dqn()),
+        dqn_(cfg.dqn(), spec.obs_dim, spec.num_actions, cfg.seed()),
+        replay_(cfg_.buffer_size(), spec.obs_dim, spec.act_dim, cfg_.gamma(), cfg_.n_step(), cfg.seed(), std::nullopt) {
+  }
+
+  std::string name() const override { return "dqn"; }
+  std::string describe() const override {
+    return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
+           " Q network" + (cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "") +
+           (dqn_.uses_cuda_graph() ? ", CUDA graph"
+            : dqn_.on_gpu()        ? ", on the GPU"
+                                   : "");
+  }
+
+  void insert(const Batch& b) override {
+    env_steps_ += b.rows->n;
+    replay_.insert(b);
+  }
+  Holding holding() const override { return {replay_.size(), replay_.capacity()}; }
+  int64_t ready() const override {
+    return replay_.size() >= cfg_.batch_size() ? std::numeric_limits<int64_t>::max() : 0;
+  }
+  std::vector<UpdateFigures> update(int n, uint64_t) override {
+    std::vector<UpdateFigures> out(size_t(std::max(n, 0)));
+    for (auto& f : out) {
+      const DqnStats s = dqn_.update(replay_.sample(cfg_.batch_size()));
+      f.update = dqn_.updates();
+      f.values = {{"critic loss", s.loss}, {"epsilon", dqn_.epsilon()}};
+    }
+    return out;
+  }
+  int64_t updates() const override { return dqn_.updates(); }
+
+  PolicyParams policy(uint64_t version) const override {
+    if (version != exported_version_) {
+      dqn_.set_env_steps(env_steps_);
+      exported_version_ = version;
+    }
+    return dqn_.export_policy(version);
+  }
+  void save_networks(const std::string& dir) const override {
+    std::filesystem::create_directories(std::filesystem::path(dir) / "dqn");
+    dqn_.save((std::filesystem::path(dir) / "dqn").string());
+  }
+  void save(const std::string& dir) const override {
+    save_networks(dir);
+    replay_.save(dir);
+  }
+  void load_networks(const std::string& dir) override {
+    dqn_.load((std::filesystem::path(dir) / "dqn").string());
+    env_steps_ = dqn_.env_steps();
+  }
+  void load(const std::string& dir) override {
+    load_networks(dir);
+    replay_.load(dir);
+  }
+  void to_manifest(config::CheckpointManifest& m) const override { replay_.to_manifest(m); }
+  std::string from_manifest(const config::CheckpointManifest& m) override {
+    replay_.from_manifest(m);
+    return std::to_string(dqn_.updates()) + " updates, buffer " + std::to_string(replay_.size());
+  }
+
+ private:
+  config::DqnConfig cfg_;
+  mutable Dqn dqn_;  // policy() sets the exploration of a new version
+  ReplayStore replay_;
+  int64_t env_steps_ = 0;  // inserted: the exploration schedule's clock
+  mutable uint64_t exported_version_ = std::numeric_limits<uint64_t>::max();
+};
+
+}  // namespace
+
+std::unique_ptr<Algorithm> make_dqn(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
+  if (spec.num_actions == 0) {
+    throw std::invalid_argument("algorithm \"dqn\" needs discrete actions, but task '" + spec.name +
+                                "' has continuous ones");
+  }
+  return std::make_unique<DqnAlgorithm>(cfg, spec);
+}
+
+}  // namespace farm

@@ -1,0 +1,206 @@
+// The pace of an algorithm against its workers: when it updates, when its weights go out and with
+// what quota of batches per worker, when it is evaluated, and what each step reports (the
+// progress line, the CSV row, LearnerStats, the summary). The only part of the learner that reads
+// worker state. Two kinds, by the registration's on_policy:
+// - replay pacing (replay_pacing.cpp): updates as a samples-per-insert limiter allows
+//   (samples_per_insert.h), weights every few updates, evaluations on a timer;
+// - round pacing (round_pacing.cpp): a quota of batches per worker for each version, batches older
+//   than the lag window counted and dropped, a fit whenever the algorithm has one's data,
+//   evaluations every few fits.
+// The runner (farm_service.h) owns the bus and everything around; a pacing reaches it through Farm.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "algorithm.h"
+#include "batch.h"
+#include "farm_config.pb.h"
+#include "mlp.h"
+#include "task_spec.h"
+
+namespace farm {
+
+// printf-style formatting of one number.
+std::string fmt(const char* f, double v);
+
+// What an evaluation reports: returns, lengths and the task's own metrics.
+struct EvalReport {
+  int episodes = 0;
+  double mean = NAN, min = NAN, max = NAN, mean_length = NAN;
+  std::vector<double> metrics;      // means, in the order of TaskSpec::metric_names
+  std::vector<double> metrics_min;  // the lowest episode's, in the same order
+  // Under DDS Security, whether a second worker's episodes agree with the first's (the learner's
+  // confirmation): an unconfirmed report keeps no best and stops nothing.
+  bool confirmed = true;
+};
+
+// An evaluation a pacing asks for (Farm::ask_evaluation); handed back with its report
+// (Pacing::evaluated), which may come many updates later.
+struct EvalAsk {
+  std::string label;     // the log line's first word: "eval" while training, "final" at the end
+  int episodes = 0;      // deterministic episodes asked
+  uint64_t version = 0;  // the policy version evaluated
+  int64_t updates = 0;   // the algorithm's updates when it asked
+  double elapsed = 0;    // seconds of training when it asked
+  std::string progress;  // where training was when it asked, for the log line ("120 updates", "5 fits")
+};
+
+// The runner's own figures, for a progress line, fit line and summary.
+struct FarmFigures {
+  uint64_t env_steps = 0, ok = 0, lost = 0, duplicate = 0, invalid = 0;
+  uint64_t episodes = 0;                // finished episodes taken so far
+  int workers = 0;                      // live workers
+  double mean_return = NAN;             // of the last 100 training episodes
+  double best_eval = NAN;               // the best evaluation so far (kept in <run dir>/best), by best_measure
+  std::string best_measure = "return";  // what best_eval is: "return", or eval.best_metric (best_reduce)
+  // Evaluations asked of workers (retries included), answered, lost (unanswered in time, or the
+  // worker died) and answers refused as invalid.
+  uint64_t evals_asked = 0, evals_answered = 0, evals_lost = 0, evals_invalid = 0;
+  // At a progress line only: env steps/s and mean policy lag since the last line, and the live
+  // workers that wait on the learner (" (2 throttled)"; "" when none).
+  double in_rate = 0, lag = 0;
+  std::string waiting_note;
+};
+// " | evals asked N answered M lost K invalid I" for a progress line.
+std::string eval_counts(const FarmFigures& f);
+// The summary's "best eval return  141.5" line ("best eval share (min) 0.8712" by eval.best_metric).
+std::string best_eval_line(const FarmFigures& f);
+
+// The algorithm's figures in the LearnerStats a progress line publishes.
+struct AlgorithmStats {
+  int64_t updates = 0;
+  double updates_per_second = 0, buffer_fill = 0, critic_loss = 0, actor_loss = 0, eval_return = NAN;
+};
+
+// What the runner offers a pacing.
+class Farm {
+ public:
+  struct LiveWorker {
+    std::string worker_id, state;  // state: "running", "throttled", "backpressure", ...
+    uint64_t policy_version = 0;   // the version it runs
+    int envs = 0;
+  };
+
+  virtual ~Farm() = default;
+  // Sends a policy to the workers; batch_quota: how many batches each worker may send on this
+  // version before it waits for the next (0: no limit).
+  virtual void publish(const PolicyParams& policy, uint32_t batch_quota) = 0;
+  virtual std::vector<LiveWorker> live_workers() const = 0;
+  // When the first worker was heard (now_seconds() clock); 0 while none has been.
+  virtual double first_worker_heard() const = 0;
+  virtual FarmFigures figures() const = 0;
+  // Env steps taken so far: figures().env_steps without the rest (read on every update).
+  virtual uint64_t env_steps() const = 0;
+  // Seconds of training so far (a resumed run counts on from its checkpoint).
+  virtual double elapsed() const = 0;
+  // Asks a live worker for ask.episodes deterministic episodes of `policy` (version ask.version)
+  // and keeps the algorithm's networks as they are now, so that a new best is saved as the version
+  // evaluated. Training goes on: the report comes through Pacing::evaluated when the answer
+  // arrives. false (said in the log) when it is not asked: a training evaluation ("eval") is still
+  // out. A final evaluation ("final") is always asked; the runner waits for it before the summary.
+  virtual bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) = 0;
+  // Each evaluation's report goes through here (from Pacing::evaluated): a new best (by its mean
+  // return, or by eval.best_metric) is kept in <run dir>/best, as the networks were when that
+  // version was asked.
+  virtual void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) = 0;
+  virtual void log(const std::string& line) const = 0;
+  // One row of <run dir>/learner.csv, without the newline (columns: Pacing::csv_header).
+  virtual void csv_row(const std::string& row) = 0;
+};
+
+class Pacing {
+ public:
+  Pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+  virtual ~Pacing() = default;
+
+  std::string describe() const { return algo_->describe(); }
+  virtual std::string csv_header() const = 0;  // without the trailing newline
+  // The policy version batches are checked against, and the one a checkpoint records.
+  virtual uint64_t version() const = 0;
+  int64_t updates() const { return algo_->updates(); }
+  // The mean return of the latest evaluation (NaN before the first), for the stop target.
+  virtual double last_eval() const = 0;
+
+  // Before the experiment is published and the run's clock starts.
+  void warm_up(Farm& farm);
+  // After the experiment is published, before the first batch.
+  virtual void start(Farm&) {}
+  // One batch that ingest accepted; false when it is not used (stale beyond the lag window, or
+  // after the algorithm's run ended): its episodes then do not count either.
+  virtual bool take(const Batch& batch) = 0;
+  // One pass of the loop after the runner took what arrived (got_data: whether anything did):
+  // update when due, publish, evaluate. Returns how long the runner may wait for data.
+  virtual double train(Farm& farm, bool got_data) = 0;
+  // Re-sends the current version with a quota of one batch, so every worker that already sent on
+  // it waits: at an interrupted stop and at a stop rule.
+  virtual void hold_workers(Farm& farm) = 0;
+  // The periodic progress: a log line, and where rows are written per period, a CSV row.
+  virtual void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) = 0;
+  // The algorithm's own end (PPO's run length); "" while it goes on.
+  virtual std::string stop_reason() const { return ""; }
+  // Asks the final evaluation (Farm::ask_evaluation, label "final").
+  virtual void final_evaluation(Farm& farm, double elapsed) = 0;
+  // The report of an evaluation this pacing asked for: the log line, the CSV columns, the stop
+  // target's last_eval and Farm::record_evaluation.
+  virtual void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& report) = 0;
+  // An evaluation it asked for that no worker answered: nothing to report.
+  virtual void not_evaluated(Farm&, const EvalAsk&) {}
+  // The summary's lines between the runner's head and its worker lines.
+  virtual std::string summary(const FarmFigures& f, double elapsed) const = 0;
+
+  // What leaves the learner, each after the updates still running are checked (settle()): the
+  // networks (RUN/best's layout), the policy of version(), a checkpoint's parts.
+  void save_networks(const std::string& dir) const;
+  PolicyParams policy() const;
+  void save(const std::string& dir) const;
+  void to_manifest(config::CheckpointManifest& m) const { algo_->to_manifest(m); }
+  void load(const std::string& dir) { algo_->load(dir); }
+  // After load and the runner's counters: versions go on past any the crashed learner published.
+  // Returns the rest of the log line "resumed from DIR ...".
+  std::string resumed(const config::CheckpointManifest& m, uint64_t env_steps);
+
+  // Policy versions skipped on --resume: more than a learner publishes between two checkpoints, so
+  // the resumed learner's versions are numbers no worker holds yet (a worker holding the same
+  // number would keep the crashed learner's weights).
+  static constexpr uint64_t kResumeVersionSkip = 100000;
+
+ protected:
+  // The figures of finished updates: a figure that is not finite stops the run, and stays found:
+  // whoever catches the error (a periodic checkpoint logs its failure and goes on), every later
+  // train(), publish, evaluation and checkpoint throws it again.
+  void check(const std::vector<UpdateFigures>& figures) const;
+  // Waits for the updates still running and checks their figures: before any weights leave.
+  void settle() const;
+  // After a resume: the number of the next version to publish, and that number as it stands.
+  virtual void resume_version(uint64_t next) = 0;
+  virtual uint64_t next_version() const = 0;
+
+  std::unique_ptr<Algorithm> algo_;
+  const config::ExperimentConfig cfg_;
+  const robots::TaskSpec spec_;
+  mutable UpdateFigures last_;  // the latest update checked
+  mutable std::string diverged_;
+};
+
+// The pacing of cfg.algorithm() (its registration's on_policy) around the algorithm.
+std::unique_ptr<Pacing> make_pacing(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec);
+std::unique_ptr<Pacing> make_replay_pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg,
+                                           const robots::TaskSpec& spec);
+std::unique_ptr<Pacing> make_round_pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg,
+                                          const robots::TaskSpec& spec);
+
+// Updates the replay pacing runs between two looks at the bus, as one Algorithm::update group.
+inline constexpr int kUpdatesPerGroup = 8;
+
+// sac.max_step_scale's rule, from the scale in use and r, the updates the data allowed over the
+// last window per update made (max_updates_per_step x env steps received / updates made): up to
+// the power of 2 nearest r on a log scale (s where r is s / sqrt(2) or more), down to it once r
+// falls below 0.8 s / sqrt(2) for the scale s in use (the margin keeps a scale from flapping on a
+// ratio near a band's edge), never past `most` nor below 1.
+int next_step_scale(int current, double r, int most);
+
+}  // namespace farm

@@ -1,0 +1,250 @@
+// The replay pacing (pacing.h) of an off-policy algorithm: updates in groups as fast as the
+// samples-per-insert limiter allows, the policy published every few updates (and whenever updates
+// starve, so neither side waits for the other), evaluations on a timer, the step scaled where the
+// data outrun the updates. Its numbers come from the algorithm's config section: learning_starts,
+// max_updates_per_step, publish_every_updates, batch_size.
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/message.h>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "meter.h"
+#include "pacing.h"
+#include "samples_per_insert.h"
+
+namespace farm {
+
+namespace {
+
+// A number of the algorithm's config section (cfg.<algorithm>.<field>), its default where unset.
+double section_number(const config::ExperimentConfig& cfg, const std::string& field) {
+  using google::protobuf::FieldDescriptor;
+  const auto* section = cfg.GetDescriptor()->FindFieldByName(cfg.algorithm());
+  const auto* f = section && section->type() == FieldDescriptor::TYPE_MESSAGE
+                      ? section->message_type()->FindFieldByName(field)
+                      : nullptr;
+  if (!f || f->is_repeated())
+    throw std::invalid_argument("the replay pacing of an off-policy algorithm reads " + cfg.algorithm() + "." + field +
+                                ", which the config section \"" + cfg.algorithm() + "\" does not have");
+  const google::protobuf::Message& m = cfg.GetReflection()->GetMessage(cfg, section);
+  const auto* r = m.GetReflection();
+  switch (f->cpp_type()) {
+    case FieldDescriptor::CPPTYPE_INT32:
+      return r->GetInt32(m, f);
+    case FieldDescriptor::CPPTYPE_INT64:
+      return double(r->GetInt64(m, f));
+    case FieldDescriptor::CPPTYPE_UINT32:
+      return r->GetUInt32(m, f);
+    case FieldDescriptor::CPPTYPE_UINT64:
+      return double(r->GetUInt64(m, f));
+    case FieldDescriptor::CPPTYPE_DOUBLE:
+      return r->GetDouble(m, f);
+    case FieldDescriptor::CPPTYPE_FLOAT:
+      return r->GetFloat(m, f);
+    default:
+      throw std::invalid_argument(cfg.algorithm() + "." + field + " is not a number");
+  }
+}
+
+class ReplayPacing final : public Pacing {
+ public:
+  ReplayPacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : Pacing(std::move(algo), cfg, spec),
+        batch_size_(int(section_number(cfg_, "batch_size"))),
+        per_step_(section_number(cfg_, "max_updates_per_step")),
+        publish_every_(int(section_number(cfg_, "publish_every_updates"))),
+        limiter_(int64_t(section_number(cfg_, "learning_starts")), per_step_, cfg_.stop().max_updates()) {}
+
+  std::string csv_header() const override {
+    return "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,buffer_fill,"
+           "policy_version,policy_lag,critic_loss,actor_loss,alpha,mean_return,eval_return,"
+           "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers";
+  }
+  uint64_t version() const override { return version_ > 0 ? version_ - 1 : 0; }
+  double last_eval() const override { return last_eval_; }
+
+  void start(Farm& farm) override {
+    publish_weights(farm);
+    last_eval_time_ = now_seconds();
+  }
+
+  bool take(const Batch& b) override {
+    ++batches_since_publish_;
+    if (b.rows->n > 0) algo_->insert(b);
+    return true;
+  }
+
+  double train(Farm& farm, bool got_data) override {
+    if (!diverged_.empty()) throw std::runtime_error(diverged_);
+    // One group of updates between looks at the bus: on a GPU the algorithm queues them back to
+    // back, and returns while the last still run.
+    const int ready = int(std::min<int64_t>(algo_->ready(), kUpdatesPerGroup));
+    const int n = limiter_.allowed(algo_->updates(), algo_->holding().rows, farm.env_steps(), ready);
+    if (n > 0) {
+      check(algo_->update(n, version_));
+      updates_meter_.add(n);
+      updates_since_publish_ += n;
+    }
+    if (algo_->max_step_scale() > 1) adapt_step(farm);
+    if (updates_since_publish_ >= publish_every_) publish_weights(farm);
+    double wait = 0;
+    if (n == 0) {
+      // Starved (no data, or the limiter holds): let the workers' throttle go with a new version,
+      // so neither side waits for the other.
+      if (updates_since_publish_ > 0 || batches_since_publish_ > 0) publish_weights(farm);
+      if (!got_data) wait = 0.01;
+    }
+    if (now_seconds() - last_eval_time_ >= cfg_.eval().every_seconds() && algo_->updates() > 0) {
+      ask_evaluation(farm, cfg_.eval().episodes(), farm.elapsed(), "eval");  // answered later: evaluated()
+      last_eval_time_ = now_seconds();
+    }
+    return wait;
+  }
+
+  void hold_workers(Farm& farm) override { farm.publish(policy(), 1); }
+
+  void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) override {
+    const double upd_rate = updates_meter_.rate();
+    const int64_t updates = algo_->updates();
+    const double utd = f.env_steps > 0 ? double(updates) / double(f.env_steps) : 0.0;
+    const Holding h = algo_->holding();
+    const double fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
+    const double critic = or0(last_.get("critic loss")), actor = or0(last_.get("actor loss"));
+    const double alpha = or0(std::isnan(last_.get("alpha")) ? last_.get("epsilon") : last_.get("alpha"));
+    std::ostringstream o;
+    o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", f.in_rate) << " steps/s (" << f.env_steps << ") | "
+      << fmt("%.0f", upd_rate) << " upd/s (" << updates << ", utd " << fmt("%.3f", utd) << ") | buffer "
+      << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
+      << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
+      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers " << f.workers
+      << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
+    farm.log(o.str());
+    std::ostringstream row;
+    row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << updates << ','
+        << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ',' << version() << ','
+        << fmt("%.2f", f.lag) << ',' << fmt("%.5g", critic) << ',' << fmt("%.5g", actor) << ',' << fmt("%.5g", alpha)
+        << ',' << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ',' << f.ok << ',' << f.lost << ','
+        << f.duplicate << ',' << f.invalid << ',' << f.workers;
+    farm.csv_row(row.str());
+    stats->updates = updates;
+    stats->updates_per_second = upd_rate;
+    stats->buffer_fill = fill;
+    stats->critic_loss = critic;
+    stats->actor_loss = actor;
+    stats->eval_return = last_eval_;
+  }
+
+  void final_evaluation(Farm& farm, double elapsed) override {
+    ask_evaluation(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& r) override {
+    const double mean = r.episodes > 0 ? r.mean : 0;
+    last_eval_ = mean;
+    if (ask.label == "final") final_return_ = mean;
+    std::string metric_txt;
+    for (size_t i = 0; i < r.metrics.size() && i < spec_.metric_names.size() && r.episodes > 0; ++i)
+      metric_txt += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(ask.label + ": mean return " + fmt("%.1f", mean) + " over " + std::to_string(r.episodes) +
+             " deterministic episodes" + metric_txt + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
+             ", " + fmt("%.1f", ask.elapsed) + " s)");
+    farm.record_evaluation(r, ask.version, ask.updates, ask.elapsed);
+  }
+
+  std::string summary(const FarmFigures& f, double elapsed) const override {
+    std::ostringstream o;
+    o << "updates           " << algo_->updates() << " ("
+      << fmt("%.0f", double(algo_->updates()) / std::max(elapsed, 1e-9)) << " updates/s)\n"
+      << "policy versions   " << version() << "\n"
+      << "episodes          " << f.episodes << "\n"
+      << "final eval return " << fmt("%.1f", final_return_) << " (mean of " << cfg_.eval().final_episodes()
+      << " deterministic episodes)\n"
+      << best_eval_line(f) << "\n"
+      << "batches           ok " << f.ok << ", lost " << f.lost << ", duplicate " << f.duplicate << ", invalid "
+      << f.invalid << "\n";
+    return o.str();
+  }
+
+ protected:
+  void resume_version(uint64_t next) override { version_ = next; }
+  uint64_t next_version() const override { return version_; }
+
+ private:
+  static double or0(double v) { return std::isnan(v) ? 0.0 : v; }
+  void publish_weights(Farm& farm) {
+    farm.publish(policy_of(version_), 0);
+    ++version_;
+    updates_since_publish_ = 0;
+    batches_since_publish_ = 0;
+  }
+  PolicyParams policy_of(uint64_t v) const {
+    settle();
+    return algo_->policy(v);
+  }
+
+  // sac.max_step_scale: once a window of kStepWindowSeconds from the first update on, the updates
+  // the data allowed in it (max_updates_per_step x env steps received) per update made set the
+  // step scale for the next window (next_step_scale).
+  void adapt_step(Farm& farm) {
+    const double t = now_seconds();
+    const int64_t updates = algo_->updates();
+    const uint64_t env_steps = farm.env_steps();
+    if (updates == 0) return;
+    if (step_window_start_ < 0 || t - step_window_start_ >= kStepWindowSeconds) {
+      if (step_window_start_ >= 0 && updates > step_window_updates_) {
+        const double allowed = per_step_ * double(env_steps - step_window_env_steps_);
+        const double r = allowed / double(updates - step_window_updates_);
+        const int next = next_step_scale(step_scale_, r, algo_->max_step_scale());
+        if (next != step_scale_) {
+          step_scale_ = next;
+          algo_->set_step_scale(next);
+          farm.log(algo_->name() + " step x" + std::to_string(next) + " from update " + std::to_string(updates) +
+                   ": batch " + std::to_string(batch_size_ * next) + ", learning rates x" +
+                   fmt("%.2f", std::sqrt(double(next))) + " (the last " + fmt("%.1f", t - step_window_start_) +
+                   " s' data allowed " + fmt("%.2f", r) + " updates per update made)");
+        }
+      }
+      step_window_start_ = t;
+      step_window_updates_ = updates;
+      step_window_env_steps_ = env_steps;
+    }
+  }
+
+  void ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    EvalAsk ask;
+    ask.label = label;
+    ask.episodes = episodes;
+    ask.version = version();
+    ask.updates = algo_->updates();
+    ask.elapsed = elapsed;
+    ask.progress = std::to_string(ask.updates) + " updates";
+    farm.ask_evaluation(policy_of(ask.version), ask);
+  }
+
+  const int batch_size_;  // the config's; the step scale multiplies it
+  const double per_step_;
+  const int publish_every_;
+  const SamplesPerInsert limiter_;
+  Meter updates_meter_;
+  uint64_t version_ = 0;  // the next version to publish
+  int updates_since_publish_ = 0, batches_since_publish_ = 0;
+  double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
+  int step_scale_ = 1;
+  static constexpr double kStepWindowSeconds = 1.0;
+  double step_window_start_ = -1;
+  int64_t step_window_updates_ = 0;
+  uint64_t step_window_env_steps_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<Pacing> make_replay_pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg,
+                                           const robots::TaskSpec& spec) {
+  return std::make_unique<ReplayPacing>(std::move(algo), cfg, spec);
+}
+
+}  // namespace farm

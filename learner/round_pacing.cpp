@@ -1,0 +1,435 @@
+// The round pacing (pacing.h) of an on-policy algorithm (PPO): each policy version goes out with a
+// quota of batches per worker, sized so that one round brings what the next fit needs (in
+// asynchronous mode, what the lag window can still fit); batches made by a version older than the
+// lag window are counted stale and not used; the algorithm fits whenever it holds one fit's data;
+// the quota is topped up when every worker delivered and the fit still lacks data. One log line
+// and CSV row per fit, the row written once the evaluation asked at that fit is answered.
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "meter.h"
+#include "pacing.h"
+
+namespace farm {
+
+namespace {
+
+class RoundPacing final : public Pacing {
+ public:
+  RoundPacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
+      : Pacing(std::move(algo), cfg, spec), pc_(cfg.ppo()), async_(pc_.mode() == "async") {}
+
+  uint64_t version() const override { return version_; }
+  double last_eval() const override { return last_eval_.mean; }
+
+  std::string csv_header() const override {
+    std::string h =
+        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,lag_mean,lag_max,fit_seconds,"
+        "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
+        "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
+        "batches_stale,workers,episodes";
+    // The task's own per-episode metrics: means over the episodes finished since the last fit
+    // (train_*) and over the evaluation episodes (eval_*).
+    for (const auto& m : spec_.metric_names) h += ",train_" + m;
+    for (const auto& m : spec_.metric_names) h += ",eval_" + m;
+    return h;
+  }
+
+  void start(Farm&) override { arrivals_.last_data = now_seconds(); }
+
+  double train(Farm& farm, bool got_data) override {
+    if (!published_) {
+      // The first weights wait for the first worker and a short grace for the others, so the
+      // first quota is shared out over the workers that are there.
+      const double first_join = farm.first_worker_heard();
+      if (first_join > 0 && now_seconds() - first_join >= kJoinGraceSeconds) {
+        quota_ = batches_for_next_fit(farm);
+        publish_weights(farm);
+        published_ = true;
+        return 0;
+      }
+      return 0.05;
+    }
+    if (algo_->ready() > 0 && async_) drop_stale();
+    if (algo_->ready() > 0) {
+      fit(farm, farm.elapsed());
+      return 0;
+    }
+    if (got_data) return 0;
+    top_up_if_starved(farm);
+    return 0.01;
+  }
+
+  bool take(const Batch& b) override {
+    const Transitions& rows = *b.rows;
+    if (rows.n == 0) return false;  // end of stream
+    arrivals_.last_data = now_seconds();
+    if (b.policy_version + uint64_t(pc_.max_policy_lag()) < version_ || !algo_->holding().run_done.empty()) {
+      // Made by a policy older than the lag allows (or after the run's end): counted, not used.
+      ++counts_.stale_batches;
+      ++counts_.stale_fit;
+      counts_.stale_steps += uint64_t(rows.n);
+      return false;
+    }
+    if (b.policy_version == version_) delivered_[b.worker_id] += 1;
+    arrivals_.steps += uint64_t(rows.n);
+    algo_->insert(b);
+    for (const auto& e : *b.episodes) fit_episodes_.add(e.metrics, spec_.metric_names.size());
+    return true;
+  }
+
+  void hold_workers(Farm& farm) override {
+    if (!published_) return;
+    quota_ = 1;
+    farm.publish(policy_, quota_);
+  }
+
+  void progress(Farm& farm, const FarmFigures& c, double elapsed, AlgorithmStats* stats) override {
+    const Holding h = algo_->holding();
+    stats->updates = algo_->updates();
+    stats->updates_per_second = 0;
+    stats->buffer_fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
+    stats->critic_loss = or0(last_.get("value loss"));
+    stats->actor_loss = or0(last_.get("policy loss"));
+    stats->eval_return = last_eval_.mean;
+    farm.log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", c.in_rate) + " steps/s (" + std::to_string(c.env_steps) +
+             ") | v" + std::to_string(version_) + " collecting " + std::to_string(h.rows) + " steps, quota " +
+             std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) + " lost " +
+             std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " + std::to_string(c.invalid) +
+             " stale " + std::to_string(counts_.stale_batches) + eval_counts(c) + " | workers " +
+             std::to_string(c.workers));
+  }
+
+  std::string stop_reason() const override { return algo_->ready() > 0 ? "" : algo_->holding().run_done; }
+
+  void final_evaluation(Farm& farm, double elapsed) override {
+    fit_what_is_held(farm, elapsed);
+    ask_evaluation(farm, cfg_.eval().final_episodes(), elapsed, "final");
+  }
+
+  void evaluated(Farm& farm, const EvalAsk& ask, const EvalReport& r) override {
+    last_eval_ = r;
+    if (ask.label == "final") final_eval_ = r;
+    std::string metrics;
+    for (size_t i = 0; i < r.metrics.size() && i < spec_.metric_names.size(); ++i)
+      metrics += ", " + spec_.metric_names[i] + " " + fmt("%.3f", r.metrics[i]);
+    farm.log(ask.label + ": mean return " + fmt("%.1f", r.mean) + " (min " + fmt("%.1f", r.min) + ", max " +
+             fmt("%.1f", r.max) + ") over " + std::to_string(r.episodes) + " deterministic episodes, length " +
+             fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
+             ", " + fmt("%.1f", ask.elapsed) + " s)");
+    farm.record_evaluation(r, ask.version, ask.updates, ask.elapsed);
+    if (ask.label == "eval") rows_.settle(farm, ask.version, &r, spec_.metric_names.size());
+  }
+
+  void not_evaluated(Farm& farm, const EvalAsk& ask) override {
+    if (ask.label == "eval") rows_.settle(farm, ask.version, nullptr, spec_.metric_names.size());
+  }
+
+  std::string summary(const FarmFigures& c, double) const override {
+    const EvalReport& fe = final_eval_;
+    std::ostringstream o;
+    o << "updates           " << algo_->updates() << " (" << fits_ << " fits)\n"
+      << "policy versions   " << version_ << "\n"
+      << "episodes          " << c.episodes << "\n"
+      << "final eval return " << fmt("%.1f", fe.mean) << " (mean of " << fe.episodes << " deterministic episodes)\n"
+      << "final eval range  min " << fmt("%.1f", fe.min) << ", max " << fmt("%.1f", fe.max) << ", length "
+      << fmt("%.1f", fe.mean_length) << "\n";
+    for (size_t i = 0; i < fe.metrics.size(); ++i)
+      o << "final eval metric " << spec_.metric_names[i] << " " << fmt("%.4f", fe.metrics[i]) << "\n";
+    o << best_eval_line(c) << "\n"
+      << "batches           ok " << c.ok << ", lost " << c.lost << ", duplicate " << c.duplicate << ", invalid "
+      << c.invalid << ", stale " << counts_.stale_batches << "\n"
+      << "quota top-ups     " << counts_.top_ups << "\n"
+      << "mode              " << (async_ ? "async" : "sync") << ", max policy lag " << pc_.max_policy_lag()
+      << ", surrogate " << pc_.surrogate() << "\n";
+    // Every simulated step the learner was sent is fitted, counted stale, or still held at the end.
+    const uint64_t held = uint64_t(algo_->holding().rows), unused = counts_.stale_steps + held;
+    const uint64_t all = counts_.used_steps + unused;
+    o << "steps unused      " << unused << " of " << all << " ("
+      << fmt("%.2f", all > 0 ? 100.0 * double(unused) / double(all) : 0.0) << " %): stale " << counts_.stale_steps
+      << ", not fitted at the end " << held << "\n";
+    std::string lags;
+    for (const auto& [lag, n] : counts_.lag_steps)
+      lags += (lags.empty() ? "" : ", ") + std::to_string(lag) + ": " +
+              fmt("%.1f %%", counts_.used_steps > 0 ? 100.0 * double(n) / double(counts_.used_steps) : 0.0);
+    o << "lag of fitted     " << (lags.empty() ? "none" : lags) << " (versions behind the fitted one, by steps)\n";
+    return o.str();
+  }
+
+ protected:
+  void resume_version(uint64_t next) override { version_ = next; }
+  uint64_t next_version() const override { return version_; }
+
+ private:
+  static double or0(double v) { return std::isnan(v) ? 0.0 : v; }
+
+  // The run's step accounts: batches and steps counted stale (over the run, and since the last
+  // fit), steps fitted and by what lag, quota top-ups.
+  struct Counts {
+    uint64_t stale_batches = 0, stale_fit = 0, stale_steps = 0, used_steps = 0, top_ups = 0;
+    std::map<uint64_t, uint64_t> lag_steps;  // fitted steps by lag, over the run
+  };
+  // What arrives between fits: steps taken since the last fit ended, their rate over the last
+  // cycle (waiting, then fitting), the last fit's end and length, and when data last came.
+  struct Arrivals {
+    uint64_t steps = 0;
+    double rate = 0, last_fit_end = 0, last_fit_seconds = 0, last_data = 0;
+  };
+  // Episodes finished since the last fit, and their task metrics summed.
+  struct FitEpisodes {
+    uint64_t count = 0;
+    std::vector<double> sums;
+    void add(const std::vector<float>& metrics, size_t n) {
+      ++count;
+      sums.resize(n, 0.0);
+      for (size_t i = 0; i < n && i < metrics.size(); ++i) sums[i] += metrics[i];
+    }
+  };
+  // Fits' CSV rows: a row's evaluation columns (between head and tail, and the eval_* metrics at
+  // the end) are filled when the evaluation asked at that fit is answered. Rows are written in fit
+  // order, so one that waits holds back the rows after it, up to kMaxHeld rows.
+  class FitRows {
+   public:
+    void add(Farm& farm, std::string head, std::string tail, bool waits, uint64_t version, size_t metrics) {
+      rows_.push_back({std::move(head), std::move(tail), waits, version, false, {}});
+      write(farm, metrics);
+    }
+    void settle(Farm& farm, uint64_t version, const EvalReport* r, size_t metrics) {
+      for (auto& row : rows_) {
+        if (!row.waits || row.version != version) continue;
+        row.waits = false;
+        if (r) {
+          row.has_eval = true;
+          row.eval = *r;
+        }
+        break;
+      }
+      write(farm, metrics);
+    }
+
+   private:
+    struct Row {
+      std::string head, tail;
+      bool waits = false;
+      uint64_t version = 0;
+      bool has_eval = false;
+      EvalReport eval;
+    };
+    void write(Farm& farm, size_t metrics) {
+      while (!rows_.empty() && (!rows_.front().waits || rows_.size() > kMaxHeld)) {
+        const Row& row = rows_.front();
+        const bool e = row.has_eval;
+        std::ostringstream csv;
+        csv << row.head << (e ? fmt("%.3f", row.eval.mean) : "") << ',' << (e ? fmt("%.3f", row.eval.min) : "") << ','
+            << (e ? fmt("%.3f", row.eval.max) : "") << ',' << (e ? fmt("%.1f", row.eval.mean_length) : "") << row.tail;
+        for (size_t i = 0; i < metrics; ++i)
+          csv << ',' << (e && i < row.eval.metrics.size() ? fmt("%.5g", row.eval.metrics[i]) : "");
+        farm.csv_row(csv.str());
+        rows_.pop_front();
+      }
+    }
+    static constexpr size_t kMaxHeld = 256;
+    std::deque<Row> rows_;
+  };
+
+  // The current version's weights with the current quota; re-sent with a larger quota to top up.
+  void publish_weights(Farm& farm) {
+    policy_ = algo_->policy(version_);
+    delivered_.clear();
+    farm.publish(policy_, quota_);
+  }
+
+  // Steps one round (one batch from every live worker) brings.
+  int64_t round_steps(const Farm& farm) const {
+    int64_t envs = 0;
+    for (const auto& w : farm.live_workers()) envs += w.envs;
+    if (envs == 0) envs = cfg_.worker().envs_per_worker();  // none seen yet: assume one default worker
+    return envs * cfg_.worker().steps_per_batch();
+  }
+
+  // Batches each worker should send on this version so that the fit (and no more than the run)
+  // gets what it needs: the fit's missing steps, or for a fit by episodes the episodes still
+  // missing spread over the environments, each up to a full horizon.
+  uint32_t batches_for(const Farm& farm, int64_t steps_needed) const {
+    const int64_t r = round_steps(farm);
+    return uint32_t(std::max<int64_t>(1, (steps_needed + r - 1) / r));
+  }
+  uint32_t batches_for_next_fit(const Farm& farm) const {
+    const Holding h = algo_->holding();
+    // Asynchronous: what the lag window can still fit. This version's last step is fitted once the
+    // S steps already held, those on their way (the arrival rate times one fit: what came in while
+    // the learner fitted, which S does not hold yet) and its own Q are, (S + in flight + Q) /
+    // steps_per_fit fits from now: within max_policy_lag versions when Q <= (max_policy_lag + 1) *
+    // steps_per_fit - S - in flight. A learner that keeps up holds little, so workers run on
+    // through its fits; one that falls behind holds more, and the workers wait instead of
+    // simulating steps that would arrive too old to use.
+    if (async_) {
+      const int64_t in_flight = int64_t(arrivals_.rate * arrivals_.last_fit_seconds);
+      return batches_for(farm,
+                         std::max<int64_t>(1, (pc_.max_policy_lag() + 1) * pc_.steps_per_fit() - h.rows - in_flight));
+    }
+    int64_t need = h.steps_wanted;
+    if (h.episodes_wanted >= 0) {
+      const int64_t eps = std::max<int64_t>(1, h.episodes_wanted);
+      const int64_t envs = round_steps(farm) / cfg_.worker().steps_per_batch();
+      const int64_t by_eps = (eps + envs - 1) / envs * std::max(1, spec_.max_episode_steps) * envs;
+      need = need < 0 ? by_eps : std::min(need, by_eps);
+    }
+    return batches_for(farm, std::max<int64_t>(need, 1));
+  }
+
+  // Every live worker delivered its quota and the fit still lacks data (a worker left, or
+  // episodes run longer than estimated): raise the quota of the same version.
+  void top_up_if_starved(Farm& farm) {
+    const Holding h = algo_->holding();
+    if (!h.run_done.empty() || now_seconds() - arrivals_.last_data < 0.5) return;
+    bool all_done = false;
+    for (const auto& w : farm.live_workers()) {
+      auto it = delivered_.find(w.worker_id);
+      const bool done = it != delivered_.end() && it->second >= quota_;
+      const bool idle = w.state == "throttled" && w.policy_version == version_;
+      if (!done && !idle) return;
+      all_done = true;
+    }
+    if (!all_done) return;
+    int64_t need = h.steps_wanted;
+    if (h.episodes_wanted >= 0) need = round_steps(farm);
+    quota_ += batches_for(farm, std::max<int64_t>(need, 1));
+    ++counts_.top_ups;
+    arrivals_.last_data = now_seconds();
+    farm.publish(policy_, quota_);
+  }
+
+  void fit(Farm& farm, double elapsed) {
+    const double t = now_seconds();
+    const std::vector<UpdateFigures> done = algo_->update(1, version_);
+    check(done);
+    if (done.empty()) return;
+    const UpdateFigures& u = done.back();
+    fits_ = u.update;
+    const int64_t used = int64_t(u.get("steps used"));
+    // The lag of what this fit uses: versions behind the one being fitted, by steps.
+    double lag_sum = 0;
+    uint64_t lag_max = 0;
+    std::string lags;
+    for (auto it = u.steps_by_version.rbegin(); it != u.steps_by_version.rend(); ++it) {
+      const uint64_t lag = version_ - it->first;
+      lag_sum += double(lag) * double(it->second);
+      lag_max = std::max(lag_max, lag);
+      counts_.lag_steps[lag] += uint64_t(it->second);
+      lags += (lags.empty() ? "" : " ") + std::to_string(lag) + ":" +
+              fmt("%.0f%%", 100.0 * double(it->second) / double(std::max<int64_t>(1, used)));
+    }
+    const double lag_mean = lag_sum / double(std::max<int64_t>(1, used));
+    counts_.used_steps += uint64_t(used);
+    const double fit_s = now_seconds() - t;
+    if (arrivals_.last_fit_end > 0 && now_seconds() > arrivals_.last_fit_end)
+      arrivals_.rate = double(arrivals_.steps) / (now_seconds() - arrivals_.last_fit_end);
+    arrivals_.steps = 0;
+    arrivals_.last_fit_end = now_seconds();
+    arrivals_.last_fit_seconds = fit_s;
+    const uint64_t fitted = version_;
+    ++version_;
+    quota_ = batches_for_next_fit(farm);
+    if (algo_->holding().run_done.empty() && !stopping_)
+      publish_weights(farm);
+    else
+      policy_ = algo_->policy(version_);
+    // The evaluation is asked now and answered later (evaluated()); this fit's CSV row waits for it.
+    const bool eval_now = !stopping_ && pc_.eval_every_fits() > 0 && fits_ % pc_.eval_every_fits() == 0 &&
+                          ask_evaluation(farm, cfg_.eval().episodes(), elapsed, "eval");
+    const FarmFigures c = farm.figures();
+    std::ostringstream o;
+    o << "fit " << fits_ << " | v" << fitted << " -> v" << version_ << " | steps used " << used << " carried "
+      << int64_t(u.get("steps carried")) << " | stale dropped " << counts_.stale_fit << " | lag " << lags << " | kl "
+      << fmt("%.4f", u.get("kl")) << " lr " << fmt("%.3g", u.get("learning rate")) << " clip "
+      << fmt("%.3f", u.get("clip fraction")) << " | value loss " << fmt("%.4g", u.get("value loss")) << " entropy "
+      << fmt("%.3f", u.get("entropy")) << " | return " << fmt("%.1f", c.mean_return) << " eval "
+      << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps << " env steps, "
+      << fmt("%.1f", elapsed) << " s";
+    farm.log(o.str());
+    std::ostringstream head, tail;
+    head << fmt("%.2f", elapsed) << ',' << fits_ << ',' << fitted << ',' << c.env_steps << ',' << used << ','
+         << int64_t(u.get("steps carried")) << ',' << counts_.stale_fit << ',' << fmt("%.3f", lag_mean) << ','
+         << lag_max << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", u.get("kl")) << ','
+         << fmt("%.6g", u.get("learning rate")) << ',' << fmt("%.4f", u.get("clip fraction")) << ','
+         << fmt("%.6g", u.get("value loss")) << ',' << fmt("%.6g", u.get("policy loss")) << ','
+         << fmt("%.5g", u.get("entropy")) << ',' << fmt("%.3f", c.mean_return) << ',';
+    tail << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << counts_.stale_batches
+         << ',' << c.workers << ',' << fit_episodes_.count;
+    const size_t nm = spec_.metric_names.size();
+    for (size_t i = 0; i < nm; ++i)
+      tail << ','
+           << (fit_episodes_.count > 0 && i < fit_episodes_.sums.size()
+                   ? fmt("%.5g", fit_episodes_.sums[i] / double(fit_episodes_.count))
+                   : "");
+    rows_.add(farm, head.str(), tail.str(), eval_now, policy_.version, nm);
+    fit_episodes_ = FitEpisodes{};
+    counts_.stale_fit = 0;
+  }
+
+  bool ask_evaluation(Farm& farm, int episodes, double elapsed, const std::string& label) {
+    EvalAsk ask;
+    ask.label = label;
+    ask.episodes = episodes;
+    ask.version = policy_.version;
+    ask.updates = algo_->updates();
+    ask.elapsed = elapsed;
+    ask.progress = std::to_string(fits_) + " fits";
+    return farm.ask_evaluation(policy_, ask);
+  }
+
+  // At a stop rule (goal, time): the steps that arrived before it and wait for a fit that would
+  // have come go into one last fit, so the final policy (evaluated, checkpointed) is trained on
+  // everything the workers sent in time; those within the lag window, and at least a mini-batch
+  // of them. The workers are held already, so the new version is not published to them.
+  // A learner behind its workers holds more than a fit: one fit at a time, each version's lag
+  // window checked again after the one before.
+  void fit_what_is_held(Farm& farm, double elapsed) {
+    if (!published_) return;
+    const int64_t least = std::max<int64_t>(1, pc_.mini_batch_size());
+    for (;;) {
+      if (async_) drop_stale();
+      const int64_t held = algo_->holding().rows;
+      if (held < least) return;
+      if (!stopping_) farm.log("the " + std::to_string(held) + " steps held at the stop go into a last fit");
+      stopping_ = true;
+      fit(farm, elapsed);
+    }
+  }
+
+  // Steps that waited in the store while versions moved on past the window: counted, not used.
+  void drop_stale() {
+    const uint64_t lag = uint64_t(pc_.max_policy_lag());
+    counts_.stale_steps += uint64_t(algo_->forget_older_than(version_ > lag ? version_ - lag : 0));
+  }
+
+  const config::PpoConfig pc_;
+  const bool async_;
+  uint64_t version_ = 0;
+  uint32_t quota_ = 1;
+  int64_t fits_ = 0;
+  bool published_ = false;
+  bool stopping_ = false;                      // a stop rule fired: fits no longer publish or evaluate
+  std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
+  PolicyParams policy_;                        // the current version's
+  EvalReport last_eval_, final_eval_;
+  Counts counts_;
+  Arrivals arrivals_;
+  FitEpisodes fit_episodes_;
+  FitRows rows_;
+  static constexpr double kJoinGraceSeconds = 1.0;
+};
+
+}  // namespace
+
+std::unique_ptr<Pacing> make_round_pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg,
+                                          const robots::TaskSpec& spec) {
+  return std::make_unique<RoundPacing>(std::move(algo), cfg, spec);
+}
+
+}  // namespace farm
