@@ -1,6 +1,6 @@
-// The farm-worker service (worker_app.h): the experiment it follows, the policy it runs and the
-// heartbeats it beats; the batches it streams are sent by worker_sender.cpp, the evaluations it
-// answers run in worker_evals.cpp.
+// The farm-worker service (worker_app.h): the experiment it follows, the policy it runs, the
+// batches it collects and the status it beats; its parts send the batches (batch_sender.cpp), run
+// the evaluations (evaluations.cpp) and re-send the status while the loop is busy (heartbeat.cpp).
 #include "worker_app.h"
 
 #include <sys/resource.h>
@@ -44,47 +44,11 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
     : opt_(o),
       stop_(stop),
       bus_(o.bus, "farm-worker " + o.id),
-      // Each reader refuses samples larger than any experiment allows before taking memory for them.
-      spec_in_(bus_, farm::dds::kSpecTopic, "latest_reader", farm::dds::kMaxSpecBytes,
-               [this](eprosima::fastdds::dds::DataReader* r) {
-                 SpecIn in;
-                 eprosima::fastdds::dds::SampleInfo info;
-                 while (decltype(spec_in_)::take_from(r, in.spec, info)) {
-                   in.writer = info.sample_identity.writer_guid();
-                   std::lock_guard<std::mutex> lk(in_mu_);
-                   if (specs_in_.size() >= kMaxSpecsIn) specs_in_.pop_front();
-                   specs_in_.push_back(in);
-                 }
-               }),
-      weights_in_(bus_, farm::dds::kWeightsTopic, "latest_reader", farm::dds::kMaxPolicyBytes,
-                  [this](eprosima::fastdds::dds::DataReader* r) {
-                    farm::msg::PolicyWeights w;
-                    while (decltype(weights_in_)::take_from(r, w)) {
-                      std::lock_guard<std::mutex> lk(in_mu_);
-                      if (weights_in_by_.size() >= kMaxExperimentsKept && !weights_in_by_.count(w.experiment_id())) {
-                        // Bounded against a flood of invented experiments; the bound one is kept.
-                        auto victim = weights_in_by_.begin();
-                        if (victim->first == experiment_) ++victim;
-                        weights_in_by_.erase(victim);
-                      }
-                      weights_in_by_[w.experiment_id()] = std::move(w);
-                    }
-                  }),
-      batches_out_(bus_, farm::dds::kBatchTopic, "batch_writer"),
-      status_out_(bus_, farm::dds::kWorkerStatusTopic, "status_writer"),
-      // Requests are kept only when addressed to this worker (a queue of a few); the checks of
-      // their contents come on the main loop.
-      eval_in_(bus_, farm::dds::kEvalRequestTopic, "batch_reader", farm::dds::kMaxEvalRequestBytes,
-               [this](eprosima::fastdds::dds::DataReader* r) {
-                 farm::msg::EvaluationRequest q;
-                 while (decltype(eval_in_)::take_from(r, q)) {
-                   if (q.worker_id() != opt_.id) continue;
-                   std::lock_guard<std::mutex> lk(in_mu_);
-                   if (eval_in_q_.size() >= kMaxEvalQueue) eval_in_q_.pop_front();
-                   eval_in_q_.push_back(std::move(q));
-                 }
-               }),
-      eval_out_(bus_, farm::dds::kEvalAnswerTopic, "batch_writer"),
+      intake_(bus_, o.experiment),
+      sender_(bus_, o.id, {o.inject_nan_batch, o.inject_publish_delay_ms}, stop,
+              [this](const std::string& m) { log(m); }),
+      evals_(bus_, o.id, [this](const std::string& m) { log(m); }),
+      beat_(bus_),
       session_(farm::dds::random_session_id()),
       experiment_(o.experiment) {}
 
@@ -93,13 +57,13 @@ int WorkerApp::run() {
       bus_.participant_label() + ")" + (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
       ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
-  sender_ = std::thread([this] { sender_main(); });
-  beat_thread_ = std::thread([this] { beat_main(); });
+  sender_.start();
+  beat_.start();
   double last_wait_note = -1e9;
   while (!stop_) {
     poll_spec();
     if (finished_) break;
-    poll_eval_requests();
+    evals_.poll({experiment_, rollout_ ? joined_.task : nullptr, joined_.eval_max_episodes, session_});
     if (!rollout_) {
       state_ = "waiting_for_learner";
       if (now_seconds() - last_wait_note > 5.0) {
@@ -109,42 +73,42 @@ int WorkerApp::run() {
         last_wait_note = now_seconds();
       }
       heartbeat();
-      spec_in_.wait(0.2);
+      intake_.wait_for_spec(0.2);
       continue;
     }
     poll_weights();
     // The learner's quota for this version (PPO: how much the next fit needs), else the spec's cap.
-    const uint32_t cap = batch_quota_ > 0 ? batch_quota_ : spec_.max_batches_per_version();
-    if (!have_policy_ || batches_on_version_ >= cap) {
+    const uint32_t cap = quota_.quota > 0 ? quota_.quota : joined_.spec.max_batches_per_version();
+    if (!quota_.have_policy || quota_.sent_on_version >= cap) {
       // No weights yet, or this version has produced its share: wait for the next one.
-      state_ = have_policy_ ? "throttled" : "waiting_for_weights";
+      state_ = quota_.have_policy ? "throttled" : "waiting_for_weights";
       heartbeat();
       const double t = now_seconds();
-      weights_in_.wait(0.05);
-      throttled_s_ += now_seconds() - t;
+      intake_.wait_for_weights(0.05);
+      tp_.throttled_s += now_seconds() - t;
       continue;
     }
-    if (batches_out_.matched() == 0) {
+    if (sender_.learners_matched() == 0) {
       // Nobody would receive the batch: hold on rather than lose it.
       state_ = "waiting_for_learner";
       heartbeat();
       const double t = now_seconds();
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
-      throttled_s_ += now_seconds() - t;
+      tp_.throttled_s += now_seconds() - t;
       continue;
     }
-    const int buffer = next_free_buffer(0.05);
-    if (buffer < 0) {
+    RolloutBatch* buffer = sender_.free_buffer(0.05);
+    if (!buffer) {
       // Both buffers still wait for the sender (a full history: the learner is behind).
       state_ = "backpressure";
       heartbeat();
       continue;
     }
     state_ = "running";
-    rollout_->collect(static_cast<int>(spec_.steps_per_batch()), buffers_[buffer]);
-    steps_.add(static_cast<uint64_t>(buffers_[buffer].T) * buffers_[buffer].N);
-    ++batches_on_version_;
-    hand_to_sender(buffer);
+    rollout_->collect(static_cast<int>(joined_.spec.steps_per_batch()), *buffer);
+    tp_.steps.add(static_cast<uint64_t>(buffer->T) * buffer->N);
+    ++quota_.sent_on_version;
+    sender_.hand_over(stream());
     heartbeat();
   }
   finish();
@@ -159,59 +123,55 @@ void WorkerApp::log(const std::string& s) {
 }
 
 void WorkerApp::poll_spec() {
-  std::deque<SpecIn> got;
-  {
-    std::lock_guard<std::mutex> lk(in_mu_);
-    got.swap(specs_in_);
-  }
-  for (const auto& s : got) {
+  for (const auto& s : intake_.take_specs()) {
     on_spec(s);
     if (finished_) return;
   }
   // The joined learner has left the bus (its lease ran out, or it ended without a last word): the
   // latest spec of another writer is the experiment's learner now, a restarted one.
-  if (pending_spec_ && rollout_ && !spec_in_.writer_matched(learner_writer_)) {
-    SpecIn next = std::move(*pending_spec_);
-    pending_spec_.reset();
+  if (joined_.pending && rollout_ && !intake_.spec_writer_matched(joined_.learner_writer)) {
+    SpecIn next = std::move(*joined_.pending);
+    joined_.pending.reset();
     const std::string why = check_spec_update(next.spec);
     if (!why.empty()) return refuse_spec(why);
-    if (next.spec.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
-    learner_writer_ = next.writer;
-    spec_ = next.spec;
+    if (next.spec.learner_session() != joined_.spec.learner_session()) log("learner restarted; carrying on");
+    joined_.learner_writer = next.writer;
+    joined_.spec = next.spec;
   }
 }
 
 void WorkerApp::refuse_spec(const std::string& why) {
-  ++specs_refused_;
+  ++refusals_.specs;
   // What a participant sends is not for it to fill this worker's log: one line per 10 s at most.
   const auto now = std::chrono::steady_clock::now();
-  if (now - last_refusal_log_ < std::chrono::seconds(10)) return;
-  last_refusal_log_ = now;
-  log("refused a spec of experiment '" + experiment_ + "' (" + std::to_string(specs_refused_) + " so far): " + why);
+  if (now - refusals_.last_log < std::chrono::seconds(10)) return;
+  refusals_.last_log = now;
+  log("refused a spec of experiment '" + experiment_ + "' (" + std::to_string(refusals_.specs) + " so far): " + why);
 }
 
 std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) const {
   // The learner republishes its spec every few seconds with the same config text: that text was
   // checked when the running spec came, and is parsed again only when it changed.
-  if (s.config_text() != spec_.config_text()) {
+  if (s.config_text() != joined_.spec.config_text()) {
     config::ExperimentConfig cfg;
     try {
       cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     } catch (const std::exception& e) {
       return e.what();
     }
-    if (cfg.task().SerializeAsString() != joined_task_) return "its task section differs from the one this worker runs";
+    if (cfg.task().SerializeAsString() != joined_.task_section)
+      return "its task section differs from the one this worker runs";
   }
   if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||
-      (long long)s.steps_per_batch() * envs_ > kMaxBatchTransitions)
-    return "steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " + std::to_string(envs_) +
+      (long long)s.steps_per_batch() * joined_.envs > kMaxBatchTransitions)
+    return "steps_per_batch " + std::to_string(s.steps_per_batch()) + " x " + std::to_string(joined_.envs) +
            " envs is outside 1.." + std::to_string(kMaxStepsPerBatch) + " steps and " +
            std::to_string(kMaxBatchTransitions) + " transitions per batch";
   if (s.max_batches_per_version() < 1) return "max_batches_per_version 0: no batch could be sent";
-  if (int(s.obs_dim()) != task_->spec().obs_dim || int(s.act_dim()) != task_->spec().act_dim)
+  const robots::TaskSpec& ts = joined_.task->spec();
+  if (int(s.obs_dim()) != ts.obs_dim || int(s.act_dim()) != ts.act_dim)
     return "its obs_dim " + std::to_string(s.obs_dim()) + " / act_dim " + std::to_string(s.act_dim()) +
-           " are not the task's " + std::to_string(task_->spec().obs_dim) + " / " +
-           std::to_string(task_->spec().act_dim);
+           " are not the task's " + std::to_string(ts.obs_dim) + " / " + std::to_string(ts.act_dim);
   return "";
 }
 
@@ -239,9 +199,9 @@ void WorkerApp::on_spec(const SpecIn& in) {
   // Joined: only the learner joined speaks for the experiment. Another writer's spec (an impostor,
   // or a restarted learner while the old one is still on the bus) waits until that learner has
   // left; another writer's end of the experiment is not believed at all.
-  if (in.writer != learner_writer_) {
+  if (in.writer != joined_.learner_writer) {
     if (s.finished()) return refuse_spec("an end of the experiment from a participant other than its learner");
-    pending_spec_ = in;
+    joined_.pending = in;
     return;
   }
   if (s.finished()) {
@@ -253,8 +213,8 @@ void WorkerApp::on_spec(const SpecIn& in) {
   // worker or change its task is refused, and the worker runs on with the spec it has.
   const std::string why = check_spec_update(s);
   if (!why.empty()) return refuse_spec(why);
-  if (s.learner_session() != spec_.learner_session()) log("learner restarted; carrying on");
-  spec_ = s;
+  if (s.learner_session() != joined_.spec.learner_session()) log("learner restarted; carrying on");
+  joined_.spec = s;
 }
 
 namespace {
@@ -295,7 +255,8 @@ std::string lower_priority(int nice) {
 
 void WorkerApp::join(const SpecIn& in) {
   const farm::msg::ExperimentSpec& s = in.spec;
-  drain_sender(false);  // batches of an earlier join keep their session; the numbering restarts below
+  // Batches of an earlier join keep their session; the numbering restarts below.
+  sender_.drain(false, [this] { heartbeat(); });
   try {
     config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
@@ -312,25 +273,17 @@ void WorkerApp::join(const SpecIn& in) {
     if (task->spec().obs_dim != int(s.obs_dim()) || task->spec().act_dim != int(s.act_dim()))
       throw std::runtime_error("task '" + cfg.task().name() + "' shapes differ from the spec");
     // Sequence numbers restart only with a new session, so no learner counts them duplicate.
-    if (sequence_ > 0) session_ = farm::dds::random_session_id();
+    if (sender_.sent() > 0) session_ = farm::dds::random_session_id();
     uint64_t seed = s.seed() ^ fnv1a(opt_.id);
     rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
-    task_ = task;
-    eval_max_episodes_ = eval_max;
     if (experiment_.empty()) {
-      std::lock_guard<std::mutex> lk(in_mu_);  // the weights listener reads experiment_
       experiment_ = s.experiment_id();
+      intake_.bind(experiment_);
     }
-    split_at_ = {};
-    spec_ = s;
-    learner_writer_ = in.writer;
-    pending_spec_.reset();
-    joined_task_ = cfg.task().SerializeAsString();
-    envs_ = envs;
-    sequence_ = 0;
-    have_policy_ = false;
-    batches_on_version_ = 0;
-    batch_quota_ = 0;
+    tp_.at_rollout = {};
+    joined_ = {s, task, cfg.task().SerializeAsString(), envs, eval_max, in.writer, std::nullopt};
+    sender_.restart_numbering();
+    quota_ = {};
     last_error_.clear();
     const std::string nice_note = lower_priority(cfg.worker().nice());
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
@@ -351,32 +304,25 @@ void WorkerApp::join(const SpecIn& in) {
 }
 
 void WorkerApp::note_foreign(const std::string& experiment_id) {
-  if (foreign_.size() >= kMaxForeignNoted || !foreign_.insert(experiment_id).second) return;
+  if (refusals_.foreign.size() >= kMaxForeignNoted || !refusals_.foreign.insert(experiment_id).second) return;
   log("ignores experiment '" + experiment_id + "' on the bus: this worker's experiment is '" + experiment_ + "'" +
       (opt_.experiment.empty() ? " (the first one it joined; --experiment chooses)" : ""));
 }
 
 void WorkerApp::poll_weights() {
-  farm::msg::PolicyWeights w;
-  {
-    std::lock_guard<std::mutex> lk(in_mu_);
-    for (const auto& [id, _] : weights_in_by_)
-      if (id != experiment_) note_foreign(id);
-    auto it = weights_in_by_.find(experiment_);
-    if (it == weights_in_by_.end()) return;
-    w = std::move(it->second);
-    weights_in_by_.erase(it);
-  }
-  if (have_policy_ && w.version() == rollout_->policy_version()) {
-    batch_quota_ = w.batch_quota();  // the same version re-sent: a topped-up quota
+  std::vector<std::string> others;
+  const std::optional<farm::msg::PolicyWeights> got = intake_.take_weights(&others);
+  for (const auto& id : others) note_foreign(id);
+  if (!got) return;
+  const farm::msg::PolicyWeights& w = *got;
+  if (quota_.have_policy && w.version() == rollout_->policy_version()) {
+    quota_.quota = w.batch_quota();  // the same version re-sent: a topped-up quota
     return;
   }
   try {
     PolicyParams p = farm::dds::from_wire(w);
     rollout_->set_policy(p);
-    have_policy_ = true;
-    batches_on_version_ = 0;
-    batch_quota_ = w.batch_quota();
+    quota_ = {true, 0, w.batch_quota()};
   } catch (const std::exception& e) {
     last_error_ = std::string("bad PolicyWeights: ") + e.what();
     log(last_error_);
@@ -384,26 +330,30 @@ void WorkerApp::poll_weights() {
 }
 
 void WorkerApp::finish() {
-  finishing_ = true;
-  stop_eval_thread();  // both may take seconds (an evaluation step, the last batches): still beating
-  end_stream();
-  stop_beat_thread();  // no status of the loop's sent after the last one
+  sender_.finishing();
+  evals_.stop();  // both may take seconds (an evaluation step, the last batches): still beating
+  const auto beat = [this] { heartbeat(); };
+  if (!rollout_)
+    sender_.drain(true, beat);
+  else  // the end of stream goes through the sender's queue, after the last batch
+    sender_.end_stream(stream(), joined_.spec.obs_dim(), joined_.spec.act_dim(), rollout_->policy_version(), beat);
+  beat_.stop();  // no status of the loop's re-sent after the last one
   state_ = "finished";
   heartbeat(true);
-  const uint64_t sent = sequence_;
+  const uint64_t sent = sender_.sent();
   log("finished: " + std::to_string(sent) + " batches sent (sequence 0.." + std::to_string(sent ? sent - 1 : 0) +
-      "), " + std::to_string(steps_.total()) + " env steps, mean " + std::to_string(int64_t(steps_.mean_rate())) +
+      "), " + std::to_string(tp_.steps.total()) + " env steps, mean " + std::to_string(int64_t(tp_.steps.mean_rate())) +
       " steps/s");
 }
 
 void WorkerApp::heartbeat(bool force) {
   double t = now_seconds();
-  if (!force && t - last_status_ < 1.0) return;
-  double rate = steps_.rate();
-  last_status_ = t;
+  if (!force && t - tp_.last_status < 1.0) return;
+  double rate = tp_.steps.rate();
+  tp_.last_status = t;
   // A worker whose collect loop waits for its quota while the sender still retries a full history
   // is not idle: its batches are on their way.
-  const std::string state = sender_blocked_ && state_ == "throttled" ? "backpressure" : state_;
+  const std::string state = sender_.blocked() && state_ == "throttled" ? "backpressure" : state_;
   farm::msg::WorkerStatus s;
   s.worker_id(opt_.id);
   s.worker_session(session_);
@@ -412,27 +362,21 @@ void WorkerApp::heartbeat(bool force) {
   s.envs(rollout_ ? rollout_->num_envs() : 0);
   s.threads(opt_.threads);
   s.steps_per_second(rate);
-  s.env_steps(steps_.total());
-  s.batches_sent(sequence_);
+  s.env_steps(tp_.steps.total());
+  s.batches_sent(sender_.sent());
   s.policy_version(rollout_ ? rollout_->policy_version() : 0);
   s.state(state);
   s.last_error(last_error_);
-  {
-    // Under the lock with the write: the beat thread's copy of an older status never lands after it.
-    std::lock_guard<std::mutex> lk(beat_mu_);
-    beat_ = s;
-    beat_built_ = beat_sent_ = t;
-    status_out_.write(s);
-  }
-  if (t - last_log_ >= opt_.log_every && rollout_) {
+  beat_.send(s);
+  if (t - tp_.last_log >= opt_.log_every && rollout_) {
     // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).
-    if (last_log_ > 0) rate = double(steps_.total() - log_steps_) / (t - last_log_);
-    const uint64_t sent = sequence_;  // then the steps: collected ahead of what was sent, never behind
+    if (tp_.last_log > 0) rate = double(tp_.steps.total() - tp_.log_steps) / (t - tp_.last_log);
+    const uint64_t sent = sender_.sent();  // then the steps: collected ahead of what was sent, never behind
     log(state + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " + std::to_string(sent) +
-        " batches sent, " + std::to_string(steps_.total()) + " env steps, policy v" +
+        " batches sent, " + std::to_string(tp_.steps.total()) + " env steps, policy v" +
         std::to_string(rollout_->policy_version()));
-    last_log_ = t;
-    log_steps_ = steps_.total();
+    tp_.last_log = t;
+    tp_.log_steps = tp_.steps.total();
   }
 }
 
@@ -443,60 +387,21 @@ void WorkerApp::heartbeat(bool force) {
 // sender thread, beside it: serializing and writing batches, retries on a full history included.
 std::string WorkerApp::time_split(double t) {
   const Rollout::Timing now = rollout_->timing();
-  const double wall = t - last_log_, k = rollout_->num_threads();
-  double publish_s = 0;  // the sender's time in publish_batch() so far, the write in progress included
-  {
-    std::lock_guard<std::mutex> lk(send_mu_);
-    publish_s = publish_s_ + (publishing_since_ > 0 ? t - publishing_since_ : 0.0);
-  }
+  const double wall = t - tp_.last_log, k = rollout_->num_threads();
+  const double publish_s = sender_.publish_seconds(t), backpressure_s = sender_.backpressure_seconds();
   std::string s;
-  if (last_log_ > 0 && wall > 0) {
+  if (tp_.last_log > 0 && wall > 0) {
     auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
-    s = " (collect: simulate " + pct((now.simulate_s - split_at_.simulate_s) / k) + ", infer " +
-        pct((now.infer_s - split_at_.infer_s) / k) + ", backpressure " + pct(backpressure_s_ - split_backpressure_s_) +
-        ", throttled " + pct(throttled_s_ - split_throttled_s_) + "; sender: publish " +
-        pct(publish_s - split_publish_s_) + ")";
+    s = " (collect: simulate " + pct((now.simulate_s - tp_.at_rollout.simulate_s) / k) + ", infer " +
+        pct((now.infer_s - tp_.at_rollout.infer_s) / k) + ", backpressure " +
+        pct(backpressure_s - tp_.at_backpressure_s) + ", throttled " + pct(tp_.throttled_s - tp_.at_throttled_s) +
+        "; sender: publish " + pct(publish_s - tp_.at_publish_s) + ")";
   }
-  split_at_ = now;
-  split_publish_s_ = publish_s;
-  split_backpressure_s_ = backpressure_s_;
-  split_throttled_s_ = throttled_s_;
+  tp_.at_rollout = now;
+  tp_.at_publish_s = publish_s;
+  tp_.at_backpressure_s = backpressure_s;
+  tp_.at_throttled_s = tp_.throttled_s;
   return s;
-}
-
-void WorkerApp::beat_main() {
-  std::unique_lock<std::mutex> lk(beat_mu_);
-  while (!beat_stop_) {
-    beat_cv_.wait_for(lk, std::chrono::milliseconds(250), [this] { return beat_stop_; });
-    const double t = now_seconds();
-    // Only when the loop is late (its own beat is due each second), so the two do not both send.
-    if (beat_stop_ || beat_built_ < 0 || t - beat_sent_ < 1.5 || t - beat_built_ > kMaxLoopSilenceS) continue;
-    beat_sent_ = t;
-    status_out_.write(beat_);
-  }
-}
-
-void WorkerApp::stop_beat_thread() {
-  {
-    std::lock_guard<std::mutex> lk(beat_mu_);
-    beat_stop_ = true;
-  }
-  beat_cv_.notify_all();
-  if (beat_thread_.joinable()) beat_thread_.join();
-}
-
-WorkerApp::~WorkerApp() {
-  stop_beat_thread();
-  stop_eval_thread();
-  if (sender_.joinable()) {  // run() did not finish (an exception): what is queued is dropped
-    sender_give_up_ = true;
-    {
-      std::lock_guard<std::mutex> lk(send_mu_);
-      sender_stop_ = true;
-    }
-    send_cv_.notify_all();
-    sender_.join();
-  }
 }
 
 }  // namespace farm

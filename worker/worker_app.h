@@ -6,25 +6,25 @@
 // batches keep flowing meanwhile.
 // It is bound to one experiment (--experiment, else the first one it joins) and ignores the specs
 // and weights of any other that shares the domain; it ends with its experiment.
-// Simulation never waits for publishing: the main loop collects into one of two batch buffers while
-// a sender thread serializes and writes the other (worker_app.cpp says why this is the farm's form
-// of double-buffered sampling); the main loop waits only when both buffers wait to be sent.
+// It is a runner of the parts its threads are: the intake of specs and weights (intake.h), the
+// rollout (rollout.h), the batch sender (batch_sender.h), the evaluations (evaluations.h) and the
+// heartbeat (heartbeat.h). This class runs the collect loop: it joins, follows the learner's
+// versions and quotas, collects batches and hands them to the sender, and builds the status.
 #pragma once
 
 #include <atomic>
 #include <chrono>
-#include <condition_variable>
 #include <cstdint>
-#include <deque>
-#include <map>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <set>
 #include <string>
-#include <thread>
 
+#include "batch_sender.h"
 #include "dds.h"
+#include "evaluations.h"
+#include "heartbeat.h"
+#include "intake.h"
 #include "meter.h"
 #include "rollout.h"
 
@@ -51,15 +51,10 @@ class WorkerApp {
 
   // Runs until stopped or the learner finishes the experiment; returns the process exit code.
   int run();
-  ~WorkerApp();
 
  private:
+  using SpecIn = WorkerIntake::SpecIn;
   void log(const std::string& s);
-  // A spec as it arrived, with the writer that sent it.
-  struct SpecIn {
-    farm::msg::ExperimentSpec spec;
-    eprosima::fastrtps::rtps::GUID_t writer;
-  };
   void poll_spec();
   void on_spec(const SpecIn& in);
   void join(const SpecIn& in);
@@ -70,131 +65,60 @@ class WorkerApp {
   // One log line the first time an experiment other than this worker's shows up.
   void note_foreign(const std::string& experiment_id);
   void poll_weights();
-  // The double buffer. Main loop: next_free_buffer() (the one to collect into, or -1 after waiting
-  // up to `wait` seconds while both are with the sender), hand_to_sender() once it is filled.
-  int next_free_buffer(double wait);
-  void hand_to_sender(int buffer);
-  // Waits until the sender has written (or, at shutdown, given up) every batch handed to it,
-  // beating heartbeats meanwhile; with stop_sender the thread ends too.
-  void drain_sender(bool stop_sender);
-  void sender_main();
-  // What the sender is handed: a filled buffer (or the end of stream) and the stream it belongs to.
-  struct Outgoing {
-    int buffer = -1;  // -1: end of stream
-    std::string experiment_id;
-    uint64_t session = 0;
-    uint64_t obs_dim = 0, act_dim = 0, policy_version = 0;  // for the end of stream
-  };
-  // On the sender thread: serializes and writes one of them under sequence number sequence_, and
-  // counts it; false when it gave up at shutdown.
-  bool publish_batch(const Outgoing& o);
-  void end_stream();
   void finish();
   void heartbeat(bool force = false);
-  // The beat thread: re-sends the loop's last status while the loop is busy in one long call.
-  void beat_main();
-  void stop_beat_thread();
-  // Evaluation requests: checked on the main loop, run by eval_thread_, answered from there.
-  void poll_eval_requests();
-  // The answer to q from this worker's id and `session`, episodes and error still empty.
-  farm::msg::EvaluationAnswer answer_to(const farm::msg::EvaluationRequest& q, uint64_t session) const;
-  void answer_error(const farm::msg::EvaluationRequest& q, const std::string& why);
-  void eval_thread_main();
-  void stop_eval_thread();
+  BatchSender::Stream stream() const { return {joined_.spec.experiment_id(), session_}; }
   std::string time_split(double t);
 
   WorkerOptions opt_;
   const std::atomic<bool>& stop_;
-  // Specs and weights are taken on Fast DDS's listener thread as they arrive: the readers keep
-  // one sample for all learners together, so with two experiments on the domain the other one's
-  // next write would otherwise replace ours before the main loop takes it. Specs are kept in
-  // order (the first experiment seen binds an unbound worker), weights the latest per experiment.
-  std::mutex in_mu_;
-  std::deque<SpecIn> specs_in_;                                    // bounded: kMaxSpecsIn
-  std::map<std::string, farm::msg::PolicyWeights> weights_in_by_;  // bounded: kMaxExperimentsKept
-  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
   farm::dds::Bus bus_;
-  farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
-  farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
-  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> batches_out_;
-  farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> status_out_;
-  std::deque<farm::msg::EvaluationRequest> eval_in_q_;  // addressed to this worker; bounded: kMaxEvalQueue
-  farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_in_;
-  farm::dds::Writer<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_out_;
-  // Jobs for the evaluation thread: requests checked, with their policy and task.
-  struct EvalJob {
-    farm::msg::EvaluationRequest request;
-    PolicyParams policy;
-    std::shared_ptr<const robots::Task> task;
-    uint64_t worker_session = 0;  // when it was asked
-  };
-  std::mutex eval_mu_;
-  std::condition_variable eval_cv_;
-  std::deque<EvalJob> eval_jobs_;  // bounded: kMaxEvalQueue
-  std::atomic<bool> eval_stop_{false};
-  std::thread eval_thread_;
-  static constexpr size_t kMaxEvalQueue = 4;
-  std::shared_ptr<const robots::Task> task_;  // of the joined experiment
-  int eval_max_episodes_ = 0;                 // the experiment's eval.episodes / final_episodes, the larger
-  uint64_t session_;
-  std::string experiment_;          // the bound experiment; empty until the first join (no --experiment)
-  std::set<std::string> foreign_;   // other experiments already noted (bounded)
-  farm::msg::ExperimentSpec spec_;  // of experiment_, once joined
-  // The learner joined: the writer of the spec this worker runs. A spec, or the end of the
-  // experiment, counts only from it; another writer's spec waits (the latest one) until that
-  // learner has left the bus (a restarted learner), and is checked then.
-  eprosima::fastrtps::rtps::GUID_t learner_writer_;
-  std::optional<SpecIn> pending_spec_;
-  std::string joined_task_;  // the joined config's task section, serialized
-  int envs_ = 0;             // envs of the joined rollout
-  uint64_t specs_refused_ = 0;
-  std::chrono::steady_clock::time_point last_refusal_log_{};
+  WorkerIntake intake_;
+  BatchSender sender_;
+  Evaluations evals_;
+  Heartbeat beat_;
   std::unique_ptr<Rollout> rollout_;
-  // Two batch buffers: one being collected, the other with the sender (queued or being written).
-  // send_q_ holds the buffers handed over, in collection order; a buffer is free again once written.
-  static constexpr int kBuffers = 2;
-  RolloutBatch buffers_[kBuffers];
-  int next_buffer_ = 0;  // the collect loop alternates between them
-  std::mutex send_mu_;
-  std::condition_variable send_cv_, free_cv_;  // the sender: work to do; the collect loop: a buffer free
-  std::deque<Outgoing> send_q_;                // bounded by kBuffers
-  bool buffer_with_sender_[kBuffers] = {false, false};
-  bool sender_stop_ = false;                 // end once the queue is empty
-  std::atomic<bool> sender_give_up_{false};  // drop what is left (shutdown without a learner)
-  std::atomic<bool> sender_blocked_{false};  // a write is retrying on a full reliable history
-  std::atomic<bool> finishing_{false};       // finish() is draining: a write may give up after 30 s
-  std::thread sender_;
-  farm::msg::TransitionBatch wire_;    // the sender's sample, reused so its sequences keep their storage
-  std::atomic<uint64_t> sequence_{0};  // the next sequence number: the sender's (join() resets it, queue empty)
-  uint32_t batches_on_version_ = 0;
-  uint32_t batch_quota_ = 0;  // 0: spec_.max_batches_per_version()
-  bool have_policy_ = false;
+  uint64_t session_;
+  std::string experiment_;  // the bound experiment; empty until the first join (no --experiment)
+  // The joined experiment: its spec, task and sizes. The learner joined is the writer of the spec
+  // this worker runs: a spec, or the end of the experiment, counts only from it; another writer's
+  // spec waits (the latest one, `pending`) until that learner has left the bus (a restarted
+  // learner), and is checked then.
+  struct Joined {
+    farm::msg::ExperimentSpec spec;
+    std::shared_ptr<const robots::Task> task;
+    std::string task_section;  // the joined config's task section, serialized
+    int envs = 0;
+    int eval_max_episodes = 0;  // the experiment's eval.episodes / final_episodes, the larger
+    eprosima::fastrtps::rtps::GUID_t learner_writer;
+    std::optional<SpecIn> pending;
+  } joined_;
+  // Specs refused and experiments not this worker's: counted, and said in the log at a bounded rate.
+  struct Refusals {
+    uint64_t specs = 0;
+    std::chrono::steady_clock::time_point last_log{};
+    std::set<std::string> foreign;  // other experiments already noted (bounded)
+  } refusals_;
+  // The policy run and what the learner allows on it: batches sent on this version, and the quota
+  // (0: the spec's max_batches_per_version).
+  struct Quota {
+    bool have_policy = false;
+    uint32_t sent_on_version = 0, quota = 0;
+  } quota_;
   bool finished_ = false;
   int exit_code_ = 0;
   std::string state_ = "starting", last_error_;
-  Meter steps_;
-  double last_status_ = 0, last_log_ = 0;
-  // Heartbeats between the loop's own: one collect of a slow task (mCLARI: 4 steps of 4 envs, each
-  // step up to 3,000 physics steps) or an evaluation beside it on a busy host takes longer than the
-  // learner's worker_timeout_seconds (4 s), which then marked a live worker dead and gave up the
-  // evaluation it held. The beat thread re-sends the loop's last status when the loop has sent none
-  // for 1.5 s (at most about 1.75 s apart), as long as the loop built one within kMaxLoopSilenceS: a
-  // loop stuck longer goes silent. Both write under beat_mu_, so statuses go out in order.
-  static constexpr double kMaxLoopSilenceS = 60.0;
-  std::mutex beat_mu_;
-  std::condition_variable beat_cv_;
-  bool beat_stop_ = false;
-  farm::msg::WorkerStatus beat_;  // the loop's last status, and when it was built and last sent
-  double beat_built_ = -1, beat_sent_ = 0;
-  std::thread beat_thread_;
-  uint64_t log_steps_ = 0;  // steps_.total() at the last log line
-  // Where the wall time went, for the throughput line. The collect loop's waits: on the sender
-  // (both buffers with it: back-pressure) and on the learner (throttled, no weights, no learner).
-  double backpressure_s_ = 0, throttled_s_ = 0, split_backpressure_s_ = 0, split_throttled_s_ = 0;
-  // The sender's time in publish_batch(): finished writes, and when the current one began (0: none);
-  // under send_mu_.
-  double publish_s_ = 0, publishing_since_ = 0, split_publish_s_ = 0;
-  Rollout::Timing split_at_;
+  // Steps and where the wall time went, for the heartbeat and the throughput line: the collect
+  // loop's waits on the learner (throttled, no weights, no learner), and what each had reached at
+  // the last log line.
+  struct Throughput {
+    Meter steps;
+    double last_status = 0, last_log = 0;
+    uint64_t log_steps = 0;  // steps.total() at the last log line
+    double throttled_s = 0;
+    double at_backpressure_s = 0, at_throttled_s = 0, at_publish_s = 0;
+    Rollout::Timing at_rollout;
+  } tp_;
 };
 
 }  // namespace farm

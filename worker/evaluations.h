@@ -1,0 +1,70 @@
+// The worker's evaluations: the learner's EvaluationRequests addressed to this worker are kept as
+// they arrive (a queue of a few), checked on the collect loop against the joined experiment, and
+// run one at a time by a thread of their own on evaluation envs apart from the training ones, so
+// batches keep flowing meanwhile; each is answered with its episodes or with what was wrong.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "dds.h"
+#include "farm.h"
+#include "farmPubSubTypes.h"
+#include "rollout.h"
+
+namespace farm {
+
+class Evaluations {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log log);
+  ~Evaluations() { stop(); }
+
+  // What a request is checked against: the joined experiment, its task, the most episodes it asks
+  // (eval.episodes / final_episodes, the larger) and this worker's session.
+  struct Joined {
+    std::string experiment;
+    std::shared_ptr<const robots::Task> task;
+    int max_episodes = 0;
+    uint64_t session = 0;
+  };
+  // Checks the requests that arrived: a good one is queued for the thread, a bad one answered with
+  // what was wrong (the learner counts it invalid). Before a join (no task) they are dropped.
+  void poll(const Joined& joined);
+  // Ends the thread; an evaluation running stops at its next step, unanswered.
+  void stop();
+
+ private:
+  struct Job {
+    farm::msg::EvaluationRequest request;
+    PolicyParams policy;
+    std::shared_ptr<const robots::Task> task;
+    uint64_t worker_session = 0;  // when it was asked
+  };
+  // The answer to q from this worker and `session`, episodes and error still empty.
+  farm::msg::EvaluationAnswer answer_to(const farm::msg::EvaluationRequest& q, uint64_t session) const;
+  void answer_error(const farm::msg::EvaluationRequest& q, uint64_t session, const std::string& why);
+  void main();
+
+  static constexpr size_t kMaxQueue = 4;
+  const std::string worker_id_;
+  Log log_;
+  std::mutex in_mu_;
+  std::deque<farm::msg::EvaluationRequest> in_q_;  // addressed to this worker; bounded: kMaxQueue
+  farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> in_;
+  farm::dds::Writer<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> out_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<Job> jobs_;  // bounded: kMaxQueue
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+}  // namespace farm

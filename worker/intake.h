@@ -1,0 +1,53 @@
+// The worker's intake of ExperimentSpecs and PolicyWeights. Both are taken on Fast DDS's listener
+// thread as they arrive: the readers keep one sample for all learners together, so with two
+// experiments on the domain the other one's next write would otherwise replace this worker's
+// before the collect loop takes it. Specs are kept in order (the first experiment seen binds an
+// unbound worker), weights the latest per experiment; both bounded.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "dds.h"
+#include "farm.h"
+#include "farmPubSubTypes.h"
+
+namespace farm {
+
+class WorkerIntake {
+ public:
+  // A spec as it arrived, with the writer that sent it.
+  struct SpecIn {
+    farm::msg::ExperimentSpec spec;
+    eprosima::fastrtps::rtps::GUID_t writer;
+  };
+  // experiment: the one this worker serves ("" until it binds).
+  WorkerIntake(farm::dds::Bus& bus, const std::string& experiment);
+
+  // The specs that arrived since the last call, oldest first.
+  std::deque<SpecIn> take_specs();
+  // The latest weights of the bound experiment, if new ones came; the ids of other experiments
+  // whose weights came go to *others.
+  std::optional<farm::msg::PolicyWeights> take_weights(std::vector<std::string>* others);
+  // Binds the worker to its experiment: its weights are kept under a flood of invented ones.
+  void bind(const std::string& experiment);
+  bool spec_writer_matched(const eprosima::fastrtps::rtps::GUID_t& writer) { return spec_in_.writer_matched(writer); }
+  void wait_for_spec(double seconds) { spec_in_.wait(seconds); }
+  void wait_for_weights(double seconds) { weights_in_.wait(seconds); }
+
+ private:
+  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
+  std::mutex mu_;
+  std::string experiment_;
+  std::deque<SpecIn> specs_;                                 // bounded: kMaxSpecsIn
+  std::map<std::string, farm::msg::PolicyWeights> weights_;  // bounded: kMaxExperimentsKept
+  farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
+  farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
+};
+
+}  // namespace farm
