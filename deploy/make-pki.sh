@@ -18,7 +18,7 @@
 # NAME is letters, digits, '.', '_' and '-'. A certificate's subject is CN=NAME,O=rollout-farm. A
 # worker's id is its certificate's name: farm-worker takes it by default and refuses another --id,
 # and a learner takes a batch's writer's name from the partition its writer is in, which access
-# control allows to that certificate alone (docs/RELIABILITY.md, "Trust between participants").
+# control allows to that certificate alone (docs/record/reliability.md, "Trust between participants").
 # Running it again with the same OUTDIR keeps the CA and adds or renews the named participants.
 # --revoke NAME revokes NAME's certificate in the CA's revocation list (OUTDIR/ca/crl.pem) and signs
 # the permissions again without NAME's grant; both are copied into every remaining participant's

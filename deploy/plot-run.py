@@ -9,7 +9,7 @@
                       tracking and the training episodes' falls (terminations per fit) against env
                       steps and wall time; prints where each run first reaches the walking
                       threshold (--walking LIN,FELL: eval_tracking_lin >= LIN, eval_fell < FELL;
-                      docs/QUADRUPEDS.md)
+                      docs/record/quadrupeds.md)
 usage: deploy/plot-run.py RUN_DIR [--monitor-log FILE] [--out DIR]
        deploy/plot-run.py RUN_DIR [RUN_DIR ...] --compare OUT.png [--walking 0.6,0.1]
   RUN_DIR holds learner.csv (runs/<experiment>/); FILE is a `farm-monitor --log FILE` JSON-lines log.

@@ -5,8 +5,8 @@
 #   deploy/run-local.sh [CONFIG] [WORKERS]
 # Reachable from this host only: every process gets deploy/discovery/local.xml (shared memory is
 # the only transport, no socket is opened), so nothing on the LAN can read the weights or send
-# batches. FARM_DDS_PROFILES=FILE gives another profile (a farm over several hosts: README.md,
-# "Several hosts", which uses DDS Security).
+# batches. FARM_DDS_PROFILES=FILE gives another profile (a farm over several hosts:
+# docs/guides/hosts-and-security.md, which uses DDS Security).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 CONFIG="${1:-$ROOT/deploy/configs/pendulum_sac.txtpb}"

@@ -101,7 +101,7 @@ class Ingest {
   // The learner's batch reader refuses larger samples before taking memory for them
   // (dds::Reader's max_sample_bytes); pendulum at 25 steps per batch: 6.9 MB. A refused sample
   // takes no memory: fed 26 MiB batches, the learner of integration.hostile stays under its
-  // documented 320 MiB peak RSS (docs/RELIABILITY.md, "size limits before memory").
+  // documented 320 MiB peak RSS (docs/record/reliability.md, "size limits before memory").
   static uint64_t max_batch_bytes(int obs_dim, int act_dim, int num_metrics, int steps_per_batch);
   static constexpr uint64_t kBatchHeaderBytes = 64 * 1024;
   // Samples the bus refused before they became batches (over max_batch_bytes), as the reader's

@@ -12,7 +12,7 @@ IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_samp
     : bus_(bus),
       ingest_(std::move(ingest)),
       // Samples over what this experiment's workers can send are refused before memory is taken for
-      // them (docs/RELIABILITY.md, "size limits before memory").
+      // them (docs/record/reliability.md, "size limits before memory").
       reader_(bus, farm::dds::kBatchTopic, "batch_reader", max_sample_bytes, {}, true),
       capacity_(std::max<size_t>(1, capacity_bytes)),
       log_(std::move(log)),

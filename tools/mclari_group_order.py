@@ -4,7 +4,7 @@
 a1 picks a group by its index in `groups`, and SAC's actor follows the critic's slope along a1,
 so it moves to a neighbouring index only when that pays more. If a terrain's efficiency along the
 list has a valley between the gait the policy holds and a better one, the policy stays where it is
-(docs/MCLARI.md step 11). This prints, for the given groups, every terrain's efficiency along the
+(docs/record/mclari.md step 11). This prints, for the given groups, every terrain's efficiency along the
 list at that terrain's best frequency, and the orders in which a climb from any index to a better
 neighbour ends within 10 % of that terrain's best.
 usage: python3 tools/mclari_group_order.py SWEEP_DIR 5,11,15,19,20,23 [--at-most 10]"""

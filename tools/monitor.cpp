@@ -58,7 +58,7 @@ void add_options(CLI::App& app, MonitorOptions& o, bool& wait_given) {
   app.add_option("--prometheus", o.prometheus,
                  "ADDR:PORT: serve the same figures at http://ADDR:PORT/metrics in the Prometheus text format, "
                  "refreshed every --interval (127.0.0.1:PORT: this host only; 0.0.0.0:PORT: every interface); "
-                 "series in docs/MONITORING.md")
+                 "series in docs/guides/monitoring.md")
       ->transform(farm::cli::checked_by(farm::MetricsServer::parse_listen_address, "ADDR:PORT"));
   app.add_flag("--quiet", o.quiet, "Print no table (with --log or --prometheus, e.g. as a service)");
 }

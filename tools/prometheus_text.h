@@ -1,7 +1,7 @@
 // The farm-monitor snapshot (monitor_snapshot.h) as Prometheus metrics: a prometheus-cpp Registry
 // of gauge and counter families, brought to each snapshot, and its page in the text exposition
 // format 0.0.4 (prometheus-cpp's TextSerializer): the series farm-monitor --prometheus serves at
-// /metrics. Names, types and labels are listed in docs/MONITORING.md; deploy/grafana/farm.json
+// /metrics. Names, types and labels are listed in docs/guides/monitoring.md; deploy/grafana/farm.json
 // queries them.
 //
 // Worker ids, hosts and experiment ids come off the bus, where any participant of the domain can

@@ -1,4 +1,4 @@
-"""RUN/events.jsonl, the learner's record for programs (docs/MONITORING.md lists its events)."""
+"""RUN/events.jsonl, the learner's record for programs (docs/guides/monitoring.md lists its events)."""
 import json
 import os
 

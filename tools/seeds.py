@@ -13,7 +13,7 @@ host of 4 x 16 cores and 4 GPUs runs 4 seeds as 4 16-core one-GPU hosts would, a
 they share (memory bandwidth, caches). Then each run's final policy (RUN/checkpoint) and kept best (RUN/best) are measured on the
 task's own goal:
   pendulum, cart-pole   evaluation return (learner.csv) against stop.target_eval_return
-  a1, honey_badger,     the walking threshold of docs/QUADRUPEDS.md: eval_tracking_lin >= 0.6 and
+  a1, honey_badger,     the walking threshold of docs/record/quadrupeds.md: eval_tracking_lin >= 0.6 and
   silver_badger         eval_fell < 0.1 (learner.csv; measure: eval_tracking_lin)
   jetbot, kaya          success over --eval-episodes (default 100) fresh maps, farm-mobile-eval
   mclari                farm-mclari-eval on the six terrains against docs/data/mclari_best_180s.csv:

@@ -1,7 +1,7 @@
 """Run folders and trained policies.
 
 A run folder (``--run-dir``, or ``run_root/experiment_id``) holds ``learner.csv`` (one row per
-progress record), ``events.jsonl`` (one JSON object per event: docs/MONITORING.md),
+progress record), ``events.jsonl`` (one JSON object per event: docs/guides/monitoring.md),
 ``summary.txt`` and the ``checkpoint/`` and ``best/`` folders, each with a ``manifest.txtpb`` and
 the policy in the workers' layout (``policy.bin``).
 """

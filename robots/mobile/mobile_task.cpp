@@ -168,7 +168,7 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   if (diff) {
     // Straight ahead, gentle arcs (radius 0.6 m at the defaults), tight arcs, and turns in place.
     // With only full-rate turns (0.2 rad and 7.5 cm radius per 0.1 s step) DQN did not learn to
-    // line up with a goal 0.1 m wide; SAC with continuous commands did (docs/MOBILE.md).
+    // line up with a goal 0.1 m wide; SAC with continuous commands did (docs/record/mobile.md).
     commands_ = {{v, 0, 0},          {v, 0, w / 4}, {v, 0, -w / 4}, {v / 2, 0, w / 2},
                  {v / 2, 0, -w / 2}, {0, 0, w / 2}, {0, 0, -w / 2}};
   } else {

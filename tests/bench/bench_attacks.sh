@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The learner's updates/s before and during each attack of docs/RELIABILITY.md's trust rows, on
+# The learner's updates/s before and during each attack of docs/record/reliability.md's trust rows, on
 # this machine: per attack a fresh pendulum learner (deploy/configs/pendulum_sac.txtpb) and one
 # worker; once the learner has updated for WARM seconds, the updates/s of the BEFORE seconds just
 # passed, then the attack (farm_intruder), then the updates/s of the attack's seconds, from the

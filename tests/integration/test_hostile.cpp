@@ -5,7 +5,7 @@
 // (printed: updates/s before and during the attack).
 // Then oversized samples: well-formed batches of tens of MB, far above what the experiment's workers
 // can send, are refused before the learner takes memory for them, counted invalid, and the learner's
-// peak RSS stays under the bound documented in docs/RELIABILITY.md (item "size limits before memory").
+// peak RSS stays under the bound documented in docs/record/reliability.md (item "size limits before memory").
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -167,7 +167,7 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
 
 // Bound on the learner's peak RSS in this experiment (pendulum, 8 envs x 25 steps, SAC 64x64) while
 // it is fed 27 MB batches: what it needs for honest traffic with room to spare, and below what even
-// a few of the oversized samples would take once taken into memory. docs/RELIABILITY.md, item
+// a few of the oversized samples would take once taken into memory. docs/record/reliability.md, item
 // "size limits before memory", gives the reasoning; Ingest::max_batch_bytes the per-sample bound.
 constexpr double kOversizeRssBoundMiB = 320;
 

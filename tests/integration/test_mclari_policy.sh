@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The shipped mCLARI policy (docs/data/mclari_terrain_policy, seed 1 of
-# deploy/configs/mclari_sac_terrain.txtpb at 70,864 env steps, docs/MCLARI.md step 11) still meets
+# deploy/configs/mclari_sac_terrain.txtpb at 70,864 env steps, docs/record/mclari.md step 11) still meets
 # the goal on every terrain: >= 90 % of the 180 s sweep's best fixed point and no fall, over 2
 # episodes per terrain (10 in the docs). Fails when the model, the task or the policy loading
 # changes what the policy does. The folder's policy file (read by farm-mclari-eval without LibTorch)

@@ -14,7 +14,7 @@
 #   participant without a certificate in C that sends batches and reads for the spec and the
 #   weights must match no learner, receive nothing, and get no batch accepted.
 #   tests/integration/test_multihost_netns.sh LEARNER_BIN WORKER_BIN MONITOR_BIN SOURCE_DIR INTRUDER_BIN
-# Needs root (ip netns); exits 77 (skipped) without it. Commands: README.md, "Several hosts".
+# Needs root (ip netns); exits 77 (skipped) without it. Commands: docs/guides/hosts-and-security.md.
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3") src=$(readlink -f "$4")
 intruder=$(readlink -f "$5")

@@ -82,7 +82,7 @@ TEST(Soak, ThreeWorkersForMinutesNothingLostMemoryBounded) {
   int throttled = 0;
   for (const auto& e : events(run, "progress")) throttled = std::max(throttled, e.value("workers_throttled", 0));
   EXPECT_GT(throttled, 0) << slurp(run + "/events.jsonl");
-  // Bounds (see docs/RELIABILITY.md): replay buffer 200,000 x (3+1+3+2) floats is 7 MiB; the DDS
+  // Bounds (see docs/record/reliability.md): replay buffer 200,000 x (3+1+3+2) floats is 7 MiB; the DDS
   // queues hold at most 256 batches of 16x25 steps at the learner and 64 per worker; LibTorch and
   // Fast DDS themselves take a few hundred MiB.
   std::printf("peak RSS: learner %.0f MiB, workers %.0f / %.0f / %.0f MiB\n", learner_mib, worker_mib[0], worker_mib[1],

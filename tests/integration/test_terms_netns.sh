@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A robot from a model file and one config, trained by a worker that never saw the file: the
-# walkthrough of docs/ROBOT_FROM_FILES.md over two "hosts" (network namespaces joined by a veth
+# walkthrough of docs/guides/own-robot.md over two "hosts" (network namespaces joined by a veth
 # pair, UDP discovery by unicast to the learner, deploy/discovery/peers_udp.xml).
 #   A 10.77.0.1: farm-learner --config my_robot/my_robot.txtpb, run from the user's folder
 #   B 10.77.0.2: farm-worker, run from an empty folder

@@ -44,7 +44,7 @@ inline std::string embedded_text(const std::string& path) {
 }
 
 // The MJCF without its collision list: the <contact> block and option collision="predefined"
-// cut (docs/QUADRUPEDS.md, "The A1's physics step"), every other line as shipped, i.e. the model
+// cut (docs/record/quadrupeds.md, "The A1's physics step"), every other line as shipped, i.e. the model
 // as it was before the list, on MuJoCo's broad phase. Throws if the text has no such list, so a
 // test cannot compare a model with itself.
 inline std::string without_collision_list(std::string xml) {

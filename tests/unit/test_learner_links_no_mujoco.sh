@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # farm-learner steps no simulation: evaluations run on the workers, so the learner links neither
-# MuJoCo nor the robots (README.md, "Evaluation"). Fails when libmujoco is among its
+# MuJoCo nor the robots (docs/guides/evaluation.md). Fails when libmujoco is among its
 # shared libraries or a robot's or MuJoCo's code is linked into it.
 #   tests/unit/test_learner_links_no_mujoco.sh FARM_LEARNER
 set -uo pipefail

@@ -161,7 +161,7 @@ TEST(Quadruped, RestingOnTheHipHousingsIsAFall) {
   }
 }
 
-// ---- The collision lists (<contact> pairs, collision="predefined"; docs/QUADRUPEDS.md, "The A1's
+// ---- The collision lists (<contact> pairs, collision="predefined"; docs/record/quadrupeds.md, "The A1's
 // physics step"), each model against the same MJCF without its list, i.e. on MuJoCo's broad phase. ----
 
 namespace {
