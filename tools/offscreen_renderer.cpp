@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
+#include <sstream>
 #include <stdexcept>
 
 namespace farm::tools {
@@ -124,6 +125,82 @@ const mjData* OffscreenRenderer::pose(const mjData* d) {
   return data_;
 }
 
+int OffscreenRenderer::text_width(const std::string& text) const {
+  int w = 0;
+  for (unsigned char c : text) w += c < 127 ? context_.charWidth[c] : context_.charWidth[int('?')];
+  return w;
+}
+
+std::vector<OffscreenRenderer::Overlay> OffscreenRenderer::layout(
+    const Overlay& first, const std::vector<std::pair<std::string, std::string>>& rows) const {
+  if (!have_context_) throw std::logic_error("OffscreenRenderer::layout before set_model");
+  const int cw = context_.charWidth[int('x')], ch = std::max(1, context_.charHeight);
+  // The panel holds (3 r + 2) / 2 lines for r rows (render()), at most half the frame.
+  const int per_column = std::max(3, (height_ / ch - 2) / 3);
+  // A column fits its widest name, a value of 8 characters or its own, and the margins.
+  int widest = 0;
+  for (const auto& [name, value] : rows)
+    widest = std::max(widest, text_width(name) + std::min(text_width(value), 8 * cw) + 6 * cw);
+  const int n = int(rows.size());
+  int columns = 0;
+  while (columns < (n + per_column - 1) / per_column && width_ / (columns + 2) >= std::max(widest, 22 * cw)) ++columns;
+  std::vector<Overlay> out{first};
+  auto add = [](Overlay& to, const std::string& name, const std::string& value) {
+    to.names += (to.names.empty() ? "" : "\n") + name;
+    to.values += (to.values.empty() ? "" : "\n") + value;
+  };
+  const int shown = columns * per_column >= n ? n : std::max(0, columns * per_column - 1);
+  for (int k = 0; k < shown; ++k) {
+    if (k % per_column == 0) out.emplace_back();
+    add(out.back(), rows[size_t(k)].first, rows[size_t(k)].second);
+  }
+  // mjr_overlay draws a row only with a value.
+  if (shown < n) add(out.back(), "+" + std::to_string(n - shown), "more");
+  return out;
+}
+
+std::vector<OffscreenRenderer::Overlay> OffscreenRenderer::fit_columns(const std::vector<Overlay>& columns) const {
+  cut_rows_ = 0;
+  if (columns.empty()) return {};
+  const int cell = width_ / int(columns.size());
+  std::vector<Overlay> out;
+  for (const Overlay& c : columns) {
+    std::vector<std::string> names, values;
+    std::istringstream n(c.names), v(c.values);
+    for (std::string a, b; std::getline(n, a) && std::getline(v, b);) {
+      names.push_back(a);
+      values.push_back(b);
+    }
+    int name_w = 0;
+    for (const auto& a : names) name_w = std::max(name_w, text_width(a));
+    // mjr_overlay sets the values off by about two characters after the widest name, with margins.
+    const int fits = cell - name_w - 6 * context_.charWidth[int('x')];
+    const int room = std::max(fits, 4 * context_.charWidth[int('x')]);
+    Overlay f;
+    auto row = [&](const std::string& a, const std::string& b) {
+      f.names += (f.names.empty() ? "" : "\n") + (a.empty() ? std::string(" ") : a);
+      f.values += (f.values.empty() ? "" : "\n") + b;
+      if (text_width(b) > fits) ++cut_rows_;
+    };
+    for (size_t k = 0; k < names.size(); ++k) {
+      // A value too wide for its cell goes on at its spaces, on rows of its own.
+      std::istringstream words(values[k]);
+      std::string line, word, name = names[k];
+      while (words >> word) {
+        if (!line.empty() && text_width(line + " " + word) > room) {
+          row(name, line);
+          name.clear();
+          line.clear();
+        }
+        line += (line.empty() ? "" : " ") + word;
+      }
+      row(name, line);
+    }
+    out.push_back(f);
+  }
+  return out;
+}
+
 void OffscreenRenderer::render(mjvCamera& cam, const std::function<void(mjvScene&)>& decorate,
                                const std::vector<Overlay>& columns, unsigned char* rgb) {
   if (!have_context_) throw std::logic_error("OffscreenRenderer::render before set_model");
@@ -132,9 +209,11 @@ void OffscreenRenderer::render(mjvCamera& cam, const std::function<void(mjvScene
   auto lines = [](const std::string& text) {
     return text.empty() ? 0 : 1 + int(std::count(text.begin(), text.end(), '\n'));
   };
+  const std::vector<Overlay> fitted = fit_columns(columns);
   int rows = 0;
-  for (const Overlay& c : columns) rows = std::max(rows, lines(c.names));
-  // The panel: mjr_overlay's rows (1.5 lines of the font each) and its margins, at most half the frame.
+  for (const Overlay& c : fitted) rows = std::max(rows, lines(c.names));
+  // The panel: mjr_overlay's rows (1.5 lines of the font each) and its margins, at most half the
+  // frame (layout() keeps to that).
   const int panel = rows == 0 ? 0 : std::min(height_ / 2, (3 * rows + 2) * context_.charHeight / 2);
   mjr_setBuffer(mjFB_OFFSCREEN, &context_);
   const mjrRect frame{0, 0, width_, height_}, text{0, 0, width_, panel};
@@ -143,11 +222,11 @@ void OffscreenRenderer::render(mjvCamera& cam, const std::function<void(mjvScene
   mjr_render(scene_viewport_, &scene_, &context_);
   if (rows > 0) {
     mjr_rectangle(text, kPanelGrey, kPanelGrey, kPanelGrey, 1);
-    const int n = int(columns.size());
+    const int n = int(fitted.size());
     for (int i = 0; i < n; ++i) {
-      if (columns[i].names.empty()) continue;
+      if (fitted[i].names.empty()) continue;
       const mjrRect cell{i * width_ / n, 0, width_ / n, panel};
-      mjr_overlay(mjFONT_NORMAL, mjGRID_TOPLEFT, cell, columns[i].names.c_str(), columns[i].values.c_str(), &context_);
+      mjr_overlay(mjFONT_NORMAL, mjGRID_TOPLEFT, cell, fitted[i].names.c_str(), fitted[i].values.c_str(), &context_);
     }
   }
   read_rgb(rgb);

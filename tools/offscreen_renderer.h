@@ -7,6 +7,7 @@
 
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace farm::tools {
@@ -52,8 +53,23 @@ class OffscreenRenderer {
   };
   Coverage coverage(const std::function<bool(int body)>& of_body);
 
+  // The overlay's columns for this frame's size: `first` (the episode, its step and return), then
+  // the rows (name, value) in as few columns as the panel's height allows (at most half the frame)
+  // and no more than its width does (each column as wide as its widest name and a short value).
+  // Rows past those columns are left out, the last row shown saying how many ("+N more").
+  std::vector<Overlay> layout(const Overlay& first, const std::vector<std::pair<std::string, std::string>>& rows) const;
+
+  // Rows of the last render()'s overlay that are wider than their column even after wrapping (a
+  // name or a single word too wide): they run past the column's edge.
+  int cut_rows() const { return cut_rows_; }
+
  private:
   void read_rgb(unsigned char* rgb);
+  // The columns with each value too wide for its cell (the frame's width over the columns) wrapped
+  // at its spaces onto rows of its own, so that no text runs past the frame's edge.
+  std::vector<Overlay> fit_columns(const std::vector<Overlay>& columns) const;
+  int text_width(const std::string& text) const;  // pixels, in the overlay's font
+  mutable int cut_rows_ = 0;                      // of the last render()'s overlay: rows still wider than their column
 
   int width_, height_;
   void* osmesa_ = nullptr;  // OSMesaContext

@@ -29,8 +29,6 @@ namespace {
 
 // The pixels of a frame's scene below which --view-check says the robot is out of the picture.
 constexpr int64_t kMinRobotPixels = 20;
-// Rows of each overlay column (the first holds the episode, the step and time, and the return).
-constexpr int kOverlayRows = 4;
 // Frame times are compared with this slack (in frames), so a clock of summed physics steps that
 // lands a rounding error short of a frame's time still shows that frame.
 constexpr double kFrameSlack = 1e-3;
@@ -90,7 +88,7 @@ void add_options(CLI::App& app, Options& o) {
       "--no-overlay", [&o] { o.overlay = false; }, "No text on the frames (return, step, time, the task's metrics)");
   app.add_flag("--view-check", o.view_check,
                "Also measure the share of each frame the robot covers; exit 3 when it leaves the picture (covers "
-               "fewer than 20 pixels)");
+               "fewer than 20 pixels) or a row of the overlay is wider than its column");
   app.add_option("--ffmpeg", o.ffmpeg, "The ffmpeg program (default: ffmpeg on PATH)");
 }
 
@@ -141,6 +139,8 @@ int main(int argc, char** argv) {
     std::mt19937_64 unused_rng;  // the deterministic policy draws no noise
     double min_coverage = 1, sum_coverage = 0;
     int64_t coverage_frames = 0, first_lost = -1, min_pixels = INT64_MAX;
+    int64_t first_cut = -1;  // the first frame whose overlay has a row wider than its column
+    int most_cut = 0;
 
     int64_t total_frames = 0;
     for (int e = 0; e < o.episodes; ++e) {
@@ -160,9 +160,9 @@ int main(int argc, char** argv) {
         const mjData* pose = renderer.pose(state->data);
         mjvCamera cam;
         view.aim(*state, pose, cam);
-        // First column: where the episode is and its return; then the task's metrics so far, in
-        // columns of at most as many rows.
-        tools::OffscreenRenderer::Overlay left, right;
+        // First column: where the episode is and its return; then the task's metrics so far and
+        // its own rows, in as many columns as the frame has room for (OffscreenRenderer::layout).
+        tools::OffscreenRenderer::Overlay left;
         std::vector<tools::OffscreenRenderer::Overlay> columns;
         if (o.overlay) {
           auto row = [](tools::OffscreenRenderer::Overlay& to, const std::string& name, const std::string& value) {
@@ -174,19 +174,11 @@ int main(int argc, char** argv) {
               std::to_string(state->step) + " of " + std::to_string(spec.max_episode_steps) + ", " + fmt("%.2f s", t));
           row(left, "return", fmt("%.2f", state->episode_return));
           if (!metrics.empty()) task.episode_metrics(*state, metrics.data());
-          for (size_t k = 0; k < metrics.size(); ++k) row(right, spec.metric_names[k], fmt("%.3f", metrics[k]));
-          for (const auto& [name, value] : view.rows(*state, pose)) row(right, name, value);
-          columns.push_back(left);
-          tools::OffscreenRenderer::Overlay column;
-          std::istringstream names(right.names), values(right.values);
-          for (std::string name, value; std::getline(names, name) && std::getline(values, value);) {
-            if (std::count(column.names.begin(), column.names.end(), '\n') + 1 >= kOverlayRows) {
-              columns.push_back(column);
-              column = {};
-            }
-            row(column, name, value);
-          }
-          if (!column.names.empty()) columns.push_back(column);
+          std::vector<std::pair<std::string, std::string>> task_rows;
+          for (size_t k = 0; k < metrics.size(); ++k)
+            task_rows.emplace_back(spec.metric_names[k], fmt("%.3f", metrics[k]));
+          for (auto& r : view.rows(*state, pose)) task_rows.push_back(std::move(r));
+          columns = renderer.layout(left, task_rows);
         }
         renderer.render(
             cam, [&](mjvScene& scn) { view.decorate(*state, pose, scn); }, columns, rgb.data());
@@ -209,6 +201,8 @@ int main(int argc, char** argv) {
           sum_coverage += c.share;
           ++coverage_frames;
           if (c.pixels < kMinRobotPixels && first_lost < 0) first_lost = total_frames + frame;
+          most_cut = std::max(most_cut, renderer.cut_rows());
+          if (renderer.cut_rows() > 0 && first_cut < 0) first_cut = total_frames + frame;
         }
         while (t + kFrameSlack / o.fps >= double(frame) / o.fps) {
           ++pending;
@@ -253,6 +247,13 @@ int main(int argc, char** argv) {
       if (first_lost >= 0) {
         std::fprintf(stderr, "farm-play: the robot left the picture at frame %lld (covers fewer than %lld pixels)\n",
                      (long long)first_lost, (long long)kMinRobotPixels);
+        return 3;
+      }
+      if (first_cut >= 0) {
+        std::fprintf(stderr,
+                     "farm-play: from frame %lld the overlay has up to %d row(s) wider than their column: a wider "
+                     "--width, or --no-overlay\n",
+                     (long long)first_cut, most_cut);
         return 3;
       }
     }

@@ -14,12 +14,23 @@ namespace {
 constexpr double kFollowSecondsXY = 0.1, kFollowSecondsZ = 0.5;
 // Default distances: this many robot radii, or arena half sizes for the mobile robots (the goal and
 // the obstacles around the robot stay in the picture).
-constexpr double kRobotRadii = 3.5;
+constexpr double kRobotRadii = 2.5;
 // Mobile robots: this many start-to-goal distances, at least the first and at most the second
 // number of arena half sizes.
 constexpr double kGoalDistances = 1.8, kMinArenaHalfSizes = 0.6, kMaxArenaHalfSizes = 2.2;
 // A backdrop stands this many robot radii behind the look-at point of a model without a floor.
 constexpr double kBackdropRadii = 1.5;
+// The floor grid: lines about a robot radius apart (rounded to 1, 2 or 5 times a power of 10 m),
+// drawn this many camera distances around the look-at point, this wide (of the spacing).
+constexpr double kGridReach = 2.5, kGridLineWidth = 0.02;
+constexpr float kGridRgba[4] = {0.25f, 0.27f, 0.30f, 1};
+
+double round_spacing(double x) {
+  const double p = std::pow(10.0, std::floor(std::log10(x)));
+  for (double k : {1.0, 2.0, 5.0})
+    if (x <= k * p * 1.5) return k * p;
+  return 10 * p;
+}
 
 void add_geom(mjvScene& scn, int type, const mjtNum size[3], const mjtNum pos[3], const float rgba[4]) {
   if (scn.ngeom >= scn.maxgeom) return;
@@ -68,9 +79,16 @@ void PlayView::start_episode(const robots::TaskState& s, const mjModel* m, const
   if (radius <= 0) radius = m->stat.extent > 0 ? m->stat.extent : 1.0;
   radius_ = radius;
   has_floor_ = false;
-  for (int g = 0; g < m->ngeom; ++g)
-    has_floor_ =
-        has_floor_ || (m->geom_bodyid[g] == 0 && (m->geom_type[g] == mjGEOM_PLANE || m->geom_type[g] == mjGEOM_HFIELD));
+  grid_spacing_ = 0;
+  for (int g = 0; g < m->ngeom; ++g) {
+    if (m->geom_bodyid[g] != 0) continue;
+    has_floor_ = has_floor_ || m->geom_type[g] == mjGEOM_PLANE || m->geom_type[g] == mjGEOM_HFIELD;
+    // A level plane under the robot: the grid lies on it.
+    if (m->geom_type[g] == mjGEOM_PLANE && pose->geom_xmat[9 * g + 8] > 0.999 && pose->geom_xpos[3 * g + 2] <= r[2]) {
+      floor_z_ = pose->geom_xpos[3 * g + 2];
+      grid_spacing_ = round_spacing(radius);
+    }
+  }
 
   robots::TaskView view;
   task_.view(s, pose, root_, view);
@@ -129,6 +147,18 @@ void PlayView::decorate(const robots::TaskState& s, const mjData* pose, mjvScene
       mjvGeom* g = scn.geoms + scn.ngeom++;
       mjv_initGeom(g, mjGEOM_PLANE, size, pos, mat, grey);
       g->category = mjCAT_DECOR;
+    }
+  }
+  if (grid_spacing_ > 0) {
+    // Lines along x and along y at multiples of the spacing, just above the floor.
+    const double d = grid_spacing_, reach = kGridReach * distance_, w = kGridLineWidth * d, h = 0.002;
+    const double x0 = std::floor((lookat_[0] - reach) / d) * d, y0 = std::floor((lookat_[1] - reach) / d) * d;
+    const int n = int(std::ceil(2 * reach / d)) + 1;
+    for (int i = 0; i <= n; ++i) {
+      const mjtNum along_x[3] = {reach, w, h}, at_y[3] = {lookat_[0], y0 + i * d, floor_z_ + h};
+      add_geom(scn, mjGEOM_BOX, along_x, at_y, kGridRgba);
+      const mjtNum along_y[3] = {w, reach, h}, at_x[3] = {x0 + i * d, lookat_[1], floor_z_ + h};
+      add_geom(scn, mjGEOM_BOX, along_y, at_x, kGridRgba);
     }
   }
   robots::TaskView view;

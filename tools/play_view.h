@@ -2,7 +2,8 @@
 // (its distance from the robot's size; where the task frames a point with the robot, a goal, the
 // point between the two, far enough for both), the markers and overlay rows the task declares
 // (Task::view: the Jetbot's and Kaya's goal, a legged robot's velocity command, the microbot's
-// target and gait), and a backdrop behind a robot that has no floor (the pendulums).
+// target and gait), a grid on a flat floor (fixed to the world, so that motion shows against it),
+// and a backdrop behind a robot that has no floor (the pendulums).
 #pragma once
 
 #include <mujoco/mujoco.h>
@@ -51,6 +52,8 @@ class PlayView {
   std::string root_name_;
   double distance_ = 1, elevation_ = -15, radius_ = 1;
   bool has_floor_ = false;
+  // A flat floor's height and the spacing of the grid drawn on it (0: no flat floor, no grid).
+  double floor_z_ = 0, grid_spacing_ = 0;
   double lookat_[3] = {0, 0, 0};
   double last_time_ = 0;
 };

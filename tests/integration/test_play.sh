@@ -5,7 +5,8 @@
 # 2. farm-play writes its checkpoint's policy to an MP4 that ffprobe decodes with the frame count
 #    the episodes' simulated time gives at the video's rate (and that farm-play printed), H.264 in
 #    yuv420p at the asked size; two frames, compared outside the text overlay, differ (the rod moves).
-# 3. RUN/best to an animated GIF that ffprobe reads; --view-check finds the rod in every frame.
+# 3. RUN/best to an animated GIF that ffprobe reads; --view-check finds the rod in every frame and
+#    every row of the overlay within its column.
 # 4. Clear errors: a run folder without a policy, a run folder passed as a checkpoint, an unknown
 #    task in a checkpoint's config, ffmpeg missing, an unwritable output, an unknown output kind.
 set -uo pipefail
@@ -58,14 +59,14 @@ PY
 diff <(grep '^episode' "$dir/play.out") <(grep '^episode' "$dir/again.out") || fail "same seed, other episodes"
 
 # 3. GIF from RUN/best, with the robot in view of every frame.
-"$play" --run "$dir/run" --best --out "$dir/p.gif" --max-steps 20 --width 160 --height 120 --fps 10 --view-check \
+"$play" --run "$dir/run" --best --out "$dir/p.gif" --max-steps 20 --width 320 --height 240 --fps 10 --view-check \
     >"$dir/gif.out" 2>"$dir/gif.err" || fail "farm-play to GIF exited $?: $(cat "$dir/gif.err")"
 cat "$dir/gif.out"
 grep -q "^view: the robot (body 'rod' and what hangs from it) covers" "$dir/gif.out" || fail "no view line"
 probe=$(ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=codec_name,width,height,nb_read_frames \
     -of default=nw=1 "$dir/p.gif")
 echo "$probe"
-for want in codec_name=gif width=160 height=120; do grep -qx "$want" <<<"$probe" || fail "GIF: expected $want"; done
+for want in codec_name=gif width=320 height=240; do grep -qx "$want" <<<"$probe" || fail "GIF: expected $want"; done
 frames=$(sed -n 's/^nb_read_frames=//p' <<<"$probe")
 [ "${frames:-0}" -gt 1 ] || fail "GIF: $frames frames"
 

@@ -2,7 +2,8 @@
 # farm-play on every registered task, untrained (the shipped experiment's initial networks, from
 # --config): half a simulated second of each (the microbot: its first 1 s step) to an MP4 that
 # ffprobe reads with the frame count farm-play printed, with the robot in the picture of every
-# frame (--view-check: the robot's bodies cover at least 20 pixels of each).
+# frame and every row of the overlay within its column at the README clips' 640 x 360
+# (--view-check: the robot's bodies cover at least 20 pixels of each; no row wider than its column).
 # Every task of the registry (robots/tasks.def) must have a shipped experiment in deploy/configs/.
 #   tests/integration/test_play_tasks.sh PLAY SOURCE_DIR
 set -uo pipefail
@@ -15,7 +16,7 @@ tasks=$(sed -n 's/^TASK(\([a-z_0-9]*\), .*/\1/p' "$src/robots/tasks.def")
 for task in $tasks; do
   cfg=$(grep -l "^  name: \"$task\"" "$src"/deploy/configs/*.txtpb | head -1)
   [ -n "$cfg" ] || { fail "no shipped experiment for task $task"; continue; }
-  if ! "$play" --config "$cfg" --out "$dir/$task.mp4" --max-seconds 0.5 --width 320 --height 240 --fps 10 \
+  if ! "$play" --config "$cfg" --out "$dir/$task.mp4" --max-seconds 0.5 --width 640 --height 360 --fps 10 \
       --view-check >"$dir/$task.out" 2>"$dir/$task.err"; then
     fail "$task ($(basename "$cfg")): $(cat "$dir/$task.err" "$dir/$task.out")"
     continue
