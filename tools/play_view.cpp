@@ -21,8 +21,9 @@ constexpr double kGoalDistances = 1.8, kMinArenaHalfSizes = 0.6, kMaxArenaHalfSi
 // A backdrop stands this many robot radii behind the look-at point of a model without a floor.
 constexpr double kBackdropRadii = 1.5;
 // The floor grid: lines about a robot radius apart (rounded to 1, 2 or 5 times a power of 10 m),
-// drawn this many camera distances around the look-at point, this wide (of the spacing).
-constexpr double kGridReach = 2.5, kGridLineWidth = 0.02;
+// at least a camera distance over kGridLinesPerDistance, drawn kGridReach camera distances around
+// the look-at point, kGridLineWidth of the spacing wide.
+constexpr double kGridReach = 2.5, kGridLineWidth = 0.02, kGridLinesPerDistance = 8;
 constexpr float kGridRgba[4] = {0.25f, 0.27f, 0.30f, 1};
 
 double round_spacing(double x) {
@@ -86,7 +87,7 @@ void PlayView::start_episode(const robots::TaskState& s, const mjModel* m, const
     // A level plane under the robot: the grid lies on it.
     if (m->geom_type[g] == mjGEOM_PLANE && pose->geom_xmat[9 * g + 8] > 0.999 && pose->geom_xpos[3 * g + 2] <= r[2]) {
       floor_z_ = pose->geom_xpos[3 * g + 2];
-      grid_spacing_ = round_spacing(radius);
+      grid_spacing_ = 1;  // sized below, once the camera's distance is known
     }
   }
 
@@ -102,6 +103,9 @@ void PlayView::start_episode(const robots::TaskState& s, const mjModel* m, const
     distance_ = kRobotRadii * radius;
   }
   elevation_ = choice_.elevation != 0 ? choice_.elevation : view.elevation;
+  // About a robot radius apart, but no denser than an eighth of the camera's distance: an arena
+  // seen whole keeps a few lines across it.
+  if (grid_spacing_ > 0) grid_spacing_ = round_spacing(std::max(radius, distance_ / kGridLinesPerDistance));
   target(s, pose, lookat_);
   last_time_ = pose->time;
 }
