@@ -1,6 +1,7 @@
 #include "pacing.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 #include "divergence.h"
@@ -27,6 +28,11 @@ std::string best_eval_line(const FarmFigures& f) {
 
 Pacing::Pacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
     : algo_(std::move(algo)), cfg_(cfg), spec_(spec) {}
+
+double Pacing::latest(const std::string& name) const {
+  const double v = last_.get(name);
+  return std::isnan(v) ? 0.0 : v;
+}
 
 void Pacing::warm_up(Farm& farm) {
   if (const std::string did = algo_->warm_up(); !did.empty()) farm.log(did);
@@ -63,9 +69,9 @@ void Pacing::save(const std::string& dir) const {
 }
 
 std::string Pacing::resumed(const config::CheckpointManifest& m, uint64_t env_steps) {
-  resume_version(m.policy_version() + 1 + kResumeVersionSkip);
+  version_ = m.policy_version() + 1 + kResumeVersionSkip;
   const std::string own = algo_->from_manifest(m);  // after the algorithm's constructor seeded LibTorch
-  return "(next policy v" + std::to_string(next_version()) + ", " + std::to_string(env_steps) + " env steps): " + own;
+  return "(next policy v" + std::to_string(version_) + ", " + std::to_string(env_steps) + " env steps): " + own;
 }
 
 std::unique_ptr<Pacing> make_pacing(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {

@@ -175,15 +175,17 @@ class Pacing {
   void check(const std::vector<UpdateFigures>& figures) const;
   // Waits for the updates still running and checks their figures: before any weights leave.
   void settle() const;
-  // After a resume: the number of the next version to publish, and that number as it stands.
-  virtual void resume_version(uint64_t next) = 0;
-  virtual uint64_t next_version() const = 0;
+  // A figure of the latest update, 0 where the algorithm has no such figure (the CSV's columns).
+  double latest(const std::string& name) const;
 
   std::unique_ptr<Algorithm> algo_;
   const config::ExperimentConfig cfg_;
   const robots::TaskSpec spec_;
   mutable UpdateFigures last_;  // the latest update checked
   mutable std::string diverged_;
+  // The policy version counter: the replay pacing's next to publish, the round pacing's current;
+  // a resumed run goes on past any version the crashed learner published.
+  uint64_t version_ = 0;
 };
 
 // The pacing of cfg.algorithm() (its registration's on_policy) around the algorithm.

@@ -113,8 +113,8 @@ class ReplayPacing final : public Pacing {
     const double utd = f.env_steps > 0 ? double(updates) / double(f.env_steps) : 0.0;
     const Holding h = algo_->holding();
     const double fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
-    const double critic = or0(last_.get("critic loss")), actor = or0(last_.get("actor loss"));
-    const double alpha = or0(std::isnan(last_.get("alpha")) ? last_.get("epsilon") : last_.get("alpha"));
+    const double critic = latest("critic loss"), actor = latest("actor loss");
+    const double alpha = std::isnan(last_.get("alpha")) ? latest("epsilon") : latest("alpha");
     std::ostringstream o;
     o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", f.in_rate) << " steps/s (" << f.env_steps << ") | "
       << fmt("%.0f", upd_rate) << " upd/s (" << updates << ", utd " << fmt("%.3f", utd) << ") | buffer "
@@ -169,12 +169,7 @@ class ReplayPacing final : public Pacing {
     return o.str();
   }
 
- protected:
-  void resume_version(uint64_t next) override { version_ = next; }
-  uint64_t next_version() const override { return version_; }
-
  private:
-  static double or0(double v) { return std::isnan(v) ? 0.0 : v; }
   void publish_weights(Farm& farm) {
     farm.publish(policy_of(version_), 0);
     ++version_;
@@ -230,7 +225,6 @@ class ReplayPacing final : public Pacing {
   const int publish_every_;
   const SamplesPerInsert limiter_;
   Meter updates_meter_;
-  uint64_t version_ = 0;  // the next version to publish
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
   int step_scale_ = 1;

@@ -93,8 +93,8 @@ class RoundPacing final : public Pacing {
     stats->updates = algo_->updates();
     stats->updates_per_second = 0;
     stats->buffer_fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
-    stats->critic_loss = or0(last_.get("value loss"));
-    stats->actor_loss = or0(last_.get("policy loss"));
+    stats->critic_loss = latest("value loss");
+    stats->actor_loss = latest("policy loss");
     stats->eval_return = last_eval_.mean;
     farm.log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", c.in_rate) + " steps/s (" + std::to_string(c.env_steps) +
              ") | v" + std::to_string(version_) + " collecting " + std::to_string(h.rows) + " steps, quota " +
@@ -160,13 +160,7 @@ class RoundPacing final : public Pacing {
     return o.str();
   }
 
- protected:
-  void resume_version(uint64_t next) override { version_ = next; }
-  uint64_t next_version() const override { return version_; }
-
  private:
-  static double or0(double v) { return std::isnan(v) ? 0.0 : v; }
-
   // The run's step accounts: batches and steps counted stale (over the run, and since the last
   // fit), steps fitted and by what lag, quota top-ups.
   struct Counts {
@@ -410,7 +404,6 @@ class RoundPacing final : public Pacing {
 
   const config::PpoConfig pc_;
   const bool async_;
-  uint64_t version_ = 0;
   uint32_t quota_ = 1;
   int64_t fits_ = 0;
   bool published_ = false;
