@@ -26,6 +26,11 @@ Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log 
 // Requests addressed to this worker (the listener kept only those): of its experiment, sized within
 // what the experiment asks, with a policy that fits the task. Each good one becomes a job for the
 // evaluation thread; a bad one is answered with what was wrong (the learner counts it invalid).
+bool Evaluations::arrived() {
+  std::lock_guard<std::mutex> lk(in_mu_);
+  return !in_q_.empty();
+}
+
 void Evaluations::poll(const Joined& joined) {
   std::deque<farm::msg::EvaluationRequest> got;
   {

@@ -38,6 +38,8 @@ class Evaluations {
   // Checks the requests that arrived: a good one is queued for the thread, a bad one answered with
   // what was wrong (the learner counts it invalid). Before a join (no task) they are dropped.
   void poll(const Joined& joined);
+  // Whether requests arrived since the last poll (the collect loop asks on every pass).
+  bool arrived();
   // Ends the thread; an evaluation running stops at its next step, unanswered.
   void stop();
 

@@ -63,7 +63,8 @@ int WorkerApp::run() {
   while (!stop_) {
     poll_spec();
     if (finished_) break;
-    evals_.poll({experiment_, rollout_ ? joined_.task : nullptr, joined_.eval_max_episodes, session_});
+    if (evals_.arrived())
+      evals_.poll({experiment_, rollout_ ? joined_.task : nullptr, joined_.eval_max_episodes, session_});
     if (!rollout_) {
       state_ = "waiting_for_learner";
       if (now_seconds() - last_wait_note > 5.0) {
