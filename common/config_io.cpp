@@ -100,7 +100,7 @@ bool valid_device_name(const std::string& name) {
 }
 
 std::vector<int> sac_hidden(const config::SacConfig& sac) {
-  if (sac.hidden_size() == 0) return {256, 256};  // sb3 SAC net_arch (seed 001 §4.3.2)
+  if (sac.hidden_size() == 0) return {256, 256};  // sb3 SAC net_arch (mCLARI thesis §4.3.2)
   return {sac.hidden().begin(), sac.hidden().end()};
 }
 

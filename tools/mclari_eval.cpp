@@ -1,4 +1,4 @@
-// Evaluates a trained mCLARI policy on each of the six terrains (seed 001 §5.3): deterministic
+// Evaluates a trained mCLARI policy on each of the six terrains (mCLARI thesis §5.3): deterministic
 // episodes from a learner checkpoint, reporting mean efficiency, falls and targets reached per
 // terrain against the best fixed (group, f) of a characterization sweep (farm-mclari-sweep's
 // best.csv). Prints a Markdown table; --out also writes it to a file.

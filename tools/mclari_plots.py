@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Plots of an mCLARI characterization sweep (farm-mclari-sweep's CSV), after seed 001 §5.1-5.2:
+"""Plots of an mCLARI characterization sweep (farm-mclari-sweep's CSV), after the mCLARI thesis §5.1-5.2:
   trajectories_<terrain>.png  the 27-panel grid: centre-of-mass paths per phase group, one line per f
   efficiency_<terrain>.png    power, speed and efficiency against frequency, one line per group
 usage: /usr/bin/python3 tools/mclari_plots.py SWEEP_DIR (Debian python3-matplotlib)"""

@@ -1,4 +1,4 @@
-// Characterization sweep of the mCLARI microbot (seed 001 §5.1-5.2): every phase group x a list of
+// Characterization sweep of the mCLARI microbot (mCLARI thesis §5.1-5.2): every phase group x a list of
 // frequencies on each terrain, each run as one fixed-action episode, spread over threads.
 // Writes <out>/trajectories.csv (centre of mass after every 1 s step), <out>/summary.csv (mean
 // power, speed and efficiency per terrain, group and frequency), <out>/best.csv (the best fixed
@@ -70,14 +70,14 @@ int main(int argc, char** argv) {
   std::string out, config_path;
   int seconds = 60, threads = int(std::max(1u, std::thread::hardware_concurrency())), spp = 0;
   uint64_t seed = 1;
-  std::vector<int> freqs = {1, 20, 40, 60, 80, 100, 120, 150};  // seed 001 §5.1
+  std::vector<int> freqs = {1, 20, 40, 60, 80, 100, 120, 150};  // mCLARI thesis §5.1
   std::vector<int> groups, terrains = {0, 1, 2, 3, 4, 5};
   std::string groups_arg = "all";
   farm::cli::App app("farm-mclari-sweep");
   app.description("Runs every phase group x frequency on each terrain as one fixed-action episode.");
   app.add_option("--out", out, "Folder of the CSV files and the height field")->required();
-  app.add_option("--config", config_path, "Take task.mclari from this experiment config (defaults: seed 001)");
-  app.add_option("--seconds", seconds, "Episode length in 1 s steps (seed 001 §5.1: 1 minute)")
+  app.add_option("--config", config_path, "Take task.mclari from this experiment config (defaults: mCLARI thesis)");
+  app.add_option("--seconds", seconds, "Episode length in 1 s steps (mCLARI thesis §5.1: 1 minute)")
       ->check(CLI::Range(1, INT32_MAX))
       ->capture_default_str();
   app.add_option("--frequencies", freqs, "Comma-separated frequencies in Hz")->delimiter(',')->capture_default_str();

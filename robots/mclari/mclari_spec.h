@@ -6,7 +6,7 @@
 
 namespace farm {
 
-// Phase groups (seed 001 §2.2), the reduced set of them (§4.1.2) and terrains (§3.3); the task
+// Phase groups (mCLARI thesis §2.2), the reduced set of them (§4.1.2) and terrains (§3.3); the task
 // asserts they agree with its tables (robots/mclari/mclari_task.cpp).
 inline constexpr int kMclariPhaseGroups = 27;
 inline constexpr int kMclariReducedGroups = 8;

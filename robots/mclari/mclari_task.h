@@ -1,4 +1,4 @@
-// The mCLARI microbot task of seed 001 §4: each of the 8 actuators is driven by
+// The mCLARI microbot task of the mCLARI thesis §4: each of the 8 actuators is driven by
 // V sin(2 pi f t + phi); the agent picks the frequency (f <- f + a0 df, integer, clamped) and the
 // inter-leg phase group (a1 scaled to an index). One agent step is 1 s of simulated time at a
 // timestep of 1 / (500 f); actuator power |tau omega| is sampled every 2 ms.
@@ -23,7 +23,7 @@ struct McLariStepFigures {
   std::array<double, 8> mean_abs_power{};  // W, per actuator
   double power = 0;                        // W, sum of mean |P_i|
   double speed_mm_s = 0;                   // |delta com_xy| / step time
-  double efficiency = 0;                   // eta of seed 001 eq. 5.1
+  double efficiency = 0;                   // eta of the mCLARI thesis eq. 5.1
   int physics_steps = 0;
   int power_samples = 0;
   bool unstable = false;  // the simulation produced a non-finite state or a warning
@@ -105,7 +105,7 @@ class McLariTask final : public Task {
 };
 
 namespace mclari {
-// Registered as "mclari" (robots/tasks.def); reads cfg.mclari() (seed 001 defaults where unset).
+// Registered as "mclari" (robots/tasks.def); reads cfg.mclari() (mCLARI thesis defaults where unset).
 std::unique_ptr<Task> make_mclari_task(const config::TaskConfig& cfg);
 }  // namespace mclari
 

@@ -1,4 +1,4 @@
-// Terrains of seed 001 §3.3: plain or rough (a height field) x normal / wet / extra-dry friction
+// Terrains of the mCLARI thesis §3.3: plain or rough (a height field) x normal / wet / extra-dry friction
 // (table I), and the rough height field's generator.
 #pragma once
 
@@ -20,11 +20,11 @@ std::vector<float> gaussian_field(int n, double sigma, uint64_t seed);
 void normalize_min_max(std::vector<float>& v);
 // k x k mean filter (k odd), the mean over the in-bounds part of the window at the borders.
 std::vector<float> mean_filter(const std::vector<float>& v, int n, int k);
-// The seed's rough field: gaussian_field, normalize_min_max, then mean_filter(k); values in [0, 1].
+// The thesis's rough field: gaussian_field, normalize_min_max, then mean_filter(k); values in [0, 1].
 // Throws std::invalid_argument naming the parameter when n < 2, sigma <= 0 or k is not odd >= 1.
 std::vector<float> rough_height_field(int n, double sigma, int k, uint64_t seed);
 
-// 8-bit greyscale PNG of a field in [0, 1] (seed 001 §3.3 stores it as a PNG for debugging);
+// 8-bit greyscale PNG of a field in [0, 1] (mCLARI thesis §3.3 stores it as a PNG for debugging);
 // throws std::runtime_error naming the path when it cannot be written.
 void write_height_png(const std::string& path, const std::vector<float>& v, int n);
 

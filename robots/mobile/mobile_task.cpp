@@ -129,7 +129,7 @@ MobileTask::MobileTask(const MobileRobotSpec& robot) : robot_(robot) {
   const int wheel_geom = mj_name2id(m, mjOBJ_GEOM, wheels[0].c_str());
   if (wheel_geom < 0) throw std::runtime_error(robot.mjcf + ": expected a geom named '" + wheels[0] + "'");
   wheel_radius_ = m->geom_size[3 * wheel_geom];
-  // Geometry of the seed's kinematics, read from the MJCF: wheel spacing R (differential) or
+  // Geometry of the paper's kinematics, read from the MJCF: wheel spacing R (differential) or
   // center-to-wheel distance L (holonomic).
   const int wb0 = m->jnt_bodyid[wheel_joints_[0]];
   if (diff) {
@@ -351,7 +351,7 @@ StepResult MobileTask::step(TaskState& ts, const float* action, float* obs) cons
   s.step += 1;
   const double dist = std::hypot(s.map.goal_x - x, s.map.goal_y - y);
   s.last_distance = dist;
-  // Seed 002 eq. 9; the step weight 1 - i / N shrinks both the distance cost and the landing
+  // The mobile-robots paper eq. 9; the step weight 1 - i / N shrinks both the distance cost and the landing
   // reward as the episode goes on.
   const double weight = 1.0 - double(s.step) / double(c.max_episode_steps());
   StepResult r;

@@ -1,10 +1,10 @@
-// Goal reaching among random obstacles for the wheeled robots of seed 002: Jetbot (differential)
+// Goal reaching among random obstacles for the wheeled robots of the mobile-robots paper: Jetbot (differential)
 // and Kaya (three omni wheels). The agent commands the base, (V, W) or (Vx, Vy, W), either as
 // the index of a discrete command (DQN) or as a box in [-1, 1] scaled to the top speeds; the
 // seed's kinematics (kinematics.h) turn it into wheel speeds that velocity servos track.
 // Observation: lidar distances / range (rays), base velocity in the base frame (Vx, Vy, W) over
 // the top speeds, wheel speeds over the top wheel speed, distance to the goal / arena_half_size,
-// cos and sin of the heading error to the goal. Reward: seed 002 eq. 9.
+// cos and sin of the heading error to the goal. Reward: mobile-robots paper eq. 9.
 #pragma once
 
 #include <array>
@@ -70,7 +70,7 @@ class MobileTask final : public Task {
   // The base command an action asks for; throws std::invalid_argument on a discrete index out of
   // range.
   std::array<double, 3> base_command(const float* action) const;
-  // Wheel speeds (rad/s) for a base command, through the seed's kinematics; the first
+  // Wheel speeds (rad/s) for a base command, through the paper's kinematics; the first
   // num_wheels() entries are used (Jetbot: left, right; Kaya: A, B, C).
   std::array<double, 3> wheel_speeds(const std::array<double, 3>& cmd) const;
   int num_wheels() const { return int(wheel_joints_.size()); }

@@ -1,4 +1,4 @@
-// Random obstacle maps for the mobile-robot arena (seed 002 §3.1-3.2): a square arena with walls,
+// Random obstacle maps for the mobile-robot arena (mobile-robots paper §3.1-3.2): a square arena with walls,
 // a random number of obstacles of several sizes and shapes, and a start pose and goal drawn in
 // free space. The MuJoCo model holds a fixed set of obstacle slots (shape and size per slot, see
 // obstacle_slots()); a map says which slots are in use and where they stand.

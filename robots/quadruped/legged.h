@@ -1,4 +1,4 @@
-// The legged-robot layer the quadruped tasks share, after the environment interface of seed 000
+// The legged-robot layer the quadruped tasks share, after the environment interface of the MushroomRL paper
 // §3.2: an observation specification (named properties of named bodies and joints, plus custom
 // slots with bounds), reading and writing named properties, collision groups with "did A touch B"
 // and "net contact force on each member of a group" queries, and intermediate control steps (a
@@ -15,7 +15,7 @@ struct mjData_;
 
 namespace farm::robots::legged {
 
-// Properties the specification can name (seed 000 §3.2.1: properties of registered prims).
+// Properties the specification can name (MushroomRL paper §3.2.1: properties of registered prims).
 enum class Property {
   kBodyHeight,        // world z of a body's frame (1)
   kBodyLinVelLocal,   // linear velocity of a body in its own frame (3)
@@ -65,7 +65,7 @@ void build_observation(const mjModel_* m, const mjData_* d, const ObsSpec& spec,
                        const std::vector<std::vector<double>>& custom, double noise_level, std::mt19937_64& rng,
                        float* obs);
 
-// A named set of geoms (seed 000 §3.2.4).
+// A named set of geoms (MushroomRL paper §3.2.4).
 struct CollisionGroup {
   std::string name;
   std::vector<int> geoms;
@@ -82,7 +82,7 @@ int count_touching(const mjModel_* m, const mjData_* d, const CollisionGroup& a,
 // a pressure-sensor view of the group.
 void net_contact_forces(const mjModel_* m, const mjData_* d, const CollisionGroup& g, std::vector<double>& out);
 
-// Intermediate control steps (seed 000 §3.2.2): `steps` times, the controller writes d->ctrl from
+// Intermediate control steps (MushroomRL paper §3.2.2): `steps` times, the controller writes d->ctrl from
 // the current state, `before` runs, mj_step advances, `after` runs. Hooks may be empty.
 struct ControlHooks {
   std::function<void(mjData_*)> before;

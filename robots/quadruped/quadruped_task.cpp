@@ -39,16 +39,16 @@ RobotInfo info(Robot r) {
   throw std::invalid_argument("unknown robot");
 }
 
-// The Badger values of LeggedConfig (seed 000 §3.4), applied where the config leaves a field unset.
+// The Badger values of LeggedConfig (MushroomRL paper §3.4), applied where the config leaves a field unset.
 config::LeggedConfig with_robot_defaults(Robot r, config::LeggedConfig c) {
   if (!info(r).badger) return c;
-  if (!c.has_heading_command()) c.set_heading_command(false);       // seed 000 §3.4: yaw rate drawn directly
-  if (!c.has_randomize_dynamics()) c.set_randomize_dynamics(true);  // seed 000 §3.4
+  if (!c.has_heading_command()) c.set_heading_command(false);       // MushroomRL paper §3.4: yaw rate drawn directly
+  if (!c.has_randomize_dynamics()) c.set_randomize_dynamics(true);  // MushroomRL paper §3.4
   if (!c.has_kp()) c.set_kp(40.0);  // at 20 the heavier robot sags 7 cm (tests/unit/test_quadruped.cpp stands it)
   if (!c.has_kd()) c.set_kd(1.0);
   auto* w = c.mutable_reward();
-  if (!w->has_base_height()) w->set_base_height(-10.0);                   // seed 000 §3.4: goal height 0.3
-  if (!w->has_feet_pair_off_ground()) w->set_feet_pair_off_ground(-0.5);  // seed 000 §3.4
+  if (!w->has_base_height()) w->set_base_height(-10.0);                   // MushroomRL paper §3.4: goal height 0.3
+  if (!w->has_feet_pair_off_ground()) w->set_feet_pair_off_ground(-0.5);  // MushroomRL paper §3.4
   return c;
 }
 
@@ -191,7 +191,7 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   auto& p = s.dynamics;
   p.fill(0.0);
-  // Foot friction (seed 000 §3.3, every robot), min + (max - min) x U(0, 1), as the task of terms
+  // Foot friction (MushroomRL paper §3.3, every robot), min + (max - min) x U(0, 1), as the task of terms
   // draws it, so that the two give the same physics from the same seed.
   const double share = std::uniform_real_distribution<double>(0.0, 1.0)(s.rng);
   p[0] = 2 * share - 1;
@@ -205,7 +205,7 @@ void QuadrupedTask::randomize(QuadrupedState& s) const {
   s.velocity_limit = cfg_.velocity_limit();
   s.torque_limit = nominal_torque_limit_;
   if (!cfg_.randomize_dynamics()) return;
-  // Seed 000 §3.4: trunk mass, centre of mass, torque and velocity limits, foot size, joint
+  // The MushroomRL paper §3.4: trunk mass, centre of mass, torque and velocity limits, foot size, joint
   // damping / stiffness / armature / friction loss, PD gains, action scale, torque multiplier.
   for (int i = 1; i < kNumDynamicsParams; ++i) p[i] = u(s.rng);
   for (int body : {trunk_body_, rear_trunk_body_}) {
@@ -279,7 +279,7 @@ void QuadrupedTask::reset(TaskState& base, uint64_t seed, float* obs) const {
 }
 
 void QuadrupedTask::pd_control(QuadrupedState& s, mjData* d) const {
-  // PD law on every physics step (seed 000 §3.3), scaled by the torque multiplier and clipped to
+  // PD law on every physics step (MushroomRL paper §3.3), scaled by the torque multiplier and clipped to
   // the torque limit; no torque that drives a joint further past its speed limit.
   for (size_t j = 0; j < joints_.size(); ++j) {
     const double q = d->qpos[qpos_adr_[j]], qd = d->qvel[dofs_[j]];
@@ -327,7 +327,7 @@ RewardTerms QuadrupedTask::reward_terms(const QuadrupedState& s, const std::vect
     if (first_contact[f]) t.feet_air_time += s.feet_air_time[f] - cfg_.feet_air_time_target();
   if (!moving) t.feet_air_time = 0;
   t.base_height = (z - cfg_.base_height_target()) * (z - cfg_.base_height_target());
-  // Seed 000 §3.4: both front feet (FL, FR) or both rear feet (RL, RR) in the air.
+  // The MushroomRL paper §3.4: both front feet (FL, FR) or both rear feet (RL, RR) in the air.
   // With legged_gym's one-step contact filter, as for the air time (contact_filt, from step()): a
   // foot counts as down if it touched on this step or the one before. Raw contacts flicker at a
   // trot's diagonal hand-over, and the raw term fired on 5-19 % of the steps of a walking A1 gait
@@ -377,13 +377,13 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
     std::fill(obs, obs + spec_.obs_dim, 0.f);
     return r;
   }
-  // Random pushes (seed 000 §3.3): a velocity kick to the trunk.
+  // Random pushes (MushroomRL paper §3.3): a velocity kick to the trunk.
   if (s.push_every_steps > 0 && s.step % s.push_every_steps == 0) {
     std::uniform_real_distribution<double> push(-cfg_.push_max_vel(), cfg_.push_max_vel());
     d->qvel[0] += push(s.rng);
     d->qvel[1] += push(s.rng);
   }
-  // Commands: resampled with probability command_resample_prob per step (seed 000 §3.3).
+  // Commands: resampled with probability command_resample_prob per step (MushroomRL paper §3.3).
   if (std::uniform_real_distribution<double>(0, 1)(s.rng) < cfg_.command_resample_prob()) sample_command(s);
   if (cfg_.heading_command()) s.command[2] = heading_yaw_rate(s.heading_target, heading(s));
 
@@ -426,7 +426,7 @@ StepResult QuadrupedTask::step(TaskState& base, const float* action, float* obs)
 bool QuadrupedTask::fallen(const QuadrupedState& s) const {
   double z;
   legged::read_property(s.model, s.data, legged::Property::kBodyHeight, trunk_body_, &z);
-  // Seed 000 §3.3: the episode ends when the trunk (with its hip housings) touches the ground.
+  // The MushroomRL paper §3.3: the episode ends when the trunk (with its hip housings) touches the ground.
   return legged::touching(s.model, s.data, trunk_, floor_) || z < cfg_.min_base_height();
 }
 

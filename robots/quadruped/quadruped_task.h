@@ -1,4 +1,4 @@
-// Quadruped walking after velocity commands (seed 000 §3.3-3.4) for the Unitree A1, Honey Badger
+// Quadruped walking after velocity commands (MushroomRL paper §3.3-3.4) for the Unitree A1, Honey Badger
 // and Silver Badger (robots/quadruped/*.xml), on the legged layer (legged.h).
 //
 // Action: one target per actuated joint, default pose + action_scale * action_range * a, turned into
@@ -7,7 +7,7 @@
 //   command_yaw (1)  dof_pos (n, minus the default pose)  dof_vel (n)  last_action (n)
 //   Badgers also: base_height (1)  dynamics (16 randomized parameters, each mapped to [-1, 1]
 //   over its range, with noise)
-// Reward: the legged_gym terms the seed names (LeggedRewardScales), each times the policy step.
+// Reward: the legged_gym terms the paper names (LeggedRewardScales), each times the policy step.
 // Termination: the trunk touches the floor, the trunk falls below min_base_height, or the
 // simulation diverges.
 #pragma once
@@ -24,7 +24,7 @@ namespace farm::robots::quadruped {
 
 enum class Robot { kA1, kHoneyBadger, kSilverBadger };
 
-// The 16 randomized dynamics parameters the Badgers observe (seed 000 §3.4), in order.
+// The 16 randomized dynamics parameters the Badgers observe (MushroomRL paper §3.4), in order.
 constexpr int kNumDynamicsParams = 16;
 
 struct QuadrupedState : TaskState {
@@ -91,7 +91,7 @@ class QuadrupedTask final : public Task {
   const legged::CollisionGroup& floor() const { return floor_; }
   int trunk_body() const { return trunk_body_; }
 
-  // Draws a command as the seed does (§3.3: vx, vy ~ U(-max, max), each rounded to 0 below
+  // Draws a command as the paper does (§3.3: vx, vy ~ U(-max, max), each rounded to 0 below
   // small_command; heading ~ U(-pi, pi) or, for the Badgers, yaw rate ~ U(-max, max)).
   void sample_command(QuadrupedState& s) const;
   // The yaw-rate command from the heading error (A1), clipped to +-ang_vel_max.

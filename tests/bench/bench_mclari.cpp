@@ -1,7 +1,7 @@
 // mCLARI simulation throughput: RL steps per second of one worker thread at f = 1, 20 and 150 Hz
-// (one RL step = 1 s simulated at a timestep of 1 / (500 f), seed 001 §5.3), against a raw mj_step
+// (one RL step = 1 s simulated at a timestep of 1 / (500 f), mCLARI thesis §5.3), against a raw mj_step
 // loop of the same model at the same timestep, the limit of the task's own work per step.
-// Seed 001 §5.3: 5,000 steps at 150 Hz took 5 hours (0.28 steps/s).
+// The mCLARI thesis §5.3: 5,000 steps at 150 Hz took 5 hours (0.28 steps/s).
 #include <mujoco/mujoco.h>
 
 #include <chrono>
@@ -33,9 +33,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, farm::robots::mclari::kNumTerrains - 1))
       ->capture_default_str();
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
-  std::printf("mCLARI, terrain %d, one thread; steps per period 500 (seed 001)\n", terrain);
+  std::printf("mCLARI, terrain %d, one thread; steps per period 500 (mCLARI thesis)\n", terrain);
   std::printf("%6s %14s %16s %16s %8s %22s\n", "f [Hz]", "RL steps/s", "mj_step/s (task)", "mj_step/s (raw)", "ratio",
-              "seed 001 at 150 Hz");
+              "mCLARI thesis at 150 Hz");
   for (int f : {1, 20, 150}) {
     farm::config::MclariConfig cfg;
     cfg.set_fixed_frequency(f);

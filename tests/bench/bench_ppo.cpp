@@ -1,8 +1,8 @@
-// PPO fit time at seed 000's sizes: 98,304 steps per fit, 5 epochs, mini-batches of 6,144 (A1
+// PPO fit time at the MushroomRL paper's sizes: 98,304 steps per fit, 5 epochs, mini-batches of 6,144 (A1
 // column) and 3,072 (Honey / Silver Badger column), for an A1-sized problem (48 observations,
-// 12 actions, as in seed 000 §3.3) and networks of 512-256-128 (Rudin et al.'s, which seed 000's
-// A1 setup follows). The fit goes through the learner's own path: the steps sit in the rollout
-// storage as 16-step batches, GAE runs with the critic's values, then Ppo::fit.
+// 12 actions, as in the MushroomRL paper §3.3) and networks of 512-256-128 (Rudin et al.'s, which the MushroomRL
+// paper's A1 setup follows). The fit goes through the learner's own path: the steps sit in the rollout storage as
+// 16-step batches, GAE runs with the critic's values, then Ppo::fit.
 //   bench_ppo [--device cpu|cuda[:N]] [--threads N] [--fits K] [--steps S] [--hidden 512,256,128]
 // "Preparing" is the share of a fit's time spent before the gradient steps (the critic's values
 // for GAE, the returns and advantages, the copy to the device): the learner's own overhead per fit.
@@ -32,10 +32,10 @@ double seconds_since(Clock::time_point t0) { return std::chrono::duration<double
 int main(int argc, char** argv) {
   std::string device = "cpu";
   int threads = 1, fits = 2;
-  int64_t steps = 98304;  // seed 000 appendix: steps per fit
+  int64_t steps = 98304;  // MushroomRL paper appendix: steps per fit
   std::vector<int> hidden{512, 256, 128};
   farm::cli::App app("bench_ppo");
-  app.description("PPO fit time on random A1-sized data (seed 000 appendix).");
+  app.description("PPO fit time on random A1-sized data (MushroomRL paper appendix).");
   bench::add_device(app, device);
   bench::add_threads(app, threads);
   app.add_option("--fits", fits, "Fits measured after one warm-up fit")
@@ -49,7 +49,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   farm::configure_compute(threads);
-  constexpr int kObs = 48, kAct = 12, kT = 16;  // A1: observation and action sizes (seed 000 §3.3)
+  constexpr int kObs = 48, kAct = 12, kT = 16;  // A1: observation and action sizes (MushroomRL paper §3.3)
   const int64_t envs = steps / kT;
   std::mt19937_64 rng(1);
   std::normal_distribution<float> g;
@@ -61,7 +61,7 @@ int main(int argc, char** argv) {
   std::vector<uint8_t> term(kT * envs, 0), trunc(kT * envs, 0);
   for (size_t i = 0; i < term.size(); i += 97) term[i] = 1;
 
-  for (int mb : {6144, 3072}) {  // seed 000 appendix: mini-batch size, A1 and Badger columns
+  for (int mb : {6144, 3072}) {  // MushroomRL paper appendix: mini-batch size, A1 and Badger columns
     farm::config::PpoConfig c;
     c.set_mini_batch_size(mb);
     c.set_steps_per_fit(steps);

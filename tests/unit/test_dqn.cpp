@@ -42,7 +42,7 @@ TEST(DqnTarget, DoubleQUsesOnlineArgmaxAndTargetValue) {
 }
 
 TEST(DqnSchedule, EpsilonFallsLinearlyThenStays) {
-  config::DqnConfig c;  // seed 002 table 3: fraction 0.35 of 3,000,000 steps; sb3 1.0 -> 0.05
+  config::DqnConfig c;  // mobile-robots paper table 3: fraction 0.35 of 3,000,000 steps; sb3 1.0 -> 0.05
   EXPECT_DOUBLE_EQ(dqn_epsilon(c, 0), 1.0);
   EXPECT_NEAR(dqn_epsilon(c, 525000), 1.0 - 0.5 * 0.95, 1e-12);
   EXPECT_NEAR(dqn_epsilon(c, 1050000), 0.05, 1e-12);

@@ -1,4 +1,4 @@
-// mCLARI microbot (seed 001): model constants, stability, phase groups, the power / speed /
+// mCLARI microbot (mCLARI thesis): model constants, stability, phase groups, the power / speed /
 // efficiency computations, the height-field generator, reward and termination. The gait the
 // action picks and the observation of gait and terrain: test_mclari_gait.cpp.
 #include <gtest/gtest.h>
@@ -42,7 +42,7 @@ McLariState& st(farm::robots::TaskState& s) { return static_cast<McLariState&>(s
 TEST(McLari, ModelHasTheSeedConstants) {
   McLariTask task(farm::config::MclariConfig{});
   const mjModel* m = task.model();
-  EXPECT_NEAR(task.robot_mass(), 0.96, 1e-9);    // seed 001 §1.2
+  EXPECT_NEAR(task.robot_mass(), 0.96, 1e-9);    // mCLARI thesis §1.2
   EXPECT_DOUBLE_EQ(m->opt.gravity[2], -9810.0);  // mm/s^2
   EXPECT_EQ(m->nu, 8);
   EXPECT_EQ(m->ntendon, 2);
@@ -58,7 +58,7 @@ TEST(McLari, ModelHasTheSeedConstants) {
       EXPECT_NEAR(m->jnt_range[2 * j], -5 * kPi / 180, 1e-9);
       EXPECT_NEAR(m->jnt_range[2 * j + 1], 5 * kPi / 180, 1e-9);
       // springdamper="0.25 0.1": stiffness = M / (0.25 * 0.1)^2 = 1600 M and damping = 2 M / 0.25
-      // = 8 M, i.e. H(s) = 1 / (s^2 + 8 s + 1600) per unit inertia (seed 001 eq. 3.1). MuJoCo's
+      // = 8 M, i.e. H(s) = 1 / (s^2 + 8 s + 1600) per unit inertia (mCLARI thesis eq. 3.1). MuJoCo's
       // compiler takes M from its own inertia pass, within 1% of dof_M0.
       const int dof = m->jnt_dofadr[j];
       const double M = m->dof_M0[dof];
@@ -76,7 +76,7 @@ TEST(McLari, ModelHasTheSeedConstants) {
 
 // No NaN, no divergence and no fall over 60 s at 1 and 150 Hz on every terrain, with the
 // simulation settings of deploy/configs/mclari_sac.txtpb (20 steps per period, timestep at most
-// 2 ms); 1 s at 150 Hz with the seed's 500 steps per period covers its finer timestep. Terrains
+// 2 ms); 1 s at 150 Hz with the thesis's 500 steps per period covers its finer timestep. Terrains
 // are split over two threads to keep the test short.
 TEST(McLari, StableSixtySecondsOnEveryTerrain) {
   struct Case {
@@ -233,7 +233,7 @@ TEST(McLari, HeightFieldShapeRangeAndFilter) {
   std::filesystem::remove(png);
   EXPECT_THROW(mclari::write_height_png("/nonexistent-dir/x.png", field, n), std::runtime_error);
 
-  // The task's field is the seed's 200 x 200 and the rough terrains use it.
+  // The task's field is the thesis's 200 x 200 and the rough terrains use it.
   McLariTask task(farm::config::MclariConfig{});
   EXPECT_EQ(task.height_field().size(), 200u * 200u);
   EXPECT_EQ(task.terrain_model(3)->hfield_nrow[0], 200);

@@ -1,4 +1,4 @@
-// mCLARI microbot (seed 001): how the action picks the gait (frequency and phase group, from the
+// mCLARI microbot (mCLARI thesis): how the action picks the gait (frequency and phase group, from the
 // seed's step rule or from explicit sets) and the observation of the gait and the terrain.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// Mobile robots of seed 002 (Jetbot, Kaya): kinematics, lidar, obstacle maps, reward, action
+// Mobile robots of the mobile-robots paper (Jetbot, Kaya): kinematics, lidar, obstacle maps, reward, action
 // spaces, on the real MuJoCo models.
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>

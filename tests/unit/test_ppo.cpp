@@ -234,7 +234,7 @@ TEST(FitScheduler, EpisodesPerFitWithStepsPerRun) {
 
 TEST(FitScheduler, DatasetShapeIsTheCorrectedFormulaNotTheFaultyOne) {
   FitPlan p;
-  p.steps_per_fit = 98304;  // seed 000 appendix
+  p.steps_per_fit = 98304;  // MushroomRL paper appendix
   auto d = dataset_shape(p, 4096, 1000);
   EXPECT_EQ(d.rows, 98304 / 4096 + 1);  // (ceil(N_steps / N_envs) + 1, N_envs)
   EXPECT_EQ(d.cols, 4096);

@@ -1,4 +1,4 @@
-// Quadrupeds of seed 000 (Unitree A1, Honey Badger, Silver Badger) on the legged layer: models
+// Quadrupeds of the MushroomRL paper (Unitree A1, Honey Badger, Silver Badger) on the legged layer: models
 // stand, observation layout and scales, reward terms, command sampling and randomization ranges,
 // on the real MuJoCo models. Contacts and falls: test_quadruped_contacts.cpp.
 #include <gtest/gtest.h>
@@ -180,7 +180,7 @@ TEST(Quadruped, RewardTermsMatchHandComputedValues) {
        w8.torques() * 48 + w8.dof_acc() * 300 + w8.action_rate() * 12 + w8.feet_air_time() * 0.0) *
       0.02;
   EXPECT_NEAR(task->total_reward(t), std::max(0.0, expected), 1e-9);
-  // A1: no base-height or feet-pair terms; Badgers: both (seed 000 §3.4).
+  // A1: no base-height or feet-pair terms; Badgers: both (MushroomRL paper §3.4).
   EXPECT_EQ(w8.base_height(), 0.0);
   EXPECT_LT(quiet_task("honey_badger")->config().reward().base_height(), 0.0);
   EXPECT_LT(quiet_task("silver_badger")->config().reward().feet_pair_off_ground(), 0.0);
@@ -215,7 +215,7 @@ TEST(Quadruped, CommandSamplingStatistics) {
     for (int i = 0; i < 2; ++i) {
       const double c = qs.command[i];
       ASSERT_LE(std::abs(c), 1.0);
-      ASSERT_TRUE(c == 0.0 || std::abs(c) >= 0.2) << c;  // seed 000 §3.3: |v| < 0.2 rounds to 0
+      ASSERT_TRUE(c == 0.0 || std::abs(c) >= 0.2) << c;  // MushroomRL paper §3.3: |v| < 0.2 rounds to 0
     }
     ASSERT_LE(std::abs(qs.command[2]), 1.0);
     ASSERT_LE(std::abs(qs.heading_target), M_PI);
@@ -317,7 +317,7 @@ TEST(Quadruped, RandomizationStaysWithinItsRanges) {
           ASSERT_LE(qs.model->dof_frictionloss[dof], c.frictionloss_max() + 1e-12);
         }
       } else {
-        ASSERT_EQ(m, m0);  // the A1 randomizes friction, start pose and pushes only (seed 000 §3.3)
+        ASSERT_EQ(m, m0);  // the A1 randomizes friction, start pose and pushes only (MushroomRL paper §3.3)
         ASSERT_EQ(qs.kp, c.kp());
       }
     }

@@ -1,4 +1,4 @@
-// Quadrupeds of seed 000 (Unitree A1, Honey Badger, Silver Badger): contact queries of the legged
+// Quadrupeds of the MushroomRL paper (Unitree A1, Honey Badger, Silver Badger): contact queries of the legged
 // layer and what counts as a fall, on the real MuJoCo models.
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>

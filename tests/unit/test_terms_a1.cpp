@@ -1,4 +1,4 @@
-// The A1 of seed 000 written as a task of terms (deploy/configs/a1_terms_ppo.txtpb) against the
+// The A1 of the MushroomRL paper written as a task of terms (deploy/configs/a1_terms_ppo.txtpb) against the
 // hand-written task "a1" (deploy/configs/a1_ppo.txtpb): from the same seeds and the same actions,
 // over thousands of steps and many episodes, the same observations and rewards to float rounding,
 // and the same terminations and truncations on the same steps.

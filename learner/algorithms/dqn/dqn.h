@@ -1,7 +1,7 @@
 // Double DQN (van Hasselt, Guez and Silver 2016) with a target network, for tasks with discrete
 // actions. Losses and update order follow stable-baselines3's DQN (Huber loss, gradient-norm
-// clipping, hard target copies), which seed 002 trains its Jetbot with, so its hyperparameters
-// (seed 002 table 3) apply; the target is the double-Q one unless dqn.double_q is off.
+// clipping, hard target copies), which the mobile-robots paper trains its Jetbot with, so its hyperparameters
+// (mobile-robots paper table 3) apply; the target is the double-Q one unless dqn.double_q is off.
 // Actions in a batch are the action index stored as one float.
 #pragma once
 

@@ -1,4 +1,4 @@
-// When to fit and when a run ends, with the semantics of MushroomRL's vectorized core as seed 000
+// When to fit and when a run ends, with the semantics of MushroomRL's vectorized core as the MushroomRL paper
 // §3.1 describes (with the thesis' corrections): a fit is triggered by a number of steps or of
 // episodes, a run ends after a number of steps and/or episodes, steps collected beyond a fit
 // carry over to the next one, and the mask lets only as many environments run as the fit and the
@@ -20,7 +20,7 @@ struct FitPlan {
 void check_fit_plan(const FitPlan& p);
 
 // The dataset one fit needs, [rows x cols] = [collection steps x parallel environments], as
-// corrected in seed 000 §3.1: (ceil(N_steps / N_envs) + 1, N_envs) when fitting by steps (+1
+// corrected in the MushroomRL paper §3.1: (ceil(N_steps / N_envs) + 1, N_envs) when fitting by steps (+1
 // for the steps carried over), (ceil(N_episodes / N_envs) * horizon, min(N_envs, N_episodes))
 // when fitting by episodes; not the faulty (N_steps, N_envs).
 struct DatasetShape {

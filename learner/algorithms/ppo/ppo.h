@@ -1,6 +1,6 @@
 // Proximal Policy Optimization (Schulman et al. 2017) as MushroomRL's PPO: a Gaussian policy with a
 // state-independent learned log-std, a value network, GAE, the clipped surrogate, a value loss and
-// an entropy bonus, several epochs over shuffled mini-batches; and, for the variant seed 000
+// an entropy bonus, several epochs over shuffled mini-batches; and, for the variant the MushroomRL paper
 // trains its quadrupeds with (§4, appendix), gradient-norm clipping and a learning rate that
 // follows the KL between the old and the new policy. Observations are normalized with running
 // statistics the learner keeps and ships with the weights.
@@ -20,7 +20,7 @@
 
 namespace farm {
 
-// The KL-adaptive rate of seed 000's modified PPO: divided by lr_factor when kl > kl_band *
+// The KL-adaptive rate of the MushroomRL paper's modified PPO: divided by lr_factor when kl > kl_band *
 // desired_kl, multiplied by lr_factor when kl < desired_kl / kl_band, kept in [lr_min, lr_max].
 double adapt_learning_rate(double lr, double kl, const config::PpoConfig& cfg);
 
