@@ -15,7 +15,8 @@ task's own goal:
   pendulum, cart-pole   evaluation return (learner.csv) against stop.target_eval_return
   a1, honey_badger,     the walking threshold of docs/record/quadrupeds.md: eval_tracking_lin >= 0.6 and
   silver_badger         eval_fell < 0.1 (learner.csv; measure: eval_tracking_lin)
-  jetbot, kaya          success over --eval-episodes (default 100) fresh maps, farm-mobile-eval
+  jetbot, kaya          success over --eval-episodes (default 100) fresh maps, farm-mobile-eval;
+                        the goal's time: the first learner evaluation at 95 % success or more
   mclari                farm-mclari-eval on the six terrains against docs/data/mclari_best_180s.csv:
                         the worst terrain's share of the best fixed point, and falls
 Writes DIR/seeds.md (per-seed table, then median and interquartile mean with a 95 % bootstrap
@@ -390,6 +391,8 @@ def report(args, task, kind, target, seeds):
                  steps=number(last.get("env_steps")) if math.isnan(steps) else steps)
         curve = measure_curve(run, "walking" if kind == "walking" else "return", target) if rows else None
         r["time"] = curve["time"] if curve else math.nan
+        if kind == "mobile":  # the first of the learner's evaluations (not the final one) at the goal
+            r["time"] = next((t for t, v in eval_success(run, ("eval",)) if v >= MOBILE_GOAL), math.nan)
         r["same"] = same_policy(run) if kind in ("mobile", "mclari") else None
         if kind in ("return", "walking"):
             r.update(best=curve["best"] if curve else math.nan, final=curve["final"] if curve else math.nan,
@@ -457,11 +460,11 @@ def report(args, task, kind, target, seeds):
     return met
 
 
-def eval_success(run):
+def eval_success(run, labels=("eval", "final")):
     """(elapsed s when asked, success %) of every evaluation of a mobile robot's run, its final one
-    included: learner.csv has no success column."""
+    included unless labels leave it out: learner.csv has no success column."""
     return [(float(e["asked_elapsed_s"]), round(100.0 * float(e["metrics"]["success"]), 3))
-            for e in evaluations(run, ("eval", "final")) if (e.get("metrics") or {}).get("success") is not None]
+            for e in evaluations(run, labels) if (e.get("metrics") or {}).get("success") is not None]
 
 
 def eval_share(run):
