@@ -36,6 +36,9 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   if (c.buffer_size() < c.batch_size())
     s.fail("buffer_size", "expected >= sac.batch_size (" + num(c.batch_size()) + "), got " + num(c.buffer_size()));
   s.non_negative("learning_starts", c.learning_starts());
+  s.check(c.learning_starts() <= c.buffer_size(), "learning_starts",
+          "expected <= sac.buffer_size (" + num(c.buffer_size()) +
+              "), since updates wait for this many rows in the replay buffer; got " + num(c.learning_starts()));
   s.layer_sizes("hidden", c.hidden());
   s.layer_sizes("critic_hidden", c.critic_hidden());
   s.positive("initial_alpha", c.initial_alpha());
@@ -62,6 +65,9 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   s.in_unit("exploration_final_eps", c.exploration_final_eps());
   s.positive("schedule_env_steps", c.schedule_env_steps());
   s.non_negative("learning_starts", c.learning_starts());
+  s.check(c.learning_starts() <= c.buffer_size(), "learning_starts",
+          "expected <= dqn.buffer_size (" + num(c.buffer_size()) +
+              "), since updates wait for this many rows in the replay buffer; got " + num(c.learning_starts()));
   s.positive("target_update_updates", c.target_update_updates());
   s.positive("max_grad_norm", c.max_grad_norm());
   s.layer_sizes("hidden", c.hidden());

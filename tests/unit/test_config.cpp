@@ -320,6 +320,14 @@ TEST(Config, AlgorithmSectionErrorsNameFileLineAndField) {
             "exp.txtpb:4:3: field 'dqn.n_step': expected >= 1, got 0");
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"sac\"\nsac {\n  n_step: 0\n}\n"),
             "exp.txtpb:4:3: field 'sac.n_step': expected >= 1, got 0");
+  // Updates wait for learning_starts rows in the replay buffer, which holds buffer_size at most.
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  buffer_size: 20000\n}\n"),
+            "exp.txtpb:3:1: field 'dqn.learning_starts': expected <= dqn.buffer_size (20000), since updates wait "
+            "for this many rows in the replay buffer; got 50000");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  learning_starts: 5001\n  buffer_size: 5000\n}\n"),
+            "exp.txtpb:3:3: field 'sac.learning_starts': expected <= sac.buffer_size (5000), since updates wait "
+            "for this many rows in the replay buffer; got 5001");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  learning_starts: 5000\n  buffer_size: 5000\n}\n"), "");
   // The asynchronous mode fits data of recent versions: a window of 0 would use none of it.
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"ppo\"\nppo {\n  mode: \"async\"\n}\n"),
             "exp.txtpb:4:3: field 'ppo.mode': \"async\" fits data of recent versions: needs ppo.max_policy_lag >= 1, "
