@@ -2,7 +2,7 @@
 // that does not, saves and loads its networks in its own sub-folder, reads them back as the
 // workers' policy (for farm-policy-file), runs in the pacing of its kind, exports its policy in the
 // Torch-free tools build from the config (common/policy_shape.h), and the config's algorithm
-// sections and the registry name the same algorithms.
+// sections and the registry name the same algorithms. DQN's exploration clock survives a resume.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -12,7 +12,9 @@
 #include <stdexcept>
 #include <string>
 
+#include "batch.h"
 #include "config.h"
+#include "dqn.h"
 #include "pacing.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "policy_shape.h"
@@ -171,6 +173,53 @@ TEST(AlgorithmRegistry, UntrainedPoliciesFollowTheSeed) {
   EXPECT_THROW(farm::policy_shape(dqn, continuous_spec()), std::invalid_argument);
   dqn.set_algorithm("a2c");
   EXPECT_THROW(farm::policy_shape(dqn, discrete_spec()), std::invalid_argument);
+}
+
+// One batch of `rows` one-step transitions of the 3-observation test task, action 1.
+struct Rows {
+  explicit Rows(int rows) : truncated(size_t(rows), 0) {
+    t.n = rows;
+    t.obs.assign(size_t(rows) * 3, 0.5f);
+    t.actions.assign(size_t(rows), 1.f);
+    t.rewards.assign(size_t(rows), 1.f);
+    t.next_obs.assign(size_t(rows) * 3, 0.4f);
+    t.terminated.assign(size_t(rows), 0);
+    batch.num_steps = 1;
+    batch.num_envs = rows;
+    batch.truncated = truncated.data();
+    batch.rows = &t;
+  }
+  farm::Transitions t;
+  std::vector<uint8_t> truncated;
+  farm::Batch batch;
+};
+
+// DQN's epsilon follows the env steps inserted. A resumed run carries on from every step the
+// checkpoint's accounts hold (the manifest's env_steps), not only those up to the last version
+// exported before the checkpoint.
+TEST(DqnAlgorithm, ExplorationResumesFromEveryStepTheCheckpointHolds) {
+  const auto cfg = farm::parse_config_text(
+      "experiment_id: \"dqn_resume\"\nalgorithm: \"dqn\"\n"
+      "dqn { hidden: [8] buffer_size: 1000 batch_size: 4 learning_starts: 0 schedule_env_steps: 1000 "
+      "exploration_fraction: 1 }\n",
+      "dqn_resume.txtpb");
+  const fs::path dir = fs::temp_directory_path() / ("farm_dqn_resume_" + std::to_string(::getpid()));
+  farm::remove_tree(dir.string());
+  fs::create_directories(dir);
+  auto algo = farm::make_algorithm(cfg, discrete_spec());
+  algo->insert(Rows(100).batch);
+  EXPECT_FLOAT_EQ(algo->policy(1).epsilon, float(farm::dqn_epsilon(cfg.dqn(), 100)));
+  algo->insert(Rows(300).batch);  // after version 1 was exported, before the checkpoint
+  algo->save(dir.string());
+  farm::config::CheckpointManifest m;
+  algo->to_manifest(m);
+  m.set_env_steps(400);  // the learner's accounts: every step it accepted
+  auto resumed = farm::make_algorithm(cfg, discrete_spec());
+  resumed->load(dir.string());
+  resumed->from_manifest(m);
+  EXPECT_FLOAT_EQ(resumed->policy(2).epsilon, float(farm::dqn_epsilon(cfg.dqn(), 400)));
+  EXPECT_FLOAT_EQ(algo->policy(2).epsilon, float(farm::dqn_epsilon(cfg.dqn(), 400)));
+  farm::remove_tree(dir.string());
 }
 
 }  // namespace

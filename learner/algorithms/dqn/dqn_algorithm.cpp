@@ -1,6 +1,7 @@
 // DQN as the learner runs it: the Q networks (dqn.h) over the shared replay storage
 // (replay_store.h). Exploration follows the env steps inserted; a policy version keeps the epsilon
 // it was first exported with, so that one version is one policy.
+#include <algorithm>
 #include <filesystem>
 #include <limits>
 #include <stdexcept>
@@ -76,6 +77,9 @@ class DqnAlgorithm final : public Algorithm {
   void to_manifest(config::CheckpointManifest& m) const override { replay_.to_manifest(m); }
   std::string from_manifest(const config::CheckpointManifest& m) override {
     replay_.from_manifest(m);
+    // Every step the checkpoint's accounts hold was inserted; the networks' copy counts only those
+    // up to the last version exported before the checkpoint.
+    env_steps_ = std::max(env_steps_, int64_t(m.env_steps()));
     return std::to_string(dqn_.updates()) + " updates, buffer " + std::to_string(replay_.size());
   }
 
