@@ -7,7 +7,7 @@
 #include <string>
 
 #include "farm_config.pb.h"
-#include "ingest.h"
+#include "ingest_accounts.h"
 #include "paths.h"  // remove_tree
 
 namespace farm {
@@ -26,8 +26,5 @@ config::CheckpointManifest read_manifest(const std::string& dir, const std::stri
 // A non-empty run directory is renamed RUN.<unix time>, never overwritten; returns the new name
 // ("" when there was nothing to move).
 std::string move_run_dir_aside(const std::string& run_dir);
-
-void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m);
-void accounts_from_manifest(const config::CheckpointManifest& m, Ingest& ingest);
 
 }  // namespace farm

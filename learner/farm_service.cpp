@@ -295,7 +295,7 @@ void FarmService::prepare_run_dir() {
     elapsed_offset_ = m.elapsed_seconds();
     checkpointer_.resume(m);
     returns_.total = m.episodes();
-    intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in); });
+    intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in, now_seconds()); });
     // The first progress line's rates count from the restored counters, not from zero.
     const IngestCounters c = intake_.counters();
     last_counters_ = c;

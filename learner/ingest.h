@@ -72,8 +72,13 @@ class Ingest {
   const IngestCounters& counters() const { return counters_; }
   using Key = std::pair<std::string, uint64_t>;  // (worker id, session)
   const std::map<Key, WorkerAccount>& workers() const { return workers_; }
-  // Restores accounting from a checkpoint, so batches sent while the learner was away count as lost.
-  void restore(const std::map<Key, WorkerAccount>& workers, const IngestCounters& counters);
+  // Accounts retired and kept (the last kMaxRetired): a stream that comes back continues its own.
+  const std::map<Key, WorkerAccount>& retired_accounts() const { return retired_; }
+  // Restores accounting from a checkpoint (ingest_accounts.h), so batches sent while the learner
+  // was away count as lost: the open streams, and the retired ones kept aside (at most
+  // kMaxAccounts and kMaxRetired of them; past that, the retired with the fewest batches go).
+  void restore(const std::map<Key, WorkerAccount>& open, const std::map<Key, WorkerAccount>& retired,
+               const IngestCounters& counters);
 
   // The shape/number check alone, exposed for tests and tools; "" when valid.
   std::string check(const farm::msg::TransitionBatch& b) const;

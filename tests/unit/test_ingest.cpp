@@ -6,6 +6,7 @@
 
 #include "config.h"
 #include "ingest.h"
+#include "ingest_accounts.h"
 
 using farm::FinishedEpisode;
 using farm::Ingest;
@@ -235,6 +236,40 @@ TEST_F(Fixture, IdleAccountsExpire) {
   EXPECT_EQ(ingest.workers().size(), 1u);
   EXPECT_EQ(ingest.workers().count({"w2", 7}), 1u);
   EXPECT_EQ(ingest.retired(), 1u);
+}
+
+// A checkpoint holds the open streams and the retired ones: after a resume (a new process, whose
+// clock may read anything), no open stream is retired as idle for the time the learner was away,
+// a retired stream that comes back continues its own count, and a late batch of a gap is taken.
+TEST_F(Fixture, CheckpointedAccountsResumeOpenAndRetiredStreams) {
+  auto w1 = [](uint64_t seq) { return make_batch(seq); };
+  auto w2 = [](uint64_t seq) {
+    auto b = make_batch(seq);
+    b.worker_id("w2");
+    return b;
+  };
+  EXPECT_EQ(ingest.accept(w1(0), 5, 10.0, out, eps), "");
+  EXPECT_EQ(ingest.accept(w1(1), 5, 11.0, out, eps), "");
+  EXPECT_EQ(ingest.accept(w1(3), 5, 12.0, out, eps), "");  // 2 missing: lost, for now
+  EXPECT_EQ(ingest.accept(w2(0), 5, 650.0, out, eps), "");
+  EXPECT_EQ(ingest.expire(700.0, 600.0), 1u);  // w1, idle since 12 s
+  ASSERT_EQ(ingest.retired_accounts().size(), 1u);
+  farm::config::CheckpointManifest m;
+  farm::accounts_to_manifest(ingest, m);
+
+  Ingest resumed{"exp", kObs, kAct};
+  const double now = 1e6;
+  farm::accounts_from_manifest(m, resumed, now);
+  EXPECT_EQ(resumed.counters().ok, ingest.counters().ok);
+  EXPECT_EQ(resumed.counters().lost, 1u);
+  EXPECT_EQ(resumed.expire(now + 1, 600.0), 0u) << "an open stream retired for the learner's time away";
+  EXPECT_EQ(resumed.workers().count({"w2", 7}), 1u);
+  EXPECT_EQ(resumed.accept(w1(2), 5, now + 2, out, eps), "");  // late, not lost after all
+  EXPECT_EQ(resumed.accept(w1(4), 5, now + 3, out, eps), "");
+  EXPECT_EQ(resumed.accept(w2(1), 5, now + 4, out, eps), "");
+  EXPECT_EQ(resumed.counters().lost, 0u);
+  EXPECT_EQ(resumed.workers().at({"w1", 7}).received, 5u);
+  EXPECT_EQ(resumed.workers().at({"w2", 7}).received, 2u);
 }
 
 // A stream takes batches only from the participant that opened it: another participant writing
