@@ -65,7 +65,10 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
 
 int FarmService::run() {
   prepare_run_dir();
-  intake_.start();
+  // The threads run from here: their events count from the run's restored clock until it starts
+  // below (after the warm-up), and batches are checked against the restored version.
+  events_.set_start(now_seconds() - elapsed_offset_);
+  intake_.start(algo_->version());
   roster_.start();
   Evaluator::drop_snapshot(evaluator_.dir());  // what a learner that crashed mid-evaluation left
   algo_->warm_up(*this);                       // workers are not told of the run yet, so none waits on it

@@ -27,7 +27,8 @@ IngestThread::~IngestThread() {
   if (thread_.joinable()) thread_.join();
 }
 
-void IngestThread::start() {
+void IngestThread::start(uint64_t version) {
+  version_.store(version);
   {
     std::lock_guard<std::mutex> lk(mu_);
     env_steps_.store(ingest_.counters().env_steps);

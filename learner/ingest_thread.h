@@ -57,8 +57,10 @@ class IngestThread {
   IngestThread(const IngestThread&) = delete;
   IngestThread& operator=(const IngestThread&) = delete;
 
-  // Starts taking batches (after a resume has restored the accounts).
-  void start();
+  // Starts taking batches (after a resume has restored the accounts), checked against `version`,
+  // the algorithm's latest: a resumed run's workers send batches of the version they had from the
+  // first moment, before the run's loop publishes anything.
+  void start(uint64_t version);
   // The policy version batches are checked against (the algorithm's latest).
   void set_version(uint64_t v) { version_.store(v); }
   // Pops up to max accepted batches, oldest first, and hands each to take (on the caller's thread,

@@ -83,7 +83,7 @@ class LearnerBus {
                                              int(task_.metric_names.size()))) {
     if (!events_path.empty()) events_.open(events_path);
     events_.set_start(farm::now_seconds());
-    intake_.start();
+    intake_.start(0);  // no policy yet: the first is the caller's publish
     roster_.start();
     spec_.publish(false);
   }

@@ -238,7 +238,7 @@ class Intake {
       thread_in_ = std::make_unique<farm::IngestThread>(
           bus, std::move(ingest), bound, size_t(s.cfg.ingest_queue_mib() * 1024 * 1024),
           [](const std::string& line) { std::fprintf(stderr, "bench_ingest: %s\n", line.c_str()); }, events_);
-      thread_in_->start();
+      thread_in_->start(0);  // the senders write version 0, as the one-thread loop takes them
     }
     loop_ = std::thread([this] { loop(); });
   }

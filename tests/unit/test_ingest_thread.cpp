@@ -22,6 +22,7 @@
 namespace {
 
 constexpr int kObs = 2, kAct = 1;
+constexpr uint64_t kVersion = 7;  // the run's policy version when the thread starts
 
 farm::msg::TransitionBatch batch(uint64_t seq) {
   farm::msg::TransitionBatch b;
@@ -29,7 +30,7 @@ farm::msg::TransitionBatch batch(uint64_t seq) {
   b.worker_id("w1");
   b.worker_session(7);
   b.sequence_number(seq);
-  b.policy_version(0);
+  b.policy_version(kVersion);  // a resumed run's: the thread must know it from its start
   b.num_steps(1);
   b.num_envs(2);
   b.obs_dim(kObs);
@@ -89,7 +90,7 @@ TEST(IngestThread, SlowConsumerLosesNothingAndTheQueueHoldsTheThreadBack) {
         lines.push_back(m);
       },
       events);
-  intake.start();
+  intake.start(kVersion);
 
   std::vector<uint64_t> got;
   size_t most_queued = 0, one_batch = 0;
