@@ -17,7 +17,7 @@ batch=$((envs * steps))
 cat >"$dir/sac.txtpb" <<CFG
 experiment_id: "it_sender"
 task { name: "pendulum" }
-sac { hidden: 16 hidden: 16 learning_starts: 100000000 }
+sac { hidden: 16 hidden: 16 learning_starts: 1000000 buffer_size: 1000000 }
 worker { envs_per_worker: $envs steps_per_batch: $steps max_batches_per_version: 100000 }
 eval { episodes: 2 every_seconds: 600 final_episodes: 2 }
 checkpoint_every_seconds: 600
