@@ -254,7 +254,7 @@ void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double 
   fold_n_step(b.num_steps(), b.num_envs(), b.truncated().data(), rows, gamma, n_step);
 }
 
-void Ingest::restore(const std::map<Key, WorkerAccount>& open, const std::map<Key, WorkerAccount>& retired,
+void Ingest::restore(const std::map<Key, WorkerAccount>& open, const std::vector<WorkerAccount>& retired,
                      const IngestCounters& counters) {
   workers_.clear();
   retired_.clear();
@@ -263,15 +263,10 @@ void Ingest::restore(const std::map<Key, WorkerAccount>& open, const std::map<Ke
     if (workers_.size() >= kMaxAccounts) break;
     workers_.emplace(key, w);
   }
-  // Oldest out first when more come back than are kept: the ones with the fewest batches.
-  std::vector<const std::pair<const Key, WorkerAccount>*> order;
-  for (const auto& kv : retired)
-    if (!workers_.count(kv.first)) order.push_back(&kv);
-  std::sort(order.begin(), order.end(), [](auto* a, auto* b) { return a->second.received < b->second.received; });
-  if (order.size() > kMaxRetired) order.erase(order.begin(), order.end() - kMaxRetired);
-  for (const auto* kv : order) {
-    retired_order_.push_back(kv->first);
-    retired_.emplace(kv->first, kv->second);
+  for (size_t i = retired.size() > kMaxRetired ? retired.size() - kMaxRetired : 0; i < retired.size(); ++i) {
+    const Key key{retired[i].worker_id, retired[i].session};
+    if (workers_.count(key) || !retired_.emplace(key, retired[i]).second) continue;
+    retired_order_.push_back(key);
   }
   counters_ = counters;
 }

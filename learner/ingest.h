@@ -74,10 +74,12 @@ class Ingest {
   const std::map<Key, WorkerAccount>& workers() const { return workers_; }
   // Accounts retired and kept (the last kMaxRetired): a stream that comes back continues its own.
   const std::map<Key, WorkerAccount>& retired_accounts() const { return retired_; }
+  // Their keys, oldest retired first.
+  const std::deque<Key>& retired_order() const { return retired_order_; }
   // Restores accounting from a checkpoint (ingest_accounts.h), so batches sent while the learner
-  // was away count as lost: the open streams, and the retired ones kept aside (at most
-  // kMaxAccounts and kMaxRetired of them; past that, the retired with the fewest batches go).
-  void restore(const std::map<Key, WorkerAccount>& open, const std::map<Key, WorkerAccount>& retired,
+  // was away count as lost: the open streams, and the retired ones, oldest first (at most
+  // kMaxAccounts and the last kMaxRetired of them).
+  void restore(const std::map<Key, WorkerAccount>& open, const std::vector<WorkerAccount>& retired,
                const IngestCounters& counters);
 
   // The shape/number check alone, exposed for tests and tools; "" when valid.

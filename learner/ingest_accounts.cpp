@@ -1,7 +1,5 @@
 #include "ingest_accounts.h"
 
-#include <algorithm>
-
 namespace farm {
 
 namespace {
@@ -43,7 +41,7 @@ WorkerAccount from_record(const config::WorkerAccountRecord& r, double now) {
 void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m) {
   m.clear_workers();
   for (const auto& [key, w] : ingest.workers()) to_record(w, false, m.add_workers());
-  for (const auto& [key, w] : ingest.retired_accounts()) to_record(w, true, m.add_workers());
+  for (const auto& key : ingest.retired_order()) to_record(ingest.retired_accounts().at(key), true, m.add_workers());
   const auto& c = ingest.counters();
   m.set_batches_ok(c.ok);
   m.set_batches_lost(c.lost);
@@ -53,8 +51,14 @@ void accounts_to_manifest(const Ingest& ingest, config::CheckpointManifest& m) {
 }
 
 void accounts_from_manifest(const config::CheckpointManifest& m, Ingest& ingest, double now) {
-  std::map<Ingest::Key, WorkerAccount> open, retired;
-  for (const auto& r : m.workers()) (r.retired() ? retired : open)[{r.worker_id(), r.session()}] = from_record(r, now);
+  std::map<Ingest::Key, WorkerAccount> open;
+  std::vector<WorkerAccount> retired;  // oldest retired first, as written
+  for (const auto& r : m.workers()) {
+    if (r.retired())
+      retired.push_back(from_record(r, now));
+    else
+      open[{r.worker_id(), r.session()}] = from_record(r, now);
+  }
   IngestCounters c;
   c.ok = m.batches_ok();
   c.lost = m.batches_lost();
