@@ -21,8 +21,9 @@ using namespace config_checks;  // Collector, Validator, Section, num
 
 namespace {
 
-// sac.max_step_scale at most: a batch 64 times the seed's 256 is past what helps on any host here.
-constexpr int kMaxSacStepScale = 64;
+// sac.max_step_scale and dqn.max_step_scale at most: a batch 64 times the configured one is past
+// what helps on any host here.
+constexpr int kMaxStepScale = 64;
 
 // Algorithm sections.
 
@@ -45,8 +46,8 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.check(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < sac.log_std_max");
   s.positive("max_updates_per_step", c.max_updates_per_step());
   s.positive("publish_every_updates", c.publish_every_updates());
-  s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxSacStepScale, "max_step_scale",
-          "expected 1 to " + num(kMaxSacStepScale) + ", got " + num(c.max_step_scale()));
+  s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
+          "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
   s.at_least("n_step", c.n_step(), 1);
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
@@ -76,6 +77,8 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   s.at_least("n_step", c.n_step(), 1);
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
+  s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
+          "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
 }
 
 void check_ppo(const Section& s, const config::PpoConfig& c) {

@@ -77,6 +77,17 @@ TEST(Config, SacStepScaleIsBounded) {
   }
 }
 
+TEST(Config, DqnStepScaleIsBounded) {
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  max_step_scale: 4\n}\n"), "");
+  for (const char* bad : {"0", "65"}) {
+    std::string e =
+        error_of(std::string("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  max_step_scale: ") + bad + "\n}\n");
+    EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
+    EXPECT_NE(e.find("dqn.max_step_scale"), std::string::npos) << e;
+    EXPECT_NE(e.find(std::string("expected 1 to 64, got ") + bad), std::string::npos) << e;
+  }
+}
+
 TEST(Config, NestedTaskFieldIsLocated) {
   std::string e = error_of("experiment_id: \"a\"\ntask {\n  pendulum {\n    dt: 0\n  }\n}\n");
   EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;

@@ -180,6 +180,45 @@ TEST(DqnCheckpoint, SaveLoadRoundTripAndSizeMismatch) {
   farm::remove_tree(dir);
 }
 
+// dqn.max_step_scale's rate: learning_rate x the scale from the next update on (Adam's first step
+// moves each weight by about its rate, so twice the rate moves the networks twice as far), kept
+// across a load, which does not take the saved rate; a scale that is not a finite number > 0 is
+// refused.
+TEST(DqnStepScale, TheLearningRateScalesAndStaysAcrossALoad) {
+  config::DqnConfig c;
+  c.set_learning_rate(1e-3);
+  Dqn plain(c, 4, 3, 1), scaled(c, 4, 3, 1);
+  scaled.scale_learning_rate(2.0);
+  EXPECT_DOUBLE_EQ(plain.learning_rate(), 1e-3);
+  EXPECT_DOUBLE_EQ(scaled.learning_rate(), 2e-3);
+  const auto before = plain.online_parameters();
+  std::vector<torch::Tensor> start;
+  for (const auto& p : before) start.push_back(p.detach().clone());
+  SampledBatch b{torch::randn({32, 4}), torch::randint(0, 3, {32, 1}).to(torch::kFloat), torch::randn({32}),
+                 torch::zeros({32}), torch::randn({32, 4})};
+  plain.update(b);
+  scaled.update(b);
+  double moved_plain = 0, moved_scaled = 0;
+  for (size_t i = 0; i < start.size(); ++i) {
+    moved_plain += (plain.online_parameters()[i] - start[i]).abs().sum().item<double>();
+    moved_scaled += (scaled.online_parameters()[i] - start[i]).abs().sum().item<double>();
+  }
+  EXPECT_NEAR(moved_scaled / moved_plain, 2.0, 0.01);
+
+  const auto dir = std::filesystem::temp_directory_path() / ("dqn_lr_scale_" + std::to_string(::getpid()));
+  scaled.save(dir.string());
+  Dqn loaded(c, 4, 3, 9);
+  loaded.load(dir.string());
+  EXPECT_DOUBLE_EQ(loaded.learning_rate(), 1e-3) << "a load keeps this instance's scale (1), not the saved rate";
+  Dqn loaded_scaled(c, 4, 3, 9);
+  loaded_scaled.scale_learning_rate(4.0);
+  loaded_scaled.load(dir.string());
+  EXPECT_DOUBLE_EQ(loaded_scaled.learning_rate(), 4e-3);
+  farm::remove_tree(dir);
+
+  for (double bad : {0.0, -1.0, std::nan("")}) EXPECT_THROW(plain.scale_learning_rate(bad), std::invalid_argument);
+}
+
 namespace {
 
 // Where a GPU and a CUDA LibTorch are there: dqn.device "cuda", with or without the CUDA graph.
@@ -232,6 +271,24 @@ TEST(DqnCuda, GraphUpdateMatchesEager) {
   EXPECT_LE(relative_gap(graph.target_parameters(), eager.target_parameters()), 1e-3);
   // The policy the workers get comes off the GPU.
   EXPECT_EQ(graph.export_policy(1).params.size(), eager.export_policy(1).params.size());
+}
+
+// With dqn.max_step_scale the graph is captured again at the new rate and batch: a graph update
+// after scale_learning_rate computes what the eager one does at the same rate.
+TEST(DqnCuda, ScaledGraphMatchesEager) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  Dqn graph(cuda_dqn_config(true), 5, 3, 4), eager(cuda_dqn_config(false), 5, 3, 4);
+  if (!graph.uses_cuda_graph()) GTEST_SKIP() << "built against a LibTorch without CUDA";
+  for (int k = 0; k < 20; ++k) {
+    if (k == 10) {
+      graph.scale_learning_rate(2.0);
+      eager.scale_learning_rate(2.0);
+    }
+    const auto b = dqn_batch(k < 10 ? 64 : 256, 5, 3, 1900 + k);
+    const DqnStats g = graph.update(b), e = eager.update(b);
+    EXPECT_NEAR(g.loss, e.loss, 1e-3 * std::max(1.0, std::abs(e.loss))) << "update " << k;
+  }
+  EXPECT_LE(relative_gap(graph.online_parameters(), eager.online_parameters()), 1e-3);
 }
 
 // A GPU run's checkpoint: a CPU learner loads it (the same networks), and a GPU learner that loads

@@ -133,6 +133,11 @@ struct Dqn::Impl {
     auto to = [&](const torch::Tensor& t) { return t.defined() ? t.to(device) : t; };
     return {to(b.obs), to(b.actions), to(b.rewards), to(b.terminated), to(b.next_obs), to(b.horizon)};
   }
+  // Adam's rate: the configured one times lr_scale.
+  void apply_learning_rate() {
+    for (auto& g : opt->param_groups())
+      static_cast<torch::optim::AdamOptions&>(g.options()).lr(cfg.learning_rate() * lr_scale);
+  }
   // After an update: the target copy every target_update_updates updates.
   void count_update() {
     ++updates;
@@ -145,6 +150,7 @@ struct Dqn::Impl {
   torch::Device device;
   QNet online, target;
   std::unique_ptr<torch::optim::Adam> opt;
+  double lr_scale = 1;
   int64_t updates = 0;
 
   bool use_graph() const;
@@ -308,6 +314,20 @@ void Dqn::Impl::drop_graph() {
 #endif
 }
 
+void Dqn::scale_learning_rate(double factor) {
+  if (!(factor > 0) || !std::isfinite(factor))
+    throw std::invalid_argument("dqn: learning-rate scale must be a finite number > 0, got " + std::to_string(factor));
+  Impl& s = *impl_;
+  if (factor == s.lr_scale) return;
+  s.lr_scale = factor;
+  s.apply_learning_rate();
+  s.drop_graph();  // a captured graph holds the rate it was captured with
+}
+
+double Dqn::learning_rate() const {
+  return static_cast<const torch::optim::AdamOptions&>(impl_->opt->param_groups()[0].options()).lr();
+}
+
 double Dqn::epsilon() const { return dqn_epsilon(impl_->cfg, env_steps_); }
 
 PolicyParams Dqn::export_policy(uint64_t version) const {
@@ -397,6 +417,7 @@ void Dqn::load(const std::string& dir) {
     copy(target, s.target);
     root.read("optim", o);
     s.opt->load(o);
+    s.apply_learning_rate();  // this instance's rate, whatever rate the saved state holds
     torch::Tensor u, e;
     root.read("updates", u);
     root.read("env_steps", e);

@@ -49,6 +49,12 @@ class Dqn {
   // target_update_updates updates.
   DqnStats update(const SampledBatch& batch);
 
+  // The learning rate as learning_rate * factor from the next update on (dqn.max_step_scale: a
+  // batch s times as large takes sqrt(s)); a finite factor > 0, else std::invalid_argument. Kept
+  // across load(), which does not restore a saved rate.
+  void scale_learning_rate(double factor);
+  double learning_rate() const;  // the rate updates take now
+
   // The learner's environment step count, which sets the exploration of exported policies.
   void set_env_steps(int64_t env_steps) { env_steps_ = env_steps; }
   int64_t env_steps() const { return env_steps_; }
