@@ -49,6 +49,9 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
           "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
   s.at_least("n_step", c.n_step(), 1);
+  s.non_negative("lr_decay_updates", c.lr_decay_updates());
+  s.check(c.lr_decay_to() > 0 && c.lr_decay_to() <= 1, "lr_decay_to",
+          "expected a fraction in (0, 1] of the configured rates, got " + num(c.lr_decay_to()));
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",

@@ -77,6 +77,18 @@ TEST(Config, SacStepScaleIsBounded) {
   }
 }
 
+TEST(Config, SacLearningRateScheduleIsChecked) {
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: 1000\n  lr_decay_to: 0.1\n}\n"), "");
+  std::string e = error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: -1\n}\n");
+  EXPECT_NE(e.find("sac.lr_decay_updates"), std::string::npos) << e;
+  for (const char* bad : {"0", "1.5", "-0.1"}) {
+    e = error_of(std::string("experiment_id: \"a\"\nsac {\n  lr_decay_to: ") + bad + "\n}\n");
+    EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
+    EXPECT_NE(e.find("sac.lr_decay_to"), std::string::npos) << e;
+    EXPECT_NE(e.find("expected a fraction in (0, 1] of the configured rates"), std::string::npos) << e;
+  }
+}
+
 TEST(Config, DqnStepScaleIsBounded) {
   EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  max_step_scale: 4\n}\n"), "");
   for (const char* bad : {"0", "65"}) {

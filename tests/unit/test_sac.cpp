@@ -95,6 +95,23 @@ TEST(SacMath, SquashedGaussianLogProbMatchesDirectFormula) {
   }
 }
 
+// sac.lr_decay_updates 160 to 0.2: 1 until the first of 16 steps (10 updates), 0.6 halfway, 0.2 from
+// update 160 on; no schedule, 1 throughout.
+TEST(SacLrDecay, FallsInSixteenStepsThenStays) {
+  config::SacConfig c;
+  EXPECT_EQ(sac_lr_decay(c, 0), 1.0);
+  EXPECT_EQ(sac_lr_decay(c, 1000000), 1.0);
+  c.set_lr_decay_updates(160);
+  c.set_lr_decay_to(0.2);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 0), 1.0);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 9), 1.0);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 10), 1.0 - 0.8 / 16);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 80), 0.6);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 159), 1.0 - 0.8 * 15 / 16);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 160), 0.2);
+  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 1000000), 0.2);
+}
+
 TEST(Sac, ConfigDefaultsAreUsed) {
   config::SacConfig cfg;
   Sac sac(cfg, 3, 2, 1);

@@ -2,6 +2,7 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <sstream>
 #include <stdexcept>
 
 #include "algorithm.h"
@@ -31,6 +32,9 @@ class SacAlgorithm final : public Algorithm {
     if (sac_.uses_cuda_graph())
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_.on_device()) step += ", minibatches drawn on the GPU";
+    if (cfg_.lr_decay_updates() > 0 && cfg_.lr_decay_to() < 1)
+      step += ", learning rates to x" + trimmed(cfg_.lr_decay_to()) + " over " +
+              std::to_string(cfg_.lr_decay_updates()) + " updates";
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
 
@@ -38,6 +42,7 @@ class SacAlgorithm final : public Algorithm {
   Holding holding() const override { return {replay_.size(), replay_.capacity()}; }
   int64_t ready() const override { return replay_.size() >= batch_size() ? std::numeric_limits<int64_t>::max() : 0; }
   std::vector<UpdateFigures> update(int n, uint64_t) override {
+    apply_rates();
     if (const DeviceReplay* d = replay_.on_device()) return figures(sac_.update_n_from(n, batch_size(), *d));
     return figures(sac_.update_n(n, [this] { return replay_.sample(batch_size()); }));
   }
@@ -48,7 +53,7 @@ class SacAlgorithm final : public Algorithm {
   int max_step_scale() const override { return sac_.on_gpu() ? cfg_.max_step_scale() : 1; }
   void set_step_scale(int s) override {
     step_scale_ = s;
-    sac_.scale_learning_rates(std::sqrt(double(s)));
+    apply_rates();
   }
 
   PolicyParams policy(uint64_t version) const override { return sac_.export_policy(version); }
@@ -74,6 +79,14 @@ class SacAlgorithm final : public Algorithm {
   int batch_size() const { return cfg_.batch_size() * step_scale_; }
 
  private:
+  // The rates for the step scale and the schedule (sac.lr_decay_updates) at the updates made; a
+  // factor that did not change costs nothing (Sac::scale_learning_rates).
+  void apply_rates() { sac_.scale_learning_rates(std::sqrt(double(step_scale_)) * sac_lr_decay(cfg_, sac_.updates())); }
+  static std::string trimmed(double x) {
+    std::ostringstream o;
+    o << x;
+    return o.str();
+  }
   bool draws_on_device() const { return cfg_.replay_on_device() && sac_.uses_cuda_graph(); }
   // The figures of updates that have finished, numbered: the last of them is the one before those
   // still running.
