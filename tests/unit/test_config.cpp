@@ -67,16 +67,6 @@ TEST(Config, EvaluationSplitIsCheckedAndDefaultsToFourEpisodesAWorker) {
   EXPECT_NE(e.find("expected >= 0 (0 = every evaluation on one worker), got -1"), std::string::npos) << e;
 }
 
-TEST(Config, SacStepScaleIsBounded) {
-  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  max_step_scale: 4\n}\n"), "");
-  for (const char* bad : {"0", "65"}) {
-    std::string e = error_of(std::string("experiment_id: \"a\"\nsac {\n  max_step_scale: ") + bad + "\n}\n");
-    EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
-    EXPECT_NE(e.find("sac.max_step_scale"), std::string::npos) << e;
-    EXPECT_NE(e.find(std::string("expected 1 to 64, got ") + bad), std::string::npos) << e;
-  }
-}
-
 TEST(Config, SacLearningRateScheduleIsChecked) {
   EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: 1000\n  lr_decay_to: 0.1\n}\n"), "");
   std::string e = error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: -1\n}\n");
@@ -89,14 +79,20 @@ TEST(Config, SacLearningRateScheduleIsChecked) {
   }
 }
 
-TEST(Config, DqnStepScaleIsBounded) {
-  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  max_step_scale: 4\n}\n"), "");
-  for (const char* bad : {"0", "65"}) {
-    std::string e =
-        error_of(std::string("experiment_id: \"a\"\nalgorithm: \"dqn\"\ndqn {\n  max_step_scale: ") + bad + "\n}\n");
-    EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;
-    EXPECT_NE(e.find("dqn.max_step_scale"), std::string::npos) << e;
-    EXPECT_NE(e.find(std::string("expected 1 to 64, got ") + bad), std::string::npos) << e;
+// sac.max_step_scale and dqn.max_step_scale: 1 to 64, an error at the field's line otherwise.
+TEST(Config, StepScaleIsBounded) {
+  struct Case {
+    std::string head, section, line;
+  };
+  for (const Case& c : {Case{"experiment_id: \"a\"\n", "sac", "exp.txtpb:3:"},
+                        Case{"experiment_id: \"a\"\nalgorithm: \"dqn\"\n", "dqn", "exp.txtpb:4:"}}) {
+    EXPECT_EQ(error_of(c.head + c.section + " {\n  max_step_scale: 4\n}\n"), "") << c.section;
+    for (const char* bad : {"0", "65"}) {
+      std::string e = error_of(c.head + c.section + " {\n  max_step_scale: " + bad + "\n}\n");
+      EXPECT_NE(e.find(c.line), std::string::npos) << e;
+      EXPECT_NE(e.find(c.section + ".max_step_scale"), std::string::npos) << e;
+      EXPECT_NE(e.find(std::string("expected 1 to 64, got ") + bad), std::string::npos) << e;
+    }
   }
 }
 

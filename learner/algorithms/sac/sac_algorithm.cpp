@@ -2,10 +2,10 @@
 #include <cmath>
 #include <filesystem>
 #include <limits>
-#include <sstream>
 #include <stdexcept>
 
 #include "algorithm.h"
+#include "config_validator.h"
 #include "replay_store.h"
 #include "sac.h"
 #include "task_spec.h"
@@ -33,7 +33,7 @@ class SacAlgorithm final : public Algorithm {
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_.on_device()) step += ", minibatches drawn on the GPU";
     if (cfg_.lr_decay_updates() > 0 && cfg_.lr_decay_to() < 1)
-      step += ", learning rates to x" + trimmed(cfg_.lr_decay_to()) + " over " +
+      step += ", learning rates to x" + config_checks::num(cfg_.lr_decay_to()) + " over " +
               std::to_string(cfg_.lr_decay_updates()) + " updates";
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
@@ -82,11 +82,6 @@ class SacAlgorithm final : public Algorithm {
   // The rates for the step scale and the schedule (sac.lr_decay_updates) at the updates made; a
   // factor that did not change costs nothing (Sac::scale_learning_rates).
   void apply_rates() { sac_.scale_learning_rates(std::sqrt(double(step_scale_)) * sac_lr_decay(cfg_, sac_.updates())); }
-  static std::string trimmed(double x) {
-    std::ostringstream o;
-    o << x;
-    return o.str();
-  }
   bool draws_on_device() const { return cfg_.replay_on_device() && sac_.uses_cuda_graph(); }
   // The figures of updates that have finished, numbered: the last of them is the one before those
   // still running.
