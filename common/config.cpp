@@ -27,6 +27,12 @@ constexpr int kMaxStepScale = 64;
 
 // Algorithm sections.
 
+// sac.lr_decay_* and dqn.lr_decay_*: a schedule's length and the fraction it ends at.
+void check_lr_decay(const Section& s, int64_t updates, double to) {
+  s.non_negative("lr_decay_updates", updates);
+  s.check(to > 0 && to <= 1, "lr_decay_to", "expected a fraction in (0, 1] of the configured rates, got " + num(to));
+}
+
 void check_sac(const Section& s, const config::SacConfig& c) {
   s.positive("actor_lr", c.actor_lr());
   s.positive("critic_lr", c.critic_lr());
@@ -49,9 +55,7 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
           "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
   s.at_least("n_step", c.n_step(), 1);
-  s.non_negative("lr_decay_updates", c.lr_decay_updates());
-  s.check(c.lr_decay_to() > 0 && c.lr_decay_to() <= 1, "lr_decay_to",
-          "expected a fraction in (0, 1] of the configured rates, got " + num(c.lr_decay_to()));
+  check_lr_decay(s, c.lr_decay_updates(), c.lr_decay_to());
   s.check(valid_device_name(c.device()), "device",
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",
@@ -82,6 +86,7 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
           "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
+  check_lr_decay(s, c.lr_decay_updates(), c.lr_decay_to());
 }
 
 void check_ppo(const Section& s, const config::PpoConfig& c) {

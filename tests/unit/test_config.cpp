@@ -67,15 +67,23 @@ TEST(Config, EvaluationSplitIsCheckedAndDefaultsToFourEpisodesAWorker) {
   EXPECT_NE(e.find("expected >= 0 (0 = every evaluation on one worker), got -1"), std::string::npos) << e;
 }
 
-TEST(Config, SacLearningRateScheduleIsChecked) {
-  EXPECT_EQ(error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: 1000\n  lr_decay_to: 0.1\n}\n"), "");
-  std::string e = error_of("experiment_id: \"a\"\nsac {\n  lr_decay_updates: -1\n}\n");
-  EXPECT_NE(e.find("sac.lr_decay_updates"), std::string::npos) << e;
-  for (const char* bad : {"0", "1.5", "-0.1"}) {
-    e = error_of(std::string("experiment_id: \"a\"\nsac {\n  lr_decay_to: ") + bad + "\n}\n");
-    EXPECT_NE(e.find("exp.txtpb:3:"), std::string::npos) << e;
-    EXPECT_NE(e.find("sac.lr_decay_to"), std::string::npos) << e;
-    EXPECT_NE(e.find("expected a fraction in (0, 1] of the configured rates"), std::string::npos) << e;
+// sac.lr_decay_* and dqn.lr_decay_*: a length of 0 or more and a fraction in (0, 1], an error at the
+// field's line otherwise.
+TEST(Config, LearningRateScheduleIsChecked) {
+  struct Case {
+    std::string head, section, line;
+  };
+  for (const Case& c : {Case{"experiment_id: \"a\"\n", "sac", "exp.txtpb:3:"},
+                        Case{"experiment_id: \"a\"\nalgorithm: \"dqn\"\n", "dqn", "exp.txtpb:4:"}}) {
+    EXPECT_EQ(error_of(c.head + c.section + " {\n  lr_decay_updates: 1000\n  lr_decay_to: 0.1\n}\n"), "") << c.section;
+    std::string e = error_of(c.head + c.section + " {\n  lr_decay_updates: -1\n}\n");
+    EXPECT_NE(e.find(c.section + ".lr_decay_updates"), std::string::npos) << e;
+    for (const char* bad : {"0", "1.5", "-0.1"}) {
+      e = error_of(c.head + c.section + " {\n  lr_decay_to: " + bad + "\n}\n");
+      EXPECT_NE(e.find(c.line), std::string::npos) << e;
+      EXPECT_NE(e.find(c.section + ".lr_decay_to"), std::string::npos) << e;
+      EXPECT_NE(e.find("expected a fraction in (0, 1] of the configured rates"), std::string::npos) << e;
+    }
   }
 }
 

@@ -160,25 +160,28 @@ TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
   EXPECT_EQ(sac->ready(), 0);
 }
 
-// The schedule (sac.lr_decay_updates) reaches the updates: with 32 updates to x0.25 in 16 steps the
-// rates first fall at update 3 (after 2 made), so two runs from one seed, one with the schedule,
-// agree after 2 updates and not after 3. The start line says so.
-TEST(SacLrDecay, TheAlgorithmTakesTheScheduledRates) {
-  const std::string base =
-      "experiment_id: \"lr\" algorithm: \"sac\"\nsac { hidden: [8, 8] batch_size: 16 learning_starts: 0";
-  const auto plain = parse_config_text(base + " }\n", "lr.txtpb");
-  const auto decay = parse_config_text(base + " lr_decay_updates: 32 lr_decay_to: 0.25 }\n", "lr.txtpb");
-  auto run = [](const config::ExperimentConfig& cfg, int updates) {
-    const auto sac = make_algorithm(cfg, step_scale_spec());  // seeds LibTorch: runs one after the other
-    sac->insert(OneStep(64).batch);
-    for (int k = 0; k < updates; ++k) sac->update(1, 1);
-    return sac->policy(1).params;
-  };
-  EXPECT_EQ(run(plain, 2), run(decay, 2));
-  EXPECT_NE(run(plain, 3), run(decay, 3));
-  EXPECT_NE(make_algorithm(decay, step_scale_spec())->describe().find(", learning rates to x0.25 over 32 updates"),
-            std::string::npos)
-      << make_algorithm(decay, step_scale_spec())->describe();
+// The schedule (sac.lr_decay_updates, dqn.lr_decay_updates) reaches the updates: with 32 updates to
+// x0.25 in 16 steps the rates first fall at update 3 (after 2 made), so two runs from one seed, one
+// with the schedule, agree after 2 updates and not after 3. The start line says so.
+TEST(LrDecay, EachOffPolicyAlgorithmTakesTheScheduledRates) {
+  for (const std::string algorithm : {"sac", "dqn"}) {
+    const std::string base = "experiment_id: \"lr\" algorithm: \"" + algorithm + "\"\n" + algorithm +
+                             " { hidden: [8, 8] batch_size: 16 learning_starts: 0";
+    const auto plain = parse_config_text(base + " }\n", "lr.txtpb");
+    const auto decay = parse_config_text(base + " lr_decay_updates: 32 lr_decay_to: 0.25 }\n", "lr.txtpb");
+    auto spec = step_scale_spec();
+    if (algorithm == "dqn") spec.num_actions = 3;  // OneStep's actions (0.1) are index 0
+    auto run = [&spec](const config::ExperimentConfig& cfg, int updates) {
+      const auto a = make_algorithm(cfg, spec);  // seeds LibTorch: runs one after the other
+      a->insert(OneStep(64).batch);
+      for (int k = 0; k < updates; ++k) a->update(1, 1);
+      return a->policy(1).params;
+    };
+    EXPECT_EQ(run(plain, 2), run(decay, 2)) << algorithm;
+    EXPECT_NE(run(plain, 3), run(decay, 3)) << algorithm;
+    const std::string start = make_algorithm(decay, spec)->describe();
+    EXPECT_NE(start.find(", learning rates to x0.25 over 32 updates"), std::string::npos) << start;
+  }
 }
 
 // sac.n_step reaches the start line; 1, the seed's, says nothing.

@@ -1,6 +1,7 @@
 #include "compute.h"
 #include "device_replay.h"
 #include "divergence.h"
+#include "lr_schedule.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "sac.h"
 
@@ -95,21 +96,21 @@ TEST(SacMath, SquashedGaussianLogProbMatchesDirectFormula) {
   }
 }
 
-// sac.lr_decay_updates 160 to 0.2: 1 until the first of 16 steps (10 updates), 0.6 halfway, 0.2 from
+// A schedule of 160 updates to 0.2: 1 until the first of 16 steps (10 updates), 0.6 halfway, 0.2 from
 // update 160 on; no schedule, 1 throughout.
-TEST(SacLrDecay, FallsInSixteenStepsThenStays) {
-  config::SacConfig c;
-  EXPECT_EQ(sac_lr_decay(c, 0), 1.0);
-  EXPECT_EQ(sac_lr_decay(c, 1000000), 1.0);
-  c.set_lr_decay_updates(160);
-  c.set_lr_decay_to(0.2);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 0), 1.0);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 9), 1.0);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 10), 1.0 - 0.8 / 16);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 80), 0.6);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 159), 1.0 - 0.8 * 15 / 16);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 160), 0.2);
-  EXPECT_DOUBLE_EQ(sac_lr_decay(c, 1000000), 0.2);
+TEST(LrDecay, FallsInSixteenStepsThenStays) {
+  EXPECT_EQ(lr_decay_factor(0, 1.0, 0), 1.0);
+  EXPECT_EQ(lr_decay_factor(0, 0.2, 1000000), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 0), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 9), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 10), 1.0 - 0.8 / 16);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 80), 0.6);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 159), 1.0 - 0.8 * 15 / 16);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 160), 0.2);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 1000000), 0.2);
+  EXPECT_EQ(lr_decay_phrase(0, 0.2), "");
+  EXPECT_EQ(lr_decay_phrase(160, 1.0), "");
+  EXPECT_EQ(lr_decay_phrase(160, 0.2), ", learning rates to x0.2 over 160 updates");
 }
 
 TEST(Sac, ConfigDefaultsAreUsed) {

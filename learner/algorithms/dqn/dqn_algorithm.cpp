@@ -9,6 +9,7 @@
 
 #include "algorithm.h"
 #include "dqn.h"
+#include "lr_schedule.h"
 #include "replay_store.h"
 #include "task_spec.h"
 
@@ -31,6 +32,7 @@ class DqnAlgorithm final : public Algorithm {
       step += dqn_.on_gpu()
                   ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
                   : ", the configured step (dqn.max_step_scale is for a GPU learner)";
+    step += lr_decay_phrase(cfg_.lr_decay_updates(), cfg_.lr_decay_to());
     return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
            " Q network" + step +
            (dqn_.uses_cuda_graph() ? ", CUDA graph"
@@ -46,6 +48,7 @@ class DqnAlgorithm final : public Algorithm {
   int64_t ready() const override { return replay_.size() >= batch_size() ? std::numeric_limits<int64_t>::max() : 0; }
   std::vector<UpdateFigures> update(int n, uint64_t) override {
     std::vector<UpdateFigures> out(size_t(std::max(n, 0)));
+    apply_rate();
     for (auto& f : out) {
       const DqnStats s = dqn_.update(replay_.sample(batch_size()));
       f.update = dqn_.updates();
@@ -58,7 +61,7 @@ class DqnAlgorithm final : public Algorithm {
   int max_step_scale() const override { return dqn_.on_gpu() ? cfg_.max_step_scale() : 1; }
   void set_step_scale(int s) override {
     step_scale_ = s;
-    dqn_.scale_learning_rate(std::sqrt(double(s)));
+    apply_rate();
   }
 
   PolicyParams policy(uint64_t version) const override {
@@ -94,6 +97,12 @@ class DqnAlgorithm final : public Algorithm {
   }
 
  private:
+  // The rate for the step scale and the schedule (dqn.lr_decay_updates) at the updates made; a
+  // factor that did not change costs nothing (Dqn::scale_learning_rate).
+  void apply_rate() {
+    dqn_.scale_learning_rate(std::sqrt(double(step_scale_)) *
+                             lr_decay_factor(cfg_.lr_decay_updates(), cfg_.lr_decay_to(), dqn_.updates()));
+  }
   int64_t batch_size() const { return int64_t(cfg_.batch_size()) * step_scale_; }
 
   config::DqnConfig cfg_;

@@ -80,13 +80,6 @@ torch::Tensor sac_critic_target(const torch::Tensor& reward, const torch::Tensor
   return torch::addcmul(reward, soft_v, 1.0 - terminated, gamma);
 }
 
-double sac_lr_decay(const config::SacConfig& cfg, int64_t updates) {
-  constexpr int kSteps = 16;
-  if (cfg.lr_decay_updates() <= 0) return 1.0;
-  const double progress = std::min(1.0, double(std::max<int64_t>(updates, 0)) / double(cfg.lr_decay_updates()));
-  return 1.0 - (1.0 - cfg.lr_decay_to()) * std::floor(progress * kSteps) / kSteps;
-}
-
 torch::Tensor sac_temperature_loss(const torch::Tensor& log_alpha, const torch::Tensor& log_prob,
                                    double target_entropy) {
   return -(log_alpha * (log_prob + target_entropy).detach()).mean();

@@ -42,11 +42,6 @@ torch::Tensor sac_temperature_loss(const torch::Tensor& log_alpha, const torch::
 torch::Tensor squashed_gaussian_log_prob(const torch::Tensor& mean, const torch::Tensor& log_std,
                                          const torch::Tensor& pre_tanh);
 
-// sac.lr_decay_updates and lr_decay_to: the factor on the configured learning rates after
-// `updates` updates. It falls linearly from 1 to lr_decay_to over lr_decay_updates updates, in 16
-// equal steps, then stays; 1 throughout where lr_decay_updates is 0.
-double sac_lr_decay(const config::SacConfig& cfg, int64_t updates);
-
 class Sac {
  public:
   // Seeds torch's global generator with `seed` (initial weights and exploration noise).

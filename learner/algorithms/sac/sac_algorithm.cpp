@@ -5,7 +5,7 @@
 #include <stdexcept>
 
 #include "algorithm.h"
-#include "config_validator.h"
+#include "lr_schedule.h"
 #include "replay_store.h"
 #include "sac.h"
 #include "task_spec.h"
@@ -32,9 +32,7 @@ class SacAlgorithm final : public Algorithm {
     if (sac_.uses_cuda_graph())
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_.on_device()) step += ", minibatches drawn on the GPU";
-    if (cfg_.lr_decay_updates() > 0 && cfg_.lr_decay_to() < 1)
-      step += ", learning rates to x" + config_checks::num(cfg_.lr_decay_to()) + " over " +
-              std::to_string(cfg_.lr_decay_updates()) + " updates";
+    step += lr_decay_phrase(cfg_.lr_decay_updates(), cfg_.lr_decay_to());
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
 
@@ -81,7 +79,7 @@ class SacAlgorithm final : public Algorithm {
  private:
   // The rates for the step scale and the schedule (sac.lr_decay_updates) at the updates made; a
   // factor that did not change costs nothing (Sac::scale_learning_rates).
-  void apply_rates() { sac_.scale_learning_rates(std::sqrt(double(step_scale_)) * sac_lr_decay(cfg_, sac_.updates())); }
+  void apply_rates() { sac_.scale_learning_rates(std::sqrt(double(step_scale_)) * lr_decay_factor(cfg_.lr_decay_updates(), cfg_.lr_decay_to(), sac_.updates())); }
   bool draws_on_device() const { return cfg_.replay_on_device() && sac_.uses_cuda_graph(); }
   // The figures of updates that have finished, numbered: the last of them is the one before those
   // still running.

@@ -1,0 +1,31 @@
+// The learning-rate schedule the off-policy algorithms share (sac.lr_decay_*, dqn.lr_decay_*): the
+// configured rates fall linearly to `decay_to` times their value over the first `decay_updates`
+// updates, then stay. The fall goes in 16 equal steps, so that a CUDA graph, which holds the rates
+// it was captured with, is captured again at most 16 times.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <string>
+
+#include "config_validator.h"
+
+namespace farm {
+
+// The factor on the configured rates after `updates` updates; 1 throughout where decay_updates is 0.
+inline double lr_decay_factor(int64_t decay_updates, double decay_to, int64_t updates) {
+  constexpr int kSteps = 16;
+  if (decay_updates <= 0) return 1.0;
+  const double progress = std::min(1.0, double(std::max<int64_t>(updates, 0)) / double(decay_updates));
+  return 1.0 - (1.0 - decay_to) * std::floor(progress * kSteps) / kSteps;
+}
+
+// The start line's words for a schedule: ", learning rates to x0.1 over 400000 updates", or
+// nothing where the rates stay.
+inline std::string lr_decay_phrase(int64_t decay_updates, double decay_to) {
+  if (decay_updates <= 0 || decay_to >= 1) return "";
+  return ", learning rates to x" + config_checks::num(decay_to) + " over " + std::to_string(decay_updates) + " updates";
+}
+
+}  // namespace farm
