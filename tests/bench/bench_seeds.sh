@@ -8,10 +8,12 @@
 #   STOP='...'        the stop { } body (default: eval_goal { metric: "success" at_least: 0.95 }
 #                     max_seconds: 150)
 #   SET_BLOCK=sac     a top-level block of CONFIG that SET_LINES go into (e.g. "sac", "eval")
-#   SET_LINES='...'   lines added at the start of that block, e.g. 'n_step: 3' (a field the block
-#                     already sets is an error of the config loader: set fields it does not)
+#   SET_LINES='...'   lines added at the start of that block, e.g. 'n_step: 3'; a field the block
+#                     already sets is replaced (its line dropped), e.g. SET_BLOCK=eval
+#                     SET_LINES='episodes: 60' for runs whose evaluations must cost less
 #   RATIO_AT_MOST=0.5 the bound the ratios are counted against
 #   REPORT_ONLY=1     no runs: the table from the runs already in OUT_DIR
+#   CONFIG_ONLY=1     no runs: only write each seed's config, OUT_DIR/seedN.txtpb
 # A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
 # the table: each count's median time to goal (and the median ratio) over the seeds that reached
 # it, a sign test of the ratios against the bound, then each run's evaluations from its learner's
@@ -19,7 +21,7 @@
 # evaluation was asked.
 set -euo pipefail
 if [ $# -lt 5 ]; then
-  sed -n '2,18p' "$0" >&2
+  sed -n '2,21p' "$0" >&2
   exit 2
 fi
 learner=$1 worker=$2 config=$3 seeds=$4 counts=$5
@@ -52,20 +54,29 @@ for s in "${seed_list[@]}"; do
   # The seed line, the stop block (from its opening line to the first closing brace at column 0),
   # the added lines just inside SET_BLOCK's opening line, and a task of terms' model path made
   # absolute (it is relative to CONFIG's folder, and the copy lives in OUT_DIR).
+  # SET_LINES' field names: a line of SET_BLOCK that sets one of them is dropped.
   awk -v seed="$s" -v stop="$stop" -v block="$block" -v lines="$lines" -v cdir="$config_dir" '
+    BEGIN { n = split(lines, l, "\n"); for (i = 1; i <= n; i++) { f = l[i]; sub(/^[[:space:]]*/, "", f); sub(/[[:space:]]*[:{].*/, "", f); if (f != "") set[f] = 1 } }
     /^[[:space:]]*model: "[^\/]/ { sub(/model: "/, "model: \"" cdir "/"); print; next }
     /^seed:/ { print "seed: " seed; next }
     /^stop \{/ { skipping = 1; if ($0 ~ /\}[[:space:]]*$/) skipping = 0; print "stop { " stop " }"; next }
     skipping { if ($0 ~ /^\}/) skipping = 0; next }
+    inblock && /^\}/ { inblock = 0 }
+    inblock { f = $0; sub(/^[[:space:]]*/, "", f); sub(/[[:space:]]*[:{].*/, "", f); if (f in set) next }
     { print }
-    block != "" && $0 ~ ("^" block " \\{") { n = split(lines, l, "\n"); for (i = 1; i <= n; i++) print "  " l[i] }
+    block != "" && $0 ~ ("^" block " \\{") { inblock = 1; for (i = 1; i <= n; i++) print "  " l[i] }
   ' "$config" >"$cfg"
+  if [ "${CONFIG_ONLY:-0}" = 1 ]; then
+    echo "== seed $s: $cfg"
+    continue
+  fi
   echo "== seed $s: $cfg"
   DOMAIN=$domain bash "$here/bench_workers.sh" "$learner" "$worker" "$cfg" "$counts" "$out/seed$s" |
     tee "$out/seed$s.txt"
   domain=$((domain + ${#count_list[@]}))
   [ $((domain + ${#count_list[@]})) -le 232 ] || domain=20
 done
+[ "${CONFIG_ONLY:-0}" = 1 ] && exit 0
 
 # The table, from bench_workers.sh's rows: workers, time to goal, wall, env steps, updates,
 # updates/s, UTD, ...

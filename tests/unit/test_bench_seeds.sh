@@ -69,4 +69,19 @@ set +e
 err=$(bs "$T/kaya.txtpb" "1 x" "2 15" "$T/out" 2>&1); rc=$?
 set -e
 [ $rc = 2 ] && grep -qF "seed 'x' is not a whole number" <<<"$err" || fail "bad seed: rc $rc: $err"
+# CONFIG_ONLY=1 writes each seed's config and runs nothing: SET_LINES replaces a field SET_BLOCK
+# already sets (jetbot_dqn_gpu's eval sets episodes: 400) and leaves the block's other fields.
+cp "$SRC/deploy/configs/jetbot_dqn_gpu.txtpb" "$T/jetbot.txtpb"
+grep -qE '^  episodes: [0-9]+$' "$T/jetbot.txtpb" || fail "jetbot_dqn_gpu.txtpb's eval sets no episodes: the case below tests nothing"
+out=$(SET_BLOCK=eval SET_LINES='episodes: 60' CONFIG_ONLY=1 bash "$SRC/tests/bench/bench_seeds.sh" /nonexistent/learner \
+  /nonexistent/worker "$T/jetbot.txtpb" "7" "1 15" "$T/cfg" 2>&1) || fail "CONFIG_ONLY: $out"
+c=$T/cfg/seed7.txtpb
+[ -r "$c" ] || fail "CONFIG_ONLY wrote no $c: $out"
+[ ! -e "$T/cfg/seed7.txt" ] || fail "CONFIG_ONLY ran something"
+eval_block=$(sed -n '/^eval {/,/^}/p' "$c")
+[ "$(grep -cE '^[[:space:]]*episodes:' <<<"$eval_block")" = 1 ] || fail "eval.episodes set more than once: $eval_block"
+grep -qxF "  episodes: 60" <<<"$eval_block" || fail "eval.episodes not 60: $eval_block"
+grep -qxF "  final_episodes: 100" <<<"$eval_block" || fail "another field of eval dropped: $eval_block"
+grep -qx "seed: 7" "$c" || fail "seed line"
+grep -qF 'stop { eval_goal { metric: "success" at_least: 0.95 } max_seconds: 150 }' "$c" || fail "stop block"
 echo "bench_seeds report: ok"
