@@ -79,7 +79,10 @@ class SacAlgorithm final : public Algorithm {
  private:
   // The rates for the step scale and the schedule (sac.lr_decay_updates) at the updates made; a
   // factor that did not change costs nothing (Sac::scale_learning_rates).
-  void apply_rates() { sac_.scale_learning_rates(std::sqrt(double(step_scale_)) * lr_decay_factor(cfg_.lr_decay_updates(), cfg_.lr_decay_to(), sac_.updates())); }
+  void apply_rates() {
+    sac_.scale_learning_rates(std::sqrt(double(step_scale_)) *
+                              lr_decay_factor(cfg_.lr_decay_updates(), cfg_.lr_decay_to(), sac_.updates()));
+  }
   bool draws_on_device() const { return cfg_.replay_on_device() && sac_.uses_cuda_graph(); }
   // The figures of updates that have finished, numbered: the last of them is the one before those
   // still running.
