@@ -70,7 +70,11 @@ void Pacing::save(const std::string& dir) const {
 
 std::string Pacing::resumed(const config::CheckpointManifest& m, uint64_t env_steps) {
   version_ = m.policy_version() + 1 + kResumeVersionSkip;
-  const std::string own = algo_->from_manifest(m);  // after the algorithm's constructor seeded LibTorch
+  counts_from_manifest(m);
+  // The algorithm learns the number its networks go out as, for the steps it stored.
+  config::CheckpointManifest as_resumed = m;
+  as_resumed.set_resumed_version(version_);
+  const std::string own = algo_->from_manifest(as_resumed);  // after the algorithm's constructor seeded LibTorch
   return "(next policy v" + std::to_string(version_) + ", " + std::to_string(env_steps) + " env steps): " + own;
 }
 

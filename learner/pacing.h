@@ -157,7 +157,10 @@ class Pacing {
   void save_networks(const std::string& dir) const;
   PolicyParams policy() const;
   void save(const std::string& dir) const;
-  void to_manifest(config::CheckpointManifest& m) const { algo_->to_manifest(m); }
+  void to_manifest(config::CheckpointManifest& m) const {
+    algo_->to_manifest(m);
+    counts_to_manifest(m);
+  }
   void load(const std::string& dir) { algo_->load(dir); }
   // After load and the runner's counters: versions go on past any the crashed learner published.
   // Returns the rest of the log line "resumed from DIR ...".
@@ -169,6 +172,11 @@ class Pacing {
   static constexpr uint64_t kResumeVersionSkip = 100000;
 
  protected:
+  // The pacing's own accounts of the run (steps counted stale, fitted), kept in a checkpoint and
+  // restored on --resume, so a resumed run's summary covers the whole run.
+  virtual void counts_to_manifest(config::CheckpointManifest&) const {}
+  virtual void counts_from_manifest(const config::CheckpointManifest&) {}
+
   // The figures of finished updates: a figure that is not finite stops the run, and stays found:
   // whoever catches the error (a periodic checkpoint logs its failure and goes on), every later
   // train(), publish, evaluation and checkpoint throws it again.

@@ -160,6 +160,26 @@ class RoundPacing final : public Pacing {
     return o.str();
   }
 
+  void counts_to_manifest(config::CheckpointManifest& m) const override {
+    m.set_stale_batches(counts_.stale_batches);
+    m.set_stale_steps(counts_.stale_steps);
+    m.set_fitted_steps(counts_.used_steps);
+    m.set_quota_top_ups(counts_.top_ups);
+    for (const auto& [lag, n] : counts_.lag_steps) {
+      config::LagSteps* l = m.add_fitted_by_lag();
+      l->set_lag(lag);
+      l->set_steps(n);
+    }
+  }
+  void counts_from_manifest(const config::CheckpointManifest& m) override {
+    counts_.stale_batches = m.stale_batches();
+    counts_.stale_steps = m.stale_steps();
+    counts_.used_steps = m.fitted_steps();
+    counts_.top_ups = m.quota_top_ups();
+    counts_.lag_steps.clear();
+    for (const auto& l : m.fitted_by_lag()) counts_.lag_steps[l.lag()] += l.steps();
+  }
+
  private:
   // The run's step accounts: batches and steps counted stale (over the run, and since the last
   // fit), steps fitted and by what lag, quota top-ups.

@@ -9,6 +9,7 @@
 #include <deque>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -18,6 +19,7 @@
 #include "config.h"
 #include "meter.h"
 #include "pacing.h"
+#include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "registry.h"
 #include "samples_per_insert.h"
 
@@ -297,6 +299,93 @@ TEST(ReplayPacing, ADivergenceACheckpointFoundStopsWhatFollows) {
   }
   EXPECT_THROW(algo->hold_workers(farm), std::runtime_error);
   EXPECT_EQ(farm.published_, 1);
+}
+
+}  // namespace
+}  // namespace farm
+
+namespace farm {
+namespace {
+
+// A batch of PPO's shapes (step_scale_spec's) made by `version`: `rows` envs, one step each.
+struct PpoStep : OneStep {
+  PpoStep(int rows, uint64_t version) : OneStep(rows), log_probs(rows, -1.f) {
+    batch.policy_version = version;
+    batch.log_probs = log_probs.data();
+    batch.episodes = &episodes;
+  }
+  std::vector<float> log_probs;
+  std::vector<FinishedEpisode> episodes;
+};
+
+config::ExperimentConfig resume_config() {
+  return parse_config_text(
+      "experiment_id: \"resume\" algorithm: \"ppo\"\n"
+      "ppo { hidden: [8, 8] steps_per_fit: 64 mini_batch_size: 16 epochs: 1 }\n",
+      "resume.txtpb");
+}
+
+// A PPO checkpoint holds the steps accepted and not yet fitted: the resumed algorithm holds them
+// toward its next fit, relabelled as made by the version it publishes their networks as, so a fit
+// takes them with the steps that arrive after the resume. Without them it held nothing and
+// waited for a whole fit's steps anew.
+TEST(PpoResume, StepsNotYetFittedSurviveAResume) {
+  const auto cfg = resume_config();
+  const auto dir = std::filesystem::temp_directory_path() / ("ppo_resume_" + std::to_string(::getpid()));
+  config::CheckpointManifest m;
+  {
+    const auto ppo = make_algorithm(cfg, step_scale_spec());
+    PpoStep half(32, 7);
+    ppo->insert(half.batch);
+    EXPECT_EQ(ppo->holding().rows, 32);
+    EXPECT_EQ(ppo->ready(), 0);
+    ppo->save(dir.string());
+    m.set_policy_version(7);
+    ppo->to_manifest(m);
+  }
+  const uint64_t resumed = 7 + 1 + Pacing::kResumeVersionSkip;
+  m.set_resumed_version(resumed);
+  const auto again = make_algorithm(cfg, step_scale_spec());
+  again->load(dir.string());
+  const std::string said = again->from_manifest(m);
+  EXPECT_NE(said.find("32 steps held toward the next fit"), std::string::npos) << said;
+  EXPECT_EQ(again->holding().rows, 32);
+  EXPECT_EQ(again->ready(), 0);
+  PpoStep rest(32, resumed);
+  again->insert(rest.batch);
+  ASSERT_GT(again->ready(), 0);
+  const auto figures = again->update(1, resumed);
+  ASSERT_EQ(figures.size(), 1u);
+  EXPECT_EQ(figures[0].get("steps used"), 64.0);
+  EXPECT_EQ(figures[0].steps_by_version, (std::map<uint64_t, int64_t>{{resumed, 64}}));
+  EXPECT_EQ(again->holding().rows, 0);
+  farm::remove_tree(dir);
+}
+
+// The round pacing's accounts (steps counted stale, fitted, by lag) go into a checkpoint's
+// manifest and come back on --resume, so the summary of a resumed run covers the whole run.
+TEST(PpoResume, TheRoundPacingsAccountsSurviveAResume) {
+  const auto cfg = resume_config();
+  const auto first = make_pacing(cfg, step_scale_spec());
+  config::CheckpointManifest m;
+  first->to_manifest(m);
+  m.set_policy_version(first->version());
+  const auto resumed = make_pacing(cfg, step_scale_spec());
+  resumed->resumed(m, 0);
+  ASSERT_GT(resumed->version(), 0u);
+  PpoStep old(16, 0);  // made before the resume by a version far behind the resumed one
+  EXPECT_FALSE(resumed->take(old.batch));
+  config::CheckpointManifest m2;
+  resumed->to_manifest(m2);
+  EXPECT_EQ(m2.stale_batches(), 1u);
+  EXPECT_EQ(m2.stale_steps(), 16u);
+  m2.set_policy_version(resumed->version());
+  const auto third = make_pacing(cfg, step_scale_spec());
+  third->resumed(m2, 0);
+  config::CheckpointManifest m3;
+  third->to_manifest(m3);
+  EXPECT_EQ(m3.stale_batches(), 1u);
+  EXPECT_EQ(m3.stale_steps(), 16u);
 }
 
 }  // namespace

@@ -12,7 +12,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <numeric>
 #include <random>
@@ -347,6 +350,72 @@ TEST(RolloutStorage, DropsVersionsBeyondTheWindowAndCountsStepsByVersion) {
   EXPECT_EQ(s.advantages, (std::vector<float>{2, 1, 2}));
   EXPECT_EQ(s.current, (std::vector<uint8_t>{0, 0, 1}));
   EXPECT_EQ(st.steps(), 1);
+}
+
+// The stored steps go to a file and back whole (a checkpoint's part): the same steps, versions,
+// and what a fit takes from them; a file of other shapes, a truncated one or one whose header
+// claims more than it holds is refused by name and leaves nothing stored.
+TEST(RolloutStorage, SavesAndLoadsItsStepsAndRefusesABadFile) {
+  RolloutStorage st(2, 1);
+  const float obs[] = {1, 2, 3, 4, 5, 6, 7, 8}, next[] = {2, 3, 4, 5, 6, 7, 8, 9}, act[] = {0.1f, 0.2f, 0.3f, 0.4f};
+  const float rew[] = {1, 2, 3, 4}, lp[] = {-1, -2, -3, -4};
+  const uint8_t term[] = {0, 1, 0, 0}, trunc[] = {0, 0, 0, 1};
+  st.add(2, 2, obs, act, rew, term, trunc, lp, next, 3);
+  st.add(1, 2, obs, act, rew, term, trunc, lp, next, 4);
+  const auto dir = std::filesystem::temp_directory_path() / ("rollouts_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string file = (dir / "rollouts.bin").string();
+  st.save(file);
+  RolloutStorage back(2, 1);
+  back.load(file);
+  EXPECT_EQ(back.steps(), 6);
+  back.shift_versions(10);
+  auto zero = [](const float*, int64_t n) { return std::vector<float>(n, 0.f); };
+  PpoSamples a, b;
+  std::map<uint64_t, int64_t> va, vb;
+  st.take(6, zero, 0.9, 0.8, 4, a, nullptr, &va);
+  back.take(6, zero, 0.9, 0.8, 14, b, nullptr, &vb);
+  EXPECT_EQ(b.obs, a.obs);
+  EXPECT_EQ(b.actions, a.actions);
+  EXPECT_EQ(b.advantages, a.advantages);
+  EXPECT_EQ(b.behaviour_log_prob, a.behaviour_log_prob);
+  EXPECT_EQ(b.current, a.current);
+  EXPECT_EQ(va, (std::map<uint64_t, int64_t>{{3, 4}, {4, 2}}));
+  EXPECT_EQ(vb, (std::map<uint64_t, int64_t>{{13, 4}, {14, 2}}));
+
+  auto refused = [&](RolloutStorage& s, const std::string& f, const std::string& why) {
+    try {
+      s.load(f);
+      ADD_FAILURE() << "loaded " << f << ", expected: " << why;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(f), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(s.steps(), 0);
+  };
+  RolloutStorage other(3, 1);
+  refused(other, file, "file has obs 2, act 1, expected obs 3, act 1");
+  std::string bytes;
+  {
+    std::ifstream in(file, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  auto write = [&](const std::string& b) {
+    std::ofstream out(file, std::ios::binary | std::ios::trunc);
+    out << b;
+  };
+  RolloutStorage again(2, 1);
+  again.load(file);  // leaves steps stored: each refusal below must clear them
+  write(bytes.substr(0, bytes.size() - 3));
+  refused(again, file, "past what the file holds");
+  std::string huge = bytes;
+  const int64_t many = int64_t(1) << 40;
+  std::memcpy(&huge[16], &many, sizeof many);  // the header's trajectory count
+  write(huge);
+  refused(again, file, "inconsistent header");
+  write("not a rollout file at all, long enough for a header");
+  refused(again, file, "bad magic");
+  farm::remove_tree(dir.string());
 }
 
 namespace {

@@ -87,11 +87,13 @@ FitScheduler::Fit FitScheduler::take_fit() {
   return f;
 }
 
-void FitScheduler::restore_run(int64_t run_steps, int64_t run_episodes, int64_t fits) {
+void FitScheduler::restore_run(int64_t run_steps, int64_t run_episodes, int64_t fits, int64_t fit_steps,
+                               int64_t fit_episodes) {
   run_steps_ = run_steps;
   run_episodes_ = run_episodes;
   fits_ = fits;
-  fit_steps_ = fit_episodes_ = 0;
+  fit_steps_ = std::max<int64_t>(0, fit_steps);
+  fit_episodes_ = std::max<int64_t>(0, fit_episodes);
 }
 
 }  // namespace farm

@@ -58,13 +58,16 @@ class FitScheduler {
   // Takes the due fit; the carried steps start the next one.
   Fit take_fit();
   bool run_done() const;
-  // Resumes a run: these totals so far, no data toward the next fit.
-  void restore_run(int64_t run_steps, int64_t run_episodes, int64_t fits);
+  // Resumes a run: these totals so far, and the steps and episodes collected toward the next fit
+  // (a checkpoint's stored rollouts).
+  void restore_run(int64_t run_steps, int64_t run_episodes, int64_t fits, int64_t fit_steps = 0,
+                   int64_t fit_episodes = 0);
 
   int64_t fits() const { return fits_; }
   int64_t run_steps() const { return run_steps_; }
   int64_t run_episodes() const { return run_episodes_; }
   int64_t fit_steps() const { return fit_steps_; }  // collected toward the next fit, carry included
+  int64_t fit_episodes() const { return fit_episodes_; }
   const FitPlan& plan() const { return plan_; }
 
  private:

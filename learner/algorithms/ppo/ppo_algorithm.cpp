@@ -126,18 +126,36 @@ class PpoAlgorithm final : public Algorithm {
     ppo_.save((fs::path(dir) / "ppo").string());
   }
   void load_networks(const std::string& dir) override { ppo_.load((fs::path(dir) / "ppo").string()); }
+  // A checkpoint holds the steps accepted and not yet fitted too, so a resume loses none of them.
+  void save(const std::string& dir) const override {
+    save_networks(dir);
+    storage_.save(rollout_file(dir));
+  }
+  // A checkpoint without the file (written before it was kept) resumes with none held.
+  void load(const std::string& dir) override {
+    load_networks(dir);
+    if (fs::exists(rollout_file(dir))) storage_.load(rollout_file(dir));
+  }
   void to_manifest(config::CheckpointManifest& m) const override {
     m.set_run_steps(uint64_t(sched_.run_steps()));
+    m.set_fit_episodes(uint64_t(sched_.fit_episodes()));
     rng_to_manifest(nullptr, m);
   }
-  // The run's counters go on from where they were; data not yet fitted was not kept.
+  // The run's counters go on from where they were, with the stored steps toward the next fit; the
+  // steps keep their lag to the version the resumed learner publishes the same networks as.
   std::string from_manifest(const config::CheckpointManifest& m) override {
     rng_from_manifest(m, nullptr);
-    sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits());
-    return std::to_string(ppo_.fits()) + " fits, learning rate " + num("%.3g", ppo_.learning_rate());
+    if (m.has_resumed_version() && m.resumed_version() > m.policy_version())
+      storage_.shift_versions(m.resumed_version() - m.policy_version());
+    sched_.restore_run(int64_t(m.run_steps()), int64_t(m.episodes()), ppo_.fits(), storage_.steps(),
+                       int64_t(m.fit_episodes()));
+    return std::to_string(ppo_.fits()) + " fits, learning rate " + num("%.3g", ppo_.learning_rate()) + ", " +
+           std::to_string(storage_.steps()) + " steps held toward the next fit";
   }
 
  private:
+  static std::string rollout_file(const std::string& dir) { return (fs::path(dir) / "rollouts.bin").string(); }
+
   const uint64_t seed_;
   const robots::TaskSpec spec_;
   const config::PpoConfig pc_;

@@ -1,6 +1,9 @@
 #include "rollout_storage.h"
 
 #include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
 #include <stdexcept>
 
 #include "gae.h"
@@ -54,6 +57,114 @@ int64_t RolloutStorage::drop_older_than(uint64_t min_version) {
   }
   steps_ -= dropped;
   return dropped;
+}
+
+void RolloutStorage::shift_versions(uint64_t offset) {
+  for (auto& tr : trajs_) tr.version += offset;
+}
+
+namespace {
+
+constexpr char kRolloutMagic[8] = {'F', 'R', 'O', 'L', 'L', '0', '0', '1'};
+
+struct RolloutHeader {
+  char magic[8];
+  int32_t obs_dim, act_dim;
+  int64_t trajectories, steps;
+};
+
+// A trajectory's bytes after its (version, len) pair.
+int64_t trajectory_bytes(int64_t len, int od, int ad) {
+  return len * int64_t(sizeof(float)) * (2 * od + ad + 2) + 2 * len;
+}
+
+}  // namespace
+
+void RolloutStorage::save(const std::string& file) const {
+  std::ofstream out(file, std::ios::binary | std::ios::trunc);
+  if (!out) throw std::runtime_error("rollout storage " + file + ": cannot open for writing");
+  RolloutHeader h{};
+  std::memcpy(h.magic, kRolloutMagic, sizeof kRolloutMagic);
+  h.obs_dim = obs_dim_;
+  h.act_dim = act_dim_;
+  h.trajectories = int64_t(trajs_.size());
+  h.steps = steps_;
+  out.write(reinterpret_cast<const char*>(&h), sizeof h);
+  auto put = [&out](const auto& v) {
+    out.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(v[0])));
+  };
+  for (const auto& tr : trajs_) {
+    out.write(reinterpret_cast<const char*>(&tr.version), sizeof tr.version);
+    out.write(reinterpret_cast<const char*>(&tr.len), sizeof tr.len);
+    put(tr.obs);
+    put(tr.next_obs);
+    put(tr.actions);
+    put(tr.rewards);
+    put(tr.log_probs);
+    put(tr.terminated);
+    put(tr.truncated);
+  }
+  out.flush();
+  if (!out) throw std::runtime_error("rollout storage " + file + ": write failed");
+}
+
+void RolloutStorage::load(const std::string& file) {
+  clear();
+  std::ifstream in(file, std::ios::binary | std::ios::ate);
+  if (!in) throw std::runtime_error("rollout storage " + file + ": cannot open for reading");
+  const int64_t file_bytes = in.tellg();
+  in.seekg(0);
+  RolloutHeader h{};
+  if (file_bytes < int64_t(sizeof h) || !in.read(reinterpret_cast<char*>(&h), sizeof h))
+    throw std::runtime_error("rollout storage " + file + ": truncated header");
+  if (std::memcmp(h.magic, kRolloutMagic, sizeof kRolloutMagic) != 0)
+    throw std::runtime_error("rollout storage " + file + ": not a rollout storage file (bad magic)");
+  if (h.obs_dim != obs_dim_ || h.act_dim != act_dim_)
+    throw std::runtime_error("rollout storage " + file + ": file has obs " + std::to_string(h.obs_dim) + ", act " +
+                             std::to_string(h.act_dim) + ", expected obs " + std::to_string(obs_dim_) + ", act " +
+                             std::to_string(act_dim_));
+  const int od = obs_dim_, ad = act_dim_;
+  // Every trajectory has at least one step: the counts are bounded by the file's size before any
+  // allocation follows them.
+  const int64_t least = int64_t(sizeof(uint64_t) + sizeof(int64_t)) + trajectory_bytes(1, od, ad);
+  if (h.trajectories < 0 || h.steps < h.trajectories || h.trajectories > (file_bytes - int64_t(sizeof h)) / least)
+    throw std::runtime_error("rollout storage " + file + ": inconsistent header (" + std::to_string(h.trajectories) +
+                             " trajectories, " + std::to_string(h.steps) + " steps in " + std::to_string(file_bytes) +
+                             " bytes)");
+  int64_t left = file_bytes - int64_t(sizeof h), steps = 0;
+  auto fail = [this, &file](const std::string& why) {
+    clear();
+    return std::runtime_error("rollout storage " + file + ": " + why + "; nothing restored");
+  };
+  auto get = [&in](auto& v, int64_t n) {
+    v.resize(size_t(n));
+    in.read(reinterpret_cast<char*>(v.data()), std::streamsize(size_t(n) * sizeof(v[0])));
+  };
+  for (int64_t k = 0; k < h.trajectories; ++k) {
+    Trajectory tr;
+    if (!in.read(reinterpret_cast<char*>(&tr.version), sizeof tr.version) ||
+        !in.read(reinterpret_cast<char*>(&tr.len), sizeof tr.len))
+      throw fail("truncated at trajectory " + std::to_string(k));
+    left -= int64_t(sizeof tr.version + sizeof tr.len);
+    if (tr.len <= 0 || tr.len > h.steps - steps || trajectory_bytes(tr.len, od, ad) > left)
+      throw fail("trajectory " + std::to_string(k) + " has " + std::to_string(tr.len) +
+                 " steps, past what the file holds");
+    get(tr.obs, tr.len * od);
+    get(tr.next_obs, tr.len * od);
+    get(tr.actions, tr.len * ad);
+    get(tr.rewards, tr.len);
+    get(tr.log_probs, tr.len);
+    get(tr.terminated, tr.len);
+    get(tr.truncated, tr.len);
+    if (!in) throw fail("read failed at trajectory " + std::to_string(k));
+    left -= trajectory_bytes(tr.len, od, ad);
+    steps += tr.len;
+    trajs_.push_back(std::move(tr));
+  }
+  if (steps != h.steps || left != 0)
+    throw fail(std::to_string(steps) + " steps read where the header says " + std::to_string(h.steps) + ", " +
+               std::to_string(left) + " bytes left over");
+  steps_ = steps;
 }
 
 void RolloutStorage::take(int64_t steps, const ValueFn& value, double gamma, double lambda, uint64_t current_version,

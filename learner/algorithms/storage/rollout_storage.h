@@ -7,6 +7,7 @@
 #include <deque>
 #include <functional>
 #include <map>
+#include <string>
 #include <vector>
 
 #include "ppo.h"
@@ -44,6 +45,16 @@ class RolloutStorage {
 
   // Drops the stored steps made by versions older than min_version; returns how many.
   int64_t drop_older_than(uint64_t min_version);
+  // Adds `offset` to every stored step's version: a resumed learner publishes the checkpoint's
+  // networks under a new number, and the steps they made keep their lag to it.
+  void shift_versions(uint64_t offset);
+
+  // The stored steps to a file and back (a checkpoint's part), so that steps accepted and not yet
+  // fitted survive a resume. load() replaces what is stored; it throws std::runtime_error naming
+  // the file and what is wrong (another obs or action size, a truncated or inconsistent file),
+  // and then holds nothing.
+  void save(const std::string& file) const;
+  void load(const std::string& file);
 
  private:
   struct Trajectory {
