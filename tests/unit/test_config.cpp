@@ -6,6 +6,7 @@
 #include <cmath>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include "config.h"
 #include "mclari/mclari_spec.h"
@@ -67,14 +68,23 @@ TEST(Config, EvaluationSplitIsCheckedAndDefaultsToFourEpisodesAWorker) {
   EXPECT_NE(e.find("expected >= 0 (0 = every evaluation on one worker), got -1"), std::string::npos) << e;
 }
 
+namespace {
+
+// The off-policy algorithms' sections, each as a config opens before it and the line it is on.
+struct OffPolicySection {
+  std::string head, section, line;
+};
+std::vector<OffPolicySection> off_policy_sections() {
+  return {{"experiment_id: \"a\"\n", "sac", "exp.txtpb:3:"},
+          {"experiment_id: \"a\"\nalgorithm: \"dqn\"\n", "dqn", "exp.txtpb:4:"}};
+}
+
+}  // namespace
+
 // sac.lr_decay_* and dqn.lr_decay_*: a length of 0 or more and a fraction in (0, 1], an error at the
 // field's line otherwise.
 TEST(Config, LearningRateScheduleIsChecked) {
-  struct Case {
-    std::string head, section, line;
-  };
-  for (const Case& c : {Case{"experiment_id: \"a\"\n", "sac", "exp.txtpb:3:"},
-                        Case{"experiment_id: \"a\"\nalgorithm: \"dqn\"\n", "dqn", "exp.txtpb:4:"}}) {
+  for (const OffPolicySection& c : off_policy_sections()) {
     EXPECT_EQ(error_of(c.head + c.section + " {\n  lr_decay_updates: 1000\n  lr_decay_to: 0.1\n}\n"), "") << c.section;
     std::string e = error_of(c.head + c.section + " {\n  lr_decay_updates: -1\n}\n");
     EXPECT_NE(e.find(c.section + ".lr_decay_updates"), std::string::npos) << e;
@@ -89,11 +99,7 @@ TEST(Config, LearningRateScheduleIsChecked) {
 
 // sac.max_step_scale and dqn.max_step_scale: 1 to 64, an error at the field's line otherwise.
 TEST(Config, StepScaleIsBounded) {
-  struct Case {
-    std::string head, section, line;
-  };
-  for (const Case& c : {Case{"experiment_id: \"a\"\n", "sac", "exp.txtpb:3:"},
-                        Case{"experiment_id: \"a\"\nalgorithm: \"dqn\"\n", "dqn", "exp.txtpb:4:"}}) {
+  for (const OffPolicySection& c : off_policy_sections()) {
     EXPECT_EQ(error_of(c.head + c.section + " {\n  max_step_scale: 4\n}\n"), "") << c.section;
     for (const char* bad : {"0", "65"}) {
       std::string e = error_of(c.head + c.section + " {\n  max_step_scale: " + bad + "\n}\n");
