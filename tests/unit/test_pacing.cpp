@@ -1,7 +1,8 @@
 // The replay pacing (learner/replay_pacing.cpp, samples_per_insert.h): the samples-per-insert
-// limiter; sac.max_step_scale's rule, SAC keeping the seed's step on the CPU, and the pacing growing
-// and shrinking the step against the env steps a farm reports; and updates that are still running
-// on a GPU when update() returns: their figures are checked before any weights leave the learner.
+// limiter; sac.max_step_scale's rule, SAC keeping the configured step on the CPU, and the pacing
+// growing and shrinking the step against the env steps a farm reports; and updates that are still
+// running on a GPU when update() returns: their figures are checked before any weights leave the
+// learner. Then PPO's resume: the steps not yet fitted and the round pacing's accounts.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -65,7 +66,7 @@ class StepScaleFarm final : public Farm {
 };
 
 // SAC as it is, but with what it would do on a GPU, so that the pacing's side runs here: the step
-// scale (SAC keeps the seed's step on the CPU), and, with `held` > 0, update() returning before the
+// scale (SAC keeps the configured step on the CPU), and, with `held` > 0, update() returning before the
 // figures of its last `held` updates are in (they come with the next call or finish(), as a CUDA
 // graph's queued replays do). Update `nan_at` (counted from 1) has a critic loss of NaN.
 class StepScaleOnAnyDevice final : public Algorithm {
@@ -147,13 +148,13 @@ struct OneStep {
 };
 
 // On the CPU a batch four times as large costs nearly four times the time, so SAC keeps the
-// seed's step there whatever sac.max_step_scale says, and its start line says so.
-TEST(SacStepScale, TheCpuKeepsTheSeedsStep) {
+// configured step there whatever sac.max_step_scale says, and its start line says so.
+TEST(SacStepScale, TheCpuKeepsTheConfiguredStep) {
   auto cfg = step_scale_config();
   cfg.mutable_sac()->set_device("cpu");
   const auto sac = make_algorithm(cfg, step_scale_spec());
   EXPECT_EQ(sac->max_step_scale(), 1);
-  EXPECT_NE(sac->describe().find("the seed's step (sac.max_step_scale is for a GPU learner)"), std::string::npos)
+  EXPECT_NE(sac->describe().find("the configured step (sac.max_step_scale is for a GPU learner)"), std::string::npos)
       << sac->describe();
   // The pacing never asks it here; if asked, the minibatch follows: 32 rows are two of 16, no x4.
   sac->insert(OneStep(32).batch);

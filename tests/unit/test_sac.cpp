@@ -1,9 +1,9 @@
 #include "compute.h"
 #include "device_replay.h"
 #include "divergence.h"
-#include "lr_schedule.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "sac.h"
+#include "step_size.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>

@@ -9,8 +9,8 @@
 
 #include "algorithm.h"
 #include "dqn.h"
-#include "lr_schedule.h"
 #include "replay_store.h"
+#include "step_size.h"
 #include "task_spec.h"
 
 namespace farm {
@@ -27,11 +27,7 @@ class DqnAlgorithm final : public Algorithm {
 
   std::string name() const override { return "dqn"; }
   std::string describe() const override {
-    std::string step = cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "";
-    if (cfg_.max_step_scale() > 1)
-      step += dqn_.on_gpu()
-                  ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
-                  : ", the configured step (dqn.max_step_scale is for a GPU learner)";
+    std::string step = step_phrase("dqn", cfg_.n_step(), cfg_.max_step_scale(), dqn_.on_gpu());
     step += lr_decay_phrase(cfg_.lr_decay_updates(), cfg_.lr_decay_to());
     return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
            " Q network" + step +

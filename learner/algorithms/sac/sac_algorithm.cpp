@@ -5,9 +5,9 @@
 #include <stdexcept>
 
 #include "algorithm.h"
-#include "lr_schedule.h"
 #include "replay_store.h"
 #include "sac.h"
+#include "step_size.h"
 #include "task_spec.h"
 
 namespace farm {
@@ -24,11 +24,7 @@ class SacAlgorithm final : public Algorithm {
 
   std::string name() const override { return "sac"; }
   std::string describe() const override {
-    std::string step = cfg_.n_step() > 1 ? ", " + std::to_string(cfg_.n_step()) + "-step returns" : "";
-    if (cfg_.max_step_scale() > 1)
-      step += sac_.on_gpu()
-                  ? ", step up to x" + std::to_string(cfg_.max_step_scale()) + " where the data outrun the updates"
-                  : ", the seed's step (sac.max_step_scale is for a GPU learner)";
+    std::string step = step_phrase("sac", cfg_.n_step(), cfg_.max_step_scale(), sac_.on_gpu());
     if (sac_.uses_cuda_graph())
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_.on_device()) step += ", minibatches drawn on the GPU";
