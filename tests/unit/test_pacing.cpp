@@ -23,6 +23,7 @@
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "registry.h"
 #include "samples_per_insert.h"
+#include "step_size.h"
 
 namespace farm {
 namespace {
@@ -161,6 +162,23 @@ TEST(SacStepScale, TheCpuKeepsTheConfiguredStep) {
   EXPECT_GT(sac->ready(), 0);
   sac->set_step_scale(4);
   EXPECT_EQ(sac->ready(), 0);
+}
+
+// A schedule of 160 updates to 0.2: 1 until the first of 16 steps (10 updates), 0.6 halfway, 0.2 from
+// update 160 on; no schedule, 1 throughout.
+TEST(LrDecay, FallsInSixteenStepsThenStays) {
+  EXPECT_EQ(lr_decay_factor(0, 1.0, 0), 1.0);
+  EXPECT_EQ(lr_decay_factor(0, 0.2, 1000000), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 0), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 9), 1.0);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 10), 1.0 - 0.8 / 16);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 80), 0.6);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 159), 1.0 - 0.8 * 15 / 16);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 160), 0.2);
+  EXPECT_DOUBLE_EQ(lr_decay_factor(160, 0.2, 1000000), 0.2);
+  EXPECT_EQ(lr_decay_phrase(0, 0.2), "");
+  EXPECT_EQ(lr_decay_phrase(160, 1.0), "");
+  EXPECT_EQ(lr_decay_phrase(160, 0.2), ", learning rates to x0.2 over 160 updates");
 }
 
 // The schedule (sac.lr_decay_updates, dqn.lr_decay_updates) reaches the updates: with 32 updates to
