@@ -4,7 +4,6 @@
 #include "device_replay.h"
 #include "sac_impl.h"
 
-#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>

@@ -1,7 +1,6 @@
 #include "rollout_storage.h"
 
 #include <algorithm>
-#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <stdexcept>
