@@ -74,18 +74,19 @@ TEST(McLari, ModelHasTheSeedConstants) {
             nullptr);
 }
 
-// No NaN, no divergence and no fall over 60 s at 1 and 150 Hz on every terrain, with the
+// No NaN, no divergence and no fall over 30 s at 1 and 150 Hz on every terrain, with the
 // simulation settings of deploy/configs/mclari_sac.txtpb (20 steps per period, timestep at most
 // 2 ms); 1 s at 150 Hz with the thesis's 500 steps per period covers its finer timestep. Terrains
-// are split over two threads to keep the test short.
-TEST(McLari, StableSixtySecondsOnEveryTerrain) {
+// are split over two threads to keep the test short; integration.mclari_policy runs 180 s
+// episodes of a trained policy, mostly at 150 Hz, on every terrain.
+TEST(McLari, StableThirtySecondsOnEveryTerrain) {
   struct Case {
     int terrain, f, spp, seconds;
   };
   std::vector<Case> cases;
   for (int terrain = 0; terrain < mclari::kNumTerrains; ++terrain) {
-    cases.push_back({terrain, 1, 20, 60});
-    cases.push_back({terrain, 150, 20, 60});
+    cases.push_back({terrain, 1, 20, 30});
+    cases.push_back({terrain, 150, 20, 30});
     cases.push_back({terrain, 150, 500, 1});
   }
   std::vector<std::string> failures(cases.size());

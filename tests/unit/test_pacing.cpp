@@ -366,8 +366,7 @@ TEST(PpoResume, StepsNotYetFittedSurviveAResume) {
   m.set_resumed_version(resumed);
   const auto again = make_algorithm(cfg, step_scale_spec());
   again->load(dir.string());
-  const std::string said = again->from_manifest(m);
-  EXPECT_NE(said.find("32 steps held toward the next fit"), std::string::npos) << said;
+  again->from_manifest(m);
   EXPECT_EQ(again->holding().rows, 32);
   EXPECT_EQ(again->ready(), 0);
   PpoStep rest(32, resumed);
