@@ -73,8 +73,14 @@ void write_checkpoint(const std::string& dir, const config::CheckpointManifest& 
     throw;
   }
   const fs::path parent = final_dir.has_parent_path() ? final_dir.parent_path() : fs::path(".");
-  remove_tree(old);
-  if (fs::exists(final_dir)) fs::rename(final_dir, old);
+  // DIR.old goes only while DIR is a whole checkpoint: after a crash between the renames, DIR.old is
+  // the only one, and it stays until the new one is in place.
+  if (fs::exists(final_dir / "manifest.txtpb")) {
+    remove_tree(old);
+    fs::rename(final_dir, old);
+  } else if (fs::exists(final_dir)) {
+    remove_tree(final_dir);
+  }
   fs::rename(tmp, final_dir);
   sync_path(parent);  // the renames on disk before the previous checkpoint goes
   remove_tree(old);
