@@ -36,7 +36,8 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       intake_(
           bus_,
           [this] {
-            Ingest in(cfg_.experiment_id(), task_spec_.obs_dim, task_spec_.act_dim);
+            Ingest in(cfg_.experiment_id(), task_spec_.obs_dim, task_spec_.act_dim,
+                      int(task_spec_.metric_names.size()));
             in.set_num_actions(task_spec_.num_actions);
             return in;
           }(),

@@ -25,13 +25,16 @@ std::string size_is(size_t got, size_t want, const char* name) {
 
 }  // namespace
 
-Ingest::Ingest(std::string experiment_id, int obs_dim, int act_dim)
-    : experiment_id_(std::move(experiment_id)), obs_dim_(obs_dim), act_dim_(act_dim) {}
+Ingest::Ingest(std::string experiment_id, int obs_dim, int act_dim, int num_metrics)
+    : experiment_id_(std::move(experiment_id)), obs_dim_(obs_dim), act_dim_(act_dim), num_metrics_(num_metrics) {}
 
 std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
   if (b.experiment_id() != experiment_id_)
     return "experiment id '" + b.experiment_id() + "' is not '" + experiment_id_ + "'";
   if (b.worker_id().empty()) return "empty worker id";
+  if (b.worker_id().size() > kMaxIdBytes)
+    return "worker id of " + std::to_string(b.worker_id().size()) + " bytes (at most " + std::to_string(kMaxIdBytes) +
+           ")";
   if (static_cast<int>(b.obs_dim()) != obs_dim_ || static_cast<int>(b.act_dim()) != act_dim_)
     return "dims obs " + std::to_string(b.obs_dim()) + " act " + std::to_string(b.act_dim()) + ", expected obs " +
            std::to_string(obs_dim_) + " act " + std::to_string(act_dim_);
@@ -75,9 +78,26 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
     if (listed) ++k;
   }
   if (k != b.final_index().size()) return "final_index has entries out of order or out of range";
-  for (const auto& e : b.episodes()) {
-    if (e.env() >= N) return "episode summary for env " + std::to_string(e.env()) + " of " + std::to_string(N);
+  // One summary for each episode that ended, in final_index's order: a batch claiming more would
+  // count episodes that never ran (PPO's episode counts, the stop rules) and take memory for them.
+  if (b.episodes().size() != b.final_index().size())
+    return std::to_string(b.episodes().size()) + " episode summaries for " + std::to_string(b.final_index().size()) +
+           " episode ends";
+  for (size_t j = 0; j < b.episodes().size(); ++j) {
+    const auto& e = b.episodes()[j];
+    const size_t end = b.final_index()[j];
+    const std::string which = "episode summary " + std::to_string(j);
+    if (e.env() != end % N)
+      return which + " names env " + std::to_string(e.env()) + ", its end (step index " + std::to_string(end) +
+             ") is env " + std::to_string(end % N);
+    if (e.terminated() != bool(b.terminated()[end]))
+      return which + ": terminated does not match the flag at step index " + std::to_string(end);
+    if (e.length() == 0) return which + " has length 0";
     if (!std::isfinite(e.episode_return())) return "non-finite episode return";
+    if (e.metrics().size() != size_t(num_metrics_))
+      return which + " has " + std::to_string(e.metrics().size()) + " metrics, the task has " +
+             std::to_string(num_metrics_);
+    if (auto r = all_finite(e.metrics(), "episode metrics"); !r.empty()) return which + ": " + r;
   }
   return "";
 }

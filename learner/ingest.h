@@ -44,7 +44,8 @@ void fold_n_step(const farm::msg::TransitionBatch& b, Transitions& rows, double 
 
 class Ingest {
  public:
-  Ingest(std::string experiment_id, int obs_dim, int act_dim);
+  // num_metrics: the task's metric count, which every episode summary carries.
+  Ingest(std::string experiment_id, int obs_dim, int act_dim, int num_metrics);
 
   // Checks one batch. On success appends its transitions to `out`, its finished episodes to
   // `episodes`, and returns an empty string; otherwise returns why it was refused.
@@ -100,6 +101,9 @@ class Ingest {
   static constexpr size_t kMaxSessionsPerWorker = 4;
   static constexpr size_t kMaxRetired = 4096;
   static constexpr size_t kMaxMissing = 4096;
+  // A worker id's bytes, as for heartbeats (WorkerRoster::kMaxIdBytes): every accepted episode,
+  // account and event carries one.
+  static constexpr size_t kMaxIdBytes = 256;
 
   // The largest serialized TransitionBatch (CDR, encapsulation included) a worker of this
   // experiment can send: steps_per_batch steps of kMaxEnvsPerWorker envs (a worker may run more envs
@@ -125,7 +129,7 @@ class Ingest {
   std::string content_problem(const farm::msg::TransitionBatch& b, uint64_t current_version) const;
 
   std::string experiment_id_;
-  int obs_dim_, act_dim_;
+  int obs_dim_, act_dim_, num_metrics_;
   int num_actions_ = 0;
   IngestCounters counters_;
   // Moves an open account to retired_ (bounded, oldest out first).

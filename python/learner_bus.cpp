@@ -55,7 +55,7 @@ class LearnerBus {
         intake_(
             bus_,
             [&] {
-              farm::Ingest in(cfg_.experiment_id(), task_.obs_dim, task_.act_dim);
+              farm::Ingest in(cfg_.experiment_id(), task_.obs_dim, task_.act_dim, int(task_.metric_names.size()));
               in.set_num_actions(task_.num_actions);
               return in;
             }(),

@@ -227,7 +227,7 @@ class Intake {
  public:
   Intake(farm::dds::Bus& bus, const Shape& s, LearnerShape shape, const std::string& id, Path& path, Updater* upd)
       : path_(path), upd_(upd) {
-    farm::Ingest ingest(id, s.spec.obs_dim, s.spec.act_dim);
+    farm::Ingest ingest(id, s.spec.obs_dim, s.spec.act_dim, int(s.spec.metric_names.size()));
     ingest.set_num_actions(s.spec.num_actions);
     const uint32_t bound = uint32_t(
         farm::Ingest::max_batch_bytes(s.spec.obs_dim, s.spec.act_dim, int(s.spec.metric_names.size()), s.steps));

@@ -92,7 +92,7 @@ class Sink {
   // Env steps/s over the measured window with n workers, or a negative value on failure.
   double run(int n) {
     const std::string id = "bench_scale_" + std::to_string(n) + "_" + std::to_string(getpid());
-    farm::Ingest ingest(id, kObs, kAct);
+    farm::Ingest ingest(id, kObs, kAct, kMetrics);
     publish(id, false);
     std::vector<pid_t> pids;
     for (int k = 0; k < n; ++k) {
@@ -181,7 +181,7 @@ class Sink {
   uint64_t duplicate() const { return duplicate_; }
 
  private:
-  static constexpr int kObs = 3, kAct = 1;  // the pendulum
+  static constexpr int kObs = 3, kAct = 1, kMetrics = 1;  // the pendulum (its metric: upright_fraction)
 
   void publish(const std::string& id, bool finished) {
     farm::msg::ExperimentSpec s;

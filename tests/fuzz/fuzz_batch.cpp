@@ -62,7 +62,7 @@ std::string run_on(farm::Ingest& ingest, const farm::msg::TransitionBatch& b, ui
 }
 
 void run(const farm::msg::TransitionBatch& b, uint64_t version) {
-  farm::Ingest ingest("fuzz", 3, 1);
+  farm::Ingest ingest("fuzz", 3, 1, 0);
   const std::string why = run_on(ingest, b, version);
   // A second delivery of the same batch is a duplicate, never a second acceptance.
   farm::Transitions again;
@@ -129,12 +129,22 @@ farm::msg::TransitionBatch build(FuzzedDataProvider& p) {
   b.final_index(finals);
   b.next_observations(vec<float>(p, size_t(N) * 3, [&] { return value(p); }));
   b.final_observations(vec<float>(p, finals.size() * 3, [&] { return value(p); }));
-  std::vector<farm::msg::EpisodeSummary> eps(p.ConsumeIntegralInRange<size_t>(0, 2));
-  for (auto& e : eps) {
-    e.env(p.ConsumeIntegralInRange<uint32_t>(0, 5));
-    e.episode_return(value(p));
-    e.length(p.ConsumeIntegral<uint16_t>());
+  // Mostly one summary per episode end, as a worker sends them; now and then one more, or one off in
+  // its env, flag, length or metrics.
+  std::vector<farm::msg::EpisodeSummary> eps(finals.size());
+  for (size_t j = 0; j < eps.size(); ++j) {
+    const size_t end = finals[j];
+    eps[j].env(N > 0 ? uint32_t(end % N) : 0);
+    eps[j].terminated(end < TN && term[end] == 1);
+    eps[j].episode_return(value(p));
+    eps[j].length(p.ConsumeIntegralInRange<uint32_t>(1, 1000));
   }
+  const int off = p.ConsumeIntegralInRange<int>(0, 9);
+  if (off == 1) eps.emplace_back();
+  if (!eps.empty() && off == 2) eps[0].env(p.ConsumeIntegralInRange<uint32_t>(0, 5));
+  if (!eps.empty() && off == 3) eps[0].terminated(!eps[0].terminated());
+  if (!eps.empty() && off == 4) eps[0].length(0);
+  if (!eps.empty() && off == 5) eps[0].metrics({value(p)});
   b.episodes(eps);
   return b;
 }
@@ -158,7 +168,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   } else {
     // Up to four batches into one learner's door, so jumps and sessions meet earlier streams.
     FuzzedDataProvider p(data + 1, size - 1);
-    farm::Ingest ingest("fuzz", 3, 1);
+    farm::Ingest ingest("fuzz", 3, 1, 0);
     const int n = p.ConsumeIntegralInRange<int>(1, 4);
     for (int k = 0; k < n && p.remaining_bytes() > 0; ++k) run_on(ingest, build(p), data[0] >> 1);
   }

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 
 #include "config.h"
 #include "ingest.h"
@@ -53,7 +54,7 @@ farm::msg::TransitionBatch make_batch(uint64_t seq, const std::string& exp = "ex
 }
 
 struct Fixture : ::testing::Test {
-  Ingest ingest{"exp", kObs, kAct};
+  Ingest ingest{"exp", kObs, kAct, 0};
   Transitions out;
   std::vector<FinishedEpisode> eps;
   std::string take(const farm::msg::TransitionBatch& b) { return ingest.accept(b, 5, 0.0, out, eps); }
@@ -257,7 +258,7 @@ TEST_F(Fixture, CheckpointedAccountsResumeOpenAndRetiredStreams) {
   farm::config::CheckpointManifest m;
   farm::accounts_to_manifest(ingest, m);
 
-  Ingest resumed{"exp", kObs, kAct};
+  Ingest resumed{"exp", kObs, kAct, 0};
   const double now = 1e6;
   farm::accounts_from_manifest(m, resumed, now);
   EXPECT_EQ(resumed.counters().ok, ingest.counters().ok);
@@ -404,6 +405,10 @@ TEST_F(Fixture, NStepFoldStopsAtTerminationAndKeepsItsFlag) {
   b.terminated({0, 0, 1, 0, 0, 0});  // env 0 terminates at t1
   b.final_index({2, 3});
   b.final_observations({77.f, -77.f, 99.f, -99.f});
+  farm::msg::EpisodeSummary ended = b.episodes()[0];
+  ended.env(0);
+  ended.terminated(true);
+  b.episodes().insert(b.episodes().begin(), ended);
   ASSERT_EQ(take(b), "");
   farm::fold_n_step(b, out, 0.5, 3);
   EXPECT_FLOAT_EQ(out.rewards[0], 2.5f);  // 1 + 0.5 * 3; the reward after the reset (5) is not added
@@ -413,7 +418,7 @@ TEST_F(Fixture, NStepFoldStopsAtTerminationAndKeepsItsFlag) {
   // n_step 2 on a fresh copy: row (t0, e0) reads the observation of t2 itself.
   Transitions two;
   std::vector<FinishedEpisode> e2;
-  Ingest other{"exp", kObs, kAct};
+  Ingest other{"exp", kObs, kAct, 0};
   const auto plain = make_batch(0);
   ASSERT_EQ(other.accept(plain, 5, 0.0, two, e2), "");
   farm::fold_n_step(plain, two, 0.5, 2);
@@ -423,7 +428,7 @@ TEST_F(Fixture, NStepFoldStopsAtTerminationAndKeepsItsFlag) {
   EXPECT_FLOAT_EQ(two.next_obs[1], -20.f);
   // n_step 1 changes nothing and reports horizon 1 everywhere.
   Transitions one;
-  Ingest third{"exp", kObs, kAct};
+  Ingest third{"exp", kObs, kAct, 0};
   ASSERT_EQ(third.accept(plain, 5, 0.0, one, e2), "");
   const auto before = one.rewards;
   farm::fold_n_step(plain, one, 0.5, 1);
@@ -469,11 +474,53 @@ TEST(IngestBound, MaxBatchBytesHoldsTheLargestValidBatchAndNotMuchMore) {
 }
 
 TEST(IngestBound, SamplesRefusedByTheBusAreCountedInvalidOnce) {
-  Ingest in{"exp", 2, 1};
+  Ingest in{"exp", 2, 1, 0};
   EXPECT_EQ(in.count_refused_samples(0), 0u);
   EXPECT_EQ(in.count_refused_samples(3), 3u);
   EXPECT_EQ(in.count_refused_samples(3), 0u);
   EXPECT_EQ(in.count_refused_samples(5), 2u);
   EXPECT_EQ(in.counters().invalid, 5u);
   EXPECT_TRUE(in.workers().empty());
+}
+
+// A batch's worker id is bounded as a heartbeat's is: every accepted episode and account copies it.
+TEST_F(Fixture, OverlongWorkerIdIsRefused) {
+  auto b = make_batch(0);
+  b.worker_id(std::string(Ingest::kMaxIdBytes, 'w'));
+  EXPECT_EQ(take(b), "");
+  b.worker_id(std::string(Ingest::kMaxIdBytes + 1, 'w'));
+  EXPECT_EQ(take(b), "worker id of 257 bytes (at most 256)");
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+}
+
+// One episode summary for each episode end, of that end's env and flag, with the task's metrics:
+// before, a one-step batch could claim any number of finished episodes (PPO counts them toward
+// its fits and stop rules) and carry NaN metrics into the learner's figures.
+TEST_F(Fixture, EpisodeSummariesMustMatchTheEpisodeEnds) {
+  const auto refused = [&](const std::function<void(farm::msg::TransitionBatch&)>& edit, const std::string& why) {
+    auto b = make_batch(0);
+    edit(b);
+    const std::string got = take(b);
+    EXPECT_NE(got.find(why), std::string::npos) << "got: " << got << "; expected: " << why;
+  };
+  refused([](auto& b) { b.episodes().push_back(b.episodes()[0]); }, "2 episode summaries for 1 episode ends");
+  refused([](auto& b) { b.episodes().clear(); }, "0 episode summaries for 1 episode ends");
+  refused([](auto& b) { b.episodes()[0].env(0); }, "episode summary 0 names env 0, its end (step index 3) is env 1");
+  refused([](auto& b) { b.episodes()[0].terminated(true); }, "terminated does not match the flag at step index 3");
+  refused([](auto& b) { b.episodes()[0].length(0); }, "episode summary 0 has length 0");
+  refused([](auto& b) { b.episodes()[0].metrics({1.f}); }, "episode summary 0 has 1 metrics, the task has 0");
+  EXPECT_EQ(out.n, 0);
+  EXPECT_TRUE(eps.empty());
+
+  Ingest with_metrics{"exp", kObs, kAct, 2};
+  auto b = make_batch(0);
+  b.episodes()[0].metrics({0.5f, NAN});
+  EXPECT_EQ(with_metrics.accept(b, 5, 0.0, out, eps),
+            "episode summary 0: non-finite value in episode metrics at index 1");
+  EXPECT_EQ(with_metrics.accept(make_batch(1), 5, 0.0, out, eps), "episode summary 0 has 0 metrics, the task has 2");
+  auto good = make_batch(2);
+  good.episodes()[0].metrics({0.5f, 2.f});
+  EXPECT_EQ(with_metrics.accept(good, 5, 0.0, out, eps), "");
+  ASSERT_EQ(eps.size(), 1u);
+  EXPECT_EQ(eps[0].metrics, (std::vector<float>{0.5f, 2.f}));
 }

@@ -84,7 +84,8 @@ TEST(IngestThread, SlowConsumerLosesNothingAndTheQueueHoldsTheThreadBack) {
   std::vector<std::string> lines;
   std::mutex lines_mu;
   farm::IngestThread intake(
-      learner_bus, farm::Ingest("exp", kObs, kAct), uint32_t(farm::Ingest::max_batch_bytes(kObs, kAct, 0, 1)), capacity,
+      learner_bus, farm::Ingest("exp", kObs, kAct, 0), uint32_t(farm::Ingest::max_batch_bytes(kObs, kAct, 0, 1)),
+      capacity,
       [&](const std::string& m) {
         std::lock_guard<std::mutex> lk(lines_mu);
         lines.push_back(m);
