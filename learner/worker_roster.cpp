@@ -2,6 +2,7 @@
 
 #include <cstdio>
 
+#include "config.h"
 #include "printable.h"
 
 namespace farm {
@@ -27,7 +28,10 @@ bool WorkerRoster::heard(const farm::msg::WorkerStatus& in, double now, const st
            printable(in.worker_id()) + "), are ignored: only workers of '" + experiment_id_ + "' count");
     return false;
   }
-  if (in.worker_id().size() > kMaxIdBytes) {
+  // A size no worker runs (its --envs is at most kMaxEnvsPerWorker) is not believed: PPO's quota
+  // of batches per worker is made from the sizes heard.
+  if (in.worker_id().size() > kMaxIdBytes || in.envs() > uint32_t(kMaxEnvsPerWorker) ||
+      in.threads() > uint32_t(kMaxEnvsPerWorker)) {
     ++refused_;
     return false;
   }

@@ -15,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "config.h"
 #include "events.h"
 #include "meter.h"
 #include "roster_thread.h"
@@ -177,6 +178,21 @@ TEST(WorkerRoster, HeartbeatsOfAnotherParticipantUnderAWorkersIdAreRefused) {
   EXPECT_EQ(roster.refused(), 1u);
   EXPECT_EQ(roster.views().begin()->second.last.state(), "running");
   EXPECT_TRUE(roster.heard(status(4, "running"), 3.0, "P1"));
+}
+
+// A heartbeat claiming more environments than a worker can run is not heard: before, 2^32 - 1 envs
+// became -1 in PPO's per-worker quota.
+TEST(WorkerRoster, ASizeNoWorkerRunsIsRefused) {
+  Lines l;
+  farm::WorkerRoster roster(10.0, l.log());
+  EXPECT_FALSE(roster.heard(status(UINT32_MAX, "running"), 1.0, "P1"));
+  EXPECT_FALSE(roster.heard(status(farm::kMaxEnvsPerWorker + 1, "running"), 1.0, "P1"));
+  auto threads = status(4, "running");
+  threads.threads(UINT32_MAX);
+  EXPECT_FALSE(roster.heard(threads, 1.0, "P1"));
+  EXPECT_EQ(roster.refused(), 3u);
+  EXPECT_TRUE(roster.views().empty());
+  EXPECT_TRUE(roster.heard(status(farm::kMaxEnvsPerWorker, "running"), 2.0, "P1"));
 }
 
 // Invented sessions of one id by the thousand: the roster keeps kMaxSessionsPerWorker of that id,
