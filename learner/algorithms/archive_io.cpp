@@ -22,4 +22,10 @@ void save_archive(torch::serialize::OutputArchive& archive, const std::string& p
     throw std::runtime_error("cannot write " + path + ": " + std::strerror(err ? err : EIO));
 }
 
+std::string shape_str(c10::IntArrayRef shape) {
+  std::ostringstream o;
+  o << shape;
+  return o.str();
+}
+
 }  // namespace farm

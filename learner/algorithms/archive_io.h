@@ -3,6 +3,7 @@
 // here the archive is serialized to memory and the bytes written with every write checked.
 #pragma once
 
+#include <c10/util/ArrayRef.h>
 #include <torch/serialize/output-archive.h>
 
 #include <string>
@@ -11,5 +12,8 @@ namespace farm {
 
 // Throws std::runtime_error naming the file and the system's reason.
 void save_archive(torch::serialize::OutputArchive& archive, const std::string& path);
+
+// A tensor shape as LibTorch prints it, "[64, 3]", for the errors of a checkpoint that does not fit.
+std::string shape_str(c10::IntArrayRef shape);
 
 }  // namespace farm

@@ -318,6 +318,62 @@ TEST(Ppo, SaveMakesItsFolderAndLoadsBack) {
   expect_save_load_round_trip(config::PpoConfig(), root, dir);
 }
 
+// A checkpoint of other networks is refused, naming the file: before, Module::load took the saved
+// shapes as they were (the policy exported half-sized, every worker refusing it) and another
+// activation ran the weights through the wrong function.
+TEST(Ppo, LoadRefusesNetworksOfAnotherShapeOrActivation) {
+  const auto dir = std::filesystem::temp_directory_path() / ("ppo_other_" + std::to_string(::getpid()));
+  config::PpoConfig c;
+  c.clear_hidden();
+  c.add_hidden(16);
+  c.add_hidden(16);
+  Ppo(c, 3, 2, 5).save(dir.string());
+  auto refused = [&](const config::PpoConfig& other, const std::string& why) {
+    Ppo b(other, 3, 2, 9);
+    try {
+      b.load(dir.string());
+      ADD_FAILURE() << "loaded: " << why;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find((dir / "ppo.pt").string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+    }
+  };
+  auto wider = c;
+  wider.set_hidden(1, 32);
+  refused(wider, "actor.l1.weight has shape [16, 16], this config's ppo.hidden makes [32, 16]");
+  auto elu = c;
+  elu.set_activation("elu");
+  refused(elu, "another activation than this config's ppo.activation 'elu'");
+  farm::remove_tree(dir.string());
+}
+
+// The plain variant's rate is this run's config, as SAC's and DQN's are; clip_kl's adapted rate goes
+// on, within this config's bounds.
+TEST(Ppo, LoadTakesThePlainRateFromTheConfigAndKeepsTheAdaptedOne) {
+  const auto dir = std::filesystem::temp_directory_path() / ("ppo_rate_" + std::to_string(::getpid()));
+  config::PpoConfig plain;
+  plain.set_variant("plain");
+  plain.set_learning_rate(1e-3);
+  Ppo(plain, 3, 2, 5).save(dir.string());
+  plain.set_learning_rate(5e-4);
+  Ppo resumed(plain, 3, 2, 9);
+  resumed.load(dir.string());
+  EXPECT_DOUBLE_EQ(resumed.learning_rate(), 5e-4);
+
+  config::PpoConfig adaptive;
+  adaptive.set_learning_rate(3e-3);
+  Ppo(adaptive, 3, 2, 5).save(dir.string());
+  adaptive.set_learning_rate(1e-4);
+  Ppo kept(adaptive, 3, 2, 9);
+  kept.load(dir.string());
+  EXPECT_DOUBLE_EQ(kept.learning_rate(), 3e-3);
+  adaptive.set_lr_max(2e-3);
+  Ppo bounded(adaptive, 3, 2, 9);
+  bounded.load(dir.string());
+  EXPECT_DOUBLE_EQ(bounded.learning_rate(), 2e-3);
+  farm::remove_tree(dir.string());
+}
+
 TEST(Ppo, LearnerLogProbsMatchTheWorkersIncludingClampedActions) {
   config::PpoConfig c;
   c.set_initial_log_std(0.3);  // wide: many samples land beyond [-1, 1] and are clamped

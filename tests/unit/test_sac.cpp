@@ -657,9 +657,13 @@ TEST(Sac, LoadRejectsOtherShapesNamingFile) {
   auto other_critic = small_config();
   other_critic.add_critic_hidden(16);
   Sac other_hidden(wider, 3, 1, 1), other_obs(small_config(), 4, 1, 1), other_q(other_critic, 3, 1, 1);
+  auto tanh = small_config();
+  tanh.set_activation(small_config().activation() == "tanh" ? "relu" : "tanh");
+  Sac other_activation(tanh, 3, 1, 1);
   expect_error(other_hidden);
   expect_error(other_obs);
   expect_error(other_q);
+  expect_error(other_activation);  // before, the weights of one activation ran under the other
   Sac missing(small_config(), 3, 1, 1);
   farm::remove_tree(dir);
   expect_error(missing);

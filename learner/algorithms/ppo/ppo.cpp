@@ -303,6 +303,7 @@ void Ppo::save(const std::string& dir) const {
   ar.write("norm_m2", torch::tensor(std::vector<double>(m2.begin(), m2.end()), torch::kFloat64));
   ar.write("norm_count", torch::tensor(s.norm.count(), torch::kFloat64));
   ar.write("lr", torch::tensor(s.lr, torch::kFloat64));
+  ar.write("activation", torch::tensor(int64_t(s.actor->hidden_activation), torch::kLong));
   ar.write("counts", torch::tensor(std::vector<int64_t>{s.fits, s.updates}, torch::kLong));
   const std::string path = (std::filesystem::path(dir) / "ppo.pt").string();
   save_archive(ar, path + ".tmp");
@@ -317,12 +318,30 @@ void Ppo::load(const std::string& dir) {
     // Tensors land on this learner's device whatever device wrote them: a GPU run's checkpoint is
     // read by the CPU programs around it (farm-play, farm-export) and by a CPU learner's --resume.
     ar.load_from(path, s.device);
+    // Module::load takes a saved tensor's shape as it is: the shapes this config makes are kept
+    // and compared, so networks of other hidden sizes are refused rather than run half-sized.
+    const auto shapes = [&] {
+      std::vector<std::pair<std::string, std::vector<int64_t>>> out;
+      for (const auto& [net, m] : {std::pair<const char*, Mlp&>{"actor", s.actor}, {"critic", s.critic}})
+        for (const auto& p : m->named_parameters()) out.emplace_back(net + ("." + p.key()), p.value().sizes().vec());
+      return out;
+    };
+    const auto want = shapes();
+    torch::Tensor act;
+    if (ar.try_read("activation", act) && act.item<int64_t>() != int64_t(s.actor->hidden_activation))
+      throw std::runtime_error("its networks use another activation than this config's ppo.activation '" +
+                               s.cfg.activation() + "'");
     torch::serialize::InputArchive actor, critic, optim;
     ar.read("actor", actor);
     ar.read("critic", critic);
     ar.read("optimizer", optim);
     s.actor->load(actor);
     s.critic->load(critic);
+    const auto got = shapes();
+    for (size_t i = 0; i < want.size(); ++i)
+      if (got[i].second != want[i].second)
+        throw std::runtime_error(got[i].first + " has shape " + shape_str(got[i].second) + ", this config's " +
+                                 "ppo.hidden makes " + shape_str(want[i].second));
     s.actor->to(s.device);  // a checkpoint from another device
     s.critic->to(s.device);
     s.opt->load(optim);
@@ -344,11 +363,16 @@ void Ppo::load(const std::string& dir) {
     nm2 = nm2.to(torch::kCPU).contiguous();
     s.norm.set_state(nc.item<double>(), {nm.data_ptr<double>(), nm.data_ptr<double>() + s.obs_dim},
                      {nm2.data_ptr<double>(), nm2.data_ptr<double>() + s.obs_dim});
-    s.set_lr(lr.item<double>());
+    // The adapted rate of clip_kl goes on from where it was, within this config's bounds; the
+    // plain variant's rate is the config's, as SAC's and DQN's are.
+    s.set_lr(s.cfg.variant() == "clip_kl" ? std::clamp(lr.item<double>(), s.cfg.lr_min(), s.cfg.lr_max())
+                                          : s.cfg.learning_rate());
     s.fits = counts[0].item<int64_t>();
     s.updates = counts[1].item<int64_t>();
   } catch (const c10::Error& e) {
     throw std::runtime_error(path + ": " + e.what_without_backtrace());
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error(path + ": " + e.what());
   }
 }
 

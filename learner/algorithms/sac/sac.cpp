@@ -27,12 +27,6 @@ namespace {
 
 using namespace sac_detail;
 
-std::string shape_str(c10::IntArrayRef s) {
-  std::ostringstream o;
-  o << s;
-  return o.str();
-}
-
 std::string sizes_str(const std::vector<int64_t>& v) {
   std::string s;
   for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + std::to_string(v[i]);
@@ -249,6 +243,7 @@ void Sac::save(const std::string& dir) const {
     std::vector<int64_t> meta{s.obs_dim, s.act_dim};
     meta.insert(meta.end(), s.hidden.begin(), s.hidden.end());
     root.write("meta", torch::tensor(meta, torch::kInt64));
+    root.write("activation", torch::tensor(int64_t(s.actor->tanh_hidden), torch::kInt64));  // 1: tanh, 0: relu
     write_params(root, "actor", *s.actor);
     write_params(root, "critic", *s.critic);
     write_params(root, "critic_target", *s.critic_target);
@@ -290,6 +285,10 @@ void Sac::load(const std::string& dir) {
     const int64_t* m = meta.data_ptr<int64_t>();
     const std::vector<int64_t> got(m, m + meta.numel());
     if (got != want) throw fail("networks are obs,act,hidden = " + sizes_str(got) + ", expected " + sizes_str(want));
+    // Absent from checkpoints written before it was recorded: those are taken as they are.
+    torch::Tensor tanh;
+    if (root.try_read("activation", tanh) && tanh.item<int64_t>() != int64_t(s.actor->tanh_hidden))
+      throw fail("its networks use another activation than this config's sac.activation '" + s.cfg.activation() + "'");
 
     const auto actor = read_params(root, "actor", *s.actor, file);
     const auto critic = read_params(root, "critic", *s.critic, file);
