@@ -173,6 +173,19 @@ Policy::Policy(const PolicyParams& p) : p_(p) {
   if (p.head != PolicyHead::kSquashedGaussian && p.head != PolicyHead::kDiscreteQ && p.head != PolicyHead::kGaussian) {
     throw std::invalid_argument("policy head: unknown head " + std::to_string(int(p.head)));
   }
+  // Weights off the wire or from a file: one NaN would make every action NaN, and every batch of
+  // them refused by the learner.
+  for (const auto& [name, values] : {std::pair<const char*, const std::vector<float>*>{"parameters", &p.params},
+                                     {"obs_mean", &p.obs_mean},
+                                     {"obs_std", &p.obs_std},
+                                     {"log_std", &p.log_std}}) {
+    const auto bad = std::find_if(values->begin(), values->end(), [](float v) { return !std::isfinite(v); });
+    if (bad != values->end())
+      throw std::invalid_argument(std::string(name) + "[" + std::to_string(bad - values->begin()) + "] is " +
+                                  std::to_string(*bad) + ", not a finite number");
+  }
+  if (!std::isfinite(p.log_std_min) || !std::isfinite(p.log_std_max) || !std::isfinite(p.epsilon))
+    throw std::invalid_argument("log_std_min, log_std_max or epsilon is not a finite number");
   p.layout.check();
   const int out = p.layout.sizes.back();
   if (p.head == PolicyHead::kDiscreteQ && !(p.epsilon >= 0.f && p.epsilon <= 1.f)) {

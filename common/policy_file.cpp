@@ -20,13 +20,6 @@ namespace {
 // Far above any network of the farm (a few MB), far below what would exhaust memory.
 constexpr std::uintmax_t kMaxPolicyFileBytes = 256u << 20;
 
-// The first value of v that is not a finite number, or -1.
-long first_not_finite(const std::vector<float>& v) {
-  for (size_t i = 0; i < v.size(); ++i)
-    if (!std::isfinite(v[i])) return long(i);
-  return -1;
-}
-
 }  // namespace
 
 void write_policy_file(const std::string& path, const PolicyParams& p) {
@@ -89,19 +82,8 @@ PolicyParams read_policy_file(const std::string& path) {
   p.log_std_max = f.log_std_max();
   p.epsilon = f.epsilon();
   p.log_std.assign(f.log_std().begin(), f.log_std().end());
-  for (const auto& [name, values] : {std::pair<const char*, const std::vector<float>*>{"parameters", &p.params},
-                                     {"obs_mean", &p.obs_mean},
-                                     {"obs_std", &p.obs_std},
-                                     {"log_std", &p.log_std}}) {
-    const long i = first_not_finite(*values);
-    if (i >= 0)
-      throw bad(std::string(name) + "[" + std::to_string(i) + "] is " + std::to_string((*values)[i]) +
-                ", not a finite number");
-  }
-  if (!std::isfinite(p.log_std_min) || !std::isfinite(p.log_std_max) || !std::isfinite(p.epsilon))
-    throw bad("log_std_min, log_std_max or epsilon is not a finite number");
   try {
-    Policy check(p);  // the sizes, head and normalizer checks a worker makes of weights off the wire
+    Policy check(p);  // the sizes, head, finiteness and normalizer checks a worker makes of weights off the wire
   } catch (const std::invalid_argument& e) {
     throw bad(e.what());
   }

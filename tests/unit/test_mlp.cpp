@@ -433,6 +433,30 @@ TEST(Policy, RejectsInconsistentParams) {
   }
 }
 
+// Weights with a value that is not a finite number are refused by name, whether they came off the
+// wire or from a file: before, a worker ran them and every action it sent was NaN.
+TEST(Policy, RejectsValuesThatAreNotFiniteNumbers) {
+  const auto refused = [](PolicyParams p, const std::string& why) {
+    try {
+      Policy policy(p);
+      ADD_FAILURE() << "accepted: " << why;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+    }
+  };
+  PolicyParams p = small_policy(0.f);
+  p.params[3] = NAN;
+  refused(p, "parameters[3] is nan, not a finite number");
+  p = small_policy(0.f);
+  p.obs_mean = {0.f, INFINITY};
+  p.obs_std = {1.f, 1.f};
+  refused(p, "obs_mean[1] is inf, not a finite number");
+  p = small_policy(0.f);
+  p.log_std_max = NAN;
+  refused(p, "log_std_min, log_std_max or epsilon is not a finite number");
+  EXPECT_NO_THROW(Policy{small_policy(0.f)});
+}
+
 // A layout from the network whose parameter count wraps around 2^64 to the few floats it carries
 // ([3, 2^31 - 1 x 4, 2^31 - 3, 1, 536870915, 2] counts 2^64 + 8) passed the count check before the
 // bounds on sizes, and only the allocator stopped the network's packing of it (std::length_error,
