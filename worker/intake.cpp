@@ -19,15 +19,18 @@ WorkerIntake::WorkerIntake(farm::dds::Bus& bus, const std::string& experiment)
       weights_in_(bus, farm::dds::kWeightsTopic, "latest_reader", farm::dds::kMaxPolicyBytes,
                   [this](eprosima::fastdds::dds::DataReader* r) {
                     farm::msg::PolicyWeights w;
-                    while (decltype(weights_in_)::take_from(r, w)) {
+                    eprosima::fastdds::dds::SampleInfo info;
+                    while (decltype(weights_in_)::take_from(r, w, info)) {
                       std::lock_guard<std::mutex> lk(mu_);
-                      if (weights_.size() >= kMaxExperimentsKept && !weights_.count(w.experiment_id())) {
-                        // Bounded against a flood of invented experiments; the bound one is kept.
-                        auto victim = weights_.begin();
-                        if (victim->first == experiment_) ++victim;
-                        weights_.erase(victim);
+                      const std::string from = farm::dds::participant_key(info.sample_identity.writer_guid());
+                      if (!experiment_.empty() && w.experiment_id() == experiment_) {
+                        keep_own(from, std::move(w));
+                        continue;
                       }
-                      weights_[w.experiment_id()] = std::move(w);
+                      if (weights_.size() >= kMaxExperimentsKept && !weights_.count(w.experiment_id()))
+                        weights_.erase(weights_.begin());  // bounded against a flood of invented experiments
+                      const std::string id = w.experiment_id();
+                      weights_[id] = {from, std::move(w)};
                     }
                   }) {}
 
@@ -38,20 +41,47 @@ std::deque<WorkerIntake::SpecIn> WorkerIntake::take_specs() {
   return got;
 }
 
+void WorkerIntake::keep_own(const std::string& participant, farm::msg::PolicyWeights&& w) {
+  if (!learner_.empty() && participant != learner_) ++weights_refused_;
+  if (own_.size() >= kMaxLearnersKept && !own_.count(participant)) {
+    // Bounded against a flood of participants: the joined learner's are kept.
+    auto victim = own_.begin();
+    if (victim->first == learner_) ++victim;
+    own_.erase(victim);
+  }
+  own_[participant] = std::move(w);
+}
+
 std::optional<farm::msg::PolicyWeights> WorkerIntake::take_weights(std::vector<std::string>* others) {
   std::lock_guard<std::mutex> lk(mu_);
-  for (const auto& [id, _] : weights_)
-    if (id != experiment_) others->push_back(id);
-  auto it = weights_.find(experiment_);
-  if (it == weights_.end()) return std::nullopt;
+  for (const auto& [id, _] : weights_) others->push_back(id);
+  weights_.clear();  // other experiments': only their ids are noted
+  auto it = own_.find(learner_);
+  if (learner_.empty() || it == own_.end()) return std::nullopt;
   farm::msg::PolicyWeights w = std::move(it->second);
-  weights_.erase(it);
+  own_.erase(it);
   return w;
 }
 
 void WorkerIntake::bind(const std::string& experiment) {
   std::lock_guard<std::mutex> lk(mu_);
   experiment_ = experiment;
+  // What came before the worker knew its experiment: kept under its participant like what comes now.
+  const auto it = weights_.find(experiment);
+  if (it == weights_.end()) return;
+  Latest latest = std::move(it->second);
+  weights_.erase(it);
+  keep_own(latest.participant, std::move(latest.weights));
+}
+
+void WorkerIntake::bind_learner(const eprosima::fastrtps::rtps::GUID_t& spec_writer) {
+  std::lock_guard<std::mutex> lk(mu_);
+  learner_ = farm::dds::participant_key(spec_writer);
+}
+
+uint64_t WorkerIntake::weights_refused() {
+  std::lock_guard<std::mutex> lk(mu_);
+  return weights_refused_;
 }
 
 }  // namespace farm

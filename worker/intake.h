@@ -31,21 +31,38 @@ class WorkerIntake {
 
   // The specs that arrived since the last call, oldest first.
   std::deque<SpecIn> take_specs();
-  // The latest weights of the bound experiment, if new ones came; the ids of other experiments
-  // whose weights came go to *others.
+  // The latest weights of the bound experiment from its learner (bind_learner), if new ones came;
+  // the ids of other experiments whose weights came go to *others.
   std::optional<farm::msg::PolicyWeights> take_weights(std::vector<std::string>* others);
   // Binds the worker to its experiment: its weights are kept under a flood of invented ones.
   void bind(const std::string& experiment);
+  // The learner that speaks for the experiment, by the writer of the spec the worker joined (or the
+  // restarted learner's): weights are taken from that participant alone. Another's latest are kept
+  // apart (a few participants at most), so a restarted learner's weights, come before its spec is
+  // believed, are there when it is.
+  void bind_learner(const eprosima::fastrtps::rtps::GUID_t& spec_writer);
+  // Weights of the experiment that came from another participant than its learner.
+  uint64_t weights_refused();
   bool spec_writer_matched(const eprosima::fastrtps::rtps::GUID_t& writer) { return spec_in_.writer_matched(writer); }
   void wait_for_spec(double seconds) { spec_in_.wait(seconds); }
   void wait_for_weights(double seconds) { weights_in_.wait(seconds); }
 
  private:
-  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8;
+  // Weights of up to 64 MiB each (dds::kMaxPolicyBytes): the experiment's learner's and one other's
+  // (a restarted learner's, or an impostor's), and the latest of a few other experiments.
+  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8, kMaxLearnersKept = 2;
+  struct Latest {
+    std::string participant;
+    farm::msg::PolicyWeights weights;
+  };
+  void keep_own(const std::string& participant, farm::msg::PolicyWeights&& w);
   std::mutex mu_;
   std::string experiment_;
-  std::deque<SpecIn> specs_;                                 // bounded: kMaxSpecsIn
-  std::map<std::string, farm::msg::PolicyWeights> weights_;  // bounded: kMaxExperimentsKept
+  std::string learner_;                                  // participant key of the bound learner ("" until joined)
+  std::map<std::string, farm::msg::PolicyWeights> own_;  // the experiment's latest, per participant
+  uint64_t weights_refused_ = 0;
+  std::deque<SpecIn> specs_;               // bounded: kMaxSpecsIn
+  std::map<std::string, Latest> weights_;  // of other experiments; bounded: kMaxExperimentsKept
   farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
   farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
 };

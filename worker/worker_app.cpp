@@ -137,6 +137,7 @@ void WorkerApp::poll_spec() {
     if (!why.empty()) return refuse_spec(why);
     if (next.spec.learner_session() != joined_.spec.learner_session()) log("learner restarted; carrying on");
     joined_.learner_writer = next.writer;
+    intake_.bind_learner(next.writer);
     joined_.spec = next.spec;
   }
 }
@@ -283,6 +284,7 @@ void WorkerApp::join(const SpecIn& in) {
     }
     tp_.at_rollout = {};
     joined_ = {s, task, cfg.task().SerializeAsString(), envs, eval_max, in.writer, std::nullopt};
+    intake_.bind_learner(in.writer);
     sender_.restart_numbering();
     quota_ = {};
     last_error_.clear();
@@ -314,6 +316,17 @@ void WorkerApp::poll_weights() {
   std::vector<std::string> others;
   const std::optional<farm::msg::PolicyWeights> got = intake_.take_weights(&others);
   for (const auto& id : others) note_foreign(id);
+  if (const uint64_t n = intake_.weights_refused(); n > refusals_.weights) {
+    // Another participant publishing this experiment's weights: an impostor, or a restarted learner
+    // not yet believed (its spec is, once the joined one has left). Said once per 10 s at most.
+    const auto now = std::chrono::steady_clock::now();
+    if (now - refusals_.last_weights_log >= std::chrono::seconds(10)) {
+      refusals_.last_weights_log = now;
+      refusals_.weights = n;
+      log("weights of experiment '" + experiment_ + "' from a participant other than its learner are not run (" +
+          std::to_string(n) + " so far)");
+    }
+  }
   if (!got) return;
   const farm::msg::PolicyWeights& w = *got;
   if (quota_.have_policy && w.version() == rollout_->policy_version()) {

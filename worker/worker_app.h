@@ -95,8 +95,8 @@ class WorkerApp {
   } joined_;
   // Specs refused and experiments not this worker's: counted, and said in the log at a bounded rate.
   struct Refusals {
-    uint64_t specs = 0;
-    std::chrono::steady_clock::time_point last_log{};
+    uint64_t specs = 0, weights = 0;
+    std::chrono::steady_clock::time_point last_log{}, last_weights_log{};
     std::set<std::string> foreign;  // other experiments already noted (bounded)
   } refusals_;
   // The policy run and what the learner allows on it: batches sent on this version, and the quota

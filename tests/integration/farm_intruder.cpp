@@ -264,6 +264,29 @@ int big_to_workers(farm::dds::Bus& bus, const std::string& id, const std::string
   return 0;
 }
 
+// The experiment's weights as its learner publishes them, each written again under a version a
+// million ahead: a worker that ran them would send batches of a version no learner published.
+int forge_weights(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds) {
+  using farm::msg::PolicyWeights;
+  farm::dds::Reader<PolicyWeights, farm::msg::PolicyWeightsPubSubType> in(bus, farm::dds::kWeightsTopic,
+                                                                          "latest_reader");
+  farm::dds::Writer<PolicyWeights, farm::msg::PolicyWeightsPubSubType> out(bus, farm::dds::kWeightsTopic,
+                                                                           "latest_writer");
+  constexpr uint64_t kAhead = 1000000;
+  unsigned forged = 0;
+  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
+    PolicyWeights w;
+    while (in.take(w)) {
+      if (w.experiment_id() != experiment || w.version() >= kAhead) continue;  // its own come back too
+      w.version(w.version() + kAhead);
+      forged += out.write(w);
+    }
+    in.wait(0.1);
+  }
+  std::printf("%s: forged %u weights, readers matched %d\n", id.c_str(), forged, out.matched());
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -271,7 +294,7 @@ int main(int argc, char** argv) {
   std::string experiment = "pendulum_sac", id = "intruder";
   unsigned obs = 3, act = 1;
   double seconds = 10;
-  bool hostile = false, oversize = false, try_writers = false, heartbeat = false;
+  bool hostile = false, forge_weights_on = false, oversize = false, try_writers = false, heartbeat = false;
   bool spec_finished = false, spec_only = false;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error;
   unsigned spec_steps = 4, spec_max_batches = 4;
@@ -317,6 +340,8 @@ int main(int argc, char** argv) {
   app.add_option("--flood-heartbeats", flood_heartbeats,
                  "N: heartbeats of N invented worker sessions instead of a plain stream");
   app.add_option("--status-host-bytes", host_bytes, "B: a host name of B characters in the flood's heartbeats");
+  add_switch("--forge-weights", forge_weights_on,
+             "1: the experiment's weights as its learner publishes them, written again a million versions ahead");
   app.add_option("--big-to-workers", big_mib,
                  "MB: a spec, weights and an evaluation request of MB MiB each, instead of a stream");
   app.add_option("--token-name", g_token_name,
@@ -335,6 +360,7 @@ int main(int argc, char** argv) {
     if (!std::isnan(forge_return))
       return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat);
     if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
+    if (forge_weights_on) return forge_weights(bus, id, experiment, seconds);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(

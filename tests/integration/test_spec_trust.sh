@@ -6,7 +6,9 @@
 # (it refuses another participant's end of the experiment outright, and holds another writer's spec
 # back while its learner is on the bus, checking it as at join should that learner leave). The
 # learner's record shows it: batches keep arriving during the attack and after it, none lost or
-# invalid, and the worker ends (exit 0) with the learner's own end of the run.
+# invalid, and the worker ends (exit 0) with the learner's own end of the run. Then weights: another
+# participant republishes the learner's weights a million versions ahead; the worker runs none of
+# them (its batches would be of a version the learner never published, refused as invalid).
 #   tests/integration/test_spec_trust.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
@@ -27,6 +29,10 @@ for attack in "--spec-steps 2147483647" "--spec-max-batches 0" "--spec-finished 
     --spec-config "$dir/trust.txtpb" $attack >"$dir/impostor$n.log" 2>&1 || fail "impostor $n ($attack) did not run"
   kill -0 $wp 2>/dev/null || fail "the worker ended after a spec from another participant ($attack): $(tail -3 "$dir/worker.log")"
 done
+"$intruder" --domain $domain --experiment it_trust --id forger --seconds 6 --forge-weights 1 >"$dir/forger.log" 2>&1 ||
+  fail "the weights forger did not run: $(tail -3 "$dir/forger.log")"
+grep -Eq "forged [1-9][0-9]* weights, readers matched [1-9]" "$dir/forger.log" ||
+  fail "the forger wrote no weights a worker read, the test shows nothing: $(cat "$dir/forger.log")"
 sleep 2
 during=$(batches_ok "$dir/run")
 [ "$during" -gt "$before" ] || fail "no batch arrived during the attack: batches_ok $before before it, $during after"
