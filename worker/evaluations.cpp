@@ -13,12 +13,14 @@ Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log 
       // Requests are kept only when addressed to this worker; their contents are checked in poll().
       in_(bus, farm::dds::kEvalRequestTopic, "batch_reader", farm::dds::kMaxEvalRequestBytes,
           [this](eprosima::fastdds::dds::DataReader* r) {
-            farm::msg::EvaluationRequest q;
-            while (decltype(in_)::take_from(r, q)) {
-              if (q.worker_id() != worker_id_) continue;
+            In in;
+            eprosima::fastdds::dds::SampleInfo info;
+            while (decltype(in_)::take_from(r, in.request, info)) {
+              if (in.request.worker_id() != worker_id_) continue;
+              in.participant = farm::dds::participant_key(info.sample_identity.writer_guid());
               std::lock_guard<std::mutex> lk(in_mu_);
               if (in_q_.size() >= kMaxQueue) in_q_.pop_front();
-              in_q_.push_back(std::move(q));
+              in_q_.push_back(std::move(in));
             }
           }),
       out_(bus, farm::dds::kEvalAnswerTopic, "batch_writer") {}
@@ -32,13 +34,25 @@ bool Evaluations::arrived() {
 }
 
 void Evaluations::poll(const Joined& joined) {
-  std::deque<farm::msg::EvaluationRequest> got;
+  std::deque<In> got;
   {
     std::lock_guard<std::mutex> lk(in_mu_);
     got.swap(in_q_);
   }
-  for (auto& q : got) {
+  for (auto& [q, from] : got) {
     if (!joined.task || q.experiment_id() != joined.experiment) continue;  // not (yet) this worker's experiment
+    if (from != joined.learner) {
+      // Only the learner the worker joined asks it for evaluations: anyone else's request is neither
+      // run nor answered (said once per 10 s at most).
+      ++not_learners_;
+      const auto now = std::chrono::steady_clock::now();
+      if (now - last_not_learners_log_ >= std::chrono::seconds(10)) {
+        last_not_learners_log_ = now;
+        log_("evaluation requests from a participant other than the learner are not run (" +
+             std::to_string(not_learners_) + " so far)");
+      }
+      continue;
+    }
     log_("evaluation request " + std::to_string(q.request_id()) + ": " + std::to_string(q.episodes()) +
          " episodes of policy v" + std::to_string(q.policy_version()));
     const int most = joined.max_episodes;

@@ -1,10 +1,12 @@
 // The worker's evaluations: the learner's EvaluationRequests addressed to this worker are kept as
-// they arrive (a queue of a few), checked on the collect loop against the joined experiment, and
+// they arrive (a queue of a few), checked on the collect loop against the joined experiment and
+// learner (another participant's are not run, nor answered), and
 // run one at a time by a thread of their own on evaluation envs apart from the training ones, so
 // batches keep flowing meanwhile; each is answered with its episodes or with what was wrong.
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -34,6 +36,7 @@ class Evaluations {
     std::shared_ptr<const robots::Task> task;
     int max_episodes = 0;
     uint64_t session = 0;
+    std::string learner;  // the joined learner's participant (dds::participant_key)
   };
   // Checks the requests that arrived: a good one is queued for the thread, a bad one answered with
   // what was wrong (the learner counts it invalid). Before a join (no task) they are dropped.
@@ -59,7 +62,13 @@ class Evaluations {
   const std::string worker_id_;
   Log log_;
   std::mutex in_mu_;
-  std::deque<farm::msg::EvaluationRequest> in_q_;  // addressed to this worker; bounded: kMaxQueue
+  struct In {
+    farm::msg::EvaluationRequest request;
+    std::string participant;  // of its writer
+  };
+  std::deque<In> in_q_;        // addressed to this worker; bounded: kMaxQueue
+  uint64_t not_learners_ = 0;  // requests from another participant than the joined learner's
+  std::chrono::steady_clock::time_point last_not_learners_log_{};
   farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> in_;
   farm::dds::Writer<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> out_;
   std::mutex mu_;

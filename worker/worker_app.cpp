@@ -64,7 +64,8 @@ int WorkerApp::run() {
     poll_spec();
     if (finished_) break;
     if (evals_.arrived())
-      evals_.poll({experiment_, rollout_ ? joined_.task : nullptr, joined_.eval_max_episodes, session_});
+      evals_.poll({experiment_, rollout_ ? joined_.task : nullptr, joined_.eval_max_episodes, session_,
+                   farm::dds::participant_key(joined_.learner_writer)});
     if (!rollout_) {
       state_ = "waiting_for_learner";
       if (now_seconds() - last_wait_note > 5.0) {

@@ -96,8 +96,8 @@ extern "C" char* X509_NAME_oneline(const X509_NAME* name, char* buf, int size) {
 
 namespace {
 
-// One round of --eval-requests: six requests to `worker`, each wrong in one way; returns how many
-// were written.
+// One round of --eval-requests: six requests to `worker`, each wrong in one way, and one a pendulum
+// worker could run; returns how many were written.
 int send_bad_eval_requests(farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType>& out,
                            const std::string& experiment, const std::string& worker, uint64_t& next_id) {
   const int big = 2147483647;
@@ -128,7 +128,7 @@ int send_bad_eval_requests(farm::dds::Writer<farm::msg::EvaluationRequest, farm:
   wrapped.layer_sizes({3, big, big, big, big, big - 2, 1, 536870915, 2});
   wrapped.parameters(std::vector<float>(8, 0.f));
   return request(0, 0, good) + request(UINT32_MAX, 0, good) + request(1, UINT32_MAX, good) + request(1, 0, other) +
-         request(1, 0, versioned) + request(1, 0, wrapped);
+         request(1, 0, versioned) + request(1, 0, wrapped) + request(1, 0, good);
 }
 
 // Tries one writer of type T on topic; true if Fast DDS created it.
@@ -365,6 +365,14 @@ int main(int argc, char** argv) {
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
           bus, farm::dds::kEvalRequestTopic, "batch_writer");
+      // The answers to its requests (they name its learner session, 77), counted.
+      unsigned answers = 0;
+      farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> answers_in(
+          bus, farm::dds::kEvalAnswerTopic, "batch_reader");
+      const auto count_answers = [&] {
+        farm::msg::EvaluationAnswer a;
+        while (answers_in.take(a)) answers += a.learner_session() == 77;
+      };
       const double t_match = farm::now_seconds();
       while (requests.matched() == 0 && farm::now_seconds() - t_match < 15)
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -372,9 +380,14 @@ int main(int argc, char** argv) {
       uint64_t next_id = 0, sent = 0;
       while (farm::now_seconds() - t0 < seconds) {
         sent += send_bad_eval_requests(requests, experiment, eval_worker, next_id);
+        count_answers();
       }
-      std::printf("%s: sent %llu evaluation requests to %s, readers matched %d\n", id.c_str(), (unsigned long long)sent,
-                  eval_worker.c_str(), requests.matched());
+      for (const double t1 = farm::now_seconds(); farm::now_seconds() - t1 < 2;) {  // the last ones' answers
+        answers_in.wait(0.1);
+        count_answers();
+      }
+      std::printf("%s: sent %llu evaluation requests to %s, readers matched %d, answers received %u\n", id.c_str(),
+                  (unsigned long long)sent, eval_worker.c_str(), requests.matched(), answers);
       return 0;
     }
     farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,

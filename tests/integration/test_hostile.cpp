@@ -245,12 +245,12 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   set.cleanup(::testing::Test::HasFailure());
 }
 
-// Evaluation requests from a participant that is not the learner, addressed to a training worker,
-// each wrong in one way (farm_intruder --eval-requests): every one is refused by the worker with
-// what was wrong, the policy whose layout counts 2^64 + 8 parameters included, and the worker goes
-// on training; the learner, whose session the requests do not name, takes none of the answers, and
-// its own final evaluation is answered.
-TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
+// Evaluation requests from a participant that is not the learner, addressed to a training worker
+// (farm_intruder --eval-requests: six wrong in one way each, the policy whose layout counts 2^64 + 8
+// parameters among them, and one the worker could run): none is run or answered, since only the
+// learner it joined asks it for evaluations, and the worker goes on training; the learner's own
+// final evaluation is answered. Before, the worker ran the good ones and answered every one.
+TEST(Hostile, ForgedEvaluationRequestsAreNotRunAndTheWorkerGoesOn) {
   ProcessSet set;
   const Farm farm = start_farm(set, 95, "it_hostile_eval");
   const std::string &d = farm.dir, &domain = farm.domain;
@@ -266,17 +266,13 @@ TEST(Hostile, ForgedEvaluationRequestsAreRefusedAndTheWorkerGoesOn) {
 
   std::smatch m;
   const std::string h = set.log("forger");
-  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) evaluation requests to hw, readers matched (\d+))")))
+  ASSERT_TRUE(std::regex_search(
+      h, m, std::regex(R"(sent (\d+) evaluation requests to hw, readers matched (\d+), answers received (\d+))")))
       << h;
   EXPECT_GE(std::stoll(m[1]), 60) << h;
   EXPECT_GE(std::stoi(m[2]), 1) << h;
+  EXPECT_EQ(m[3], "0") << h << set.log("worker").substr(0, 4000);
   const std::string wlog = set.log("worker");
-  for (const char* why : {R"(refused: episodes 0 outside 1\.\.2 )", R"(refused: episodes 4294967295 outside 1\.\.2 )",
-                          R"(refused: first episode 4294967295 \+ 1 episodes past 2 )",
-                          R"(refused: the policy carried is v5 of 'another_experiment', not v5)",
-                          R"(refused: the policy carried is v6 of 'it_hostile_eval', not v5)",
-                          R"(answered with an error: .*size 1 is 2147483647, must be in 1\.\.1048576)"})
-    EXPECT_TRUE(std::regex_search(wlog, std::regex(why))) << why << "\n" << wlog.substr(0, 4000);
   ASSERT_TRUE(std::regex_search(wlog, m, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
   const std::string sent = m[1];
 
