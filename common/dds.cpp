@@ -521,17 +521,24 @@ fdds::Topic* Bus::topic(const std::string& name, fdds::TypeSupport type) {
 
 namespace {
 
-std::atomic<uint64_t> g_refused_for_size{0};
+std::mutex g_refused_mu;
+std::map<uint64_t, uint64_t> g_refused_by_bound;  // the history's payload size -> samples refused
 
-// The error ReaderHistory::can_change_be_added_nts logs for a sample over the history's payload size.
+// The error ReaderHistory::can_change_be_added_nts logs for a sample over the history's payload
+// size: "Change payload size of 'N' bytes is larger than the history payload size of 'B' bytes and
+// cannot be resized." B is the refusing reader's bound, which tells its readers apart.
 class RefusedForSizeCounter : public eprosima::fastdds::dds::LogConsumer {
  public:
   void Consume(const eprosima::fastdds::dds::Log::Entry& e) override {
-    if (e.kind == eprosima::fastdds::dds::Log::Kind::Error && e.context.category != nullptr &&
-        std::strcmp(e.context.category, "RTPS_READER_HISTORY") == 0 &&
-        e.message.find("is larger than the history payload size") != std::string::npos) {
-      g_refused_for_size.fetch_add(1, std::memory_order_relaxed);
-    }
+    static const std::string kSays = "is larger than the history payload size of '";
+    if (e.kind != eprosima::fastdds::dds::Log::Kind::Error || e.context.category == nullptr ||
+        std::strcmp(e.context.category, "RTPS_READER_HISTORY") != 0)
+      return;
+    const size_t at = e.message.find(kSays);
+    if (at == std::string::npos) return;
+    const uint64_t bound = std::strtoull(e.message.c_str() + at + kSays.size(), nullptr, 10);
+    std::lock_guard<std::mutex> lk(g_refused_mu);
+    ++g_refused_by_bound[bound];
   }
 };
 
@@ -543,7 +550,16 @@ void count_samples_refused_for_size() {
                  [] { eprosima::fastdds::dds::Log::RegisterConsumer(std::make_unique<RefusedForSizeCounter>()); });
 }
 
-uint64_t samples_refused_for_size() { return g_refused_for_size.load(std::memory_order_relaxed); }
+uint64_t samples_refused_for_size(uint32_t bound) {
+  // The history's payload size is the type's maximum plus an allowance for alignment (3 bytes in
+  // Fast DDS 2.9): the counts of the few sizes just above the bound are its reader's.
+  std::lock_guard<std::mutex> lk(g_refused_mu);
+  uint64_t n = 0;
+  for (auto it = g_refused_by_bound.lower_bound(bound); it != g_refused_by_bound.end() && it->first < bound + 8ull;
+       ++it)
+    n += it->second;
+  return n;
+}
 
 void with_mapped_allocations(size_t bytes, const std::function<void()>& make) {
   constexpr size_t kMin = 128 << 10, kMax = 32 << 20;

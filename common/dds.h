@@ -59,6 +59,10 @@ inline constexpr size_t kMaxEvalTextBytes = 1024;
 inline constexpr uint32_t kMaxSpecBytes = 72u << 20;
 inline constexpr uint32_t kMaxPolicyBytes = 64u << 20;
 inline constexpr uint32_t kMaxEvalRequestBytes = kMaxPolicyBytes + (64u << 10);
+// What the learner's heartbeat reader takes at most, serialized: a worker's ids, host and state, and
+// its last error, which it cuts to kMaxStatusErrorBytes.
+inline constexpr uint32_t kMaxStatusBytes = 64u << 10;
+inline constexpr size_t kMaxStatusErrorBytes = 4096;
 
 struct BusOptions {
   int domain = 0;
@@ -200,15 +204,17 @@ class BoundedType : public PubSubType {
   explicit BoundedType(uint32_t max_bytes) { this->m_typeSize = max_bytes; }
 };
 
-// Samples the readers of this process refused because they were larger than their type's
-// maximum size (only readers with PREALLOCATED_MEMORY_MODE check; of the farm's, only a bounded
-// Reader has it). Fast DDS 2.9 reports these refusals only in its log (category
-// RTPS_READER_HISTORY, once per sample: the sample is marked irrelevant and never sent again), so
-// count_samples_refused_for_size() adds a consumer to that log, once per process, that counts them;
-// the default consumer still prints them. A Fast DDS built without error logs (LOG_NO_ERROR) or a
-// log filter that drops that category leaves the count at 0: the samples are refused all the same.
+// Samples the readers of this process with the bound `bound` refused because they were larger
+// than it (only readers with PREALLOCATED_MEMORY_MODE check; of the farm's, only a bounded Reader
+// has it). Fast DDS 2.9 reports these refusals only in its log (category RTPS_READER_HISTORY, once
+// per sample, naming the bound: the sample is marked irrelevant and never sent again), so
+// count_samples_refused_for_size() adds a consumer to that log, once per process, that counts them
+// by bound; the default consumer still prints them. Readers of one process are told apart by
+// their bounds, so where a process counts them, no two of its bounds are within 8 bytes.
+// A Fast DDS built without error logs (LOG_NO_ERROR) or a log filter that drops that category
+// leaves the count at 0: the samples are refused all the same.
 void count_samples_refused_for_size();
-uint64_t samples_refused_for_size();
+uint64_t samples_refused_for_size(uint32_t bound);
 
 // Runs make() with glibc's mmap threshold at bytes (within 128 KiB..32 MiB), so that every
 // allocation of at least that size made meanwhile is a mapping of its own, whose untouched pages
@@ -321,7 +327,7 @@ class Reader : public fdds::DataReaderListener {
     return matched_writers_.count(writer) > 0;
   }
   // Samples refused for their size (bounded constructor) in this process so far.
-  uint64_t refused() const { return max_sample_bytes_ ? samples_refused_for_size() : 0; }
+  uint64_t refused() const { return max_sample_bytes_ ? samples_refused_for_size(max_sample_bytes_) : 0; }
   // The bound of the bounded constructor; 0 for none.
   uint32_t max_sample_bytes() const { return max_sample_bytes_; }
 

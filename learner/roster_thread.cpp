@@ -8,7 +8,8 @@ namespace farm {
 
 RosterThread::RosterThread(farm::dds::Bus& bus, WorkerRoster roster, Log log, EventLog& events)
     : bus_(bus),
-      reader_(bus, farm::dds::kWorkerStatusTopic, "status_reader"),
+      // A heartbeat over the bound is refused before memory is taken for it.
+      reader_(bus, farm::dds::kWorkerStatusTopic, "status_reader", farm::dds::kMaxStatusBytes),
       log_(std::move(log)),
       events_(events),
       roster_(std::move(roster)) {}
@@ -44,6 +45,15 @@ void RosterThread::loop() {
                                 {"reason", "worker id is not the certificate name of the participant that wrote it"},
                                 {"last", refused_last_}});
       refused_noted_ = refused;
+    }
+    const uint64_t oversized = reader_.refused();
+    if (oversized > oversized_noted_ && refusal_notes_ < kMaxRefusalNotes) {
+      ++refusal_notes_;
+      const std::string why = "larger than " + std::to_string(farm::dds::kMaxStatusBytes) + " bytes";
+      log_("refused " + std::to_string(oversized - oversized_noted_) + " heartbeat(s) " + why);
+      events_.write("refusal",
+                    {{"what", "heartbeat sample"}, {"count", oversized - oversized_noted_}, {"reason", why}});
+      oversized_noted_ = oversized;
     }
   }
 }

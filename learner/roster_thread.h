@@ -62,7 +62,7 @@ class RosterThread {
   std::atomic<bool> stop_{false};
   std::thread thread_;
   // The thread's own:
-  uint64_t refused_noted_ = 0;
+  uint64_t refused_noted_ = 0, oversized_noted_ = 0;  // refusals by name and by size already told
   int refusal_notes_ = 0;
   std::string refused_last_;
 };

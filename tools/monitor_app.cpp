@@ -18,8 +18,9 @@ MonitorApp::MonitorApp(const MonitorOptions& o, const std::atomic<bool>& stop)
       stop_(stop),
       metrics_(o.prometheus.empty() ? nullptr : std::make_unique<MetricsServer>(o.prometheus)),
       bus_(o.bus, "farm-monitor " + farm::dds::hostname() + "-" + std::to_string(getpid())),
-      status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader"),
-      stats_in_(bus_, farm::dds::kLearnerStatsTopic, "status_reader"),
+      // Samples over the bound (anyone on the domain can write them) are refused before memory.
+      status_in_(bus_, farm::dds::kWorkerStatusTopic, "status_reader", farm::dds::kMaxStatusBytes),
+      stats_in_(bus_, farm::dds::kLearnerStatsTopic, "status_reader", farm::dds::kMaxStatusBytes),
       t0_(farm::now_seconds()) {
   if (!opt_.log_file.empty()) {
     log_.open(opt_.log_file, std::ios::app);

@@ -381,7 +381,7 @@ void WorkerApp::heartbeat(bool force) {
   s.batches_sent(sender_.sent());
   s.policy_version(rollout_ ? rollout_->policy_version() : 0);
   s.state(state);
-  s.last_error(last_error_);
+  s.last_error(last_error_.substr(0, farm::dds::kMaxStatusErrorBytes));  // within the learner's bound
   beat_.send(s);
   if (t - tp_.last_log >= opt_.log_every && rollout_) {
     // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).

@@ -2,7 +2,8 @@
 # Invented worker streams and heartbeats neither lock a worker out nor grow the learner. Before any
 # worker, a participant sends 5,000 one-step batches, each under an invented worker id and session
 # (more streams than the learner keeps open), and 10,000 heartbeats of invented sessions with
-# 60,000-character host names. A real worker that joins after it trains: its stream is accepted
+# 60,000-character host names, then 3 heartbeats of 100 MB host names each, which the learner refuses
+# before taking memory for them (a refusal event says so). A real worker that joins after it trains: its stream is accepted
 # whole, nothing of it lost or invalid. The learner's summary keeps the open streams at the bound,
 # its peak memory stays within 250 MiB of a run without the flood (measured in the same test; the heartbeats alone carry 600 MB of host names), and its log stays
 # small (the roster writes a bounded number of lines per 10 s).
@@ -22,6 +23,8 @@ run() {  # NAME FLOOD(0/1): one learner and, after the flood if any, one worker;
     "$intruder" --domain $domain --experiment it_flood --id flood --seconds 1 --flood-streams 5000 \
       --flood-heartbeats 10000 --status-host-bytes 60000 >"$dir/intruder.log" 2>&1 ||
       fail "the intruder did not run: $(tail -2 "$dir/intruder.log")"
+    "$intruder" --domain $domain --experiment it_flood --id bigbeat --seconds 4 --flood-heartbeats 3 \
+      --status-host-bytes 100000000 >"$dir/bigbeat.log" 2>&1 || fail "the intruder did not run: $(tail -2 "$dir/bigbeat.log")"
   fi
   "$worker" --domain $domain --id fw --envs 4 >"$dir/$name-worker.log" 2>&1 & pids+=($!)
   while kill -0 $lp 2>/dev/null; do p=$(peak_kb $lp); [ -n "$p" ] && peak=$p; sleep 0.5; done
@@ -45,6 +48,8 @@ retired=$(sed -n 's/^streams *\([0-9]*\) open, \([0-9]*\) retired.*/\2/p' "$summ
 [ -n "$open" ] && [ "$open" -le 4096 ] && [ "${retired:-0}" -ge 500 ] ||
   fail "open streams not held at the bound: $(grep '^streams' "$summary")"
 [ "$(grep -c '^worker ' "$summary")" -le 70 ] || fail "the summary lists $(grep -c '^worker ' "$summary") streams"
+events "$dir/flooded" refusal | grep -F '"what":"heartbeat sample"' | grep -q '"count":[1-9]' ||
+  fail "no refusal of the 100 MB heartbeats: $(events "$dir/flooded" refusal | head -5)"
 log_bytes=$(stat -c %s "$dir/flooded.log")
 [ "$log_bytes" -lt 200000 ] || fail "the flooded learner's log is $log_bytes bytes"
 [ "$flood_peak" -lt $((base_peak + 256000)) ] || fail "peak memory ${flood_peak} kB with the flood, ${base_peak} kB without"
