@@ -37,6 +37,14 @@ py::array_t<T> array_of(const std::vector<T>& v, std::vector<py::ssize_t> shape)
   return a;
 }
 
+// A text off the wire (a worker id) as a Python str: bytes that are not UTF-8 become backslash
+// escapes, so a worker's odd id cannot fail the call that reports it (and lose what it took).
+py::str wire_text(const std::string& s) {
+  PyObject* o = PyUnicode_DecodeUTF8(s.data(), py::ssize_t(s.size()), "backslashreplace");
+  if (!o) throw py::error_already_set();
+  return py::reinterpret_steal<py::str>(o);
+}
+
 class LearnerBus {
  public:
   LearnerBus(const std::string& config, int domain, const std::string& profiles, const std::string& events_path)
@@ -116,7 +124,7 @@ class LearnerBus {
       const farm::Transitions& r = a->rows;
       const py::ssize_t n = r.n, od = task_.obs_dim, ad = task_.act_dim;
       py::dict d;
-      d["worker_id"] = a->worker_id;
+      d["worker_id"] = wire_text(a->worker_id);
       d["policy_version"] = a->policy_version;
       d["num_steps"] = a->num_steps;
       d["num_envs"] = a->num_envs;
@@ -193,7 +201,7 @@ class LearnerBus {
       py::list workers;
       for (const auto& [k, w] : in.workers()) {
         py::dict a;
-        a["worker_id"] = w.worker_id;
+        a["worker_id"] = wire_text(w.worker_id);
         a["session"] = w.session;
         a["received"] = w.received;
         a["lost"] = w.lost;
@@ -204,29 +212,35 @@ class LearnerBus {
       }
       d["workers"] = workers;
     });
+    d["evaluation_answers_refused"] = answers_refused_;
     return d;
   }
 
   // The ids of this experiment's live workers (the learner's roster: heard within the config's
   // worker_timeout_seconds, not finished), once each.
-  std::vector<std::string> workers() {
+  std::vector<std::string> worker_ids() {
     std::vector<std::string> out;
     for (const auto& w : roster_.workers())
       if (w.live && std::find(out.begin(), out.end(), w.view.last.worker_id()) == out.end())
         out.push_back(w.view.last.worker_id());
     return out;
   }
+  py::list workers() {
+    py::list out;
+    for (const auto& id : worker_ids()) out.append(wire_text(id));
+    return out;
+  }
 
-  // The session of worker_id's latest live heartbeat.
-  uint64_t session_of(const std::string& worker_id) {
-    uint64_t session = 0;
+  // worker_id's latest live heartbeat: its session, and the participant that wrote it.
+  std::pair<uint64_t, std::string> latest_of(const std::string& worker_id) {
+    std::pair<uint64_t, std::string> out;
     double seen = -1;
     for (const auto& w : roster_.workers())
       if (w.live && w.view.last.worker_id() == worker_id && w.view.seen > seen) {
         seen = w.view.seen;
-        session = w.view.last.worker_session();
+        out = {w.view.last.worker_session(), w.view.writer};
       }
-    return session;
+    return out;
   }
 
   // Asks a worker (worker_id, else the first one heard) to run `episodes` episodes of the policy
@@ -238,7 +252,7 @@ class LearnerBus {
       throw py::value_error("episodes: expected 1.." + std::to_string(most) +
                             " (the config's eval.episodes / final_episodes), got " + std::to_string(episodes));
     const farm::PolicyParams pp = params_of(policy);
-    const std::vector<std::string> live = workers();
+    const std::vector<std::string> live = worker_ids();
     if (worker_id.empty()) {
       if (live.empty()) throw std::runtime_error("no worker of experiment '" + cfg_.experiment_id() + "' is heard");
       worker_id = live.front();
@@ -260,7 +274,8 @@ class LearnerBus {
     e.learner_session = eval_session_;
     e.worker_id = worker_id;
     e.request_id = q.request_id();
-    e.worker_session = session_of(worker_id);
+    const auto [session, writer] = latest_of(worker_id);
+    e.worker_session = session;
     e.policy_version = pp.version;
     e.episodes = episodes;
     e.num_metrics = int(task_.metric_names.size());
@@ -279,11 +294,20 @@ class LearnerBus {
           break;
         }
       for (const double end = farm::now_seconds() + timeout; !got && farm::now_seconds() < end;) {
-        if (!eval_in_.take(a)) {
+        eprosima::fastdds::dds::SampleInfo info;
+        if (!eval_in_.take(a, info)) {
           eval_in_.wait(0.05);
           continue;
         }
         if (a.learner_session() != eval_session_ || a.request_id() != q.request_id()) continue;
+        // Every field of the request can be read off the bus: only the participant whose heartbeats
+        // put the worker in the roster answers for it (as farm-learner's Evaluator takes answers).
+        const auto& from = info.sample_identity.writer_guid();
+        if ((!writer.empty() && farm::dds::participant_key(from) != writer) ||
+            (!bus_.security_dir().empty() && bus_.authenticated_name(from) != worker_id)) {
+          ++answers_refused_;
+          continue;
+        }
         why = a.error().empty() ? farm::check_eval_answer(a, e) : "the worker says: " + a.error();
         got = true;
       }
@@ -326,6 +350,7 @@ class LearnerBus {
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;
   farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> eval_in_;
   uint64_t eval_session_ = farm::dds::random_session_id(), request_id_ = 0;
+  uint64_t answers_refused_ = 0;  // evaluation answers from another participant than the worker asked
   uint64_t version_ = 0;
   bool finished_ = false;
 };

@@ -4,8 +4,10 @@ farm-worker processes over DDS. FARM_WORKER names the worker program."""
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -109,3 +111,51 @@ def test_policy_callable_reproduces_a_workers_evaluation(checkpoints, tmp_path):
     assert trunc.all()
     assert np.max(np.abs(total - answer["returns"])) < 1e-3, (total, answer["returns"])
     assert list(answer["lengths"]) == [200] * 5
+
+
+@pytest.mark.skipif(not (os.environ.get("FARM_WORKER") and os.environ.get("FARM_INTRUDER")),
+                    reason="FARM_WORKER or FARM_INTRUDER not set")
+def test_forged_answers_and_odd_worker_ids_do_not_fail_the_bus(tmp_path):
+    # Beside a real worker, one participant answers every evaluation request at once, with the
+    # asked worker's id and session read off its heartbeats and a plausible return of -1; another
+    # sends batches under a worker id that is not UTF-8. evaluate() takes the real worker's answer
+    # only, counting the forged one refused; take(), counters() and workers() report the odd id
+    # escaped. Before, the forged answer was the result, and the odd id raised UnicodeDecodeError in
+    # take() after its batches had left the queue.
+    domain = random.randint(150, 200)
+    bus = farm.LearnerBus(CONFIG, domain=domain)
+    intruder = os.fsencode(os.environ["FARM_INTRUDER"])
+    common = [b"--domain", str(domain).encode(), b"--experiment", b"pendulum_sac", b"--seconds", b"40"]
+    procs = [
+        subprocess.Popen([os.environ["FARM_WORKER"], "--domain", str(domain), "--id", "real"],
+                         stdout=open(tmp_path / "worker.log", "w"), stderr=subprocess.STDOUT),
+        subprocess.Popen([intruder, b"--id", b"forger", b"--forge-answers", b"-1", b"--forge-length", b"200"] + common,
+                         stdout=open(tmp_path / "forger.log", "w"), stderr=subprocess.STDOUT),
+        subprocess.Popen([intruder, b"--id", b"odd-\xff"] + common,
+                         stdout=open(tmp_path / "odd.log", "w"), stderr=subprocess.STDOUT),
+    ]
+    try:
+        net = nn.Sequential(nn.Linear(3, 8), nn.ReLU(), nn.Linear(8, 2))
+        bus.publish(policy_params(net, 1))
+        ids = set()
+        for _ in range(400):
+            ids |= {b["worker_id"] for b in bus.take(max_batches=64, timeout=0.05)}
+            if "real" in bus.workers() and "odd-\\xff" in ids:
+                break
+        assert "odd-\\xff" in ids and "real" in bus.workers(), (ids, bus.workers())
+        # The real worker held still for 2 s, so the forged answer comes first.
+        os.kill(procs[0].pid, signal.SIGSTOP)
+        threading.Timer(2.0, os.kill, (procs[0].pid, signal.SIGCONT)).start()
+        answer = bus.evaluate(policy_params(net, 1), episodes=5, worker_id="real", seed=3, timeout=60)
+        c = bus.counters()
+    finally:
+        bus.finish()
+        for p in procs:
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    assert list(answer["lengths"]) == [200] * 5
+    assert all(r != -1.0 for r in answer["returns"]), answer
+    assert c["evaluation_answers_refused"] >= 1, c
+    assert "odd-\\xff" in [w["worker_id"] for w in c["workers"]], c["workers"]
