@@ -351,26 +351,26 @@ TEST(Ppo, LoadRefusesNetworksOfAnotherShapeOrActivation) {
 // on, within this config's bounds.
 TEST(Ppo, LoadTakesThePlainRateFromTheConfigAndKeepsTheAdaptedOne) {
   const auto dir = std::filesystem::temp_directory_path() / ("ppo_rate_" + std::to_string(::getpid()));
-  config::PpoConfig plain;
+  // The rate of a Ppo of config `resume` after loading one of config `saved`.
+  const auto resumed_rate = [&](const config::PpoConfig& saved, const config::PpoConfig& resume) {
+    Ppo(saved, 3, 2, 5).save(dir.string());
+    Ppo b(resume, 3, 2, 9);
+    b.load(dir.string());
+    return b.learning_rate();
+  };
+  config::PpoConfig plain, plain_later;
   plain.set_variant("plain");
   plain.set_learning_rate(1e-3);
-  Ppo(plain, 3, 2, 5).save(dir.string());
-  plain.set_learning_rate(5e-4);
-  Ppo resumed(plain, 3, 2, 9);
-  resumed.load(dir.string());
-  EXPECT_DOUBLE_EQ(resumed.learning_rate(), 5e-4);
+  plain_later = plain;
+  plain_later.set_learning_rate(5e-4);
+  EXPECT_DOUBLE_EQ(resumed_rate(plain, plain_later), 5e-4);
 
-  config::PpoConfig adaptive;
+  config::PpoConfig adaptive, adaptive_later;
   adaptive.set_learning_rate(3e-3);
-  Ppo(adaptive, 3, 2, 5).save(dir.string());
-  adaptive.set_learning_rate(1e-4);
-  Ppo kept(adaptive, 3, 2, 9);
-  kept.load(dir.string());
-  EXPECT_DOUBLE_EQ(kept.learning_rate(), 3e-3);
-  adaptive.set_lr_max(2e-3);
-  Ppo bounded(adaptive, 3, 2, 9);
-  bounded.load(dir.string());
-  EXPECT_DOUBLE_EQ(bounded.learning_rate(), 2e-3);
+  adaptive_later.set_learning_rate(1e-4);
+  EXPECT_DOUBLE_EQ(resumed_rate(adaptive, adaptive_later), 3e-3);
+  adaptive_later.set_lr_max(2e-3);
+  EXPECT_DOUBLE_EQ(resumed_rate(adaptive, adaptive_later), 2e-3);
   farm::remove_tree(dir.string());
 }
 
