@@ -265,6 +265,21 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
   return parse_config_text(text, source, "");
 }
 
+std::string resume_change(const config::ExperimentConfig& was, const config::ExperimentConfig& now) {
+  if (was.algorithm() != now.algorithm())
+    return "the checkpoint is of algorithm \"" + was.algorithm() + "\", this config's is \"" + now.algorithm() + "\"";
+  // Rows carry their horizon, so n_step may change; a row of several rewards holds their discount.
+  const auto rows = [](const std::string& sec, int n, double g0, double g1) -> std::string {
+    if (n <= 1 || g0 == g1) return "";
+    return "the checkpoint's replay rows sum up to " + num(n) + " rewards (" + sec + ".n_step) discounted with " + sec +
+           ".gamma " + num(g0) + ", this config's gamma is " + num(g1) +
+           ": the rows would mix two discounts (resume with gamma " + num(g0) + ", or start a new run)";
+  };
+  if (now.algorithm() == "sac") return rows("sac", was.sac().n_step(), was.sac().gamma(), now.sac().gamma());
+  if (now.algorithm() == "dqn") return rows("dqn", was.dqn().n_step(), was.dqn().gamma(), now.dqn().gamma());
+  return "";
+}
+
 void check_config(const config::SacConfig& c) { check_in_code(c, "sac", check_sac); }
 void check_config(const config::DqnConfig& c) { check_in_code(c, "dqn", check_dqn); }
 void check_config(const config::PpoConfig& c) { check_in_code(c, "ppo", check_ppo); }

@@ -45,6 +45,11 @@ void clear_output_paths(config::ExperimentConfig* cfg);
 // name a file for the receiving host to write; ConfigError names the field.
 config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source);
 
+// What a run resumed with config `now` from a checkpoint written with config `was` may not change:
+// the algorithm, and for SAC and DQN the gamma its replay rows were summed with where they sum
+// several rewards (n_step > 1: resumed with another gamma, they would mix two). "" when none changed.
+std::string resume_change(const config::ExperimentConfig& was, const config::ExperimentConfig& now);
+
 // The experiment config as text (what the learner sends to the workers in the ExperimentSpec).
 std::string config_to_text(const config::ExperimentConfig& cfg);
 

@@ -295,6 +295,16 @@ void FarmService::prepare_run_dir() {
     const std::string& dir = checkpointer_.checkpoint_dir();
     if (!checkpoint_exists(dir)) throw std::runtime_error("--resume: no checkpoint in " + dir);
     const config::CheckpointManifest m = read_manifest(dir, cfg_.experiment_id());
+    // What the checkpoint's own config says its state is may not change under it (resume_change).
+    if (m.has_config_text()) {
+      try {
+        const std::string why = resume_change(parse_config_text(m.config_text(), "the checkpoint's config"), cfg_);
+        if (!why.empty()) throw std::runtime_error("--resume: " + why);
+      } catch (const ConfigError& e) {
+        // Written by an older learner whose config today's checks refuse: nothing to compare with.
+        log("the checkpoint's config does not load today (" + std::string(e.what()) + "): not compared");
+      }
+    }
     algo_->load(usable_checkpoint(dir));
     elapsed_offset_ = m.elapsed_seconds();
     checkpointer_.resume(m);

@@ -2,7 +2,9 @@
 # Checkpoints written before the learner was split into its farm side and its algorithms still
 # resume: a pendulum SAC checkpoint (networks, optimizers, replay buffer, random state) and a
 # cart-pole PPO checkpoint from tests/data/checkpoint_v1, each resumed by today's farm-learner with
-# one worker to a normal end: the counters go on from the checkpoint, nothing is lost.
+# one worker to a normal end: the counters go on from the checkpoint, nothing is lost. And a resume
+# that would change the discount of multi-step replay rows (sac.n_step 3, then another gamma) is
+# refused at start, naming it, with the checkpoint left as it was.
 #   tests/integration/test_checkpoint_compat.sh LEARNER WORKER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") data=$(readlink -f "$3")/tests/data/checkpoint_v1
@@ -42,4 +44,17 @@ resume() {
 
 resume sac
 resume ppo
+
+run="$dir/nstep"
+sed -e 's/^sac { /sac { n_step: 3 /' -e 's/^stop {.*/stop { max_seconds: 3 }/' "$data/sac.txtpb" >"$dir/nstep.txtpb"
+grep -q "n_step: 3" "$dir/nstep.txtpb" && grep -q "max_seconds: 3 }" "$dir/nstep.txtpb" || fail "could not edit the config"
+"$learner" --config "$dir/nstep.txtpb" --run-dir "$run" --domain $domain >"$dir/nstep.log" 2>&1 ||
+  fail "the n_step run exited $?: $(tail -3 "$dir/nstep.log")"
+sed 's/^sac { /sac { gamma: 0.9 /' "$dir/nstep.txtpb" >"$dir/nstep-gamma.txtpb"
+before=$(md5sum <"$run/checkpoint/manifest.txtpb")
+"$learner" --config "$dir/nstep-gamma.txtpb" --run-dir "$run" --domain $domain --resume >"$dir/nstep-gamma.log" 2>&1 &&
+  fail "a resume with another gamma over 3-step rows ran"
+grep -q "the checkpoint's replay rows sum up to 3 rewards (sac.n_step) discounted with sac.gamma 0.99, this config's gamma is 0.9" \
+  "$dir/nstep-gamma.log" || fail "the refusal does not name the discount: $(tail -3 "$dir/nstep-gamma.log")"
+[ "$(md5sum <"$run/checkpoint/manifest.txtpb")" = "$before" ] || fail "the refused resume changed the checkpoint"
 farm_test_end "checkpoints written before the split resume"

@@ -81,6 +81,25 @@ std::vector<OffPolicySection> off_policy_sections() {
 
 }  // namespace
 
+// A resume may change what it likes but the algorithm and, where replay rows sum several rewards,
+// the gamma they were discounted with (rows carry their horizon, so n_step may change).
+TEST(Config, ResumeKeepsTheDiscountOfSummedReplayRows) {
+  const auto cfg = [](const std::string& body) {
+    return parse_config_text("experiment_id: \"r\" " + body, "exp.txtpb");
+  };
+  const auto was = cfg("sac { n_step: 3 gamma: 0.99 }");
+  EXPECT_EQ(farm::resume_change(was, cfg("sac { n_step: 5 gamma: 0.99 actor_lr: 1e-4 } stop { max_seconds: 9 }")), "");
+  EXPECT_EQ(farm::resume_change(was, cfg("sac { n_step: 3 gamma: 0.98 }")),
+            "the checkpoint's replay rows sum up to 3 rewards (sac.n_step) discounted with sac.gamma 0.99, this "
+            "config's gamma is 0.98: the rows would mix two discounts (resume with gamma 0.99, or start a new run)");
+  // One-step rows hold no discount: gamma may change.
+  const std::string dqn = "algorithm: \"dqn\" ";
+  EXPECT_EQ(farm::resume_change(cfg(dqn + "dqn { }"), cfg(dqn + "dqn { gamma: 0.9 n_step: 3 }")), "");
+  EXPECT_NE(farm::resume_change(cfg(dqn + "dqn { n_step: 2 }"), cfg(dqn + "dqn { n_step: 2 gamma: 0.9 }")), "");
+  EXPECT_EQ(farm::resume_change(was, cfg("algorithm: \"ppo\"")),
+            "the checkpoint is of algorithm \"sac\", this config's is \"ppo\"");
+}
+
 // sac.lr_decay_* and dqn.lr_decay_*: a length of 0 or more and a fraction in (0, 1], an error at the
 // field's line otherwise.
 TEST(Config, LearningRateScheduleIsChecked) {
