@@ -52,8 +52,10 @@ void WorkerIntake::keep_own(const std::string& participant, farm::msg::PolicyWei
   own_[participant] = std::move(w);
 }
 
-std::optional<farm::msg::PolicyWeights> WorkerIntake::take_weights(std::vector<std::string>* others) {
+std::optional<farm::msg::PolicyWeights> WorkerIntake::take_weights(std::vector<std::string>* others,
+                                                                   uint64_t* refused) {
   std::lock_guard<std::mutex> lk(mu_);
+  *refused = weights_refused_;
   for (const auto& [id, _] : weights_) others->push_back(id);
   weights_.clear();  // other experiments': only their ids are noted
   auto it = own_.find(learner_);
@@ -77,11 +79,6 @@ void WorkerIntake::bind(const std::string& experiment) {
 void WorkerIntake::bind_learner(const eprosima::fastrtps::rtps::GUID_t& spec_writer) {
   std::lock_guard<std::mutex> lk(mu_);
   learner_ = farm::dds::participant_key(spec_writer);
-}
-
-uint64_t WorkerIntake::weights_refused() {
-  std::lock_guard<std::mutex> lk(mu_);
-  return weights_refused_;
 }
 
 }  // namespace farm

@@ -32,8 +32,9 @@ class WorkerIntake {
   // The specs that arrived since the last call, oldest first.
   std::deque<SpecIn> take_specs();
   // The latest weights of the bound experiment from its learner (bind_learner), if new ones came;
-  // the ids of other experiments whose weights came go to *others.
-  std::optional<farm::msg::PolicyWeights> take_weights(std::vector<std::string>* others);
+  // the ids of other experiments whose weights came go to *others, and *refused is how many of the
+  // experiment's weights came from another participant than its learner so far.
+  std::optional<farm::msg::PolicyWeights> take_weights(std::vector<std::string>* others, uint64_t* refused);
   // Binds the worker to its experiment: its weights are kept under a flood of invented ones.
   void bind(const std::string& experiment);
   // The learner that speaks for the experiment, by the writer of the spec the worker joined (or the
@@ -41,8 +42,6 @@ class WorkerIntake {
   // apart (a few participants at most), so a restarted learner's weights, come before its spec is
   // believed, are there when it is.
   void bind_learner(const eprosima::fastrtps::rtps::GUID_t& spec_writer);
-  // Weights of the experiment that came from another participant than its learner.
-  uint64_t weights_refused();
   bool spec_writer_matched(const eprosima::fastrtps::rtps::GUID_t& writer) { return spec_in_.writer_matched(writer); }
   void wait_for_spec(double seconds) { spec_in_.wait(seconds); }
   void wait_for_weights(double seconds) { weights_in_.wait(seconds); }

@@ -315,9 +315,10 @@ void WorkerApp::note_foreign(const std::string& experiment_id) {
 
 void WorkerApp::poll_weights() {
   std::vector<std::string> others;
-  const std::optional<farm::msg::PolicyWeights> got = intake_.take_weights(&others);
+  uint64_t n = 0;  // weights of another participant than the learner, so far
+  const std::optional<farm::msg::PolicyWeights> got = intake_.take_weights(&others, &n);
   for (const auto& id : others) note_foreign(id);
-  if (const uint64_t n = intake_.weights_refused(); n > refusals_.weights) {
+  if (n > refusals_.weights) {
     // Another participant publishing this experiment's weights: an impostor, or a restarted learner
     // not yet believed (its spec is, once the joined one has left). Said once per 10 s at most.
     const auto now = std::chrono::steady_clock::now();
