@@ -45,9 +45,7 @@ void Evaluations::poll(const Joined& joined) {
       // Only the learner the worker joined asks it for evaluations: anyone else's request is neither
       // run nor answered (said once per 10 s at most).
       ++not_learners_;
-      const auto now = std::chrono::steady_clock::now();
-      if (now - last_not_learners_log_ >= std::chrono::seconds(10)) {
-        last_not_learners_log_ = now;
+      if (not_learners_note_.due()) {
         log_("evaluation requests from a participant other than the learner are not run (" +
              std::to_string(not_learners_) + " so far)");
       }

@@ -19,6 +19,7 @@
 #include "dds.h"
 #include "farm.h"
 #include "farmPubSubTypes.h"
+#include "once_per.h"
 #include "rollout.h"
 
 namespace farm {
@@ -68,7 +69,7 @@ class Evaluations {
   };
   std::deque<In> in_q_;        // addressed to this worker; bounded: kMaxQueue
   uint64_t not_learners_ = 0;  // requests from another participant than the joined learner's
-  std::chrono::steady_clock::time_point last_not_learners_log_{};
+  OncePer not_learners_note_{std::chrono::seconds(10)};
   farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> in_;
   farm::dds::Writer<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> out_;
   std::mutex mu_;

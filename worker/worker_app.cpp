@@ -146,9 +146,7 @@ void WorkerApp::poll_spec() {
 void WorkerApp::refuse_spec(const std::string& why) {
   ++refusals_.specs;
   // What a participant sends is not for it to fill this worker's log: one line per 10 s at most.
-  const auto now = std::chrono::steady_clock::now();
-  if (now - refusals_.last_log < std::chrono::seconds(10)) return;
-  refusals_.last_log = now;
+  if (!refusals_.spec_note.due()) return;
   log("refused a spec of experiment '" + experiment_ + "' (" + std::to_string(refusals_.specs) + " so far): " + why);
 }
 
@@ -321,9 +319,7 @@ void WorkerApp::poll_weights() {
   if (n > refusals_.weights) {
     // Another participant publishing this experiment's weights: an impostor, or a restarted learner
     // not yet believed (its spec is, once the joined one has left). Said once per 10 s at most.
-    const auto now = std::chrono::steady_clock::now();
-    if (now - refusals_.last_weights_log >= std::chrono::seconds(10)) {
-      refusals_.last_weights_log = now;
+    if (refusals_.weights_note.due()) {
       refusals_.weights = n;
       log("weights of experiment '" + experiment_ + "' from a participant other than its learner are not run (" +
           std::to_string(n) + " so far)");

@@ -26,6 +26,7 @@
 #include "heartbeat.h"
 #include "intake.h"
 #include "meter.h"
+#include "once_per.h"
 #include "rollout.h"
 
 namespace farm {
@@ -96,7 +97,7 @@ class WorkerApp {
   // Specs refused and experiments not this worker's: counted, and said in the log at a bounded rate.
   struct Refusals {
     uint64_t specs = 0, weights = 0;
-    std::chrono::steady_clock::time_point last_log{}, last_weights_log{};
+    OncePer spec_note{std::chrono::seconds(10)}, weights_note{std::chrono::seconds(10)};
     std::set<std::string> foreign;  // other experiments already noted (bounded)
   } refusals_;
   // The policy run and what the learner allows on it: batches sent on this version, and the quota
