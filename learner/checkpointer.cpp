@@ -70,6 +70,20 @@ void Checkpointer::offer(const EvalReport& report, uint64_t version, int64_t upd
     log_("evaluation of policy v" + std::to_string(version) + " at " + fmt("%.1f", elapsed) + " s: " + what +
          (std::isnan(best_) ? "" : ", best so far " + fmt("%.4f", best_)));
   if (std::isnan(s) || s <= best_) return;
+  // The kept best compares like with like: an evaluation of fewer episodes than the training's
+  // (a final one of eval.final_episodes < eval.episodes) is noisier, and the highest of many noisy
+  // scores favours the noisiest. Its policy stays in RUN/checkpoint, measured in the summary.
+  if (report.episodes < cfg_.eval().episodes()) {
+    log_("evaluation of policy v" + std::to_string(version) + " (" + what + ", " + std::to_string(report.episodes) +
+         " episodes) is not kept as the best: it has fewer episodes than the training's evaluations (" +
+         std::to_string(cfg_.eval().episodes()) + ")");
+    events_.write("best_not_kept", {{"measure", measure()},
+                                    {"score", s},
+                                    {"policy_version", version},
+                                    {"episodes", report.episodes},
+                                    {"episodes_needed", cfg_.eval().episodes()}});
+    return;
+  }
   const double previous_best = best_;
   best_ = s;
   const double t = now_seconds();
