@@ -9,7 +9,8 @@
 #   KIT/bin/protoc              Debian's protoc (runs with KIT/lib on LD_LIBRARY_PATH)
 #   KIT/bin/fastddsgen          stands in for fastddsgen (Java): copies the sources generated
 #                               here from idl/farm.idl, after checking the IDL is unchanged
-#   KIT/debian-bin              farm-worker and the benchmark programs built here (optional)
+#   KIT/debian-bin              farm-worker, the policy measures (farm-mclari-eval, farm-mobile-eval) and
+#                               the benchmark programs built here (optional)
 # Usage (on the Debian machine, after a build):  deploy/make-gpu-kit.sh KIT [BUILD_DIR]
 # The GPU host needs glibc >= 2.36 (Debian 12's) and libstdc++ from g++ >= 12.
 set -euo pipefail
@@ -133,7 +134,8 @@ set(GTest_FOUND TRUE)
 EOF
 
 # Debian-built programs for hosts that only run them.
-for b in worker/farm-worker tests/bench_worker tests/bench_transport tests/bench_scale tests/farm_intruder; do
+for b in worker/farm-worker tools/farm-mclari-eval tools/farm-mobile-eval tests/bench_worker tests/bench_transport tests/bench_scale \
+         tests/farm_intruder; do
   [ -x "$build/$b" ] && cp "$build/$b" "$kit/debian-bin/"
 done
 cp "$root/deploy/fastdds_profiles.xml" "$kit/debian-bin/"
