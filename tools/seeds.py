@@ -3,7 +3,7 @@
 
   tools/seeds.py CONFIG [--seeds 1,2,3] [--workers W] [--parallel P] [--out DIR] [--domain D]
                  [--build DIR] [--learner-bin PATH] [--worker-bin PATH] [--eval-episodes N]
-                 [--cpus-per-run C] [--gpus 0,1,..] [--train-only | --report-only]
+                 [--cpus-per-run C] [--gpus 0,1,..] [--train-only | --report-only] [--resume]
 
 For each seed the config is copied with only its `seed:` line changed, a learner and W workers run
 it on this host (shared memory only, deploy/discovery/local.xml, DDS domain D + seed), P runs side
@@ -28,15 +28,23 @@ policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used ag
 command made it, begun after every file the command names was written, unless --remeasure; where
 RUN/best holds the final policy itself (same version, same files), it is measured once. The table names the
 training's command (DIR/command.txt, written when training starts). Exit status 0 when every seed's
-kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib)."""
+kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib).
+
+Ctrl-C, SIGINT or SIGTERM (a batch system's time limit) stops the runs in progress as the learner's
+own Ctrl-C does, each with a checkpoint, starts no other, and exits with 130. --resume continues
+DIR: a run that ended on its own is kept as it is, one that was stopped goes on from its checkpoint
+(farm-learner --resume: its time and stop limits count what it had done), a seed without a run
+starts. DIR/command.txt gets each resuming command as a line of its own."""
 import argparse
 import csv
 import filecmp
+import json
 import math
 import os
 import random
 import re
 import shlex
+import signal
 import subprocess
 import sys
 import textwrap
@@ -314,16 +322,45 @@ def train(args, text, seeds):
     for b in (learner, worker):
         if not os.access(b, os.X_OK):
             fail(f"{b} not found: build first (deploy/build.sh) or give --build")
-    for s in seeds:  # before anything starts, or command.txt is written
-        if os.path.exists(os.path.join(args.out, f"seed{s}")):
-            fail(f"{os.path.join(args.out, f'seed{s}')} exists: give another --out, or --report-only to report it")
-    with open(os.path.join(args.out, "command.txt"), "w") as f:
-        f.write(this_command() + "\n")
+    resume = set()
+    for s in list(seeds):  # before anything starts, or command.txt is written
+        run = os.path.join(args.out, f"seed{s}")
+        if not os.path.exists(run):
+            continue
+        if not args.resume:
+            fail(f"{run} exists: give another --out, --resume to continue it, or --report-only to report it")
+        stop = last_stop(run)
+        if stop is not None and stop != "interrupted":
+            print(f"seeds: seed {s} ended on its own ({stop}): kept as it is", flush=True)
+            seeds = [x for x in seeds if x != s]
+        elif os.path.exists(os.path.join(run, "checkpoint", "manifest.txtpb")):
+            resume.add(s)
+        else:
+            fail(f"{run} has no checkpoint to continue from (RUN/checkpoint/manifest.txtpb): "
+                 "remove it to train that seed again")
+    command_txt = os.path.join(args.out, "command.txt")
+    if args.resume and os.path.exists(command_txt):
+        with open(command_txt, "a") as f:
+            f.write(this_command() + "\n")
+    else:
+        with open(command_txt, "w") as f:
+            f.write(this_command() + "\n")
+    stopping = []
+    def on_signal(signum, _frame):
+        stopping.append(signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
     profiles = os.path.join(ROOT, "deploy", "discovery", "local.xml")
     pending, running = list(seeds), []
     free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
     t0 = time.time()
     while pending or running:
+        if stopping and pending:
+            print(f"seeds: stopping on signal {stopping[0]}: the runs in progress write their checkpoints; "
+                  f"seed{'s' if len(pending) > 1 else ''} {', '.join(map(str, pending))} not started", flush=True)
+            pending = []
+            for _, procs, _ in running:
+                procs[0].send_signal(signal.SIGINT)
         while pending and free:
             s = pending.pop(0)
             slot = free.pop(0)
@@ -341,7 +378,8 @@ def train(args, text, seeds):
             # Logs beside the run folder: the learner moves a non-empty run folder aside.
             logs = os.path.join(args.out, "logs")
             os.makedirs(logs, exist_ok=True)
-            procs = [subprocess.Popen(pin + [learner, "--config", cfg, "--run-dir", run] + common,
+            again = ["--resume"] if s in resume else []
+            procs = [subprocess.Popen(pin + [learner, "--config", cfg, "--run-dir", run] + again + common,
                                       stdout=open(os.path.join(logs, f"seed{s}-learner.log"), "w"),
                                       stderr=subprocess.STDOUT, env=env)]
             for w in range(args.workers):
@@ -350,7 +388,8 @@ def train(args, text, seeds):
                                               stderr=subprocess.STDOUT, env=env))
             where = (f", cores {pin[2]}" if pin else "") + (
                 f", GPU {env['CUDA_VISIBLE_DEVICES']}" if args.gpus else "")
-            print(f"seeds: seed {s} started (domain {domain}, {args.workers} workers{where}, run {run})", flush=True)
+            print(f"seeds: seed {s} {'resumed' if again else 'started'} (domain {domain}, {args.workers} workers{where}, "
+                  f"run {run})", flush=True)
             running.append((s, procs, slot))
         time.sleep(2)
         for s, procs, slot in list(running):
@@ -358,6 +397,8 @@ def train(args, text, seeds):
             if rc is None:
                 continue
             for p in procs[1:]:
+                if stopping:  # a stopped learner's workers wait for it to come back: stop them too
+                    p.send_signal(signal.SIGINT)
                 try:
                     p.wait(timeout=30)
                 except subprocess.TimeoutExpired:
@@ -366,9 +407,30 @@ def train(args, text, seeds):
             running.remove((s, procs, slot))
             free.append(slot)
             print(f"seeds: seed {s} ended (learner exit {rc}) at {time.time() - t0:.0f} s", flush=True)
-            if rc != 0:
+            if rc != 0 and not stopping:
                 print(f"seeds: seed {s}: the learner failed; its log: "
                       f"{os.path.join(args.out, 'logs', f'seed{s}-learner.log')}", file=sys.stderr)
+    if stopping:
+        print(f"seeds: stopped; continue with: {this_command()} --resume", flush=True)
+        sys.exit(130)
+
+
+def last_stop(run):
+    """The reason of the run's last stop event, None when it has none."""
+    reason = None
+    try:
+        with open(os.path.join(run, "events.jsonl")) as f:
+            for line in f:
+                if '"stop"' in line:
+                    try:
+                        e = json.loads(line)
+                    except ValueError:
+                        continue
+                    if e.get("event") == "stop":
+                        reason = str(e.get("reason", ""))
+    except OSError:
+        return None
+    return reason
 
 
 # ---- report -------------------------------------------------------------------------------------
@@ -421,7 +483,7 @@ def report(args, task, kind, target, seeds):
         "mobile": (f"success >= {MOBILE_GOAL:g} % over {args.eval_episodes} fresh maps", "success %"),
         "mclari": (f"every terrain >= {MCLARI_GOAL:g} % of the best fixed point, < 1 fall in 10", "worst terrain %"),
     }[kind]
-    trained = read_text(os.path.join(args.out, "command.txt")).strip()
+    trained = "`, then `".join(line for line in read_text(os.path.join(args.out, "command.txt")).splitlines() if line)
     lines = [f"# {os.path.basename(args.config)}: {len(seeds)} seeds", "",
              f"Task `{task}`; goal: {goal}. Trained with: `{trained or 'not recorded (no command.txt)'}`"
              + (f"; measured with: `{this_command()}`" if args.report_only else ""), "",
@@ -552,6 +614,8 @@ def main():
                     "the evaluation programs; --report-only measures later)")
     ap.add_argument("--eval-episodes", type=int, default=100)
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--resume", action="store_true", help="continue the runs already in --out: those stopped "
+                    "from their checkpoints, seeds without a run from the start")
     ap.add_argument("--remeasure", action="store_true", help="measure each policy again even where its "
                     "measurement from the same command is newer than the policy")
     args = ap.parse_args()
@@ -568,6 +632,8 @@ def main():
              f"{os.cpu_count()} cores")
     if args.train_only and args.report_only:
         fail("--train-only and --report-only exclude each other")
+    if args.resume and args.report_only:
+        fail("--resume and --report-only exclude each other")
     if not 0 <= args.domain + max(seeds) <= 232:
         fail(f"--domain {args.domain} + seed {max(seeds)} is outside the DDS domain ids 0..232")
     text, task, target = read_config(args.config)
