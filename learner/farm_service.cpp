@@ -292,28 +292,18 @@ void FarmService::log(const std::string& s) const {
 
 void FarmService::prepare_run_dir() {
   if (opt_.resume) {
-    const std::string& dir = checkpointer_.checkpoint_dir();
-    if (!checkpoint_exists(dir)) throw std::runtime_error("--resume: no checkpoint in " + dir);
-    const config::CheckpointManifest m = read_manifest(dir, cfg_.experiment_id());
-    // What the checkpoint's own config says its state is may not change under it (resume_change).
-    if (m.has_config_text()) {
-      try {
-        const std::string why = resume_change(parse_config_text(m.config_text(), "the checkpoint's config"), cfg_);
-        if (!why.empty()) throw std::runtime_error("--resume: " + why);
-      } catch (const ConfigError& e) {
-        // Written by an older learner whose config today's checks refuse: nothing to compare with.
-        log("the checkpoint's config does not load today (" + std::string(e.what()) + "): not compared");
+    try {
+      resume_from_checkpoint();
+    } catch (const std::exception& e) {
+      // Said in the run's own events too, for programs that watch it (a refused resume changes
+      // nothing else there); a run folder that does not exist is not made for it.
+      if (fs::is_directory(run_dir_)) {
+        EventLog refused;
+        refused.open((fs::path(run_dir_) / "events.jsonl").string());
+        refused.write("refusal", {{"what", "resume"}, {"reason", e.what()}, {"elapsed_s", nullptr}});
       }
+      throw;
     }
-    algo_->load(usable_checkpoint(dir));
-    elapsed_offset_ = m.elapsed_seconds();
-    checkpointer_.resume(m);
-    returns_.total = m.episodes();
-    intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in, now_seconds()); });
-    // The first progress line's rates count from the restored counters, not from zero.
-    const IngestCounters c = intake_.counters();
-    last_counters_ = c;
-    log("resumed from " + dir + " " + algo_->resumed(m, c.env_steps));
   } else if (const std::string aside = move_run_dir_aside(run_dir_); !aside.empty()) {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
@@ -324,6 +314,31 @@ void FarmService::prepare_run_dir() {
   csv_.header = algo_->csv_header();
   if (new_csv) csv_.out << csv_.header << '\n';
   events_.open((fs::path(run_dir_) / "events.jsonl").string());
+}
+
+void FarmService::resume_from_checkpoint() {
+  const std::string& dir = checkpointer_.checkpoint_dir();
+  if (!checkpoint_exists(dir)) throw std::runtime_error("--resume: no checkpoint in " + dir);
+  const config::CheckpointManifest m = read_manifest(dir, cfg_.experiment_id());
+  // What the checkpoint's own config says its state is may not change under it (resume_change).
+  if (m.has_config_text()) {
+    try {
+      const std::string why = resume_change(parse_config_text(m.config_text(), "the checkpoint's config"), cfg_);
+      if (!why.empty()) throw std::runtime_error("--resume: " + why);
+    } catch (const ConfigError& e) {
+      // Written by an older learner whose config today's checks refuse: nothing to compare with.
+      log("the checkpoint's config does not load today (" + std::string(e.what()) + "): not compared");
+    }
+  }
+  algo_->load(usable_checkpoint(dir));
+  elapsed_offset_ = m.elapsed_seconds();
+  checkpointer_.resume(m);
+  returns_.total = m.episodes();
+  intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in, now_seconds()); });
+  // The first progress line's rates count from the restored counters, not from zero.
+  const IngestCounters c = intake_.counters();
+  last_counters_ = c;
+  log("resumed from " + dir + " " + algo_->resumed(m, c.env_steps));
 }
 
 int FarmService::live_count() const { return roster_.live_count(); }

@@ -64,6 +64,8 @@ class FarmService final : public Farm {
 
  private:
   void prepare_run_dir();
+  // --resume: the checkpoint's state taken back, or an error that says why it cannot be.
+  void resume_from_checkpoint();
   void work();
   // Hands up to max batches that the ingest thread accepted to the algorithm; returns how many.
   size_t drain_batches(size_t max);

@@ -54,7 +54,8 @@ sed 's/^sac { /sac { gamma: 0.9 /' "$dir/nstep.txtpb" >"$dir/nstep-gamma.txtpb"
 before=$(md5sum <"$run/checkpoint/manifest.txtpb")
 "$learner" --config "$dir/nstep-gamma.txtpb" --run-dir "$run" --domain $domain --resume >"$dir/nstep-gamma.log" 2>&1 &&
   fail "a resume with another gamma over 3-step rows ran"
-grep -q "the checkpoint's replay rows sum up to 3 rewards (sac.n_step) discounted with sac.gamma 0.99, this config's gamma is 0.9" \
-  "$dir/nstep-gamma.log" || fail "the refusal does not name the discount: $(tail -3 "$dir/nstep-gamma.log")"
+events "$run" refusal | grep -F '"what":"resume"' |
+  grep -qF "the checkpoint's replay rows sum up to 3 rewards (sac.n_step) discounted with sac.gamma 0.99, this config's gamma is 0.9" ||
+  fail "no refusal event names the discount: $(events "$run" refusal; tail -3 "$dir/nstep-gamma.log")"
 [ "$(md5sum <"$run/checkpoint/manifest.txtpb")" = "$before" ] || fail "the refused resume changed the checkpoint"
 farm_test_end "checkpoints written before the split resume"
