@@ -354,10 +354,14 @@ def train(args, text, seeds):
     pending, running = list(seeds), []
     free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
     t0 = time.time()
+    forwarded = False
     while pending or running:
-        if stopping and pending:
-            print(f"seeds: stopping on signal {stopping[0]}: the runs in progress write their checkpoints; "
-                  f"seed{'s' if len(pending) > 1 else ''} {', '.join(map(str, pending))} not started", flush=True)
+        if stopping and not forwarded:
+            forwarded = True
+            left = (f"; seed{'s' if len(pending) > 1 else ''} {', '.join(map(str, pending))} not started"
+                    if pending else "")
+            print(f"seeds: stopping on signal {stopping[0]}: the runs in progress write their checkpoints{left}",
+                  flush=True)
             pending = []
             for _, procs, _ in running:
                 procs[0].send_signal(signal.SIGINT)
