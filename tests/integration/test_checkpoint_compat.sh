@@ -24,16 +24,21 @@ resume() {
   wait $lp; local rc=$?
   cat "$dir/$name.log" | grep -v "^\[learner\] *[0-9.]*s |" | head -20
   [ $rc = 0 ] || fail "$name: learner exited $rc: $(tail -5 "$dir/$name.log")"
-  grep -q "^\[learner\] resumed from $run/checkpoint (next policy v" "$dir/$name.log" ||
-    fail "$name: no 'resumed from' line"
-  [ -f "$run/summary.txt" ] || { fail "$name: no summary"; return; }
-  cat "$run/summary.txt"
-  local updates_after
-  updates_after=$(sed -n 's/^updates           \([0-9]*\).*/\1/p' "$run/summary.txt")
+  events "$run" start | tail -1 | grep -q '"resumed":true' || fail "$name: the run's start is not a resume"
+  local summary
+  summary=$(events "$run" summary | tail -1)
+  [ -n "$summary" ] || { fail "$name: no summary event"; return; }
+  echo "$summary"
+  # updates, then batches ok, lost, duplicate, invalid, from the summary event.
+  local figures
+  figures=$(echo "$summary" | python3 -c 'import json, sys; e = json.load(sys.stdin)
+print(*(e[k] for k in ("updates", "batches_ok", "batches_lost", "batches_duplicate", "batches_invalid")))')
+  local updates_after ok lost duplicate invalid
+  read -r updates_after ok lost duplicate invalid <<<"$figures"
   [ -n "$updates_before" ] && [ -n "$updates_after" ] && [ "$updates_after" -gt "$updates_before" ] ||
     fail "$name: updates did not go on from the checkpoint's $updates_before: $updates_after"
-  grep -q "^batches           ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$run/summary.txt" ||
-    fail "$name: batches not all accounted: $(grep '^batches' "$run/summary.txt")"
+  [ "${ok:-0}" -gt 0 ] && [ "$lost/$duplicate/$invalid" = 0/0/0 ] ||
+    fail "$name: batches not all accounted: ok $ok, lost $lost, duplicate $duplicate, invalid $invalid"
   # The new checkpoint is written in the same layout as the fixture's.
   for f in $(cd "$data/$name/checkpoint" && find . -type f | sort); do
     [ -f "$run/checkpoint/$f" ] || fail "$name: the new checkpoint has no $f"
