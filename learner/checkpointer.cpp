@@ -73,7 +73,8 @@ void Checkpointer::offer(const EvalReport& report, uint64_t version, int64_t upd
   // The kept best compares like with like: an evaluation of fewer episodes than the training's
   // (a final one of eval.final_episodes < eval.episodes) is noisier, and the highest of many noisy
   // scores favours the noisiest. Its policy stays in RUN/checkpoint, measured in the summary.
-  if (report.episodes < cfg_.eval().episodes()) {
+  // Without any best yet (no training evaluation came back) it is kept: something beats nothing.
+  if (report.episodes < cfg_.eval().episodes() && !std::isnan(best_)) {
     log_("evaluation of policy v" + std::to_string(version) + " (" + what + ", " + std::to_string(report.episodes) +
          " episodes) is not kept as the best: it has fewer episodes than the training's evaluations (" +
          std::to_string(cfg_.eval().episodes()) + ")");

@@ -42,7 +42,8 @@ class Checkpointer {
   // The report of an evaluation of policy `version`: a new best by the measure is kept in RUN/best,
   // copied from `snapshot` (the networks as asked) with the manifest `manifest` gives. A report not
   // confirmed (security) keeps nothing, nor does one of fewer episodes than eval.episodes (a smaller
-  // final evaluation: its noise would win); a named measure is logged for every report.
+  // final evaluation: its noise would win) once a best is kept; a named measure is logged for
+  // every report.
   void offer(const EvalReport& report, uint64_t version, int64_t updates, double elapsed, const std::string* snapshot,
              const Manifest& manifest);
 

@@ -106,6 +106,9 @@ TEST(Checkpointer, KeepsNoBestFromAnEvaluationOfFewerEpisodes) {
   };
   const std::string best = keeper.best_dir();
 
+  offer(100, 0.5, 0);  // no best yet (no training evaluation came back): kept rather than none
+  EXPECT_DOUBLE_EQ(keeper.best(), 0.5);
+  EXPECT_EQ(part(best), "v0");
   offer(400, 0.95, 1);
   EXPECT_DOUBLE_EQ(keeper.best(), 0.95);
   EXPECT_EQ(part(best), "v1");
@@ -130,7 +133,7 @@ TEST(Checkpointer, KeepsNoBestFromAnEvaluationOfFewerEpisodes) {
       EXPECT_EQ(e["episodes_needed"], 400);
     }
   }
-  EXPECT_EQ(kept, 3);
+  EXPECT_EQ(kept, 4);
   EXPECT_EQ(not_kept, 1);
 }
 
