@@ -296,11 +296,17 @@ void FarmService::prepare_run_dir() {
       resume_from_checkpoint();
     } catch (const std::exception& e) {
       // Said in the run's own events too, for programs that watch it (a refused resume changes
-      // nothing else there); a run folder that does not exist is not made for it.
-      if (fs::is_directory(run_dir_)) {
-        EventLog refused;
-        refused.open((fs::path(run_dir_) / "events.jsonl").string());
-        refused.write("refusal", {{"what", "resume"}, {"reason", e.what()}, {"elapsed_s", nullptr}});
+      // nothing else there): only where a run already keeps its events, and never in place of
+      // the refusal itself, which goes on up whatever the writing does.
+      const fs::path events = fs::path(run_dir_) / "events.jsonl";
+      std::error_code ec;
+      if (fs::is_regular_file(events, ec)) {
+        try {
+          EventLog refused;
+          refused.open(events.string());
+          refused.write("refusal", {{"what", "resume"}, {"reason", e.what()}, {"elapsed_s", nullptr}});
+        } catch (const std::exception&) {
+        }
       }
       throw;
     }
