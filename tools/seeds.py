@@ -31,7 +31,8 @@ training's command (DIR/command.txt, written when training starts). Exit status 
 kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib).
 
 Ctrl-C, SIGINT or SIGTERM (a batch system's time limit) stops the runs in progress as the learner's
-own Ctrl-C does, each with a checkpoint, starts no other, and exits with 130. --resume continues
+own Ctrl-C does, each with a checkpoint, starts no other, and exits with 130 (a second signal ends
+them at once, without checkpoints). --resume continues
 DIR: a run that ended on its own is kept as it is, one that was stopped goes on from its checkpoint
 (farm-learner --resume: its time and stop limits count what it had done), a seed without a run
 starts. DIR/command.txt gets each resuming command as a line of its own."""
@@ -338,23 +339,33 @@ def train(args, text, seeds):
         else:
             fail(f"{run} has no checkpoint to continue from (RUN/checkpoint/manifest.txtpb): "
                  "remove it to train that seed again")
+    if not seeds:
+        return
     command_txt = os.path.join(args.out, "command.txt")
-    if args.resume and os.path.exists(command_txt):
-        with open(command_txt, "a") as f:
-            f.write(this_command() + "\n")
-    else:
-        with open(command_txt, "w") as f:
-            f.write(this_command() + "\n")
+    with open(command_txt, "a" if args.resume and os.path.exists(command_txt) else "w") as f:
+        f.write(this_command() + "\n")
     stopping = []
     def on_signal(signum, _frame):
         stopping.append(signum)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    before = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        run_seeds(args, text, seeds, learner, worker, resume, stopping)
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+    if stopping:
+        again = this_command() + ("" if args.resume else " --resume")
+        print(f"seeds: stopped; continue with: {again}", flush=True)
+        sys.exit(130)
+
+
+def run_seeds(args, text, seeds, learner, worker, resume, stopping):
+    """Runs the seeds, args.parallel at a time; on a signal (stopping), as the module's text says."""
     profiles = os.path.join(ROOT, "deploy", "discovery", "local.xml")
     pending, running = list(seeds), []
     free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
     t0 = time.time()
-    forwarded = False
+    forwarded = killed = False
     while pending or running:
         if stopping and not forwarded:
             forwarded = True
@@ -365,6 +376,12 @@ def train(args, text, seeds):
             pending = []
             for _, procs, _ in running:
                 procs[0].send_signal(signal.SIGINT)
+        if len(stopping) > 1 and not killed:  # a second signal: end now, without checkpoints
+            killed = True
+            print("seeds: a second signal: ending every learner and worker now (SIGKILL)", flush=True)
+            for _, procs, _ in running:
+                for p in procs:
+                    p.kill()
         while pending and free:
             s = pending.pop(0)
             slot = free.pop(0)
@@ -383,19 +400,20 @@ def train(args, text, seeds):
             logs = os.path.join(args.out, "logs")
             os.makedirs(logs, exist_ok=True)
             again = ["--resume"] if s in resume else []
+            mode = "a" if again else "w"  # a resumed run's logs go on after its first part's
             procs = [subprocess.Popen(pin + [learner, "--config", cfg, "--run-dir", run] + again + common,
-                                      stdout=open(os.path.join(logs, f"seed{s}-learner.log"), "w"),
+                                      stdout=open(os.path.join(logs, f"seed{s}-learner.log"), mode),
                                       stderr=subprocess.STDOUT, env=env)]
             for w in range(args.workers):
                 procs.append(subprocess.Popen(pin + [worker, "--id", f"s{s}w{w + 1}"] + common,
-                                              stdout=open(os.path.join(logs, f"seed{s}-worker{w + 1}.log"), "w"),
+                                              stdout=open(os.path.join(logs, f"seed{s}-worker{w + 1}.log"), mode),
                                               stderr=subprocess.STDOUT, env=env))
             where = (f", cores {pin[2]}" if pin else "") + (
                 f", GPU {env['CUDA_VISIBLE_DEVICES']}" if args.gpus else "")
             print(f"seeds: seed {s} {'resumed' if again else 'started'} (domain {domain}, {args.workers} workers{where}, "
                   f"run {run})", flush=True)
             running.append((s, procs, slot))
-        time.sleep(2)
+        time.sleep(0.5)
         for s, procs, slot in list(running):
             rc = procs[0].poll()
             if rc is None:
@@ -414,9 +432,6 @@ def train(args, text, seeds):
             if rc != 0 and not stopping:
                 print(f"seeds: seed {s}: the learner failed; its log: "
                       f"{os.path.join(args.out, 'logs', f'seed{s}-learner.log')}", file=sys.stderr)
-    if stopping:
-        print(f"seeds: stopped; continue with: {this_command()} --resume", flush=True)
-        sys.exit(130)
 
 
 def last_stop(run):

@@ -11,8 +11,8 @@ source "$SRC/tests/integration/lib.sh"
 farm_test_init seeds-resume 61
 out=$dir/seeds
 
-# The pendulum for 8 s of training, with a target it cannot reach (seeds.py judges the pendulum on it).
-pendulum_config "$SRC" it_seeds 'target_eval_return: 1000 max_seconds: 8' "$dir/cfg.txtpb"
+# The pendulum for 10 s of training, with a target it cannot reach (seeds.py judges the pendulum on it).
+pendulum_config "$SRC" it_seeds 'target_eval_return: 1000 max_seconds: 10' "$dir/cfg.txtpb"
 cmd=(python3 "$SRC/tools/seeds.py" "$dir/cfg.txtpb" --workers 1 --parallel 2 --train-only
   --out "$out" --build "$BUILD" --domain "$domain")
 
@@ -40,7 +40,7 @@ pgrep -f "run-dir $out/" > /dev/null && fail "a learner of seeds.py still runs a
 if "${cmd[@]}" --seeds 1,2 > "$dir/again.log" 2>&1; then fail "seeds.py ran over existing runs without --resume"; fi
 [ "$(events "$out/seed1" start | wc -l)" = 1 ] || fail "seed 1 was started again without --resume"
 
-# 3. --resume with seed 3 added: seeds 1 and 2 go on from their checkpoints to their 8 s in all,
+# 3. --resume with seed 3 added: seeds 1 and 2 go on from their checkpoints to their 10 s in all,
 #    seed 3 runs from the start.
 "${cmd[@]}" --seeds 1,2,3 --resume > "$dir/resume.log" 2>&1 || fail "seeds.py --resume failed: $(tail -5 "$dir/resume.log")"
 for s in 1 2; do
