@@ -13,6 +13,13 @@ out=$dir/seeds
 
 # The pendulum for 10 s of training, with a target it cannot reach (seeds.py judges the pendulum on it).
 pendulum_config "$SRC" it_seeds 'target_eval_return: 1000 max_seconds: 10' "$dir/cfg.txtpb"
+# Whether a process whose command line holds TEXT runs (from /proc: no procps needed).
+running() {
+  local f
+  for f in /proc/[0-9]*/cmdline; do tr '\0' ' ' < "$f" 2>/dev/null | grep -qF -- "$1" && return 0; done
+  return 1
+}
+
 cmd=(python3 "$SRC/tools/seeds.py" "$dir/cfg.txtpb" --workers 1 --parallel 2 --train-only
   --out "$out" --build "$BUILD" --domain "$domain")
 
@@ -31,10 +38,9 @@ for s in 1 2; do
   events "$out/seed$s" stop | tail -1 | grep -q '"reason":"interrupted"' ||
     fail "seed $s's last stop is not an interruption: $(events "$out/seed$s" stop)"
   [ -f "$out/seed$s/checkpoint/manifest.txtpb" ] || fail "seed $s left no checkpoint"
-  pgrep -f "farm-worker --id s${s}w1 --domain $((domain + s)) " > /dev/null &&
-    fail "a worker of seed $s still runs after seeds.py exited"
+  running "farm-worker --id s${s}w1 --domain $((domain + s)) " && fail "a worker of seed $s still runs after seeds.py exited"
 done
-pgrep -f "run-dir $out/" > /dev/null && fail "a learner of seeds.py still runs after it exited"
+running "--run-dir $out/" && fail "a learner of seeds.py still runs after it exited"
 
 # 2. The same command again refuses the existing runs rather than moving them aside.
 if "${cmd[@]}" --seeds 1,2 > "$dir/again.log" 2>&1; then fail "seeds.py ran over existing runs without --resume"; fi
