@@ -39,7 +39,6 @@ starts. DIR/command.txt gets each resuming command as a line of its own."""
 import argparse
 import csv
 import filecmp
-import json
 import math
 import os
 import random
@@ -436,20 +435,8 @@ def run_seeds(args, text, seeds, learner, worker, resume, stopping):
 
 def last_stop(run):
     """The reason of the run's last stop event, None when it has none."""
-    reason = None
-    try:
-        with open(os.path.join(run, "events.jsonl")) as f:
-            for line in f:
-                if '"stop"' in line:
-                    try:
-                        e = json.loads(line)
-                    except ValueError:
-                        continue
-                    if e.get("event") == "stop":
-                        reason = str(e.get("reason", ""))
-    except OSError:
-        return None
-    return reason
+    stops = run_events.read(run, "stop")
+    return str(stops[-1].get("reason", "")) if stops else None
 
 
 # ---- report -------------------------------------------------------------------------------------
