@@ -69,12 +69,18 @@ void Checkpointer::offer(const EvalReport& report, uint64_t version, int64_t upd
   if (!cfg_.eval().best_metric().empty() && !std::isnan(s))
     log_("evaluation of policy v" + std::to_string(version) + " at " + fmt("%.1f", elapsed) + " s: " + what +
          (std::isnan(best_) ? "" : ", best so far " + fmt("%.4f", best_)));
-  if (std::isnan(s) || s <= best_) return;
+  if (std::isnan(s)) return;
   // The kept best compares like with like: an evaluation of fewer episodes than the training's
   // (a final one of eval.final_episodes < eval.episodes) is noisier, and the highest of many noisy
   // scores favours the noisiest. Its policy stays in RUN/checkpoint, measured in the summary.
-  // Without any best yet (no training evaluation came back) it is kept: something beats nothing.
-  if (report.episodes < cfg_.eval().episodes() && !std::isnan(best_)) {
+  // Without any best yet (no training evaluation came back) it is kept: something beats nothing,
+  // and then it is no bar for an evaluation of the training's size, which replaces it whatever
+  // its score (after a resume, too: the manifest records the best's episodes).
+  const int64_t needed = cfg_.eval().episodes();
+  const bool full = report.episodes >= needed;
+  const bool small_bar = !std::isnan(best_) && best_episodes_ >= 0 && best_episodes_ < needed;
+  if (!(full && small_bar) && s <= best_) return;
+  if (!full && !std::isnan(best_)) {
     log_("evaluation of policy v" + std::to_string(version) + " (" + what + ", " + std::to_string(report.episodes) +
          " episodes) is not kept as the best: it has fewer episodes than the training's evaluations (" +
          std::to_string(cfg_.eval().episodes()) + ")");
@@ -86,7 +92,9 @@ void Checkpointer::offer(const EvalReport& report, uint64_t version, int64_t upd
     return;
   }
   const double previous_best = best_;
+  const int64_t previous_episodes = best_episodes_;
   best_ = s;
+  best_episodes_ = report.episodes;
   const double t = now_seconds();
   try {
     // The networks as they were when this version was asked (training went on meanwhile).
@@ -99,14 +107,22 @@ void Checkpointer::offer(const EvalReport& report, uint64_t version, int64_t upd
     });
   } catch (const std::exception& e) {
     best_ = previous_best;  // the folder still holds the previous best: it stays the bar
+    best_episodes_ = previous_episodes;
     log_(std::string("best evaluation so far (") + what + ") not kept: " + e.what() + "; training goes on");
     return;
   }
   log_("best evaluation so far (" + what + ", policy v" + std::to_string(version) + "): kept in " + best_dir_ + " (" +
-       fmt("%.2f", now_seconds() - t) + " s)");
-  events_.write(
-      "best",
-      {{"measure", measure()}, {"score", s}, {"policy_version", version}, {"updates", updates}, {"dir", best_dir_}});
+       fmt("%.2f", now_seconds() - t) + " s)" +
+       (full && small_bar && s <= previous_best
+            ? "; it replaces a best of " + std::to_string(previous_episodes) + " episodes at " +
+                  fmt("%.4f", previous_best) + ", fewer than the training's " + std::to_string(needed)
+            : std::string()));
+  events_.write("best", {{"measure", measure()},
+                         {"score", s},
+                         {"policy_version", version},
+                         {"updates", updates},
+                         {"episodes", report.episodes},
+                         {"dir", best_dir_}});
 }
 
 void Checkpointer::resume(const config::CheckpointManifest& m) {
@@ -114,7 +130,15 @@ void Checkpointer::resume(const config::CheckpointManifest& m) {
   const auto same_measure = [this](const config::CheckpointManifest& k) {
     return (k.has_best_eval_measure() ? k.best_eval_measure() : std::string("return")) == measure();
   };
-  if (m.has_best_eval_return() && same_measure(m)) best_ = m.best_eval_return();
+  // Where a manifest does not say how many episodes its best had (an older learner's), -1: the
+  // best is held as the bar whatever evaluation comes.
+  const auto episodes = [](const config::CheckpointManifest& k) {
+    return k.has_best_eval_episodes() ? k.best_eval_episodes() : int64_t(-1);
+  };
+  if (m.has_best_eval_return() && same_measure(m)) {
+    best_ = m.best_eval_return();
+    best_episodes_ = episodes(m);
+  }
   // A best policy kept after the checkpoint (the learner stopped before the next one) stays the
   // one to beat: it is not overwritten by a weaker one after the resume.
   if (checkpoint_exists(best_dir_)) {
@@ -123,8 +147,10 @@ void Checkpointer::resume(const config::CheckpointManifest& m) {
       log_("the best kept in " + best_dir_ + " was by " +
            (b.has_best_eval_measure() ? b.best_eval_measure() : std::string("return")) + ", this run keeps by " +
            measure() + ": the next evaluation replaces it");
-    else if (b.has_best_eval_return() && (std::isnan(best_) || b.best_eval_return() > best_))
+    else if (b.has_best_eval_return() && (std::isnan(best_) || b.best_eval_return() > best_)) {
       best_ = b.best_eval_return();
+      best_episodes_ = episodes(b);
+    }
   }
 }
 

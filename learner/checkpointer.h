@@ -33,6 +33,9 @@ class Checkpointer {
   double score(const EvalReport& r) const;
   // The best score kept so far; NaN before the first.
   double best() const { return best_; }
+  // The episodes of the kept best's evaluation; -1 with no best, or one taken back from a
+  // manifest that does not say.
+  int64_t best_episodes() const { return best_episodes_; }
 
   // Writes RUN/checkpoint: the manifest `manifest` gives, and what `parts` writes into the folder.
   // false when it failed (logged, an event, counted; the last good checkpoint is kept).
@@ -58,6 +61,7 @@ class Checkpointer {
   Log log_;
   std::string checkpoint_dir_, best_dir_;
   double best_ = NAN;
+  int64_t best_episodes_ = -1;
   uint64_t failed_ = 0;
 };
 

@@ -426,6 +426,7 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   if (!std::isnan(checkpointer_.best())) {
     m.set_best_eval_return(checkpointer_.best());
     m.set_best_eval_measure(checkpointer_.measure());
+    if (checkpointer_.best_episodes() >= 0) m.set_best_eval_episodes(checkpointer_.best_episodes());
   }
   m.set_config_text(config_to_text(cfg_));
   m.set_episodes(returns_.total);

@@ -5,8 +5,10 @@
 
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "checkpoint.h"
 #include "checkpointer.h"
@@ -135,6 +137,81 @@ TEST(Checkpointer, KeepsNoBestFromAnEvaluationOfFewerEpisodes) {
   }
   EXPECT_EQ(kept, 4);
   EXPECT_EQ(not_kept, 1);
+}
+
+// The converse: a best kept from fewer episodes (there was no other) is no bar for an evaluation
+// of the training's size, which replaces it whatever its score, also after a resume, where the
+// manifest says how many episodes the best had. Before, a resumed Jetbot run held a 100-episode
+// 98 % as the bar its 400-episode evaluations had to beat.
+struct Keeper {
+  farm::config::ExperimentConfig cfg;
+  farm::robots::TaskSpec spec;
+  farm::EventLog events;
+  std::string dir, snapshot;
+  std::unique_ptr<farm::Checkpointer> keeper;
+  Keeper(const fs::path& root, const std::string& name) : dir((root / name).string()), snapshot(dir + "/snapshot") {
+    cfg.set_experiment_id("ckpt");
+    cfg.mutable_eval()->set_episodes(400);
+    cfg.mutable_eval()->set_final_episodes(100);
+    fs::create_directories(snapshot);
+    events.open(dir + "/events.jsonl");
+    keeper = std::make_unique<farm::Checkpointer>(cfg, spec, dir, events, [](const std::string&) {});
+  }
+  void offer(int episodes, double mean, uint64_t version) {
+    std::ofstream(snapshot + "/part.bin") << "v" << version;
+    keeper->offer(report(episodes, mean), version, int64_t(version), 1.0, &snapshot, [&] {
+      farm::config::CheckpointManifest m = manifest(version);
+      m.set_best_eval_return(keeper->best());
+      m.set_best_eval_measure(keeper->measure());
+      m.set_best_eval_episodes(keeper->best_episodes());
+      return m;
+    });
+  }
+};
+
+farm::config::CheckpointManifest with_best(double score, int64_t episodes) {
+  farm::config::CheckpointManifest m = manifest(7);
+  m.set_best_eval_return(score);
+  m.set_best_eval_measure("return");
+  if (episodes >= 0) m.set_best_eval_episodes(episodes);
+  return m;
+}
+
+TEST(Checkpointer, AnEvaluationOfTheTrainingsSizeReplacesABestOfFewerEpisodes) {
+  TempDir t;
+  Keeper k(t.path, "run");
+  k.offer(100, 0.98, 0);  // the only one yet: kept
+  EXPECT_EQ(k.keeper->best_episodes(), 100);
+  k.offer(400, 0.90, 1);  // lower, on the training's 400 episodes: replaces it
+  EXPECT_DOUBLE_EQ(k.keeper->best(), 0.90);
+  EXPECT_EQ(part(k.keeper->best_dir()), "v1");
+  EXPECT_EQ(farm::read_manifest(k.keeper->best_dir(), "ckpt").best_eval_episodes(), 400);
+  k.offer(400, 0.85, 2);  // now the bar is of the same size: a lower one is not kept
+  EXPECT_EQ(part(k.keeper->best_dir()), "v1");
+
+  std::ifstream in(k.dir + "/events.jsonl");
+  std::vector<int> kept_episodes;
+  for (std::string line; std::getline(in, line);) {
+    const auto e = nlohmann::json::parse(line);
+    if (e["event"] == "best") kept_episodes.push_back(e["episodes"]);
+  }
+  EXPECT_EQ(kept_episodes, (std::vector<int>{100, 400}));
+
+  // After a resume: the manifest's best of 100 episodes gives way to a 400-episode evaluation ...
+  Keeper small(t.path, "small");
+  small.keeper->resume(with_best(0.98, 100));
+  small.offer(400, 0.90, 8);
+  EXPECT_DOUBLE_EQ(small.keeper->best(), 0.90);
+  // ... one of 400 does not, nor one whose manifest does not say (an older learner's).
+  Keeper same(t.path, "same");
+  same.keeper->resume(with_best(0.98, 400));
+  same.offer(400, 0.90, 8);
+  EXPECT_DOUBLE_EQ(same.keeper->best(), 0.98);
+  Keeper older(t.path, "older");
+  older.keeper->resume(with_best(0.98, -1));
+  EXPECT_EQ(older.keeper->best_episodes(), -1);
+  older.offer(400, 0.90, 8);
+  EXPECT_DOUBLE_EQ(older.keeper->best(), 0.98);
 }
 
 }  // namespace
