@@ -142,6 +142,13 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     if (why.empty() && back == retired_.end() && seq > kMaxSequenceJump)
       why = "sequence number " + std::to_string(seq) + " opens a stream of " + b.worker_id() + " more than " +
             std::to_string(kMaxSequenceJump) + " past its start";
+    // A retired stream that comes back is held to the bound an open one is held to, from where it
+    // stopped, so no forged number restores it with a loss near 2^64.
+    if (why.empty() && back != retired_.end() && seq >= back->second.next_sequence &&
+        seq - back->second.next_sequence > kMaxSequenceJump)
+      why = "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(kMaxSequenceJump) +
+            " past " + std::to_string(back->second.next_sequence) + ", the next expected from " + b.worker_id() +
+            "'s retired stream";
     if (why.empty() && back != retired_.end() && !back->second.writer.empty() && !writer.empty() &&
         back->second.writer != writer)
       why = "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";

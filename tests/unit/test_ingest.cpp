@@ -227,6 +227,32 @@ TEST_F(Fixture, SessionsPerWorkerAreBoundedAndARetiredStreamContinues) {
   EXPECT_EQ(ingest.counters().lost, 0u);
 }
 
+// A retired stream that comes back is held to the same bound on its sequence as an open one: a
+// forged number near 2^64 under a retired session is refused, restores nothing and books no loss.
+TEST_F(Fixture, AbsurdSequenceJumpOnARetiredStreamIsRefused) {
+  double now = 0;
+  const auto at = [&](uint64_t session, uint64_t seq) {
+    auto b = make_batch(seq);
+    b.worker_session(session);
+    return ingest.accept(b, 5, now += 1, out, eps);
+  };
+  for (uint64_t s = 1; s <= Ingest::kMaxSessionsPerWorker + 1; ++s) EXPECT_EQ(at(s, 0), "");
+  ASSERT_EQ(ingest.retired(), 1u);
+  ASSERT_EQ(ingest.workers().count({"w1", 1}), 0u);
+  for (uint64_t seq : {uint64_t(1) << 63, UINT64_MAX, uint64_t(2) + Ingest::kMaxSequenceJump}) {
+    const std::string why = at(1, seq);
+    EXPECT_NE(why.find("jumps more than"), std::string::npos) << seq << ": " << why;
+  }
+  EXPECT_EQ(ingest.workers().count({"w1", 1}), 0u) << "a refused batch restored the retired stream";
+  EXPECT_EQ(ingest.retired_accounts().size(), 1u);
+  EXPECT_EQ(ingest.counters().lost, 0u);
+  EXPECT_EQ(ingest.counters().invalid, 3u);
+  // Its real next batch still brings it back, and a gap within the bound is plain loss.
+  EXPECT_EQ(at(1, 1 + Ingest::kMaxSequenceJump), "");
+  EXPECT_EQ(ingest.workers().at({"w1", 1}).lost, Ingest::kMaxSequenceJump);
+  EXPECT_EQ(ingest.workers().at({"w1", 1}).received, 2u);
+}
+
 // Accounts idle for the expiry are retired, counted; one seen since stays.
 TEST_F(Fixture, IdleAccountsExpire) {
   auto b = make_batch(0);
