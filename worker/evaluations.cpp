@@ -18,9 +18,12 @@ Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log 
             while (decltype(in_)::take_from(r, in.request, info)) {
               if (in.request.worker_id() != worker_id_) continue;
               in.participant = farm::dds::participant_key(info.sample_identity.writer_guid());
+              // The joined learner's requests have a queue of their own: no other participant's,
+              // however many, pushes one of them out before poll() sees it.
               std::lock_guard<std::mutex> lk(in_mu_);
-              if (in_q_.size() >= kMaxQueue) in_q_.pop_front();
-              in_q_.push_back(std::move(in));
+              auto& q = !learner_.empty() && in.participant == learner_ ? in_q_ : others_q_;
+              if (q.size() >= kMaxQueue) q.pop_front();
+              q.push_back(std::move(in));
             }
           }),
       out_(bus, farm::dds::kEvalAnswerTopic, "batch_writer") {}
@@ -30,14 +33,19 @@ Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log 
 // evaluation thread; a bad one is answered with what was wrong (the learner counts it invalid).
 bool Evaluations::arrived() {
   std::lock_guard<std::mutex> lk(in_mu_);
-  return !in_q_.empty();
+  return !in_q_.empty() || !others_q_.empty();
 }
 
 void Evaluations::poll(const Joined& joined) {
   std::deque<In> got;
   {
+    // The learner's first, then the others' (checked below against the learner joined now, which
+    // may have changed since they were queued).
     std::lock_guard<std::mutex> lk(in_mu_);
     got.swap(in_q_);
+    for (auto& in : others_q_) got.push_back(std::move(in));
+    others_q_.clear();
+    learner_ = joined.task ? joined.learner : std::string();
   }
   for (auto& [q, from] : got) {
     if (!joined.task || q.experiment_id() != joined.experiment) continue;  // not (yet) this worker's experiment

@@ -1,5 +1,6 @@
 // The worker's evaluations: the learner's EvaluationRequests addressed to this worker are kept as
-// they arrive (a queue of a few), checked on the collect loop against the joined experiment and
+// they arrive (a queue of a few, apart from other participants' so that no flood of theirs pushes
+// the learner's out), checked on the collect loop against the joined experiment and
 // learner (another participant's are not run, nor answered), and
 // run one at a time by a thread of their own on evaluation envs apart from the training ones, so
 // batches keep flowing meanwhile; each is answered with its episodes or with what was wrong.
@@ -67,7 +68,9 @@ class Evaluations {
     farm::msg::EvaluationRequest request;
     std::string participant;  // of its writer
   };
-  std::deque<In> in_q_;        // addressed to this worker; bounded: kMaxQueue
+  std::string learner_;        // the joined learner's participant, as of the last poll()
+  std::deque<In> in_q_;        // from learner_, addressed to this worker; bounded: kMaxQueue
+  std::deque<In> others_q_;    // from any other participant (or before a join); bounded: kMaxQueue
   uint64_t not_learners_ = 0;  // requests from another participant than the joined learner's
   OncePer not_learners_note_{std::chrono::seconds(10)};
   farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> in_;
