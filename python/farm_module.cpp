@@ -7,8 +7,10 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
+#include <nlohmann/json.hpp>
 
 #include <atomic>
+#include <cmath>
 #include <condition_variable>
 #include <filesystem>
 #include <fstream>
@@ -129,6 +131,11 @@ class VecEnvPy {
       if (actions.ndim() != 2 || actions.shape(0) != n || actions.shape(1) != act_dim()) throw bad(got);
       if (!actions.dtype().is(py::dtype::of<float>())) throw bad(got);
       auto a = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(actions);
+      for (size_t i = 0; i < size_t(n) * act_dim(); ++i)
+        if (!std::isfinite(a.data()[i]))
+          throw py::value_error("actions: entry " + std::to_string(i / act_dim()) + ", " +
+                                std::to_string(i % act_dim()) + " is " + std::to_string(a.data()[i]) +
+                                ", not a finite number");
       std::copy(a.data(), a.data() + size_t(n) * act_dim(), actions_.begin());
     }
     py::gil_scoped_release nogil;
@@ -279,8 +286,15 @@ class PolicyPy {
                             std::to_string(obs_dim()) + ")");
     const int rows = single ? 1 : int(obs.shape(0));
     std::vector<float> out(size_t(rows) * act_dim());
+    for (py::ssize_t i = 0; i < obs.size(); ++i)
+      if (!std::isfinite(obs.data()[i]))
+        throw py::value_error("observation: entry " + std::to_string(i / obs_dim()) + ", " +
+                              std::to_string(i % obs_dim()) + " is " + std::to_string(obs.data()[i]) +
+                              ", not a finite number");
     {
       py::gil_scoped_release nogil;
+      // The policy's scratch buffers are its own: one call at a time, from whichever thread.
+      std::lock_guard<std::mutex> lk(mu_);
       policy_.act(obs.data(), rows, rng_, true, out.data(), nullptr);
     }
     if (num_actions() > 0) {
@@ -305,6 +319,7 @@ class PolicyPy {
     d["log_std"] = params_.log_std;
     d["log_std_min"] = params_.log_std_min;
     d["log_std_max"] = params_.log_std_max;
+    d["epsilon"] = params_.epsilon;
     return d;
   }
 
@@ -312,7 +327,29 @@ class PolicyPy {
   farm::PolicyParams params_;
   farm::Policy policy_;
   std::mt19937_64 rng_;
+  std::mutex mu_;  // act(): policy_'s scratch buffers and rng_
 };
+
+// protobuf's JSON printer writes 64-bit integers as strings (JavaScript's numbers hold 53 bits);
+// Python's ints hold them all, so they become numbers again, in nested messages too.
+void int64_as_numbers(const google::protobuf::Descriptor* d, nlohmann::json& j) {
+  using FD = google::protobuf::FieldDescriptor;
+  for (int i = 0; i < d->field_count(); ++i) {
+    const FD* f = d->field(i);
+    auto it = j.find(f->name());
+    if (it == j.end() || f->is_map()) continue;
+    const auto fix = [&](nlohmann::json& v) {
+      if (f->cpp_type() == FD::CPPTYPE_INT64 && v.is_string()) v = std::stoll(v.get<std::string>());
+      if (f->cpp_type() == FD::CPPTYPE_UINT64 && v.is_string()) v = std::stoull(v.get<std::string>());
+      if (f->cpp_type() == FD::CPPTYPE_MESSAGE && v.is_object()) int64_as_numbers(f->message_type(), v);
+    };
+    if (it->is_array()) {
+      for (auto& v : *it) fix(v);
+    } else {
+      fix(*it);
+    }
+  }
+}
 
 std::string manifest_json(const std::string& path) {
   std::ifstream in(path);
@@ -326,7 +363,9 @@ std::string manifest_json(const std::string& path) {
   google::protobuf::util::JsonPrintOptions o;
   o.preserve_proto_field_names = true;
   google::protobuf::util::MessageToJsonString(m, &json, o);
-  return json;
+  nlohmann::json j = nlohmann::json::parse(json);
+  int64_as_numbers(m.GetDescriptor(), j);
+  return j.dump();
 }
 
 }  // namespace

@@ -11,10 +11,12 @@
 #include <cstdio>
 #include <map>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
 #include "config.h"
+#include "config_validator.h"
 #include "dds.h"
 #include "eval_answer.h"
 #include "events.h"
@@ -149,7 +151,8 @@ class LearnerBus {
 
   // Publishes a policy in the workers' layout: version (> the last), sizes, activation (0 relu,
   // 1 tanh, 2 elu), head (0 squashed Gaussian, 1 Gaussian, 2 discrete Q), flat params (per layer
-  // weight [out x in] then bias), and optionally obs_mean/obs_std, log_std.
+  // weight [out x in] then bias), and optionally obs_mean/obs_std, log_std, log_std_min/max and
+  // epsilon (a discrete Q head's exploration probability on the workers). Any other key is refused.
   void publish(const py::dict& p) {
     const farm::PolicyParams pp = params_of(p);
     if (pp.version <= version_)
@@ -165,6 +168,16 @@ class LearnerBus {
  private:
   // A policy dict (publish()) as the workers' PolicyParams, checked as a worker checks one.
   farm::PolicyParams params_of(const py::dict& p) const {
+    static const std::set<std::string> known = {"version",     "sizes",       "activation", "head",
+                                                "params",      "obs_mean",    "obs_std",    "log_std",
+                                                "log_std_min", "log_std_max", "epsilon"};
+    for (const auto& item : p) {
+      const std::string key = py::str(item.first);
+      if (!known.count(key))
+        throw py::value_error("policy: unknown key '" + key +
+                              "' (known: version, sizes, activation, head, params, obs_mean, obs_std, log_std, "
+                              "log_std_min, log_std_max, epsilon)");
+    }
     farm::PolicyParams pp;
     pp.version = p["version"].cast<uint64_t>();
     pp.layout.sizes = p["sizes"].cast<std::vector<int>>();
@@ -174,6 +187,9 @@ class LearnerBus {
     if (p.contains("obs_mean")) pp.obs_mean = p["obs_mean"].cast<std::vector<float>>();
     if (p.contains("obs_std")) pp.obs_std = p["obs_std"].cast<std::vector<float>>();
     if (p.contains("log_std")) pp.log_std = p["log_std"].cast<std::vector<float>>();
+    if (p.contains("log_std_min")) pp.log_std_min = p["log_std_min"].cast<float>();
+    if (p.contains("log_std_max")) pp.log_std_max = p["log_std_max"].cast<float>();
+    if (p.contains("epsilon")) pp.epsilon = p["epsilon"].cast<float>();  // a DQN policy's exploration
     try {
       farm::Policy check(pp);  // the workers' own consistency checks, before it goes out
       if (check.obs_dim() != task_.obs_dim || check.act_dim() != task_.act_dim)
@@ -312,9 +328,12 @@ class LearnerBus {
         got = true;
       }
     }
-    if (!got)
-      throw py::value_error("evaluation " + std::to_string(q.request_id()) + " of worker '" + worker_id +
-                            "' not answered within " + std::to_string(timeout) + " s");
+    if (!got) {
+      const std::string msg = "evaluation " + std::to_string(q.request_id()) + " of worker '" + worker_id +
+                              "' not answered within " + farm::config_checks::num(timeout) + " s";
+      PyErr_SetString(PyExc_TimeoutError, msg.c_str());
+      throw py::error_already_set();
+    }
     if (!why.empty()) throw std::runtime_error("evaluation " + std::to_string(q.request_id()) + " refused: " + why);
     std::vector<float> returns;
     std::vector<int> lengths;

@@ -15,16 +15,26 @@ ACTIVATIONS = {nn.ReLU: 0, nn.Tanh: 1, nn.ELU: 2}
 HEADS = {"squashed_gaussian": 0, "gaussian": 1, "discrete_q": 2}
 
 
-def policy_params(net, version, head="squashed_gaussian", log_std=None, obs_mean=None, obs_std=None):
+def policy_params(net, version, head="squashed_gaussian", log_std=None, obs_mean=None, obs_std=None,
+                  epsilon=None):
     """The workers' layout of ``net``: Linear, activation, Linear, ..., Linear (one activation kind,
-    none after the last layer). Raises ValueError naming the layer that does not fit."""
+    none after the last layer, every Linear with its bias). Raises ValueError naming the layer that
+    does not fit. ``epsilon``: for the "discrete_q" head, the probability in [0, 1] with which the
+    workers take a uniformly random action while they collect (DQN's exploration; 0 by default)."""
     if head not in HEADS:
         raise ValueError("head: expected one of %s, got %r" % (sorted(HEADS), head))
+    if (obs_mean is None) != (obs_std is None):
+        raise ValueError("obs_mean and obs_std: give both or neither")
+    if epsilon is not None and head != "discrete_q":
+        raise ValueError("epsilon: only for the discrete_q head, not %r" % head)
     layers = list(net)
     linears, acts = layers[0::2], layers[1::2]
     for i, layer in enumerate(linears):
         if not isinstance(layer, nn.Linear):
             raise ValueError("layer %d: expected nn.Linear, got %s" % (2 * i, type(layer).__name__))
+        if layer.bias is None:
+            raise ValueError("layer %d: an nn.Linear without bias; the workers' layout has one on every layer"
+                             % (2 * i))
     kinds = {type(a) for a in acts}
     if len(linears) != len(acts) + 1 or len(kinds) > 1 or not kinds <= set(ACTIVATIONS):
         raise ValueError("expected Linear layers with one activation of %s between them, got %s" % (
@@ -42,6 +52,8 @@ def policy_params(net, version, head="squashed_gaussian", log_std=None, obs_mean
     if obs_mean is not None:
         p["obs_mean"] = [float(x) for x in np.asarray(obs_mean).reshape(-1)]
         p["obs_std"] = [float(x) for x in np.asarray(obs_std).reshape(-1)]
+    if epsilon is not None:
+        p["epsilon"] = float(epsilon)
     return p
 
 

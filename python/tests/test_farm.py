@@ -138,6 +138,10 @@ def test_wrong_actions_raise_value_errors_naming_the_shape():
         disc.step(np.zeros((2,), np.float32))
     with pytest.raises(ValueError, match="outside"):
         disc.step(np.array([0, n], np.int64))
+    bad = np.zeros((4, 1), np.float32)
+    bad[2, 0] = np.nan
+    with pytest.raises(ValueError, match="actions: entry 2, 0 is nan, not a finite number"):
+        env.step(bad)
 
 
 def test_bad_config_names_it():
@@ -234,6 +238,11 @@ def test_policy_matches_the_workers_computation(checkpoints, algo):
     assert np.max(np.abs(policy(recorded[3]) - ours[3])) < 1e-6
     with pytest.raises(ValueError, match=r"\(%d,\)" % policy.obs_dim):
         policy(np.zeros(policy.obs_dim + 1, np.float32))
+    bad = recorded[:3].copy()
+    bad[1, 0] = np.inf
+    with pytest.raises(ValueError, match="observation: entry 1, 0 is inf, not a finite number"):
+        policy(bad)
+    assert "epsilon" in policy.params()
 
 
 def test_run_folder(run_folder, tmp_path):
@@ -243,7 +252,8 @@ def test_run_folder(run_folder, tmp_path):
     assert [e["event"] for e in r.events()] == ["start", "summary"]
     assert r.summary()["batches_lost"] == 0
     m = r.manifest("checkpoint")
-    assert m["experiment_id"] == "it_compat_sac" and int(m["policy_version"]) > 0
+    assert m["experiment_id"] == "it_compat_sac" and m["policy_version"] > 0  # 64-bit counts are ints
+    assert isinstance(m["env_steps"], int) and isinstance(m["policy_version"], int)
     assert r.policy("checkpoint").obs_dim == 3
     with pytest.raises(FileNotFoundError, match="no run folder"):
         farm.read_run(tmp_path / "missing")
