@@ -39,6 +39,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             Ingest in(cfg_.experiment_id(), task_spec_.obs_dim, task_spec_.act_dim,
                       int(task_spec_.metric_names.size()));
             in.set_num_actions(task_spec_.num_actions);
+            in.set_reward_bound(task_spec_.reward_bound);
             return in;
           }(),
           static_cast<uint32_t>(std::min<uint64_t>(

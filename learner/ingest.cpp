@@ -1,6 +1,7 @@
 #include "ingest.h"
 
 #include "config.h"
+#include "config_validator.h"
 
 #include <algorithm>
 #include <cmath>
@@ -14,6 +15,18 @@ namespace {
 std::string all_finite(const std::vector<float>& v, const char* name) {
   for (size_t i = 0; i < v.size(); ++i) {
     if (!std::isfinite(v[i])) return std::string("non-finite value in ") + name + " at index " + std::to_string(i);
+  }
+  return "";
+}
+
+// "" when every |value| is at most bound (`what` says whose bound it is). The float a worker sends
+// may round a value at the bound, computed in double, up by a part in 10^7: 1e-6 of slack.
+std::string all_within(const std::vector<float>& v, double bound, const char* name, const char* what) {
+  const double most = bound * (1 + 1e-6);
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (std::fabs(double(v[i])) > most)
+      return std::string(name) + " at index " + std::to_string(i) + " is " + config_checks::num(v[i]) + ", beyond +-" +
+             config_checks::num(bound) + ", " + what;
   }
   return "";
 }
@@ -57,6 +70,15 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
                  all_finite(b.rewards(), "rewards"), all_finite(b.log_probs(), "log_probs"),
                  all_finite(b.next_observations(), "next_observations"),
                  all_finite(b.final_observations(), "final_observations")}) {
+    if (!r.empty()) return r;
+  }
+  const char* most = "more than any task's";
+  const bool declared = reward_bound_ < kMaxMagnitude;
+  for (auto r : {all_within(b.observations(), kMaxMagnitude, "observations", most),
+                 all_within(b.rewards(), declared ? reward_bound_ : kMaxMagnitude, "rewards",
+                            declared ? "the task's bound on one step's reward" : most),
+                 all_within(b.next_observations(), kMaxMagnitude, "next_observations", most),
+                 all_within(b.final_observations(), kMaxMagnitude, "final_observations", most)}) {
     if (!r.empty()) return r;
   }
   for (float a : b.actions()) {

@@ -3,6 +3,7 @@
 // A bad batch is counted with its reason and never reaches a buffer.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <map>
@@ -123,6 +124,14 @@ class Ingest {
   // Discrete actions (n > 0): each action must be an index in [0, n) instead of a value in
   // [-1, 1].
   void set_num_actions(int n) { num_actions_ = n; }
+  // The task's bound on |reward| of one step (TaskSpec::reward_bound; infinite: not declared): a
+  // batch with a reward beyond it is refused.
+  void set_reward_bound(double bound) { reward_bound_ = bound; }
+
+  // No task observes or is rewarded beyond this magnitude: a batch with an observation or reward
+  // beyond it is refused. Squared (a critic's or a value's error), it stays a float32, so one
+  // finite but absurd number from the network cannot make a loss infinite and end the run.
+  static constexpr double kMaxMagnitude = 1e9;
 
  private:
   // check() plus the policy version against the learner's latest; "" when valid.
@@ -131,6 +140,7 @@ class Ingest {
   std::string experiment_id_;
   int obs_dim_, act_dim_, num_metrics_;
   int num_actions_ = 0;
+  double reward_bound_ = HUGE_VAL;
   IngestCounters counters_;
   // Moves an open account to retired_ (bounded, oldest out first).
   void retire(std::map<Key, WorkerAccount>::iterator it);

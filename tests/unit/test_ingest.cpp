@@ -147,6 +147,33 @@ TEST_F(Fixture, PolicyVersionFromTheFutureIsRefusedAndItsNumberUsed) {
   EXPECT_EQ(ingest.counters().lost, 0u);
 }
 
+// Finite but absurd numbers from the network are refused before they train: an observation or
+// reward beyond any task's magnitude (squared in a loss it would overflow float32 and end the run),
+// and a reward beyond the task's own bound on one step where the task declares one.
+TEST_F(Fixture, AbsurdObservationsAndRewardsAreRefused) {
+  auto obs = make_batch(0);
+  auto o = obs.observations();
+  o[3] = 3e38f;
+  obs.observations(o);
+  EXPECT_NE(take(obs).find("observations at index 3 is 3e+38, beyond +-1e+09"), std::string::npos) << take(obs);
+  auto fin = make_batch(0);
+  fin.final_observations({99.f, -2e9f});
+  EXPECT_NE(take(fin).find("final_observations at index 1"), std::string::npos);
+  auto huge = make_batch(0);
+  huge.rewards({1, 2, 3e30f, 4, 5, 6});
+  EXPECT_NE(take(huge).find("rewards at index 2"), std::string::npos);
+  EXPECT_EQ(ingest.counters().ok, 0u);
+  EXPECT_TRUE(out.rewards.empty());
+  // With the task's bound of 5 a step, the batch's reward of 6 is refused, and 5 is taken.
+  ingest.set_reward_bound(5);
+  const std::string why = take(make_batch(0));
+  EXPECT_NE(why.find("rewards at index 5 is 6, beyond +-5, the task's bound"), std::string::npos) << why;
+  auto within = make_batch(0);
+  within.rewards({1, 2, 3, 4, 5, -5});
+  EXPECT_EQ(take(within), "");
+  EXPECT_EQ(ingest.counters().ok, 1u);
+}
+
 // A stream's first batch is checked before an account is opened: a refused one opens none (its
 // number, if the stream is real, shows as lost when the next batch arrives).
 TEST_F(Fixture, RefusedFirstBatchOpensNoAccount) {

@@ -542,6 +542,20 @@ TEST(Ppo, ProximalSurrogateLearnsFromStaleStepsTheBehaviourOneClipsAway) {
   EXPECT_GT(bc.kl, 0.0);
 }
 
+// One step whose behaviour log-probability is finite but absurd (-1e30, as a hostile batch may
+// carry it), its advantage negative: its ratio is clamped before exp, so the fit's loss and the
+// networks stay finite (before, the loss was infinite and the run ended as diverged).
+TEST(Ppo, AnAbsurdBehaviourLogProbabilityLeavesTheFitFinite) {
+  Ppo ppo(surrogate_config("behaviour"), 1, 1, 3);
+  PpoSamples s = stale_steps_past_the_clip(ppo, 512, 0);
+  s.behaviour_log_prob[7] = -1e30f;
+  s.advantages[7] = -1.f;
+  const PpoStats st = ppo.fit(s);
+  EXPECT_TRUE(std::isfinite(st.policy_loss)) << st.policy_loss;
+  EXPECT_TRUE(std::isfinite(st.kl)) << st.kl;
+  for (float v : ppo.export_policy(1).params) ASSERT_TRUE(std::isfinite(v));
+}
+
 // The warm-up (run on a GPU before a run starts) fits a copy of its own, seeded as the run's
 // networks are: the run after it draws the mini-batch orders it would have drawn without it, and
 // the copy's fit went through the asynchronous path (steps of three versions, V-trace).

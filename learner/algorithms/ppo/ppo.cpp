@@ -15,6 +15,8 @@ namespace farm {
 namespace {
 
 constexpr double kHalfLog2Pi = 0.91893853320467274178;
+// The most |log pi - log pi_old| a step's ratio is taken at (e^20: about 5e8).
+constexpr double kMaxLogRatio = 20.0;
 
 struct MlpImpl : torch::nn::Module {
   MlpImpl(const std::vector<int64_t>& sizes, Activation hidden_activation, double last_gain)
@@ -204,7 +206,10 @@ PpoStats Ppo::fit(const PpoSamples& d) {
       const auto mean = s.actor->forward(x);
       const auto ls = s.clamped_log_std();
       const auto lp = Impl::log_prob(mean, ls, a);
-      const auto ratio = torch::exp(lp - old_lp.index_select(0, idx));
+      // The log-ratio clamped before exp: a behaviour log-probability from a batch is finite but may
+      // be absurd (-1e30), and exp of it would make the loss infinite. No step of a working run
+      // comes near e^20, so nothing else changes.
+      const auto ratio = torch::exp(torch::clamp(lp - old_lp.index_select(0, idx), -kMaxLogRatio, kMaxLogRatio));
       const auto ad = adv.index_select(0, idx);
       auto surr = torch::min(ratio * ad, torch::clamp(ratio, 1 - eps, 1 + eps) * ad);
       if (weight.defined()) surr = surr * weight.index_select(0, idx);
