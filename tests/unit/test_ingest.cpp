@@ -58,6 +58,13 @@ struct Fixture : ::testing::Test {
   Transitions out;
   std::vector<FinishedEpisode> eps;
   std::string take(const farm::msg::TransitionBatch& b) { return ingest.accept(b, 5, 0.0, out, eps); }
+  // The batch of sequence number seq of session `session`, one second after the one before.
+  double now = 0;
+  std::string at(uint64_t session, uint64_t seq) {
+    auto b = make_batch(seq);
+    b.worker_session(session);
+    return ingest.accept(b, 5, now += 1, out, eps);
+  }
 };
 
 }  // namespace
@@ -237,12 +244,6 @@ TEST_F(Fixture, InventedSessionsAreBoundedAndLockNoWorkerOut) {
 // id's least recently seen one, and a retired stream that comes back continues its own account
 // (no loss counted for the batches it sent before).
 TEST_F(Fixture, SessionsPerWorkerAreBoundedAndARetiredStreamContinues) {
-  double now = 0;
-  const auto at = [&](uint64_t session, uint64_t seq) {
-    auto b = make_batch(seq);
-    b.worker_session(session);
-    return ingest.accept(b, 5, now += 1, out, eps);
-  };
   for (uint64_t s = 1; s <= Ingest::kMaxSessionsPerWorker; ++s) EXPECT_EQ(at(s, 0), "");
   EXPECT_EQ(at(1, 1), "");  // session 1 is now the most recently seen; 2 the least
   EXPECT_EQ(at(99, 0), "");
@@ -257,12 +258,6 @@ TEST_F(Fixture, SessionsPerWorkerAreBoundedAndARetiredStreamContinues) {
 // A retired stream that comes back is held to the same bound on its sequence as an open one: a
 // forged number near 2^64 under a retired session is refused, restores nothing and books no loss.
 TEST_F(Fixture, AbsurdSequenceJumpOnARetiredStreamIsRefused) {
-  double now = 0;
-  const auto at = [&](uint64_t session, uint64_t seq) {
-    auto b = make_batch(seq);
-    b.worker_session(session);
-    return ingest.accept(b, 5, now += 1, out, eps);
-  };
   for (uint64_t s = 1; s <= Ingest::kMaxSessionsPerWorker + 1; ++s) EXPECT_EQ(at(s, 0), "");
   ASSERT_EQ(ingest.retired(), 1u);
   ASSERT_EQ(ingest.workers().count({"w1", 1}), 0u);
