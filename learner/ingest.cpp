@@ -19,16 +19,26 @@ std::string all_finite(const std::vector<float>& v, const char* name) {
   return "";
 }
 
-// "" when every |value| is at most bound (`what` says whose bound it is). The float a worker sends
-// may round a value at the bound, computed in double, up by a part in 10^7: 1e-6 of slack.
+// all_finite and, in the same pass, every |value| at most bound (`what` says whose bound it is).
+// The float a worker sends may round a value at the bound, computed in double, up by a part in
+// 10^7: 1e-6 of slack.
 std::string all_within(const std::vector<float>& v, double bound, const char* name, const char* what) {
   const double most = bound * (1 + 1e-6);
   for (size_t i = 0; i < v.size(); ++i) {
-    if (std::fabs(double(v[i])) > most)
-      return std::string(name) + " at index " + std::to_string(i) + " is " + config_checks::num(v[i]) + ", beyond +-" +
-             config_checks::num(bound) + ", " + what;
+    if (std::fabs(double(v[i])) <= most) continue;
+    if (!std::isfinite(v[i])) return std::string("non-finite value in ") + name + " at index " + std::to_string(i);
+    return std::string(name) + " at index " + std::to_string(i) + " is " + config_checks::num(v[i]) + ", beyond +-" +
+           config_checks::num(bound) + ", " + what;
   }
   return "";
+}
+
+// Why seq is refused on a stream whose next expected number is `next`: no worker skips more than
+// kMaxSequenceJump, so a number further on is forged or corrupted. "" when within.
+std::string too_far(uint64_t seq, uint64_t next, const std::string& worker_id) {
+  if (seq < next || seq - next <= Ingest::kMaxSequenceJump) return "";
+  return "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(Ingest::kMaxSequenceJump) +
+         " past " + std::to_string(next) + ", the next expected from " + worker_id;
 }
 
 std::string size_is(size_t got, size_t want, const char* name) {
@@ -66,17 +76,12 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
         size_is(b.final_observations().size(), b.final_index().size() * od, "final_observations")}) {
     if (!r.empty()) return r;
   }
-  for (auto r : {all_finite(b.observations(), "observations"), all_finite(b.actions(), "actions"),
-                 all_finite(b.rewards(), "rewards"), all_finite(b.log_probs(), "log_probs"),
-                 all_finite(b.next_observations(), "next_observations"),
-                 all_finite(b.final_observations(), "final_observations")}) {
-    if (!r.empty()) return r;
-  }
   const char* most = "more than any task's";
   const bool declared = reward_bound_ < kMaxMagnitude;
-  for (auto r : {all_within(b.observations(), kMaxMagnitude, "observations", most),
+  for (auto r : {all_within(b.observations(), kMaxMagnitude, "observations", most), all_finite(b.actions(), "actions"),
                  all_within(b.rewards(), declared ? reward_bound_ : kMaxMagnitude, "rewards",
                             declared ? "the task's bound on one step's reward" : most),
+                 all_finite(b.log_probs(), "log_probs"),
                  all_within(b.next_observations(), kMaxMagnitude, "next_observations", most),
                  all_within(b.final_observations(), kMaxMagnitude, "final_observations", most)}) {
     if (!r.empty()) return r;
@@ -166,11 +171,7 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
             std::to_string(kMaxSequenceJump) + " past its start";
     // A retired stream that comes back is held to the bound an open one is held to, from where it
     // stopped, so no forged number restores it with a loss near 2^64.
-    if (why.empty() && back != retired_.end() && seq >= back->second.next_sequence &&
-        seq - back->second.next_sequence > kMaxSequenceJump)
-      why = "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(kMaxSequenceJump) +
-            " past " + std::to_string(back->second.next_sequence) + ", the next expected from " + b.worker_id() +
-            "'s retired stream";
+    if (why.empty() && back != retired_.end()) why = too_far(seq, back->second.next_sequence, b.worker_id());
     if (why.empty() && back != retired_.end() && !back->second.writer.empty() && !writer.empty() &&
         back->second.writer != writer)
       why = "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
@@ -210,11 +211,10 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     // refused without moving the account, so it can neither fake losses nor skip the sequence.
     ++counters_.invalid;
     return "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
-  } else if (seq >= it->second.next_sequence && seq - it->second.next_sequence > kMaxSequenceJump) {
-    // No worker skips that far: forged or corrupted. Refused without moving the account.
+  } else if (std::string far = too_far(seq, it->second.next_sequence, b.worker_id()); !far.empty()) {
+    // Refused without moving the account.
     ++counters_.invalid;
-    return "sequence number " + std::to_string(seq) + " jumps more than " + std::to_string(kMaxSequenceJump) +
-           " past " + std::to_string(it->second.next_sequence) + ", the next expected from " + b.worker_id();
+    return far;
   }
   if (it->second.writer.empty()) it->second.writer = writer;
   WorkerAccount& w = it->second;
