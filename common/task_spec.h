@@ -25,6 +25,13 @@ struct TaskSpec {
   double reward_bound = HUGE_VAL;
 };
 
+// Whether an episode of `length` steps can have returned episode_return under a bound of
+// reward_bound a step. The float sum over the episode may round a little past length x bound: a
+// relative margin.
+inline bool return_within_bound(double episode_return, double length, double reward_bound) {
+  return std::abs(episode_return) <= length * reward_bound * (1 + 1e-4) + 1e-3;
+}
+
 // The spec of the task cfg names, from the config alone (no MuJoCo), as its robot's folder defines
 // it (robots/tasks.def, robots/task_specs.cpp): what robots::make_task(cfg) builds reports the same
 // spec() (tests/unit/test_task_conformance.cpp). Throws std::invalid_argument for a task it does

@@ -1,6 +1,8 @@
 // EvaluationAnswer checks and size bound (eval_answer.h).
 #include "eval_answer.h"
 
+#include "task_spec.h"
+
 #include <algorithm>
 #include <cmath>
 
@@ -33,9 +35,7 @@ std::string check_eval_answer(const farm::msg::EvaluationAnswer& a, const EvalEx
     if (!std::isfinite(ep.episode_return())) return at + "return is not finite";
     if (ep.length() < 1 || ep.length() > uint32_t(e.max_episode_steps))
       return at + "length " + std::to_string(ep.length()) + " outside 1.." + std::to_string(e.max_episode_steps);
-    // The bound's float sum over the episode may round a little past it: a relative margin.
-    const double most = double(ep.length()) * e.reward_bound;
-    if (std::abs(double(ep.episode_return())) > most * (1 + 1e-4) + 1e-3)
+    if (!robots::return_within_bound(ep.episode_return(), ep.length(), e.reward_bound))
       return at + "return " + std::to_string(ep.episode_return()) + " beyond what " + std::to_string(ep.length()) +
              " steps of this task can give (at most " + std::to_string(e.reward_bound) + " a step)";
     if (ep.metrics().size() != size_t(e.num_metrics))

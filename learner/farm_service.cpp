@@ -40,6 +40,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
                       int(task_spec_.metric_names.size()));
             in.set_num_actions(task_spec_.num_actions);
             in.set_reward_bound(task_spec_.reward_bound);
+            in.set_max_episode_steps(task_spec_.max_episode_steps);
             return in;
           }(),
           static_cast<uint32_t>(std::min<uint64_t>(

@@ -2,6 +2,7 @@
 
 #include "config.h"
 #include "config_validator.h"
+#include "task_spec.h"
 
 #include <algorithm>
 #include <cmath>
@@ -120,11 +121,20 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
     if (e.terminated() != bool(b.terminated()[end]))
       return which + ": terminated does not match the flag at step index " + std::to_string(end);
     if (e.length() == 0) return which + " has length 0";
-    if (!std::isfinite(e.episode_return())) return "non-finite episode return";
+    // The task's limits hold for training episodes as for evaluated ones (eval_answer.cpp): their
+    // returns are the run's mean return in the logs, learner.csv and the status.
+    if (max_episode_steps_ > 0 && e.length() > uint32_t(max_episode_steps_))
+      return which + " has length " + std::to_string(e.length()) + ", beyond the task's time limit of " +
+             std::to_string(max_episode_steps_) + " steps";
+    if (!std::isfinite(e.episode_return())) return which + " has a non-finite return";
+    if (!robots::return_within_bound(e.episode_return(), e.length(), reward_bound_))
+      return which + " returns " + config_checks::num(e.episode_return()) + ", beyond what " +
+             std::to_string(e.length()) + " steps can give at the task's bound of " +
+             config_checks::num(reward_bound_) + " a step";
     if (e.metrics().size() != size_t(num_metrics_))
       return which + " has " + std::to_string(e.metrics().size()) + " metrics, the task has " +
              std::to_string(num_metrics_);
-    if (auto r = all_finite(e.metrics(), "episode metrics"); !r.empty()) return which + ": " + r;
+    if (auto r = all_within(e.metrics(), kMaxMagnitude, "episode metrics", most); !r.empty()) return which + ": " + r;
   }
   return "";
 }

@@ -127,6 +127,9 @@ class Ingest {
   // The task's bound on |reward| of one step (TaskSpec::reward_bound; infinite: not declared): a
   // batch with a reward beyond it is refused.
   void set_reward_bound(double bound) { reward_bound_ = bound; }
+  // The task's time limit (TaskSpec::max_episode_steps; 0: none): an episode summary longer than it
+  // is refused.
+  void set_max_episode_steps(int steps) { max_episode_steps_ = steps; }
 
   // No task observes or is rewarded beyond this magnitude: a batch with an observation or reward
   // beyond it is refused. Squared (a critic's or a value's error), it stays a float32, so one
@@ -141,6 +144,7 @@ class Ingest {
   int obs_dim_, act_dim_, num_metrics_;
   int num_actions_ = 0;
   double reward_bound_ = HUGE_VAL;
+  int max_episode_steps_ = 0;
   IngestCounters counters_;
   // Moves an open account to retired_ (bounded, oldest out first).
   void retire(std::map<Key, WorkerAccount>::iterator it);

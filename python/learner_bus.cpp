@@ -68,6 +68,7 @@ class LearnerBus {
               farm::Ingest in(cfg_.experiment_id(), task_.obs_dim, task_.act_dim, int(task_.metric_names.size()));
               in.set_num_actions(task_.num_actions);
               in.set_reward_bound(task_.reward_bound);
+              in.set_max_episode_steps(task_.max_episode_steps);
               return in;
             }(),
             uint32_t(std::min<uint64_t>(

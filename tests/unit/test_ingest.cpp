@@ -572,3 +572,35 @@ TEST_F(Fixture, EpisodeSummariesMustMatchTheEpisodeEnds) {
   ASSERT_EQ(eps.size(), 1u);
   EXPECT_EQ(eps[0].metrics, (std::vector<float>{0.5f, 2.f}));
 }
+
+// A training episode is held to the task's limits as an evaluated one is: no longer than the time
+// limit, no return beyond length x the bound on one step's reward, no metric beyond any task's.
+// Before, a summary claiming a return of 1e30 was taken, and the run's mean return (logs,
+// learner.csv, the status) became that.
+TEST_F(Fixture, EpisodeSummariesAreHeldToTheTasksLimits) {
+  ingest.set_max_episode_steps(100);
+  EXPECT_EQ(take(make_batch(0)), "episode summary 0 has length 200, beyond the task's time limit of 100 steps");
+  ingest.set_max_episode_steps(200);
+  ingest.set_reward_bound(6);  // 200 steps: a return of at most 1200
+  auto absurd = make_batch(0);
+  absurd.episodes()[0].episode_return(1e30f);
+  EXPECT_EQ(take(absurd),
+            "episode summary 0 returns 1e+30, beyond what 200 steps can give at the task's bound of 6 a step");
+  auto over = make_batch(0);
+  over.episodes()[0].episode_return(-1201.f);
+  EXPECT_NE(take(over).find("beyond what 200 steps can give"), std::string::npos);
+  EXPECT_EQ(ingest.counters().ok, 0u);
+  EXPECT_TRUE(eps.empty());
+
+  Ingest with_metrics{"exp", kObs, kAct, 1};
+  auto far = make_batch(0);
+  far.episodes()[0].metrics({-3e20f});
+  EXPECT_NE(with_metrics.accept(far, 5, 0.0, out, eps).find("episode summary 0: episode metrics at index 0 is"),
+            std::string::npos);
+
+  auto at_bound = make_batch(0);
+  at_bound.episodes()[0].episode_return(-1200.f);
+  EXPECT_EQ(take(at_bound), "");
+  ASSERT_EQ(eps.size(), 1u);
+  EXPECT_FLOAT_EQ(eps[0].episode_return, -1200.f);
+}
