@@ -65,6 +65,8 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
   const size_t T = b.num_steps(), N = b.num_envs();
   if (T == 0 && !b.end_of_stream()) return "empty batch (0 steps) without end_of_stream";
   if (T > 0 && N == 0) return "0 environments";
+  if (N > size_t(kMaxEnvsPerWorker))
+    return std::to_string(N) + " environments, more than a worker runs (" + std::to_string(kMaxEnvsPerWorker) + ")";
   if (T * N > size_t(kMaxBatchTransitions))
     return "implausible batch size " + std::to_string(T) + "x" + std::to_string(N) + " (at most " +
            std::to_string(kMaxBatchTransitions) + " transitions)";
@@ -239,11 +241,15 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
       return "duplicate sequence number " + std::to_string(seq) + " from " + b.worker_id();
     }
     w.missing.erase(m);  // late, not lost after all
+    --missing_total_;
     --w.lost;
     --counters_.lost;
   } else {
-    // O(1) in the gap: only the first numbers of a gap are remembered as possibly late.
-    for (uint64_t s = w.next_sequence; s < seq && w.missing.size() < kMaxMissing; ++s) w.missing.push_back(s);
+    // O(1) in the gap: only the first numbers of a gap are remembered as possibly late, within the
+    // bound over all accounts.
+    for (uint64_t s = w.next_sequence; s < seq && w.missing.size() < kMaxMissing && missing_total_ < kMaxMissingTotal;
+         ++s, ++missing_total_)
+      w.missing.push_back(s);
     w.lost += seq - w.next_sequence;
     counters_.lost += seq - w.next_sequence;
     w.next_sequence = seq + 1;
@@ -327,6 +333,14 @@ void Ingest::restore(const std::map<Key, WorkerAccount>& open, const std::vector
     if (workers_.count(key) || !retired_.emplace(key, retired[i]).second) continue;
     retired_order_.push_back(key);
   }
+  // Held to the bound over all accounts, whatever the checkpoint holds.
+  missing_total_ = 0;
+  const auto within = [this](WorkerAccount& w) {
+    w.missing.resize(std::min(w.missing.size(), kMaxMissingTotal - missing_total_));
+    missing_total_ += w.missing.size();
+  };
+  for (auto& [_, w] : workers_) within(w);
+  for (const auto& key : retired_order_) within(retired_.at(key));
   counters_ = counters;
 }
 
@@ -335,7 +349,9 @@ void Ingest::retire(std::map<Key, WorkerAccount>::iterator it) {
   last_retired_ = it->first.first + "#" + std::to_string(it->first.second) + " (" +
                   std::to_string(it->second.received) + " batches)";
   while (retired_.size() >= kMaxRetired && !retired_order_.empty()) {
-    retired_.erase(retired_order_.front());
+    const auto oldest = retired_.find(retired_order_.front());
+    missing_total_ -= oldest->second.missing.size();
+    retired_.erase(oldest);
     retired_order_.pop_front();
   }
   retired_order_.push_back(it->first);

@@ -78,6 +78,8 @@ class Ingest {
   const std::map<Key, WorkerAccount>& retired_accounts() const { return retired_; }
   // Their keys, oldest retired first.
   const std::deque<Key>& retired_order() const { return retired_order_; }
+  // Gap numbers remembered over all accounts (at most kMaxMissingTotal).
+  size_t missing_total() const { return missing_total_; }
   // Restores accounting from a checkpoint (ingest_accounts.h), so batches sent while the learner
   // was away count as lost: the open streams, and the retired ones, oldest first (at most
   // kMaxAccounts and the last kMaxRetired of them).
@@ -102,6 +104,10 @@ class Ingest {
   static constexpr size_t kMaxSessionsPerWorker = 4;
   static constexpr size_t kMaxRetired = 4096;
   static constexpr size_t kMaxMissing = 4096;
+  // Remembered gap numbers over all accounts, open and retired: streams invented by the thousand,
+  // each opening or jumping far, would otherwise hold kMaxAccounts + kMaxRetired full lists (256 MiB)
+  // and write them into every checkpoint. Past it a gap is counted lost and not remembered.
+  static constexpr size_t kMaxMissingTotal = 65536;
   // A worker id's bytes, as for heartbeats (WorkerRoster::kMaxIdBytes): every accepted episode,
   // account and event carries one.
   static constexpr size_t kMaxIdBytes = 256;
@@ -146,6 +152,7 @@ class Ingest {
   double reward_bound_ = HUGE_VAL;
   int max_episode_steps_ = 0;
   IngestCounters counters_;
+  size_t missing_total_ = 0;  // the sizes of every account's `missing`, open and retired
   // Moves an open account to retired_ (bounded, oldest out first).
   void retire(std::map<Key, WorkerAccount>::iterator it);
   std::map<Key, WorkerAccount> workers_;

@@ -2,6 +2,7 @@
 // every sequence number is accounted as received, lost, duplicate or invalid.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 
@@ -95,6 +96,26 @@ TEST_F(Fixture, WrongShapeIsRefusedAndCounted) {
   EXPECT_NE(why.find("rewards has 3 values, expected 6"), std::string::npos) << why;
   EXPECT_EQ(ingest.counters().invalid, 1u);
   EXPECT_EQ(out.n, 0);
+}
+
+// An end of stream has no steps, so no product of steps and environments bounds its number of
+// environments: before, 2^32 - 1 passed and came to the algorithms and Python as -1.
+TEST_F(Fixture, AnEndOfStreamClaimingMoreEnvironmentsThanAWorkerRunsIsRefused) {
+  farm::msg::TransitionBatch b = make_batch(0);
+  b.num_steps(0);
+  b.num_envs(UINT32_MAX);
+  b.end_of_stream(true);
+  for (auto* v :
+       {&b.observations(), &b.actions(), &b.rewards(), &b.log_probs(), &b.next_observations(), &b.final_observations()})
+    v->clear();
+  b.terminated({});
+  b.truncated({});
+  b.final_index({});
+  b.episodes({});
+  EXPECT_EQ(take(b), "4294967295 environments, more than a worker runs (4096)");
+  b.num_envs(4);
+  EXPECT_EQ(take(b), "");
+  EXPECT_EQ(ingest.counters().invalid, 1u);
 }
 
 TEST_F(Fixture, WrongDimsAreRefused) {
@@ -273,6 +294,46 @@ TEST_F(Fixture, AbsurdSequenceJumpOnARetiredStreamIsRefused) {
   EXPECT_EQ(at(1, 1 + Ingest::kMaxSequenceJump), "");
   EXPECT_EQ(ingest.workers().at({"w1", 1}).lost, Ingest::kMaxSequenceJump);
   EXPECT_EQ(ingest.workers().at({"w1", 1}).received, 2u);
+}
+
+// Streams invented by the thousand, each opening 2^20 numbers on, remember at most
+// kMaxMissingTotal gap numbers between them, however many are open or retired, and a checkpoint
+// holds no more. Before, each kept kMaxMissing: 33.5 million numbers (256 MiB) over the open and
+// retired accounts, all written into every checkpoint.
+TEST_F(Fixture, GapNumbersRememberedOverAllStreamsAreBounded) {
+  const auto remembered = [this] {
+    size_t n = 0;
+    for (const auto& [_, w] : ingest.workers()) n += w.missing.size();
+    for (const auto& [_, w] : ingest.retired_accounts()) n += w.missing.size();
+    return n;
+  };
+  for (uint64_t k = 0; k < Ingest::kMaxAccounts + Ingest::kMaxRetired + 100; ++k) {
+    auto b = make_batch(Ingest::kMaxSequenceJump);
+    b.worker_id("x" + std::to_string(k));
+    ASSERT_EQ(take(b), "");
+  }
+  EXPECT_EQ(ingest.retired_accounts().size(), Ingest::kMaxRetired);
+  EXPECT_EQ(remembered(), ingest.missing_total());
+  EXPECT_LE(remembered(), Ingest::kMaxMissingTotal);
+  // A late batch whose number is remembered is still taken back from lost.
+  const auto with_gap = std::find_if(ingest.workers().begin(), ingest.workers().end(),
+                                     [](const auto& kv) { return !kv.second.missing.empty(); });
+  ASSERT_NE(with_gap, ingest.workers().end());
+  const auto first = with_gap->second;
+  auto late = make_batch(first.missing.front());
+  late.worker_id(first.worker_id);
+  EXPECT_EQ(take(late), "");
+  EXPECT_EQ(ingest.workers().at({first.worker_id, 7}).lost, first.lost - 1);
+  EXPECT_EQ(remembered(), ingest.missing_total());
+
+  farm::config::CheckpointManifest m;
+  farm::accounts_to_manifest(ingest, m);
+  size_t written = 0;
+  for (const auto& r : m.workers()) written += size_t(r.missing_size());
+  EXPECT_LE(written, Ingest::kMaxMissingTotal);
+  Ingest resumed{"exp", kObs, kAct, 0};
+  farm::accounts_from_manifest(m, resumed, 0.0);
+  EXPECT_EQ(resumed.missing_total(), written);
 }
 
 // Accounts idle for the expiry are retired, counted; one seen since stays.
