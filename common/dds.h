@@ -42,6 +42,11 @@ inline constexpr const char* kSpecTopic = "farm/ExperimentSpec";
 // (TRANSIENT_LOCAL), but a worker that joined a busy farm was seen to wait 30 s without the stored
 // sample while its own heartbeats reached the learner; a fresh write reaches every matched reader.
 inline constexpr double kSpecRepublishSeconds = 2.0;
+// A learner that wrote no weights for this long writes its latest again (same version, same batch
+// quota: a worker that has them changes nothing). A worker that joined after another participant's
+// weights displaced the learner's from its reader or intake gets them then, rather than waiting
+// for a version that, with no worker's batches, never comes.
+inline constexpr double kWeightsRepublishSeconds = 5.0;
 inline constexpr const char* kBatchTopic = "farm/TransitionBatch";
 inline constexpr const char* kWeightsTopic = "farm/PolicyWeights";
 inline constexpr const char* kWorkerStatusTopic = "farm/WorkerStatus";

@@ -113,6 +113,7 @@ int FarmService::run() {
       last_log = now;
     }
     spec_.republish_if_due(now);
+    weights_.republish_if_due(now);
     if (now - last_ckpt >= cfg_.checkpoint_every_seconds()) {
       try_checkpoint(now - t0);  // a failure is logged and tried again next period
       last_ckpt = now_seconds();

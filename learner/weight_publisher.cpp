@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include "meter.h"
+
 namespace farm {
 
 WeightPublisher::WeightPublisher(farm::dds::Bus& bus, const std::string& experiment_id)
@@ -22,6 +24,15 @@ void WeightPublisher::publish(const PolicyParams& policy, uint32_t batch_quota) 
     throw std::runtime_error("the policy is " + std::to_string(bytes) + " bytes on the bus, more than the " +
                              std::to_string(farm::dds::kMaxPolicyBytes) + " a worker takes: a smaller network");
   weights_out_.write(w);
+  last_ = std::move(w);
+  written_ = true;
+  last_time_ = now_seconds();
+}
+
+void WeightPublisher::republish_if_due(double now) {
+  if (!written_ || now - last_time_ < farm::dds::kWeightsRepublishSeconds) return;
+  weights_out_.write(last_);
+  last_time_ = now;
 }
 
 }  // namespace farm

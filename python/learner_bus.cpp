@@ -27,6 +27,7 @@
 #include "roster_thread.h"
 #include "spec_publisher.h"
 #include "task_spec.h"
+#include "weight_publisher.h"
 
 namespace py = pybind11;
 
@@ -61,7 +62,7 @@ class LearnerBus {
             }(),
             "farm-python-learner"),
         spec_(bus_, cfg_, task_.obs_dim, task_.act_dim),
-        weights_(bus_, farm::dds::kWeightsTopic, "latest_writer"),
+        weights_(bus_, cfg_.experiment_id()),
         intake_(
             bus_,
             [&] {
@@ -115,6 +116,7 @@ class LearnerBus {
     {
       py::gil_scoped_release nogil;
       spec_.republish_if_due(farm::now_seconds());
+      weights_.republish_if_due(farm::now_seconds());
       const auto keep = [&](farm::AcceptedBatch& a) {
         got.push_back(std::make_unique<farm::AcceptedBatch>(std::move(a)));
       };
@@ -160,11 +162,9 @@ class LearnerBus {
     if (pp.version <= version_)
       throw py::value_error("policy version " + std::to_string(pp.version) + " is not newer than the last published, " +
                             std::to_string(version_));
-    farm::msg::PolicyWeights w;
-    farm::dds::to_wire(pp, cfg_.experiment_id(), w);
     intake_.set_version(pp.version);
     version_ = pp.version;
-    weights_.write(w);
+    weights_.publish(pp, 0);
   }
 
  private:
@@ -365,7 +365,7 @@ class LearnerBus {
   farm::dds::Bus bus_;
   farm::EventLog events_;
   farm::SpecPublisher spec_;
-  farm::dds::Writer<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_;
+  farm::WeightPublisher weights_;
   farm::IngestThread intake_;
   farm::RosterThread roster_;
   farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> eval_out_;

@@ -5,17 +5,23 @@ namespace farm {
 WorkerIntake::WorkerIntake(farm::dds::Bus& bus, const std::string& experiment)
     : experiment_(experiment),
       // Each reader refuses samples larger than any experiment allows before taking memory for them.
-      spec_in_(bus, farm::dds::kSpecTopic, "latest_reader", farm::dds::kMaxSpecBytes,
-               [this](eprosima::fastdds::dds::DataReader* r) {
-                 SpecIn in;
-                 eprosima::fastdds::dds::SampleInfo info;
-                 while (decltype(spec_in_)::take_from(r, in.spec, info)) {
-                   in.writer = info.sample_identity.writer_guid();
-                   std::lock_guard<std::mutex> lk(mu_);
-                   if (specs_.size() >= kMaxSpecsIn) specs_.pop_front();
-                   specs_.push_back(in);
-                 }
-               }),
+      spec_in_(
+          bus, farm::dds::kSpecTopic, "latest_reader", farm::dds::kMaxSpecBytes,
+          [this](eprosima::fastdds::dds::DataReader* r) {
+            SpecIn in;
+            eprosima::fastdds::dds::SampleInfo info;
+            while (decltype(spec_in_)::take_from(r, in.spec, info)) {
+              in.writer = info.sample_identity.writer_guid();
+              const size_t bytes = spec_bytes(in.spec);
+              std::lock_guard<std::mutex> lk(mu_);
+              while (!specs_.empty() && (specs_.size() >= kMaxSpecsIn || specs_bytes_ + bytes > kMaxSpecsInBytes)) {
+                specs_bytes_ -= spec_bytes(specs_.front().spec);
+                specs_.pop_front();
+              }
+              specs_.push_back(std::move(in));
+              specs_bytes_ += bytes;
+            }
+          }),
       weights_in_(bus, farm::dds::kWeightsTopic, "latest_reader", farm::dds::kMaxPolicyBytes,
                   [this](eprosima::fastdds::dds::DataReader* r) {
                     farm::msg::PolicyWeights w;
@@ -38,7 +44,17 @@ std::deque<WorkerIntake::SpecIn> WorkerIntake::take_specs() {
   std::deque<SpecIn> got;
   std::lock_guard<std::mutex> lk(mu_);
   got.swap(specs_);
+  specs_bytes_ = 0;
   return got;
+}
+
+size_t WorkerIntake::spec_bytes(const farm::msg::ExperimentSpec& s) {
+  return s.experiment_id().size() + s.config_text().size() + s.task_name().size() + 64;
+}
+
+size_t WorkerIntake::queued_spec_bytes() {
+  std::lock_guard<std::mutex> lk(mu_);
+  return specs_bytes_;
 }
 
 void WorkerIntake::keep_own(const std::string& participant, farm::msg::PolicyWeights&& w) {

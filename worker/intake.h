@@ -31,6 +31,13 @@ class WorkerIntake {
 
   // The specs that arrived since the last call, oldest first.
   std::deque<SpecIn> take_specs();
+  // What the specs not yet taken hold (their strings), at most kMaxSpecsInBytes.
+  size_t queued_spec_bytes();
+  // Specs kept between two take_specs(): at most kMaxSpecsIn, and at most kMaxSpecsInBytes of their
+  // strings, oldest out first. A learner's spec is a few kilobytes and comes again every
+  // dds::kSpecRepublishSeconds; a participant that sends specs just under the reader's bound
+  // (dds::kMaxSpecBytes) as fast as the network goes holds two of them, not kMaxSpecsIn.
+  static constexpr size_t kMaxSpecsIn = 256, kMaxSpecsInBytes = 2 * size_t(farm::dds::kMaxSpecBytes);
   // The latest weights of the bound experiment from its learner (bind_learner), if new ones came;
   // the ids of other experiments whose weights came go to *others, and *refused is how many of the
   // experiment's weights came from another participant than its learner so far.
@@ -49,7 +56,8 @@ class WorkerIntake {
  private:
   // Weights of up to 64 MiB each (dds::kMaxPolicyBytes): the experiment's learner's and one other's
   // (a restarted learner's, or an impostor's), and the latest of a few other experiments.
-  static constexpr size_t kMaxSpecsIn = 256, kMaxExperimentsKept = 8, kMaxLearnersKept = 2;
+  static constexpr size_t kMaxExperimentsKept = 8, kMaxLearnersKept = 2;
+  static size_t spec_bytes(const farm::msg::ExperimentSpec& s);
   struct Latest {
     std::string participant;
     farm::msg::PolicyWeights weights;
@@ -60,7 +68,8 @@ class WorkerIntake {
   std::string learner_;                                  // participant key of the bound learner ("" until joined)
   std::map<std::string, farm::msg::PolicyWeights> own_;  // the experiment's latest, per participant
   uint64_t weights_refused_ = 0;
-  std::deque<SpecIn> specs_;               // bounded: kMaxSpecsIn
+  std::deque<SpecIn> specs_;               // bounded: kMaxSpecsIn, kMaxSpecsInBytes
+  size_t specs_bytes_ = 0;                 // spec_bytes() over specs_
   std::map<std::string, Latest> weights_;  // of other experiments; bounded: kMaxExperimentsKept
   farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec_in_;
   farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights_in_;
