@@ -65,6 +65,13 @@ class Evaluator {
   uint64_t answered() const { return n_.answered; }
   uint64_t lost() const { return n_.lost; }
   uint64_t invalid() const { return n_.invalid; }
+  // A resumed run's counts go on from its checkpoint's (parts out then were counted lost there).
+  void restore_counts(uint64_t asked, uint64_t answered, uint64_t lost, uint64_t invalid) {
+    n_.asked = asked;
+    n_.answered = answered;
+    n_.lost = lost;
+    n_.invalid = invalid;
+  }
   // The summary's "evaluations       asked ..." line.
   std::string summary() const;
 

@@ -344,6 +344,7 @@ void FarmService::resume_from_checkpoint() {
   checkpointer_.resume(m);
   returns_.total = m.episodes();
   intake_.with_ingest([&](Ingest& in) { accounts_from_manifest(m, in, now_seconds()); });
+  evaluator_.restore_counts(m.evals_asked(), m.evals_answered(), m.evals_lost(), m.evals_invalid());
   // The first progress line's rates count from the restored counters, not from zero.
   const IngestCounters c = intake_.counters();
   last_counters_ = c;
@@ -433,6 +434,12 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   }
   m.set_config_text(config_to_text(cfg_));
   m.set_episodes(returns_.total);
+  // Every part asked is answered, lost, or still out; those out are lost to a resumed learner.
+  m.set_evals_asked(evaluator_.asked());
+  m.set_evals_answered(evaluator_.answered());
+  m.set_evals_lost(
+      std::max(evaluator_.lost(), evaluator_.asked() - std::min(evaluator_.asked(), evaluator_.answered())));
+  m.set_evals_invalid(evaluator_.invalid());
   return m;
 }
 

@@ -33,7 +33,7 @@ Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log 
 // evaluation thread; a bad one is answered with what was wrong (the learner counts it invalid).
 bool Evaluations::arrived() {
   std::lock_guard<std::mutex> lk(in_mu_);
-  return !in_q_.empty() || !others_q_.empty();
+  return !in_q_.empty() || !others_q_.empty() || !held_.empty();
 }
 
 void Evaluations::poll(const Joined& joined) {
@@ -43,20 +43,29 @@ void Evaluations::poll(const Joined& joined) {
     // may have changed since they were queued).
     std::lock_guard<std::mutex> lk(in_mu_);
     got.swap(in_q_);
+    for (auto& in : held_) got.push_back(std::move(in));
+    held_.clear();
     for (auto& in : others_q_) got.push_back(std::move(in));
     others_q_.clear();
     learner_ = joined.task ? joined.learner : std::string();
   }
-  for (auto& [q, from] : got) {
+  for (auto& in : got) {
+    auto& [q, from, held] = in;
     if (!joined.task || q.experiment_id() != joined.experiment) continue;  // not (yet) this worker's experiment
     if (from != joined.learner) {
       // Only the learner the worker joined asks it for evaluations: anyone else's request is neither
-      // run nor answered (said once per 10 s at most).
-      ++not_learners_;
-      if (not_learners_note_.due()) {
-        log_("evaluation requests from a participant other than the learner are not run (" +
-             std::to_string(not_learners_) + " so far)");
+      // run nor answered (said once per 10 s at most), but kept aside in case its writer is a
+      // restarted learner the worker believes later.
+      if (!held) {
+        ++not_learners_;
+        if (not_learners_note_.due()) {
+          log_("evaluation requests from a participant other than the learner are not run (" +
+               std::to_string(not_learners_) + " so far)");
+        }
       }
+      held = true;
+      if (held_.size() >= kMaxQueue) held_.pop_front();
+      held_.push_back(std::move(in));
       continue;
     }
     log_("evaluation request " + std::to_string(q.request_id()) + ": " + std::to_string(q.episodes()) +

@@ -67,10 +67,16 @@ class Evaluations {
   struct In {
     farm::msg::EvaluationRequest request;
     std::string participant;  // of its writer
+    bool held = false;        // kept aside at a poll already (counted in not_learners_ then)
   };
-  std::string learner_;        // the joined learner's participant, as of the last poll()
-  std::deque<In> in_q_;        // from learner_, addressed to this worker; bounded: kMaxQueue
-  std::deque<In> others_q_;    // from any other participant (or before a join); bounded: kMaxQueue
+  std::string learner_;      // the joined learner's participant, as of the last poll()
+  std::deque<In> in_q_;      // from learner_, addressed to this worker; bounded: kMaxQueue
+  std::deque<In> others_q_;  // from any other participant (or before a join); bounded: kMaxQueue
+  // Requests of the worker's experiment from another participant than its learner, kept aside
+  // (bounded: kMaxQueue, oldest out) and looked at again at each poll: a learner resumed after a
+  // crash asks before the worker believes it (until the crashed one's lease runs out), and its
+  // requests run once it does. Only poll() touches it.
+  std::deque<In> held_;
   uint64_t not_learners_ = 0;  // requests from another participant than the joined learner's
   OncePer not_learners_note_{std::chrono::seconds(10)};
   farm::dds::Reader<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> in_;

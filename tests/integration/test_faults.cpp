@@ -113,7 +113,9 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
 TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(53)), run = d + "/run";
-  write_file(d + "/cfg.txtpb", config("it_learner_fault", "max_updates: 9000"));
+  std::string cfg = config("it_learner_fault", "max_updates: 9000");
+  cfg.replace(cfg.find("every_seconds: 10"), 17, "every_seconds: 2");  // one answered before the kill
+  write_file(d + "/cfg.txtpb", cfg);
   const std::vector<std::string> learner_argv = {FARM_LEARNER_BIN, "--config", d + "/cfg.txtpb", "--run-dir", run,
                                                  "--domain",       domain};
   Proc& first = set.start(learner_argv, "learner-1");
@@ -121,6 +123,8 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "it-b"}, "worker-b");
   ASSERT_TRUE(wait_for_events(run, "checkpoint", 1, 60)) << set.log("learner-1");
   EXPECT_EQ(events(run, "checkpoint")[0].value("ok", false), true) << slurp(run + "/events.jsonl");
+  // An evaluation answered before the kill, so that the resumed run has counts to carry on.
+  ASSERT_TRUE(wait_for_events(run, "evaluation", 1, 60)) << set.log("learner-1");
   std::this_thread::sleep_for(std::chrono::seconds(4));  // a second checkpoint, then more work that it lacks
   kill(first.pid, SIGKILL);
   wait_for(first, 5);
@@ -132,6 +136,11 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   ASSERT_TRUE(std::regex_search(manifest, m, std::regex(R"(updates: (\d+))"))) << manifest;
   const long long updates_at_checkpoint = std::stoll(m[1]);
   ASSERT_LT(updates_at_checkpoint, 9000) << "the first learner finished before it was killed";
+  // The evaluations asked before the kill count in the resumed run's summary, as its batches do.
+  ASSERT_TRUE(std::regex_search(manifest, m, std::regex(R"(evals_asked: (\d+))"))) << manifest;
+  const long long asked_at_checkpoint = std::stoll(m[1]);
+  ASSERT_TRUE(std::regex_search(manifest, m, std::regex(R"(evals_answered: (\d+))"))) << manifest;
+  const long long answered_at_checkpoint = std::stoll(m[1]);
 
   std::this_thread::sleep_for(std::chrono::seconds(2));
   Proc& second = set.start(
@@ -165,6 +174,17 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
     auto n = std::distance(std::sregex_iterator(summary.begin(), summary.end(), line), std::sregex_iterator());
     EXPECT_EQ(n, 1) << id << "\n" << summary;
   }
+  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(evaluations +asked (\d+), answered (\d+))"))) << summary;
+  // The resumed learner counts on from its checkpoint: the parts answered then, and each answer
+  // it took itself (an `answer` event after its start).
+  long long answered_after_resume = 0, started = 0;
+  for (const auto& e : events(run)) {
+    if (e.value("event", "") == "start") ++started;
+    if (started == 2 && e.value("event", "") == "answer") ++answered_after_resume;
+  }
+  EXPECT_GT(answered_at_checkpoint, 0) << manifest;
+  EXPECT_EQ(std::stoll(m[2]), answered_at_checkpoint + answered_after_resume) << summary;
+  EXPECT_GT(std::stoll(m[1]), asked_at_checkpoint) << summary;
   const std::string updates_line = std::regex_search(summary, m, std::regex(R"(updates\s+(\d+))")) ? m[1].str() : "0";
   EXPECT_GE(std::stoll(updates_line), 9000) << summary;
   set.cleanup(::testing::Test::HasFailure());
