@@ -437,8 +437,7 @@ config::CheckpointManifest FarmService::base_manifest(uint64_t version, int64_t 
   // Every part asked is answered, lost, or still out; those out are lost to a resumed learner.
   m.set_evals_asked(evaluator_.asked());
   m.set_evals_answered(evaluator_.answered());
-  m.set_evals_lost(
-      std::max(evaluator_.lost(), evaluator_.asked() - std::min(evaluator_.asked(), evaluator_.answered())));
+  m.set_evals_lost(evaluator_.lost() + evaluator_.out());
   m.set_evals_invalid(evaluator_.invalid());
   return m;
 }

@@ -75,7 +75,7 @@ class Evaluations {
   // Requests of the worker's experiment from another participant than its learner, kept aside
   // (bounded: kMaxQueue, oldest out) and looked at again at each poll: a learner resumed after a
   // crash asks before the worker believes it (until the crashed one's lease runs out), and its
-  // requests run once it does. Only poll() touches it.
+  // requests run once it does. Only the loop's thread (poll, arrived) touches it.
   std::deque<In> held_;
   uint64_t not_learners_ = 0;  // requests from another participant than the joined learner's
   OncePer not_learners_note_{std::chrono::seconds(10)};
