@@ -330,8 +330,7 @@ void Evaluator::take_answer() {
 }
 
 void Evaluator::lost(Request r, const std::string& why) {
-  ++n_.lost;
-  close_id(r.id);
+  count_lost(r, why);
   if (r.attempt == 1) {
     log_("evaluation " + std::to_string(r.id) + " (policy v" + std::to_string(r.ask.version) + ") asked of " +
          r.worker_id + " lost: " + why + "; asked again");
@@ -361,10 +360,7 @@ void Evaluator::given_up(uint64_t group) {
       ++it;
       continue;
     }
-    if (!it->worker_id.empty()) {
-      ++n_.lost;
-      close_id(it->id);
-    }
+    if (!it->worker_id.empty()) count_lost(*it, "another part of its evaluation was given up");
     it = out_.erase(it);
   }
   events_.write("evaluation",
@@ -376,7 +372,7 @@ std::vector<Evaluator::Done> Evaluator::give_up_all(double waited_seconds) {
   while (!out_.empty()) {
     Request r = std::move(out_.front());
     out_.pop_front();
-    if (!r.worker_id.empty()) ++n_.lost;  // one never asked is not counted
+    if (!r.worker_id.empty()) count_lost(r, "not answered by the end of the run");  // one never asked is not counted
     log_(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
          (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
          fmt("%.0f", waited_seconds) + " s: not reported");
@@ -385,6 +381,17 @@ std::vector<Evaluator::Done> Evaluator::give_up_all(double waited_seconds) {
   std::vector<Done> done;
   done.swap(done_);
   return done;
+}
+
+void Evaluator::count_lost(const Request& r, const std::string& why) {
+  ++n_.lost;
+  close_id(r.id);
+  events_.write("eval_lost", {{"request_id", r.id},
+                              {"worker_id", r.worker_id},
+                              {"label", r.ask.label},
+                              {"part", r.part},
+                              {"attempt", r.attempt},
+                              {"why", why}});
 }
 
 void Evaluator::close_id(uint64_t id) {

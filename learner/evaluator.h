@@ -119,6 +119,9 @@ class Evaluator {
   void lost(Request r, const std::string& why);
   // The evaluation of a group ended without a report: its other parts' answers are not used.
   void given_up(uint64_t group);
+  // Counts a request asked of a worker lost: its id closed, and an eval_lost event (request,
+  // worker, attempt, why) so programs can tell each loss apart.
+  void count_lost(const Request& r, const std::string& why);
   // Remembers a request id lost or given up (bounded), so an answer that still comes counts late.
   void close_id(uint64_t id);
 

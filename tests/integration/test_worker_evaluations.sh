@@ -107,6 +107,16 @@ fi
 summary=$(grep "^evaluations" "$dir/two/summary.txt")
 echo "$summary"
 read -r a b l i <<<"$(sed -n 's/^evaluations *asked \([0-9]*\), answered \([0-9]*\), lost \([0-9]*\), invalid \([0-9]*\).*/\1 \2 \3 \4/p' <<<"$summary")"
-[ "${l:-}" = 1 ] && [ "${i:-}" = 0 ] && [ "$a" = $((b + l)) ] || fail "summary counts: $summary"
+[ -n "${l:-}" ] && [ "$l" -ge 1 ] && [ "${i:-}" = 0 ] && [ "$a" = $((b + l)) ] || fail "summary counts: $summary"
+# Each part counted lost has its eval_lost event. All were asked of the killed worker: the one it
+# held, and any the learner asked of it before it saw the worker gone (worker_timeout_seconds 2).
+lost_events=$(events "$dir/two" eval_lost)
+[ "$(grep -c . <<<"$lost_events")" = "${l:-}" ] || fail "summary says $l lost, events say: $lost_events"
+if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
+  grep -q "\"request_id\":$id,.*\"worker_id\":\"$victim\"" <<<"$lost_events" ||
+    fail "no eval_lost event for request $id of $victim: $lost_events"
+  [ -z "$(grep -v "\"worker_id\":\"$victim\"" <<<"$lost_events")" ] ||
+    fail "a part asked of another worker than $victim was lost: $lost_events"
+fi
 grep -q "^final eval return  *-\?[0-9]" "$dir/two/summary.txt" || fail "no final eval return: $(cat "$dir/two/summary.txt")"
 farm_test_end "evaluations answered by workers; a killed worker's request lost and answered by the other"
