@@ -22,6 +22,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../wait_until.h"
+
 namespace farm::testing {
 
 struct Proc {
@@ -158,17 +160,6 @@ inline bool marked_dead(const std::string& run, const std::string& worker_id) {
   for (const auto& e : events(run, "worker"))
     if (e.value("worker_id", "") == worker_id && e.value("change", "") == "dead") return true;
   return false;
-}
-
-// Polls until done() holds; false after timeout_s.
-template <class Done>
-inline bool wait_until(Done done, double timeout_s) {
-  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (std::chrono::steady_clock::now() < until) {
-    if (done()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  }
-  return done();
 }
 
 // Polls RUN/events.jsonl until worker_id has joined; false after timeout_s.

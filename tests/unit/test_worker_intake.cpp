@@ -10,6 +10,7 @@
 #include <string>
 #include <thread>
 
+#include "../wait_until.h"
 #include "intake.h"
 #include "meter.h"
 #include "mlp.h"
@@ -26,22 +27,12 @@ farm::dds::BusOptions domain(int offset) {
   return o;
 }
 
+using farm::testing::wait_until;
+
+// Whether writer w has matched a reader within 10 s.
 template <class W>
 bool matched(const W& w) {
-  const double t0 = farm::now_seconds();
-  while (w.matched() < 1 && farm::now_seconds() - t0 < 10) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  return w.matched() >= 1;
-}
-
-// Waits until f() holds, up to `seconds`; f is not called again once it held.
-template <class F>
-bool within(double seconds, F f) {
-  const double t0 = farm::now_seconds();
-  for (;;) {
-    if (f()) return true;
-    if (farm::now_seconds() - t0 >= seconds) return false;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
+  return wait_until([&] { return w.matched() >= 1; }, 10, 50);
 }
 
 farm::PolicyParams tiny_policy(uint64_t version) {
@@ -70,7 +61,8 @@ TEST(WorkerIntake, AStrangersLargeSpecsHoldBoundedMemory) {
     const size_t before = intake.queued_spec_bytes();
     ASSERT_TRUE(stranger.write(s));
     // Each arrives (the queue changes) before the next is written.
-    ASSERT_TRUE(within(30, [&] { return intake.queued_spec_bytes() != before; })) << "spec " << k << " never arrived";
+    ASSERT_TRUE(wait_until([&] { return intake.queued_spec_bytes() != before; }, 30, 20))
+        << "spec " << k << " never arrived";
     EXPECT_LE(intake.queued_spec_bytes(), farm::WorkerIntake::kMaxSpecsInBytes) << "after spec " << k;
   }
   const auto got = intake.take_specs();
@@ -113,7 +105,7 @@ TEST(WorkerIntake, ALearnersWeightsDisplacedBeforeTheJoinComeAgain) {
   EXPECT_FALSE(intake.take_weights(&others, &refused));
   learner.republish_if_due(farm::now_seconds() + farm::dds::kWeightsRepublishSeconds);
   std::optional<farm::msg::PolicyWeights> got;
-  EXPECT_TRUE(within(10, [&] { return bool(got = intake.take_weights(&others, &refused)); }));
+  EXPECT_TRUE(wait_until([&] { return bool(got = intake.take_weights(&others, &refused)); }, 10, 20));
   ASSERT_TRUE(got);
   EXPECT_EQ(got->version(), 1u);
 }
