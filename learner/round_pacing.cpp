@@ -8,6 +8,7 @@
 #include <cmath>
 #include <deque>
 #include <map>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -76,6 +77,7 @@ class RoundPacing final : public Pacing {
       return false;
     }
     if (b.policy_version == version_) delivered_[b.worker_id] += 1;
+    if (sending_.size() < kMaxSending) sending_.insert(b.worker_id);
     arrivals_.steps += uint64_t(rows.n);
     algo_->insert(b);
     for (const auto& e : *b.episodes) fit_episodes_.add(e.metrics, spec_.metric_names.size());
@@ -257,10 +259,17 @@ class RoundPacing final : public Pacing {
     farm.publish(policy_, quota_);
   }
 
-  // Steps one round (one batch from every live worker) brings.
+  // Whether a live worker counts toward a round: it has sent a batch this run (before any worker
+  // has, every live worker counts, so the first quota is shared over those that joined). One that
+  // only beats, stuck or anyone's heartbeat without security, neither shrinks the quota with the
+  // environments it claims nor holds back a top-up.
+  bool counts(const Farm::LiveWorker& w) const { return sending_.empty() || sending_.count(w.worker_id) > 0; }
+
+  // Steps one round (one batch from every live worker that counts) brings.
   int64_t round_steps(const Farm& farm) const {
     int64_t envs = 0;
-    for (const auto& w : farm.live_workers()) envs += w.envs;
+    for (const auto& w : farm.live_workers())
+      if (counts(w)) envs += w.envs;
     if (envs == 0) envs = cfg_.worker().envs_per_worker();  // none seen yet: assume one default worker
     return envs * cfg_.worker().steps_per_batch();
   }
@@ -303,6 +312,7 @@ class RoundPacing final : public Pacing {
     if (!h.run_done.empty() || now_seconds() - arrivals_.last_data < 0.5) return;
     bool all_done = false;
     for (const auto& w : farm.live_workers()) {
+      if (!counts(w)) continue;
       auto it = delivered_.find(w.worker_id);
       const bool done = it != delivered_.end() && it->second >= quota_;
       const bool idle = w.state == "throttled" && w.policy_version == version_;
@@ -429,6 +439,8 @@ class RoundPacing final : public Pacing {
   bool published_ = false;
   bool stopping_ = false;                      // a stop rule fired: fits no longer publish or evaluate
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
+  std::set<std::string> sending_;              // worker ids that sent a batch this run (bounded)
+  static constexpr size_t kMaxSending = 4096;  // past it, workers not in it yet do not count
   PolicyParams policy_;                        // the current version's
   EvalReport last_eval_, final_eval_;
   Counts counts_;

@@ -13,6 +13,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <unistd.h>
@@ -336,6 +337,65 @@ struct PpoStep : OneStep {
   std::vector<float> log_probs;
   std::vector<FinishedEpisode> episodes;
 };
+
+// What the round pacing sees of a farm: the live workers the test sets (by their heartbeats), the
+// quota of each publish.
+class RoundFarm final : public Farm {
+ public:
+  void publish(const PolicyParams& p, uint32_t quota) override { published.push_back({p.version, quota}); }
+  std::vector<LiveWorker> live_workers() const override { return live; }
+  double first_worker_heard() const override { return heard; }
+  FarmFigures figures() const override { return {}; }
+  uint64_t env_steps() const override { return 0; }
+  double elapsed() const override { return 0; }
+  bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
+  void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
+  void log(const std::string&) const override {}
+  void csv_row(const std::string&) override {}
+  std::vector<LiveWorker> live;
+  double heard = 0;
+  std::vector<std::pair<uint64_t, uint32_t>> published;  // (version, quota)
+};
+
+// A participant that beats as a worker of 4,096 environments and never sends a batch (a stuck
+// worker, or anyone without security) is not waited for: the quota is topped up once the worker
+// that does send delivered, the fit comes, and the next version's quota is sized by the workers
+// that send. Before, the fit waited for its batches for as long as it beat.
+TEST(RoundPacing, AWorkerThatBeatsButNeverSendsHoldsNoFitBack) {
+  const auto cfg = parse_config_text(
+      "experiment_id: \"ghost\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
+      "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
+      "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 }\n",
+      "ghost.txtpb");
+  const auto pacing = make_pacing(cfg, step_scale_spec());
+  RoundFarm farm;
+  farm.live = {{"w1", "running", 0, 8}, {"ghost", "running", 0, 4096}};
+  farm.heard = now_seconds() - 2;
+  pacing->start(farm);
+  pacing->train(farm, false);
+  ASSERT_EQ(farm.published.size(), 1u);
+  const uint64_t v = farm.published.back().first;
+  uint32_t quota = farm.published.back().second;
+  uint32_t sent = 0;
+  // w1 sends what its quota allows, one 32-step batch at a time, while the ghost beats on.
+  for (int pass = 0; pass < 100 && pacing->updates() == 0; ++pass) {
+    quota = farm.published.back().second;
+    while (sent < quota && pacing->updates() == 0) {
+      PpoStep b(32, v);
+      b.batch.worker_id = "w1";
+      ASSERT_TRUE(pacing->take(b.batch));
+      ++sent;
+      pacing->train(farm, true);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(60));
+    pacing->train(farm, false);
+  }
+  EXPECT_GT(pacing->updates(), 0) << "w1 sent " << sent << " batches, the last quota " << quota;
+  // The next version's quota: one fit's 256 steps from w1's 32 a batch.
+  ASSERT_GE(farm.published.size(), 2u);
+  EXPECT_GT(farm.published.back().first, v);
+  EXPECT_EQ(farm.published.back().second, 8u);
+}
 
 config::ExperimentConfig resume_config() {
   return parse_config_text(
