@@ -117,6 +117,7 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
           "expected \"tanh\", \"relu\" or \"elu\", got \"" + c.activation() + "\"");
   s.check(c.log_std_min() < c.log_std_max(), "log_std_min", "expected < ppo.log_std_max");
   s.non_negative("max_policy_lag", c.max_policy_lag());
+  s.positive("stalled_worker_seconds", c.stalled_worker_seconds());
   s.check(c.mode() == "sync" || c.mode() == "async", "mode",
           "expected \"sync\" or \"async\", got \"" + c.mode() + "\"");
   if (c.mode() == "async") {

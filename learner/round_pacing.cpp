@@ -8,7 +8,6 @@
 #include <cmath>
 #include <deque>
 #include <map>
-#include <set>
 #include <sstream>
 #include <string>
 
@@ -77,7 +76,7 @@ class RoundPacing final : public Pacing {
       return false;
     }
     if (b.policy_version == version_) delivered_[b.worker_id] += 1;
-    if (sending_.size() < kMaxSending) sending_.insert(b.worker_id);
+    if (last_sent_.size() < kMaxSending || last_sent_.count(b.worker_id)) last_sent_[b.worker_id] = now_seconds();
     arrivals_.steps += uint64_t(rows.n);
     algo_->insert(b);
     for (const auto& e : *b.episodes) fit_episodes_.add(e.metrics, spec_.metric_names.size());
@@ -256,6 +255,7 @@ class RoundPacing final : public Pacing {
   void publish_weights(Farm& farm) {
     policy_ = algo_->policy(version_);
     delivered_.clear();
+    published_at_ = now_seconds();
     farm.publish(policy_, quota_);
   }
 
@@ -263,7 +263,15 @@ class RoundPacing final : public Pacing {
   // has, every live worker counts, so the first quota is shared over those that joined). One that
   // only beats, stuck or anyone's heartbeat without security, neither shrinks the quota with the
   // environments it claims nor holds back a top-up.
-  bool counts(const Farm::LiveWorker& w) const { return sending_.empty() || sending_.count(w.worker_id) > 0; }
+  bool counts(const Farm::LiveWorker& w) const { return last_sent_.empty() || last_sent_.count(w.worker_id) > 0; }
+
+  // Whether a worker that owes batches has sent none for ppo.stalled_worker_seconds since the later
+  // of its last batch and the quota's last publication: a top-up does not wait for it.
+  bool stalled(const Farm::LiveWorker& w, double now) const {
+    const auto it = last_sent_.find(w.worker_id);
+    const double since = std::max(it == last_sent_.end() ? 0.0 : it->second, published_at_);
+    return now - since >= pc_.stalled_worker_seconds();
+  }
 
   // Steps one round (one batch from every live worker that counts) brings.
   int64_t round_steps(const Farm& farm) const {
@@ -310,21 +318,26 @@ class RoundPacing final : public Pacing {
   void top_up_if_starved(Farm& farm) {
     const Holding h = algo_->holding();
     if (!h.run_done.empty() || now_seconds() - arrivals_.last_data < 0.5) return;
-    bool all_done = false;
+    // Every counted worker delivered, is idle or is stalled, and at least one is not stalled (a
+    // top-up for none would only grow the quota).
+    const double now = now_seconds();
+    bool any_done = false;
     for (const auto& w : farm.live_workers()) {
       if (!counts(w)) continue;
       auto it = delivered_.find(w.worker_id);
       const bool done = it != delivered_.end() && it->second >= quota_;
       const bool idle = w.state == "throttled" && w.policy_version == version_;
-      if (!done && !idle) return;
-      all_done = true;
+      if (done || idle)
+        any_done = true;
+      else if (!stalled(w, now))
+        return;
     }
-    if (!all_done) return;
+    if (!any_done) return;
     int64_t need = h.steps_wanted;
     if (h.episodes_wanted >= 0) need = round_steps(farm);
     quota_ += batches_for(farm, std::max<int64_t>(need, 1));
     ++counts_.top_ups;
-    arrivals_.last_data = now_seconds();
+    arrivals_.last_data = published_at_ = now_seconds();
     farm.publish(policy_, quota_);
   }
 
@@ -439,8 +452,9 @@ class RoundPacing final : public Pacing {
   bool published_ = false;
   bool stopping_ = false;                      // a stop rule fired: fits no longer publish or evaluate
   std::map<std::string, uint32_t> delivered_;  // batches of the current version per worker id
-  std::set<std::string> sending_;              // worker ids that sent a batch this run (bounded)
+  std::map<std::string, double> last_sent_;    // when each worker that sent this run last did (bounded)
   static constexpr size_t kMaxSending = 4096;  // past it, workers not in it yet do not count
+  double published_at_ = 0;                    // the current quota's publication (a top-up's too)
   PolicyParams policy_;                        // the current version's
   EvalReport last_eval_, final_eval_;
   Counts counts_;

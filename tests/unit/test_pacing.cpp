@@ -397,6 +397,52 @@ TEST(RoundPacing, AWorkerThatBeatsButNeverSendsHoldsNoFitBack) {
   EXPECT_EQ(farm.published.back().second, 8u);
 }
 
+// A worker that sent, then stops sending on a version while its heartbeats go on (its collect loop
+// hangs; the beat thread re-sends its last status) is not waited for past
+// ppo.stalled_worker_seconds: the quota is topped up for the worker that still sends and the next
+// fit comes from its batches. Before, every top-up waited for the hung worker's quota.
+TEST(RoundPacing, AWorkerThatStopsSendingIsNotWaitedForPastTheStallTime) {
+  const auto cfg = parse_config_text(
+      "experiment_id: \"stall\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
+      "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
+      "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 stalled_worker_seconds: 0.5 }\n",
+      "stall.txtpb");
+  const auto pacing = make_pacing(cfg, step_scale_spec());
+  RoundFarm farm;
+  farm.live = {{"w1", "running", 0, 8}, {"w2", "running", 0, 8}};
+  farm.heard = now_seconds() - 2;
+  pacing->start(farm);
+  pacing->train(farm, false);
+  ASSERT_EQ(farm.published.size(), 1u);
+  const auto send = [&](const std::string& id, uint64_t version) {
+    PpoStep b(32, version);
+    b.batch.worker_id = id;
+    EXPECT_TRUE(pacing->take(b.batch));
+    pacing->train(farm, true);
+  };
+  // Version 1: both deliver a quota of 4 (two workers of 32 steps a batch for 256), and it fits.
+  const uint64_t v1 = farm.published.back().first;
+  ASSERT_EQ(farm.published.back().second, 4u);
+  for (int k = 0; k < 4; ++k) send("w1", v1), send("w2", v1);
+  const int64_t first_fit = pacing->updates();
+  ASSERT_GT(first_fit, 0);
+  ASSERT_EQ(farm.published.size(), 2u);
+  const uint64_t v2 = farm.published.back().first;
+  // Version 2: only w1 sends; w2 beats on, owing its 4.
+  uint32_t sent = 0;
+  for (int pass = 0; pass < 100 && pacing->updates() == first_fit; ++pass) {
+    while (sent < farm.published.back().second && pacing->updates() == first_fit) {
+      send("w1", v2);
+      ++sent;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(60));
+    pacing->train(farm, false);
+  }
+  EXPECT_GT(pacing->updates(), first_fit)
+      << "w1 sent " << sent << " batches on v2, the last quota " << farm.published.back().second;
+  EXPECT_EQ(sent, 8u);
+}
+
 config::ExperimentConfig resume_config() {
   return parse_config_text(
       "experiment_id: \"resume\" algorithm: \"ppo\"\n"
