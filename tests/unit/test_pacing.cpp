@@ -357,22 +357,32 @@ class RoundFarm final : public Farm {
   std::vector<std::pair<uint64_t, uint32_t>> published;  // (version, quota)
 };
 
+// A PPO round pacing of 256 steps a fit, workers of 8 environments and 4 steps a batch (one batch:
+// 32 steps), with `ppo_more` added to its ppo section; started on `farm`, whose workers are `live`
+// and were first heard 2 s ago, so that its first version is published.
+std::unique_ptr<Pacing> started_round_pacing(RoundFarm& farm, std::vector<Farm::LiveWorker> live,
+                                             const std::string& ppo_more = "") {
+  const auto cfg = parse_config_text(
+      "experiment_id: \"rounds\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
+      "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
+      "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 " +
+          ppo_more + " }\n",
+      "rounds.txtpb");
+  auto pacing = make_pacing(cfg, step_scale_spec());
+  farm.live = std::move(live);
+  farm.heard = now_seconds() - 2;
+  pacing->start(farm);
+  pacing->train(farm, false);
+  return pacing;
+}
+
 // A participant that beats as a worker of 4,096 environments and never sends a batch (a stuck
 // worker, or anyone without security) is not waited for: the quota is topped up once the worker
 // that does send delivered, the fit comes, and the next version's quota is sized by the workers
 // that send. Before, the fit waited for its batches for as long as it beat.
 TEST(RoundPacing, AWorkerThatBeatsButNeverSendsHoldsNoFitBack) {
-  const auto cfg = parse_config_text(
-      "experiment_id: \"ghost\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
-      "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
-      "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 }\n",
-      "ghost.txtpb");
-  const auto pacing = make_pacing(cfg, step_scale_spec());
   RoundFarm farm;
-  farm.live = {{"w1", "running", 0, 8}, {"ghost", "running", 0, 4096}};
-  farm.heard = now_seconds() - 2;
-  pacing->start(farm);
-  pacing->train(farm, false);
+  const auto pacing = started_round_pacing(farm, {{"w1", "running", 0, 8}, {"ghost", "running", 0, 4096}});
   ASSERT_EQ(farm.published.size(), 1u);
   const uint64_t v = farm.published.back().first;
   uint32_t quota = farm.published.back().second;
@@ -402,17 +412,9 @@ TEST(RoundPacing, AWorkerThatBeatsButNeverSendsHoldsNoFitBack) {
 // ppo.stalled_worker_seconds: the quota is topped up for the worker that still sends and the next
 // fit comes from its batches. Before, every top-up waited for the hung worker's quota.
 TEST(RoundPacing, AWorkerThatStopsSendingIsNotWaitedForPastTheStallTime) {
-  const auto cfg = parse_config_text(
-      "experiment_id: \"stall\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
-      "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
-      "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 stalled_worker_seconds: 0.5 }\n",
-      "stall.txtpb");
-  const auto pacing = make_pacing(cfg, step_scale_spec());
   RoundFarm farm;
-  farm.live = {{"w1", "running", 0, 8}, {"w2", "running", 0, 8}};
-  farm.heard = now_seconds() - 2;
-  pacing->start(farm);
-  pacing->train(farm, false);
+  const auto pacing =
+      started_round_pacing(farm, {{"w1", "running", 0, 8}, {"w2", "running", 0, 8}}, "stalled_worker_seconds: 0.5");
   ASSERT_EQ(farm.published.size(), 1u);
   const auto send = [&](const std::string& id, uint64_t version) {
     PpoStep b(32, version);
