@@ -76,7 +76,10 @@ class RoundPacing final : public Pacing {
       return false;
     }
     if (b.policy_version == version_) delivered_[b.worker_id] += 1;
-    if (last_sent_.size() < kMaxSending || last_sent_.count(b.worker_id)) last_sent_[b.worker_id] = now_seconds();
+    if (const auto it = last_sent_.find(b.worker_id); it != last_sent_.end())
+      it->second = arrivals_.last_data;
+    else if (last_sent_.size() < kMaxSending)
+      last_sent_.emplace(b.worker_id, arrivals_.last_data);
     arrivals_.steps += uint64_t(rows.n);
     algo_->insert(b);
     for (const auto& e : *b.episodes) fit_episodes_.add(e.metrics, spec_.metric_names.size());
@@ -317,10 +320,10 @@ class RoundPacing final : public Pacing {
   // episodes run longer than estimated): raise the quota of the same version.
   void top_up_if_starved(Farm& farm) {
     const Holding h = algo_->holding();
-    if (!h.run_done.empty() || now_seconds() - arrivals_.last_data < 0.5) return;
+    const double now = now_seconds();
+    if (!h.run_done.empty() || now - arrivals_.last_data < 0.5) return;
     // Every counted worker delivered, is idle or is stalled, and at least one is not stalled (a
     // top-up for none would only grow the quota).
-    const double now = now_seconds();
     bool any_done = false;
     for (const auto& w : farm.live_workers()) {
       if (!counts(w)) continue;
@@ -337,7 +340,7 @@ class RoundPacing final : public Pacing {
     if (h.episodes_wanted >= 0) need = round_steps(farm);
     quota_ += batches_for(farm, std::max<int64_t>(need, 1));
     ++counts_.top_ups;
-    arrivals_.last_data = published_at_ = now_seconds();
+    arrivals_.last_data = published_at_ = now;
     farm.publish(policy_, quota_);
   }
 
