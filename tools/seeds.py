@@ -27,8 +27,10 @@ learner logs for each evaluation). --report-only measures and reports runs alrea
 policy's measurement (RUN/eval_final.txt, RUN/eval_best.txt) is kept and used again when the same
 command made it, begun after every file the command names was written, unless --remeasure; where
 RUN/best holds the final policy itself (same version, same files), it is measured once. The table names the
-training's command (DIR/command.txt, written when training starts). Exit status 0 when every seed's
-kept best meets the goal, 1 otherwise. Runs with /usr/bin/python3 (Debian's matplotlib).
+training's command (DIR/command.txt, written when training starts); a seed without a run folder
+is reported as missing. Exit status 0 when every seed's kept best meets the goal and no learner
+failed (with --train-only: when no learner failed), 1 otherwise. Runs with /usr/bin/python3
+(Debian's matplotlib).
 
 Ctrl-C, SIGINT or SIGTERM (a batch system's time limit) stops the runs in progress as the learner's
 own Ctrl-C does, each with a checkpoint, starts no other, and exits with 130 (a second signal ends
@@ -162,13 +164,13 @@ def measure_curve(run, kind, target):
     if kind == "return":
         ev = eval_returns(run) or [(number(r["elapsed_s"]), number(r["eval_return"]))
                                 for r in eval_rows(rows, "eval_return")]
-        if not ev:
-            return None
         finals = evaluations(run, ("final",))
         final = float(finals[-1]["mean"]) if finals else math.nan
-        if math.isnan(final):
+        if math.isnan(final) and ev:
             final = ev[-1][1]
-        best = max([v for _, v in ev] + ([final] if not math.isnan(final) else []))
+        if math.isnan(final):  # no evaluation at all (a run that ended before its first)
+            return None
+        best = max([v for _, v in ev] + [final])
         return dict(time=next((t for t, v in ev if v >= target), math.nan), best=best, final=final,
                     best_ok=best >= target, final_ok=final >= target)
     ev = eval_rows(rows, "eval_tracking_lin")
@@ -202,6 +204,8 @@ def run_tool(cmd, log, parse, remeasure):
     replaces log only when complete; the log's time is then when it began."""
     head = "$ " + " ".join(cmd)
     new = log + ".new"
+    if not os.path.isdir(os.path.dirname(log) or "."):
+        return None  # no run folder: the report names the seed as missing
     named = [newest_mtime(x) for x in cmd if os.path.exists(x)]
     if not remeasure and os.path.exists(log) and os.path.getmtime(log) > max(named, default=0):
         text = read_text(log)
@@ -348,7 +352,7 @@ def train(args, text, seeds):
         stopping.append(signum)
     before = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        run_seeds(args, text, seeds, learner, worker, resume, stopping)
+        failed = run_seeds(args, text, seeds, learner, worker, resume, stopping)
     finally:
         for sig, handler in before.items():
             signal.signal(sig, handler)
@@ -356,6 +360,10 @@ def train(args, text, seeds):
         again = this_command() + ("" if args.resume else " --resume")
         print(f"seeds: stopped; continue with: {again}", flush=True)
         sys.exit(130)
+    if failed:
+        print(f"seeds: the learner failed for seed{'s' if len(failed) > 1 else ''} "
+              f"{', '.join(map(str, failed))}", file=sys.stderr)
+    return failed
 
 
 def run_seeds(args, text, seeds, learner, worker, resume, stopping):
@@ -365,6 +373,7 @@ def run_seeds(args, text, seeds, learner, worker, resume, stopping):
     free = list(range(args.parallel))  # slots: a core range and a GPU each, when asked for
     t0 = time.time()
     forwarded = killed = False
+    failed = []  # seeds whose learner exited non-zero without a signal
     while pending or running:
         if stopping and not forwarded:
             forwarded = True
@@ -429,8 +438,10 @@ def run_seeds(args, text, seeds, learner, worker, resume, stopping):
             free.append(slot)
             print(f"seeds: seed {s} ended (learner exit {rc}) at {time.time() - t0:.0f} s", flush=True)
             if rc != 0 and not stopping:
+                failed.append(s)
                 print(f"seeds: seed {s}: the learner failed; its log: "
                       f"{os.path.join(args.out, 'logs', f'seed{s}-learner.log')}", file=sys.stderr)
+    return failed
 
 
 def last_stop(run):
@@ -450,14 +461,17 @@ def report(args, task, kind, target, seeds):
     for s in seeds:
         run = os.path.join(args.out, f"seed{s}")
         rows = read_rows(run)
-        if not rows:
-            print(f"seeds: seed {s}: no learner.csv in {run}; reported as missing", file=sys.stderr)
+        if not os.path.isdir(run):
+            print(f"seeds: seed {s}: no run folder {run}; reported as missing", file=sys.stderr)
+        elif not rows:
+            print(f"seeds: seed {s}: no rows in {run}/learner.csv; its figures come from its events alone",
+                  file=sys.stderr)
         last = rows[-1] if rows else {}
         # The summary's figures where the run wrote one (learner.csv's last row may be seconds older).
         wall, steps = summary_value(run, "wall_s"), summary_value(run, "env_steps")
         r = dict(seed=s, wall=number(last.get("elapsed_s")) if math.isnan(wall) else wall,
                  steps=number(last.get("env_steps")) if math.isnan(steps) else steps)
-        curve = measure_curve(run, "walking" if kind == "walking" else "return", target) if rows else None
+        curve = measure_curve(run, "walking" if kind == "walking" else "return", target)
         r["time"] = curve["time"] if curve else math.nan
         if kind == "mobile":  # the first of the learner's evaluations (not the final one) at the goal
             r["time"] = next((t for t, v in eval_success(run, ("eval",)) if v >= MOBILE_GOAL), math.nan)
@@ -648,12 +662,11 @@ def main():
         fail(f"{args.config}: task '{task}' is judged on stop.target_eval_return, which the config does not set")
     args.out = args.out or os.path.join("runs", "seeds", os.path.splitext(os.path.basename(args.config))[0])
     os.makedirs(args.out, exist_ok=True)
-    if not args.report_only:
-        train(args, text, seeds)
+    failed = [] if args.report_only else train(args, text, seeds) or []
     if args.train_only:
-        return
+        sys.exit(1 if failed else 0)
     met = report(args, task, kind, target, seeds)
-    sys.exit(0 if met == len(seeds) else 1)
+    sys.exit(0 if met == len(seeds) and not failed else 1)
 
 
 if __name__ == "__main__":
