@@ -2,10 +2,12 @@
 // episodes from a learner checkpoint, reporting mean efficiency, falls and targets reached per
 // terrain against the best fixed (group, f) of a characterization sweep (farm-mclari-sweep's
 // best.csv). Prints a Markdown table; --out also writes it to a file.
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -38,35 +40,76 @@ struct Best {
   double seconds = 0;  // how long the fixed point ran; 0: best.csv does not say (older sweeps)
 };
 
-// terrain -> best fixed point, from best.csv (terrain,terrain_name,group,"group_name",f,eff,...).
+// The fields of one CSV line: commas split it except inside double quotes (a group name such as
+// "(pi/2, 0, pi)"); a line ending in CR (a file saved on Windows) loses it.
+std::vector<std::string> csv_fields(std::string line) {
+  if (!line.empty() && line.back() == '\r') line.pop_back();
+  std::vector<std::string> fields(1);
+  bool quoted = false;
+  for (const char c : line) {
+    if (c == '"')
+      quoted = !quoted;
+    else if (c == ',' && !quoted)
+      fields.emplace_back();
+    else
+      fields.back() += c;
+  }
+  return fields;
+}
+
+// terrain -> best fixed point, from best.csv (farm-mclari-sweep's: terrain, group_name,
+// frequency_hz and efficiency, found by the header's names, and seconds where the sweep wrote it).
+// Every figure is checked whole: a table against a misread reference would look right and be wrong.
 std::map<int, Best> read_best(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw std::runtime_error("cannot read " + path);
-  std::map<int, Best> best;
   std::string line;
-  std::getline(in, line);  // header
-  const bool has_seconds = line.size() >= 8 && line.compare(line.size() - 8, 8, ",seconds") == 0;
+  if (!std::getline(in, line)) throw std::runtime_error(path + ": empty, expected a header line");
+  const auto header = csv_fields(line);
+  auto column = [&](const std::string& name, bool required) {
+    for (size_t i = 0; i < header.size(); ++i)
+      if (header[i] == name) return int(i);
+    if (required) throw std::runtime_error(path + ": the header has no column '" + name + "'");
+    return -1;
+  };
+  const int c_terrain = column("terrain", true), c_group = column("group_name", true),
+            c_frequency = column("frequency_hz", true), c_efficiency = column("efficiency", true),
+            c_seconds = column("seconds", false);
+  std::map<int, Best> best;
   int row = 1;
   while (std::getline(in, line)) {
     ++row;
-    const auto q1 = line.find('"'), q2 = line.find('"', q1 + 1);
-    if (q1 == std::string::npos || q2 == std::string::npos)
-      throw std::runtime_error(path + ":" + std::to_string(row) + ": expected a quoted group name");
-    Best b;
-    b.group_name = line.substr(q1 + 1, q2 - q1 - 1);
-    int terrain = 0;
-    if (std::sscanf(line.c_str(), "%d", &terrain) != 1 ||
-        std::sscanf(line.c_str() + q2 + 1, ",%d,%lf", &b.frequency, &b.efficiency) != 2)
-      throw std::runtime_error(path + ":" + std::to_string(row) + ": cannot parse '" + line + "'");
-    if (has_seconds) {
-      const auto comma = line.rfind(',');
+    if (line.empty() || line == "\r") continue;
+    const auto f = csv_fields(line);
+    const std::string where = path + ":" + std::to_string(row) + ": ";
+    if (f.size() != header.size())
+      throw std::runtime_error(where + std::to_string(f.size()) + " fields where the header has " +
+                               std::to_string(header.size()));
+    auto number = [&](int c) {
+      size_t used = 0;
+      double v = 0;
       try {
-        b.seconds = std::stod(line.substr(comma + 1));
+        v = std::stod(f[c], &used);
       } catch (const std::exception&) {
-        throw std::runtime_error(path + ":" + std::to_string(row) + ": cannot parse seconds in '" + line + "'");
+        used = 0;
       }
-    }
-    best[terrain] = b;
+      if (used == 0 || used != f[c].size() || !std::isfinite(v))
+        throw std::runtime_error(where + header[c] + " '" + f[c] + "' is not a finite number");
+      return v;
+    };
+    const double terrain = number(c_terrain);
+    if (terrain != std::floor(terrain) || terrain < 0 || terrain >= mclari::kNumTerrains)
+      throw std::runtime_error(where + "terrain " + f[c_terrain] + " is not one of 0.." +
+                               std::to_string(mclari::kNumTerrains - 1));
+    if (best.count(int(terrain)))
+      throw std::runtime_error(where + "terrain " + f[c_terrain] + " appears a second time");
+    Best b;
+    b.group_name = f[c_group];
+    b.frequency = int(number(c_frequency));
+    b.efficiency = number(c_efficiency);
+    if (b.efficiency <= 0) throw std::runtime_error(where + "efficiency " + f[c_efficiency] + " is not above 0");
+    if (c_seconds >= 0) b.seconds = number(c_seconds);
+    best[int(terrain)] = b;
   }
   return best;
 }
@@ -122,13 +165,15 @@ int main(int argc, char** argv) {
   app.add_option("--config", config_path, "The experiment (EXPERIMENT.txtpb)")->required();
   app.add_option("--checkpoint", checkpoint, "The learner's checkpoint directory (runs/<experiment>/checkpoint)")
       ->required();
+  // Each episode of a terrain has its own environment for the whole evaluation: 1,000 a terrain is
+  // far beyond what the table needs (10) and still fits in memory.
   app.add_option("--episodes", episodes, "Deterministic episodes per terrain")
-      ->check(CLI::Range(1, INT32_MAX))
+      ->check(CLI::Range(1, 1000))
       ->capture_default_str();
   app.add_option("--best", best_path,
                  "The sweep's best fixed point per terrain (SWEEP/best.csv), for the comparison column");
   app.add_option("--out", out_path, "The table to write (TABLE.md)");
-  app.add_option("--threads", threads, "Threads, one terrain each")
+  app.add_option("--threads", threads, "Threads, one terrain each (at most one per terrain)")
       ->check(CLI::Range(1, INT32_MAX))
       ->capture_default_str();
   app.add_option("--seed", seed, "Reset seed of the first episode")
@@ -155,14 +200,19 @@ int main(int argc, char** argv) {
     farm::PolicyParams policy = rp.policy;
     policy.version = uint64_t(rp.updates);
 
+    threads = std::min(threads, mclari::kNumTerrains);
     std::vector<TerrainResult> results(mclari::kNumTerrains);
     std::atomic<int> next{0};
+    // The first error of any thread (a policy that does not fit the task, say): the others stop
+    // taking terrains, every thread is joined, and it is reported as the program's error.
+    std::exception_ptr failure;
+    std::mutex failure_mutex;
     std::mutex progress_mutex;
     int terrains_done = 0;
     const auto t0 = std::chrono::steady_clock::now();
     std::fprintf(stderr, "farm-mclari-eval: %d deterministic episodes on each of %d terrains, %d threads\n", episodes,
                  mclari::kNumTerrains, threads);
-    auto worker = [&]() {
+    auto terrains = [&]() {
       for (int t = next++; t < mclari::kNumTerrains; t = next++) {
         auto mc = cfg.task().mclari();
         mc.clear_terrains();
@@ -190,10 +240,20 @@ int main(int argc, char** argv) {
                      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
       }
     };
+    auto worker = [&]() {
+      try {
+        terrains();
+      } catch (...) {
+        next = mclari::kNumTerrains;
+        const std::lock_guard<std::mutex> lock(failure_mutex);
+        if (!failure) failure = std::current_exception();
+      }
+    };
     std::vector<std::thread> pool;
     for (int k = 1; k < threads; ++k) pool.emplace_back(worker);
     worker();
     for (auto& th : pool) th.join();
+    if (failure) std::rethrow_exception(failure);
 
     std::ostringstream table;
     table << "| terrain | episodes | SAC efficiency | falls | targets reached | mean f [Hz] | best fixed (group, f) | "

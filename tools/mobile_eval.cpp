@@ -38,10 +38,12 @@ void add_options(CLI::App& app, Options& o) {
   app.add_option("--run-dir", o.run_dir, "The run folder")->required();
   app.add_flag_callback(
       "--best", [&o] { o.checkpoint = "best"; }, "DIR/best, the networks of the learner's best evaluation");
-  app.add_option("--episodes", o.episodes, "Episodes to run")->check(CLI::Range(1, INT32_MAX))->capture_default_str();
+  app.add_option("--episodes", o.episodes, "Episodes to run")->check(CLI::Range(1, 1000000))->capture_default_str();
   app.add_option("--seed", o.seed, "Seed of the random maps")->check(farm::cli::whole_number())->capture_default_str();
   app.add_option("--plot", o.plot, "Draw the first K episodes over their maps (FILE.png)");
-  app.add_option("--plot-episodes", o.plot_episodes, "K: episodes drawn with --plot")->capture_default_str();
+  app.add_option("--plot-episodes", o.plot_episodes, "K: episodes drawn with --plot")
+      ->check(CLI::Range(1, 100))  // a 320-pixel panel each, three to a row
+      ->capture_default_str();
   app.add_flag("--failures", o.failures,
                "List every episode that did not reach the goal: where it ended, the shortest lidar range then, "
                "and for a collision what the robot touched");

@@ -69,6 +69,25 @@ while IFS='|' read -r name path opt value code; do
 done <<<"$programs"
 [ "$checked" -gt 0 ] || fail "none of the programs is in $build"
 
+# Counts beyond what a program can hold are refused while parsing, naming the option, before any
+# work: a plot of no episodes (a division by zero) and episode counts that only fail an allocation.
+# PATH under BUILD_DIR|OPTION VALUE|the other options it needs|exit code of bad usage
+ranges="
+tools/farm-mobile-eval|--plot-episodes 0|--run-dir /no/such/run|1
+tools/farm-mobile-eval|--plot-episodes -1|--run-dir /no/such/run|1
+tools/farm-mobile-eval|--episodes 2147483647|--run-dir /no/such/run|1
+tools/farm-mclari-eval|--episodes 100000|--config /no/such.txtpb --checkpoint /no/such|2
+"
+while IFS='|' read -r path arg others code; do
+  [ -n "$path" ] && [ -x "$build/$path" ] || continue
+  read -r opt value <<<"$arg"
+  read -r -a rest <<<"$others"
+  err=$(timeout 20 "$build/$path" "${rest[@]}" "$opt" "$value" 2>&1 >/dev/null)
+  rc=$?
+  [ $rc = "$code" ] || fail "$path $arg: exit $rc, expected $code: '$err'"
+  grep -qF -- "$opt: Value $value not in range" <<<"$err" || fail "$path $arg: not refused as out of range: '$err'"
+done <<<"$ranges"
+
 # Every executable of ours in the build folder is listed: ELF files outside CMake's own folders
 # and the fuzz build; the gtest programs (test_*) take gtest's options, not ours.
 while IFS= read -r f; do
