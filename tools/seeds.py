@@ -343,7 +343,7 @@ def train(args, text, seeds):
             fail(f"{run} has no checkpoint to continue from (RUN/checkpoint/manifest.txtpb): "
                  "remove it to train that seed again")
     if not seeds:
-        return
+        return []
     command_txt = os.path.join(args.out, "command.txt")
     with open(command_txt, "a" if args.resume and os.path.exists(command_txt) else "w") as f:
         f.write(this_command() + "\n")
@@ -662,7 +662,7 @@ def main():
         fail(f"{args.config}: task '{task}' is judged on stop.target_eval_return, which the config does not set")
     args.out = args.out or os.path.join("runs", "seeds", os.path.splitext(os.path.basename(args.config))[0])
     os.makedirs(args.out, exist_ok=True)
-    failed = [] if args.report_only else train(args, text, seeds) or []
+    failed = [] if args.report_only else train(args, text, seeds)
     if args.train_only:
         sys.exit(1 if failed else 0)
     met = report(args, task, kind, target, seeds)

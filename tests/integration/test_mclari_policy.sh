@@ -19,8 +19,9 @@ mkdir "$T/manifest" && cp -r "$SRC/docs/data/mclari_terrain_policy/." "$T/manife
 python3 -c 'import json, sys; print("experiment_id: \"m\"\npolicy_version: 5\nupdates: 100\nconfig_text: "
                 + json.dumps(open(sys.argv[1]).read(), ensure_ascii=False))' "$cfg" > "$T/manifest/manifest.txtpb"
 rc=0; "$EVAL" --config "$SRC/deploy/configs/mclari_sac.txtpb" --checkpoint "$T/manifest" --episodes 1 --threads 2 \
-  > /dev/null 2> "$T/mismatch.err" || rc=$?
-[ $rc = 2 ] && grep -q "do not fit task 'mclari'" "$T/mismatch.err" || fail "another task's config: exit $rc, $(cat "$T/mismatch.err")"
+  --out "$T/mismatch.md" > /dev/null 2> "$T/mismatch.err" || rc=$?
+[ $rc = 2 ] && [ ! -e "$T/mismatch.md" ] && grep -q "do not fit task 'mclari'" "$T/mismatch.err" ||
+  fail "another task's config: exit $rc, $(cat "$T/mismatch.err")"
 # A --best file that would misread the reference is refused before any episode, naming what is wrong.
 best_csv=$SRC/docs/data/mclari_best_180s.csv
 cut -d, -f1-5,7- "$best_csv" > "$T/no_efficiency.csv"                 # no efficiency column
@@ -29,8 +30,8 @@ sed '3s/^1,/0,/' "$best_csv" > "$T/twice.csv"                         # terrain 
 for bad in "no_efficiency.csv|the header has no column 'efficiency'" "junk.csv|efficiency '0.262360abc' is not a finite number" \
            "twice.csv|terrain 0 appears a second time"; do
   rc=0; "$EVAL" --config "$cfg" --checkpoint "$SRC/docs/data/mclari_terrain_policy" --best "$T/${bad%%|*}" --episodes 1 \
-    > /dev/null 2> "$T/best.err" || rc=$?
-  [ $rc != 0 ] && grep -qF "${bad#*|}" "$T/best.err" && ! grep -q "deterministic episodes" "$T/best.err" ||
+    --out "$T/refused.md" > /dev/null 2> "$T/best.err" || rc=$?
+  [ $rc = 2 ] && [ ! -e "$T/refused.md" ] && grep -qF "${bad#*|}" "$T/best.err" ||
     fail "--best ${bad%%|*}: exit $rc, $(cat "$T/best.err")"
 done
 mkdir "$T/networks" && cp -r "$SRC/docs/data/mclari_terrain_policy/sac" "$T/networks/"
