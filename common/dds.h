@@ -28,6 +28,7 @@
 
 #include "farmPubSubTypes.h"
 #include "mlp.h"
+#include "wire_check.h"
 
 namespace CLI {
 class App;
@@ -170,11 +171,53 @@ class Bus {
   int participant_id_ = -1;
 };
 
+// Samples of the IDL type type_name that this process's readers refused as malformed (CheckedType),
+// and the reason for the last of them.
+uint64_t samples_malformed(const std::string& type_name);
+std::string last_malformed(const std::string& type_name);
+// Books a malformed sample of type_name: counted, said on stderr for the first few of each type, and
+// marked for the take in progress on this thread (take_malformed_mark).
+void note_malformed(const std::string& type_name, const std::string& why);
+// Whether the sample the last take on this thread decoded was malformed; clears the mark.
+bool take_malformed_mark();
+
+// A generated type whose decoding cannot end the process: the serialized sample is first walked
+// against the type's wire layout (wire_check.h), so that a boolean byte out of range, a count past
+// the payload or truncated data is refused before anything is allocated for it, and whatever the
+// decoder still throws is caught. Fast DDS 2.9 ignores what deserialize returns and hands the
+// sample on as valid, so a refusal is marked for Reader::take_from, which skips the sample.
+template <class T, class PubSubType>
+class CheckedType : public PubSubType {
+ public:
+  CheckedType() : layout_(wire::layout_of(this->getName())) {
+    if (!layout_) throw std::logic_error(std::string("no wire layout for DDS type ") + this->getName());
+  }
+  bool deserialize(eprosima::fastrtps::rtps::SerializedPayload_t* payload, void* data) override {
+    std::string why = wire::walk(*layout_, payload->data, payload->length);
+    if (why.empty()) {
+      try {
+        if (PubSubType::deserialize(payload, data)) return true;
+        why = "the decoder refused it";
+      } catch (const std::exception& e) {
+        why = std::string("the decoder failed: ") + e.what();
+      } catch (...) {
+        why = "the decoder failed";
+      }
+    }
+    *static_cast<T*>(data) = T();
+    note_malformed(this->getName(), why);
+    return false;
+  }
+
+ private:
+  const wire::Layout* layout_;
+};
+
 template <class T, class PubSubType>
 class Writer {
  public:
   Writer(Bus& bus, const std::string& topic_name, const std::string& profile) : bus_(bus) {
-    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new CheckedType<T, PubSubType>()));
     writer_ = bus.publisher()->create_datawriter(t, bus.writer_qos(topic_name, profile));
     if (!writer_) {
       throw std::runtime_error("cannot create DDS writer for " + topic_name + " with profile '" + profile +
@@ -203,8 +246,8 @@ class Writer {
 // A generated type with a maximum serialized size of max_bytes. fastddsgen gives a type with
 // unbounded sequences a nominal maximum (100 elements each) that a reader's history only grows from:
 // under PREALLOCATED_WITH_REALLOC every sample gets what it claims to need, however large.
-template <class PubSubType>
-class BoundedType : public PubSubType {
+template <class T, class PubSubType>
+class BoundedType : public CheckedType<T, PubSubType> {
  public:
   explicit BoundedType(uint32_t max_bytes) { this->m_typeSize = max_bytes; }
 };
@@ -238,7 +281,8 @@ class Reader : public fdds::DataReaderListener {
   using OnData = std::function<void(fdds::DataReader*)>;
   Reader(Bus& bus, const std::string& topic_name, const std::string& profile, OnData on_data = {})
       : bus_(bus), on_data_(std::move(on_data)) {
-    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new PubSubType()));
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new CheckedType<T, PubSubType>()));
+    type_name_ = t->get_type_name();
     reader_ = bus.subscriber()->create_datareader(t, bus.reader_qos(topic_name, profile), this);
     if (!reader_) {
       throw std::runtime_error("cannot create DDS reader for " + topic_name + " with profile '" + profile +
@@ -264,7 +308,8 @@ class Reader : public fdds::DataReaderListener {
   Reader(Bus& bus, const std::string& topic_name, const std::string& profile, uint32_t max_sample_bytes,
          OnData on_data = {}, bool preallocate = false)
       : bus_(bus), max_sample_bytes_(max_sample_bytes), on_data_(std::move(on_data)) {
-    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new BoundedType<PubSubType>(max_sample_bytes)));
+    fdds::Topic* t = bus.topic(topic_name, fdds::TypeSupport(new BoundedType<T, PubSubType>(max_sample_bytes)));
+    type_name_ = t->get_type_name();
     fdds::TypeSupport registered = bus.participant()->find_type(t->get_type_name());
     if (registered.empty() || registered->m_typeSize != max_sample_bytes) {
       throw std::logic_error("DDS topic " + topic_name + " was created without the bound of " +
@@ -294,8 +339,11 @@ class Reader : public fdds::DataReaderListener {
     fdds::SampleInfo info;
     return take_from(reader, out, info);
   }
+  // A malformed sample (CheckedType) is taken from the history and skipped: counted, never returned.
   static bool take_from(fdds::DataReader* reader, T& out, fdds::SampleInfo& info) {
+    take_malformed_mark();
     while (reader->take_next_sample(&out, &info) == eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK) {
+      if (take_malformed_mark()) continue;
       if (info.valid_data) return true;
     }
     return false;
@@ -335,10 +383,14 @@ class Reader : public fdds::DataReaderListener {
   uint64_t refused() const { return max_sample_bytes_ ? samples_refused_for_size(max_sample_bytes_) : 0; }
   // The bound of the bounded constructor; 0 for none.
   uint32_t max_sample_bytes() const { return max_sample_bytes_; }
+  // Samples of this reader's type refused as malformed in this process so far, and why the last was.
+  uint64_t malformed() const { return samples_malformed(type_name_); }
+  std::string last_malformed_reason() const { return last_malformed(type_name_); }
 
  private:
   Bus& bus_;
   uint32_t max_sample_bytes_ = 0;
+  std::string type_name_;
   OnData on_data_;
   fdds::DataReader* reader_ = nullptr;
   std::mutex mu_;

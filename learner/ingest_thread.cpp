@@ -48,17 +48,15 @@ void IngestThread::loop() {
         room_cv_.wait(lk, [&] { return stop_ || queued_bytes_ < capacity_; });
       }
       if (stop_) return;
-      if (const uint64_t refused = ingest_.count_refused_samples(reader_.refused())) {
+      // Samples refused before deserialization: too large for the reader's bound, or malformed
+      // (bytes that do not decode as a TransitionBatch). Both count as invalid batches.
+      const uint64_t malformed = reader_.malformed();
+      if (const uint64_t refused = ingest_.count_refused_samples(reader_.refused() + malformed)) {
+        const uint64_t fresh_malformed = malformed - malformed_seen_;
+        malformed_seen_ = malformed;
         lk.unlock();
-        if (++said_.rejections <= kMaxRefusalLines)
-          log_("refused " + std::to_string(refused) + " batch sample(s) larger than " +
-               std::to_string(reader_.max_sample_bytes()) +
-               " bytes serialized (the most this experiment's workers send) before deserialization");
-        if (++said_.refusal_events <= kMaxRefusalEvents)
-          events_.write("refusal",
-                        {{"what", "batch sample"},
-                         {"count", refused},
-                         {"reason", "larger than " + std::to_string(reader_.max_sample_bytes()) + " bytes"}});
+        if (refused > fresh_malformed) refused_for_size(refused - fresh_malformed);
+        if (fresh_malformed > 0) refused_malformed(fresh_malformed);
       }
     }
     if (reader_.take(batch_, info_))
@@ -67,6 +65,24 @@ void IngestThread::loop() {
       reader_.wait(0.05);
     ingest_event(false);
   }
+}
+
+void IngestThread::refused_for_size(uint64_t n) {
+  if (++said_.rejections <= kMaxRefusalLines)
+    log_("refused " + std::to_string(n) + " batch sample(s) larger than " + std::to_string(reader_.max_sample_bytes()) +
+         " bytes serialized (the most this experiment's workers send) before deserialization");
+  if (++said_.refusal_events <= kMaxRefusalEvents)
+    events_.write("refusal", {{"what", "batch sample"},
+                              {"count", n},
+                              {"reason", "larger than " + std::to_string(reader_.max_sample_bytes()) + " bytes"}});
+}
+
+void IngestThread::refused_malformed(uint64_t n) {
+  const std::string why = printable(reader_.last_malformed_reason(), 300);
+  if (++said_.rejections <= kMaxRefusalLines)
+    log_("refused " + std::to_string(n) + " malformed batch sample(s) before deserialization: " + why);
+  if (++said_.refusal_events <= kMaxRefusalEvents)
+    events_.write("refusal", {{"what", "batch sample"}, {"count", n}, {"reason", "malformed"}, {"detail", why}});
 }
 
 bool IngestThread::accept() {

@@ -91,6 +91,9 @@ class IngestThread {
   bool accept();
   std::string token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const;
   void ingest_event(bool force);
+  // Said in the log and the events (capped): samples the reader refused, for their size or malformed.
+  void refused_for_size(uint64_t n);
+  void refused_malformed(uint64_t n);
 
   farm::dds::Bus& bus_;
   Ingest ingest_;  // guarded by mu_
@@ -108,6 +111,7 @@ class IngestThread {
   // The loop thread's own:
   farm::msg::TransitionBatch batch_;
   eprosima::fastdds::dds::SampleInfo info_;
+  uint64_t malformed_seen_ = 0;  // the reader's malformed count when last booked
   // What the log and the events have said, to keep them bounded: refusal lines and events, stream
   // retirements, other experiments whose batches were seen.
   struct Said {
