@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 namespace farm {
 
@@ -38,10 +39,45 @@ std::string check_eval_answer(const farm::msg::EvaluationAnswer& a, const EvalEx
     if (!robots::return_within_bound(ep.episode_return(), ep.length(), e.reward_bound))
       return at + "return " + std::to_string(ep.episode_return()) + " beyond what " + std::to_string(ep.length()) +
              " steps of this task can give (at most " + std::to_string(e.reward_bound) + " a step)";
+    if (!robots::return_within_range(ep.episode_return(), ep.length(), e.reward_min, e.reward_max))
+      return at + "return " + std::to_string(ep.episode_return()) + " outside what " + std::to_string(ep.length()) +
+             " steps of this task can give (each step's reward in [" + std::to_string(e.reward_min) + ", " +
+             std::to_string(e.reward_max) + "])";
     if (ep.metrics().size() != size_t(e.num_metrics))
       return at + std::to_string(ep.metrics().size()) + " metrics, the task has " + std::to_string(e.num_metrics);
     for (size_t k = 0; k < ep.metrics().size(); ++k)
       if (!std::isfinite(ep.metrics()[k])) return at + "metric " + std::to_string(k) + " is not finite";
+  }
+  return "";
+}
+
+std::string returns_agree(const std::map<std::string, std::vector<double>>& by, double sigmas, double relative) {
+  if (by.size() < 2)
+    return "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")";
+  // Mean and standard error of the mean of one worker's returns.
+  const auto stats = [](const std::vector<double>& v) {
+    double m = 0, q = 0;
+    for (double x : v) m += x;
+    m /= double(v.size());
+    for (double x : v) q += (x - m) * (x - m);
+    const double var = v.size() > 1 ? q / double(v.size() - 1) : 0.0;
+    return std::pair<double, double>{m, std::sqrt(var / double(v.size()))};
+  };
+  const auto fmt1 = [](double x) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%.1f", x);
+    return std::string(b);
+  };
+  for (auto a = by.begin(); a != by.end(); ++a) {
+    for (auto b = std::next(a); b != by.end(); ++b) {
+      if (a->second.empty() || b->second.empty()) return "a worker's part has no episodes";
+      const auto [ma, sa] = stats(a->second);
+      const auto [mb, sb] = stats(b->second);
+      const double room = sigmas * std::min(sa, sb) + relative * 0.5 * (std::abs(ma) + std::abs(mb)) + 1e-6;
+      if (!(std::abs(ma - mb) <= room))
+        return a->first + "'s episodes (mean return " + fmt1(ma) + ") and " + b->first + "'s (" + fmt1(mb) +
+               ") disagree by more than " + fmt1(room);
+    }
   }
   return "";
 }

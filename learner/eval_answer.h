@@ -5,7 +5,9 @@
 
 #include <cmath>
 #include <cstdint>
+#include <map>
 #include <string>
+#include <vector>
 
 #include "dds.h"
 #include "farm.h"
@@ -21,10 +23,22 @@ struct EvalExpected {
   // The task's bound on |reward| of one step (TaskSpec::reward_bound): no episode's return is
   // beyond length x bound. Infinite where the task declares none.
   double reward_bound = HUGE_VAL;
+  // The least and the most one step can pay (TaskSpec::reward_min, reward_max): one-sided bounds.
+  double reward_min = -HUGE_VAL, reward_max = HUGE_VAL;
 };
 
 // "" when the answer is one to use; else what is wrong with it (the first problem found).
 std::string check_eval_answer(const farm::msg::EvaluationAnswer& a, const EvalExpected& e);
+
+// Whether the returns of one evaluation, answered in parts by several workers (by worker id), agree:
+// "" when at least two workers answered and, for each pair, the difference of their mean returns is
+// within `sigmas` standard errors of the mean of the pair's narrower side (plus `relative` of the
+// pair's mean size); else why not. Each side's standard error comes from its own episodes, and the
+// narrower one decides: a participant that widens the spread of its own returns widens only its
+// own error, never the room the other side's episodes leave, so it cannot make a distant mean
+// agree. Under DDS Security a kept best or a stop rests on this.
+std::string returns_agree(const std::map<std::string, std::vector<double>>& returns_by_worker, double sigmas,
+                          double relative);
 
 // The largest EvaluationAnswer serialized (encapsulation included) for an experiment whose
 // evaluations ask at most max_episodes episodes of a task with num_metrics metrics: the learner's

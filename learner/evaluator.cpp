@@ -239,6 +239,8 @@ void Evaluator::take_answer() {
   e.num_metrics = int(spec_.metric_names.size());
   e.max_episode_steps = spec_.max_episode_steps;
   e.reward_bound = spec_.reward_bound;
+  e.reward_min = spec_.reward_min;
+  e.reward_max = spec_.reward_max;
   if (const std::string why = check_eval_answer(answer_, e); !why.empty()) {
     // Not used; the request stays out, so it is answered again or counted lost in its time.
     ++n_.invalid;
@@ -409,28 +411,7 @@ void Evaluator::drop_snapshot(const std::string& dir) {
 }
 
 std::string Evaluator::confirmation(const Group& group) const {
-  const auto& by = group.returns_by_worker;
-  if (by.size() < 2)
-    return "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")";
-  const auto stats = [](const std::vector<double>& v) {
-    double m = 0, q = 0;
-    for (double x : v) m += x;
-    m /= double(v.size());
-    for (double x : v) q += (x - m) * (x - m);
-    return std::pair<double, double>{m, v.size() > 1 ? q / double(v.size() - 1) : 0.0};
-  };
-  for (auto a = by.begin(); a != by.end(); ++a) {
-    for (auto b = std::next(a); b != by.end(); ++b) {
-      const auto [ma, va] = stats(a->second);
-      const auto [mb, vb] = stats(b->second);
-      const double se = std::sqrt(va / double(a->second.size()) + vb / double(b->second.size()));
-      const double room = kAgreeSigmas * se + kAgreeRelative * 0.5 * (std::abs(ma) + std::abs(mb)) + 1e-6;
-      if (std::abs(ma - mb) > room)
-        return a->first + "'s episodes (mean return " + fmt("%.1f", ma) + ") and " + b->first + "'s (" +
-               fmt("%.1f", mb) + ") disagree by more than " + fmt("%.1f", room);
-    }
-  }
-  return "";
+  return returns_agree(group.returns_by_worker, kAgreeSigmas, kAgreeRelative);
 }
 
 std::string Evaluator::summary() const {

@@ -105,8 +105,9 @@ class Evaluator {
   };
   // Under DDS Security a kept best or a stop rests on the word of two workers: an evaluation's
   // parts go to two workers at least where two are ready, and the report is confirmed only when
-  // two answered and each pair's mean returns agree within kAgreeSigmas standard errors of their
-  // episodes (plus kAgreeRelative of their size). "" when confirmed; else why not.
+  // two answered and each pair's mean returns agree within kAgreeSigmas standard errors of the
+  // pair's narrower side (plus kAgreeRelative of their size; returns_agree, eval_answer.h). "" when
+  // confirmed; else why not.
   std::string confirmation(const Group& group) const;
   // Live workers that have built their environments, by roster key.
   std::vector<RosterThread::Worker> ready_workers() const;

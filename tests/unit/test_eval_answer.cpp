@@ -119,4 +119,46 @@ TEST(EvalAnswer, ReturnBeyondTheTasksRewardBoundIsRefused) {
   EXPECT_EQ(check_eval_answer(a, e), "");
 }
 
+// A task whose reward is never positive (the pendulum's cost): a positive return is refused however
+// long the episode, where the two-sided bound let 1,412 through; 0 and below pass.
+TEST(EvalAnswer, ReturnAboveAOneSidedBoundIsRefused) {
+  EvalExpected e = expected();
+  e.reward_bound = 16.3;
+  e.reward_max = 0;
+  auto a = good();
+  a.episodes()[0].episode_return(1412.f);
+  a.episodes()[0].length(200);
+  const std::string why = check_eval_answer(a, e);
+  EXPECT_NE(why.find("episode 0: return"), std::string::npos) << why;
+  a.episodes()[0].episode_return(0.f);
+  EXPECT_EQ(check_eval_answer(a, e), "");
+  // Rewards in [0, 1] (cart-pole): a negative return is refused.
+  e.reward_max = HUGE_VAL;
+  e.reward_min = 0;
+  a.episodes()[0].episode_return(-0.5f);
+  EXPECT_NE(check_eval_answer(a, e), "");
+}
+
+// Parts of one evaluation from several workers: honest parts agree; a part whose mean is far from
+// the other's is refused however wide its own spread (a forger with four episodes at 3,251 and one
+// at -1,505 against an honest pendulum near -150 made the old combined-error rule agree); one worker
+// alone never confirms.
+TEST(EvalAnswer, ReturnsAgreeOnlyWithinTheNarrowerSidesError) {
+  const std::vector<double> honest_a{-140, -160, -150, -145, -155}, honest_b{-152, -148, -139, -161, -150};
+  EXPECT_EQ(returns_agree({{"w1", honest_a}, {"w2", honest_b}}, 4.0, 0.05), "");
+  const std::vector<double> forged{3251, 3251, 3251, 3251, -1505};
+  const std::string why = returns_agree({{"w1", honest_a}, {"w2", forged}}, 4.0, 0.05);
+  EXPECT_NE(why.find("disagree"), std::string::npos) << why;
+  // Widening the spread further changes nothing.
+  const std::vector<double> wider{1e6, 1e6, 1e6, 1e6, -4e6 + 2000};
+  EXPECT_NE(returns_agree({{"w1", honest_a}, {"w2", wider}}, 4.0, 0.05), "");
+  // A third, honest worker does not carry a forged part through.
+  EXPECT_NE(returns_agree({{"w1", honest_a}, {"w2", forged}, {"w3", honest_b}}, 4.0, 0.05), "");
+  EXPECT_NE(returns_agree({{"w1", honest_a}}, 4.0, 0.05).find("one worker"), std::string::npos);
+  EXPECT_NE(returns_agree({}, 4.0, 0.05), "");
+  // Deterministic parts that tie agree; a NaN never does.
+  EXPECT_EQ(returns_agree({{"w1", {-100, -100}}, {"w2", {-100}}}, 4.0, 0.05), "");
+  EXPECT_NE(returns_agree({{"w1", {NAN}}, {"w2", {-100}}}, 4.0, 0.05), "");
+}
+
 }  // namespace farm
