@@ -23,6 +23,11 @@ struct TaskSpec {
   // beyond length x reward_bound is refused (learner/eval_answer.h). Infinite: not declared.
   // tests/unit/test_task_conformance.cpp steps every task and holds its rewards to it.
   double reward_bound = HUGE_VAL;
+  // The least and the most one step's reward can be, where the task knows a side (within
+  // +-reward_bound): a task whose reward is never positive says reward_max 0, so that a return above
+  // 0 is refused however short the episode. Infinite: that side not declared.
+  double reward_min = -HUGE_VAL;
+  double reward_max = HUGE_VAL;
 };
 
 // Whether an episode of `length` steps can have returned episode_return under a bound of
@@ -30,6 +35,16 @@ struct TaskSpec {
 // relative margin.
 inline bool return_within_bound(double episode_return, double length, double reward_bound) {
   return std::abs(episode_return) <= length * reward_bound * (1 + 1e-4) + 1e-3;
+}
+
+// Whether an episode of `length` steps can have returned episode_return with each step's reward in
+// [reward_min, reward_max] (infinite: that side not declared), with the same rounding margin.
+inline bool return_within_range(double episode_return, double length, double reward_min, double reward_max) {
+  if (std::isfinite(reward_max) && episode_return > length * reward_max + std::abs(length * reward_max) * 1e-4 + 1e-3)
+    return false;
+  if (std::isfinite(reward_min) && episode_return < length * reward_min - std::abs(length * reward_min) * 1e-4 - 1e-3)
+    return false;
+  return true;
 }
 
 // The spec of the task cfg names, from the config alone (no MuJoCo), as its robot's folder defines

@@ -39,7 +39,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             Ingest in(cfg_.experiment_id(), task_spec_.obs_dim, task_spec_.act_dim,
                       int(task_spec_.metric_names.size()));
             in.set_num_actions(task_spec_.num_actions);
-            in.set_reward_bound(task_spec_.reward_bound);
+            in.set_reward_bound(task_spec_.reward_bound, task_spec_.reward_min, task_spec_.reward_max);
             in.set_max_episode_steps(task_spec_.max_episode_steps);
             return in;
           }(),

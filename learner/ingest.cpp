@@ -89,6 +89,12 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
                  all_within(b.final_observations(), kMaxMagnitude, "final_observations", most)}) {
     if (!r.empty()) return r;
   }
+  if (std::isfinite(reward_min_) || std::isfinite(reward_max_))
+    for (size_t i = 0; i < b.rewards().size(); ++i)
+      if (!robots::return_within_range(b.rewards()[i], 1, reward_min_, reward_max_))
+        return "reward " + config_checks::num(b.rewards()[i]) + " at " + std::to_string(i) +
+               " outside the task's range of one step's reward [" + config_checks::num(reward_min_) + ", " +
+               config_checks::num(reward_max_) + "]";
   for (float a : b.actions()) {
     if (num_actions_ > 0) {
       if (a < 0.f || a > float(num_actions_ - 1) || a != std::floor(a))
@@ -133,6 +139,10 @@ std::string Ingest::check(const farm::msg::TransitionBatch& b) const {
       return which + " returns " + config_checks::num(e.episode_return()) + ", beyond what " +
              std::to_string(e.length()) + " steps can give at the task's bound of " +
              config_checks::num(reward_bound_) + " a step";
+    if (!robots::return_within_range(e.episode_return(), e.length(), reward_min_, reward_max_))
+      return which + " returns " + config_checks::num(e.episode_return()) + ", outside what " +
+             std::to_string(e.length()) + " steps can give with each step's reward in [" +
+             config_checks::num(reward_min_) + ", " + config_checks::num(reward_max_) + "]";
     if (e.metrics().size() != size_t(num_metrics_))
       return which + " has " + std::to_string(e.metrics().size()) + " metrics, the task has " +
              std::to_string(num_metrics_);

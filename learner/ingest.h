@@ -132,7 +132,12 @@ class Ingest {
   void set_num_actions(int n) { num_actions_ = n; }
   // The task's bound on |reward| of one step (TaskSpec::reward_bound; infinite: not declared): a
   // batch with a reward beyond it is refused.
-  void set_reward_bound(double bound) { reward_bound_ = bound; }
+  // reward_min, reward_max: the one-sided bounds of one step's reward (TaskSpec), where declared.
+  void set_reward_bound(double bound, double reward_min = -HUGE_VAL, double reward_max = HUGE_VAL) {
+    reward_bound_ = bound;
+    reward_min_ = reward_min;
+    reward_max_ = reward_max;
+  }
   // The task's time limit (TaskSpec::max_episode_steps; 0: none): an episode summary longer than it
   // is refused.
   void set_max_episode_steps(int steps) { max_episode_steps_ = steps; }
@@ -149,7 +154,7 @@ class Ingest {
   std::string experiment_id_;
   int obs_dim_, act_dim_, num_metrics_;
   int num_actions_ = 0;
-  double reward_bound_ = HUGE_VAL;
+  double reward_bound_ = HUGE_VAL, reward_min_ = -HUGE_VAL, reward_max_ = HUGE_VAL;
   int max_episode_steps_ = 0;
   IngestCounters counters_;
   size_t missing_total_ = 0;  // the sizes of every account's `missing`, open and retired

@@ -68,7 +68,7 @@ class LearnerBus {
             [&] {
               farm::Ingest in(cfg_.experiment_id(), task_.obs_dim, task_.act_dim, int(task_.metric_names.size()));
               in.set_num_actions(task_.num_actions);
-              in.set_reward_bound(task_.reward_bound);
+              in.set_reward_bound(task_.reward_bound, task_.reward_min, task_.reward_max);
               in.set_max_episode_steps(task_.max_episode_steps);
               return in;
             }(),
@@ -299,6 +299,8 @@ class LearnerBus {
     e.num_metrics = int(task_.metric_names.size());
     e.max_episode_steps = task_.max_episode_steps;
     e.reward_bound = task_.reward_bound;
+    e.reward_min = task_.reward_min;
+    e.reward_max = task_.reward_max;
     farm::msg::EvaluationAnswer a;
     std::string why;
     bool got = false;

@@ -38,6 +38,7 @@ TaskSpec cartpole_spec(const config::TaskConfig& cfg) {
   s.max_episode_steps = cfg.cartpole().max_episode_steps();
   s.metric_names = {"upright_fraction"};
   s.reward_bound = 1;  // the control suite's smooth reward: a product of factors in [0, 1]
+  s.reward_min = 0;
   return s;
 }
 

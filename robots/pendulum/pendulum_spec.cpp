@@ -48,6 +48,8 @@ TaskSpec pendulum_spec(const config::TaskConfig& cfg) {
   const double v = std::max(p.max_speed(), p.init_max_speed());
   s.reward_bound =
       M_PI * M_PI + std::abs(p.velocity_cost()) * v * v + std::abs(p.torque_cost()) * p.max_torque() * p.max_torque();
+  // A cost (the config's costs are never negative): the reward is never positive.
+  s.reward_max = 0;
   return s;
 }
 

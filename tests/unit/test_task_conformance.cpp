@@ -121,6 +121,8 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
     task_ = make_task(GetParam().config);
     spec_ = task_->spec();
     bound_ = task_spec(GetParam().config).reward_bound;
+    reward_min_ = task_spec(GetParam().config).reward_min;
+    reward_max_ = task_spec(GetParam().config).reward_max;
   }
 
   std::unique_ptr<Task> another_instance() const { return make_task(GetParam().config); }
@@ -153,6 +155,8 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
     // The bound the learner holds evaluation answers to (TaskSpec::reward_bound, from the config).
     EXPECT_LE(std::abs(double(r.reward)), bound_)
         << "reward " << r.reward << " at step " << s.step << " beyond the spec's reward_bound";
+    EXPECT_GE(double(r.reward), reward_min_) << "reward below the spec's reward_min at step " << s.step;
+    EXPECT_LE(double(r.reward), reward_max_) << "reward above the spec's reward_max at step " << s.step;
     return {checked(buf, spec_.obs_dim, "step observation"), r.reward, r.terminated, r.truncated};
   }
 
@@ -173,7 +177,8 @@ class TaskConformance : public ::testing::TestWithParam<TaskCase> {
 
   std::unique_ptr<Task> task_;
   TaskSpec spec_;
-  double bound_ = HUGE_VAL;  // task_spec(config).reward_bound
+  double bound_ = HUGE_VAL;                                // task_spec(config).reward_bound
+  double reward_min_ = -HUGE_VAL, reward_max_ = HUGE_VAL;  // task_spec(config)'s one-sided bounds
 };
 
 TEST_P(TaskConformance, SpecIsWellFormed) {
