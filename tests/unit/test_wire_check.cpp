@@ -223,30 +223,57 @@ TEST(WireCheck, CheckedTypeRefusesInsteadOfThrowing) {
   EXPECT_NE(farm::dds::last_malformed(type.getName()).find("end_of_stream"), std::string::npos);
 }
 
-// Random mutations of well-formed samples: the checked type never throws, and whatever it accepts
-// the generated code decodes as well.
-TEST(WireCheck, MutatedSamplesNeverThrow) {
-  using Checked = farm::dds::CheckedType<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType>;
-  Checked type;
-  auto b = batch();
-  const std::vector<uint8_t> good = serialized<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType>(b);
-  std::mt19937 rng(17);
+// Random mutations (seeded) of a well-formed sample of one type: the checked type never throws, and
+// it is no blanket refusal (some mutations, of values rather than structure, decode).
+template <class T, class PubSubType>
+void mutations_never_throw(T sample, int rounds, uint32_t seed) {
+  farm::dds::CheckedType<T, PubSubType> type;
+  const std::vector<uint8_t> good = serialized<T, PubSubType>(sample);
+  std::mt19937 rng(seed);
   SerializedPayload_t payload(uint32_t(good.size()));
   int accepted = 0;
-  for (int i = 0; i < 20000; ++i) {
+  for (int i = 0; i < rounds; ++i) {
     std::vector<uint8_t> bad = good;
     const int flips = 1 + int(rng() % 4);
     for (int f = 0; f < flips; ++f) bad[4 + rng() % (bad.size() - 4)] = uint8_t(rng());
     if (rng() % 8 == 0) bad.resize(4 + rng() % (bad.size() - 4));
     std::memcpy(payload.data, bad.data(), bad.size());
     payload.length = uint32_t(bad.size());
-    farm::msg::TransitionBatch out;
+    T out;
     bool ok = false;
-    EXPECT_NO_THROW(ok = type.deserialize(&payload, &out));
+    EXPECT_NO_THROW(ok = type.deserialize(&payload, &out)) << type.getName() << " round " << i;
     accepted += ok;
     farm::dds::take_malformed_mark();
   }
-  EXPECT_GT(accepted, 0);  // mutations of float values decode: the check is not a blanket refusal
+  EXPECT_GT(accepted, 0) << type.getName();
+}
+
+TEST(WireCheck, MutatedSamplesOfEveryTopicNeverThrow) {
+  mutations_never_throw<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType>(batch(), 20000, 17);
+  mutations_never_throw<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType>(weights(), 5000, 18);
+  farm::msg::ExperimentSpec s;
+  s.experiment_id("ab");
+  s.config_text("x: 1\n");
+  s.finished(true);
+  mutations_never_throw<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType>(s, 5000, 19);
+  farm::msg::EvaluationRequest q;
+  q.worker_id("w12");
+  q.policy(weights());
+  mutations_never_throw<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType>(q, 5000, 20);
+  farm::msg::EvaluationAnswer a;
+  farm::msg::EvaluationEpisode ep;
+  ep.terminated(true);
+  ep.metrics({1.f});
+  a.episodes({ep, ep});
+  a.error("e");
+  mutations_never_throw<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType>(a, 5000, 21);
+  farm::msg::WorkerStatus st;
+  st.worker_id("w");
+  st.state("running");
+  mutations_never_throw<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>(st, 5000, 22);
+  farm::msg::LearnerStats ls;
+  ls.experiment_id("e");
+  mutations_never_throw<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>(ls, 5000, 23);
 }
 
 }  // namespace
