@@ -56,3 +56,17 @@ events() { grep -F "\"event\":\"$2\"" "$1/events.jsonl" 2>/dev/null; }
 
 # A process's peak resident memory in kB (VmHWM), or nothing once it has ended.  peak_kb PID
 peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
+
+# Starts a pendulum learner (config $dir/ID.txtpb with `stop { STOP }`, run folder $dir/run, log
+# $dir/learner.log) and one worker WORKER of 4 envs (log $dir/worker.log); sets lp and wp to their
+# pids, waits until the learner has taken a batch and 1 s more, and sets before to its batches_ok.
+#   start_pendulum_pair SOURCE_DIR LEARNER WORKER_BIN ID 'STOP' WORKER
+start_pendulum_pair() {
+  pendulum_config "$1" "$4" "$5" "$dir/$4.txtpb"
+  "$2" --config "$dir/$4.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+  "$3" --domain $domain --id "$6" --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+  for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 0 ] && break; sleep 0.2; done
+  sleep 1
+  before=$(batches_ok "$dir/run")
+  [ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
+}

@@ -16,13 +16,8 @@ csv_last() {
     "$1/learner.csv" 2>/dev/null
 }
 
-pendulum_config "$src" it_malformed "max_seconds: 30" "$dir/malformed.txtpb"
-"$learner" --config "$dir/malformed.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-"$worker" --domain $domain --id mw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
-for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 0 ] && break; sleep 0.2; done
-sleep 1
-before=$(batches_ok "$dir/run") peak_before=$(peak_kb $lp)
-[ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
+start_pendulum_pair "$src" "$learner" "$worker" it_malformed "max_seconds: 30" mw
+peak_before=$(peak_kb $lp)
 for kind in bool length truncate; do
   "$intruder" --domain $domain --experiment it_malformed --id bad-$kind --seconds 2 --malformed $kind \
     >"$dir/intruder-$kind.log" 2>&1 || fail "the intruder ($kind) did not run: $(tail -2 "$dir/intruder-$kind.log")"

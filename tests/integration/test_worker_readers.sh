@@ -10,13 +10,8 @@ learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 farm_test_init worker-readers 141
 
-pendulum_config "$src" it_readers "max_seconds: 25" "$dir/readers.txtpb"
-"$learner" --config "$dir/readers.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-"$worker" --domain $domain --id rw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
-for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 0 ] && break; sleep 0.2; done
-sleep 2
-before=$(batches_ok "$dir/run") peak_before=$(peak_kb $wp)
-[ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
+start_pendulum_pair "$src" "$learner" "$worker" it_readers "max_seconds: 25" rw
+peak_before=$(peak_kb $wp)
 "$intruder" --domain $domain --experiment it_readers --id big --seconds 4 --big-to-workers 200 >"$dir/intruder.log" 2>&1 ||
   fail "the intruder did not run: $(tail -2 "$dir/intruder.log")"
 kill -0 $wp 2>/dev/null || fail "the worker ended after the large samples: $(tail -3 "$dir/worker.log")"
