@@ -110,7 +110,9 @@ bool Evaluator::ask(const PolicyParams& policy, const EvalAsk& ask,
 std::vector<RosterThread::Worker> Evaluator::ready_workers() const {
   std::vector<RosterThread::Worker> ready;
   for (auto& w : roster_.workers())
-    if (w.live && w.view.last.envs() > 0 && w.view.last.state() != "error") ready.push_back(std::move(w));
+    if (w.live && w.view.last.envs() > 0 && w.view.last.state() != "error" &&
+        (!delivered_ || delivered_(w.view.last.worker_id(), w.view.writer)))
+      ready.push_back(std::move(w));
   return ready;
 }
 

@@ -33,6 +33,11 @@ class Evaluator {
   Evaluator(farm::dds::Bus& bus, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec,
             const RosterThread& roster, EventLog& events, Log log, std::string dir);
 
+  // Where set, evaluations go only to workers for which delivered(worker id, participant of its
+  // heartbeats) holds: those whose batches the learner has taken.
+  using Delivered = std::function<bool(const std::string& worker_id, const std::string& participant)>;
+  void only_workers_that_delivered(Delivered delivered) { delivered_ = std::move(delivered); }
+
   // Asks an evaluation of `policy`; keep_networks(folder) saves the networks it is of there (for a
   // new best). false (said in the log once) when a training evaluation is still out; a final one is
   // always asked.
@@ -130,6 +135,7 @@ class Evaluator {
   const config::ExperimentConfig& cfg_;
   const robots::TaskSpec& spec_;
   const RosterThread& roster_;
+  Delivered delivered_;
   EventLog& events_;
   Log log_;
   std::string dir_;

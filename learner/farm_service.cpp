@@ -64,6 +64,9 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
       checkpointer_(cfg_, task_spec_, run_dir_of(o, cfg_), events_, [this](const std::string& m) { log(m); }),
       algo_(make_pacing(cfg_, task_spec_)) {
   run_dir_ = run_dir_of(opt_, cfg_);
+  evaluator_.only_workers_that_delivered([this](const std::string& worker_id, const std::string& participant) {
+    return intake_.delivered(worker_id, participant);
+  });
 }
 
 int FarmService::run() {

@@ -68,10 +68,11 @@ void IngestThread::loop() {
 }
 
 void IngestThread::refused_for_size(uint64_t n) {
-  if (++said_.rejections <= kMaxRefusalLines)
+  Caps& caps = caps_for("size");
+  if (++caps.lines <= kMaxRefusalLines)
     log_("refused " + std::to_string(n) + " batch sample(s) larger than " + std::to_string(reader_.max_sample_bytes()) +
          " bytes serialized (the most this experiment's workers send) before deserialization");
-  if (++said_.refusal_events <= kMaxRefusalEvents)
+  if (++caps.events <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch sample"},
                               {"count", n},
                               {"reason", "larger than " + std::to_string(reader_.max_sample_bytes()) + " bytes"}});
@@ -79,9 +80,10 @@ void IngestThread::refused_for_size(uint64_t n) {
 
 void IngestThread::refused_malformed(uint64_t n) {
   const std::string why = printable(reader_.last_malformed_reason(), 300);
-  if (++said_.rejections <= kMaxRefusalLines)
+  Caps& caps = caps_for("malformed");
+  if (++caps.lines <= kMaxRefusalLines)
     log_("refused " + std::to_string(n) + " malformed batch sample(s) before deserialization: " + why);
-  if (++said_.refusal_events <= kMaxRefusalEvents)
+  if (++caps.events <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch sample"}, {"count", n}, {"reason", "malformed"}, {"detail", why}});
 }
 
@@ -132,10 +134,12 @@ bool IngestThread::accept() {
   // another than the writer's certificate.
   const std::string detail = (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
                              token_note(info_.sample_identity.writer_guid(), writer);
-  if (++said_.rejections <= kMaxRefusalLines)
+  // Capped per participant: one participant's refusals never use up another's lines and events.
+  Caps& caps = caps_for("participant " + participant);
+  if (++caps.lines <= kMaxRefusalLines)
     log_("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
          ": " + why + detail);
-  if (++said_.refusal_events <= kMaxRefusalEvents)
+  if (++caps.events <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch"},
                               {"worker_id", printable(batch_.worker_id(), 100)},
                               {"sequence_number", batch_.sequence_number()},
@@ -221,6 +225,21 @@ void IngestThread::with_ingest(const std::function<void(Ingest&)>& f) {
 IngestCounters IngestThread::counters() const {
   std::lock_guard<std::mutex> lk(mu_);
   return ingest_.counters();
+}
+
+IngestThread::Caps& IngestThread::caps_for(const std::string& cause) {
+  auto it = said_.by_cause.find(cause);
+  if (it != said_.by_cause.end()) return it->second;
+  // Past kMaxCauses causes, the new ones share one set of caps: the bound on lines and events holds.
+  if (said_.by_cause.size() >= kMaxCauses) return said_.by_cause[""];
+  return said_.by_cause[cause];
+}
+
+bool IngestThread::delivered(const std::string& worker_id, const std::string& participant) const {
+  std::lock_guard<std::mutex> lk(mu_);
+  for (const auto& [key, w] : ingest_.workers())
+    if (w.worker_id == worker_id && w.received > 0 && !w.writer.empty() && w.writer == participant) return true;
+  return false;
 }
 
 size_t IngestThread::queued() const {

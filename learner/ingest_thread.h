@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -79,9 +80,17 @@ class IngestThread {
   // Batches accepted so far, without a lock (read around every training pass).
   uint64_t accepted() const { return accepted_.load(std::memory_order_relaxed); }
   size_t queued() const;
+  // Whether worker_id has a stream of accepted batches bound to `participant` (dds::participant_key):
+  // a worker the evaluations may go to. A heartbeat costs nothing to invent; a batch stream that
+  // passes every check does.
+  bool delivered(const std::string& worker_id, const std::string& participant) const;
   size_t queued_bytes() const;
   size_t capacity_bytes() const { return capacity_; }
   uint32_t max_sample_bytes() const { return reader_.max_sample_bytes(); }
+  // Refusal lines and events said per cause (a participant's batches, samples too large, malformed
+  // samples), for at most kMaxCauses causes (the rest share one set).
+  static constexpr int kMaxRefusalLines = 20, kMaxRefusalEvents = 100;
+  static constexpr size_t kMaxCauses = 64;
   // Batches the thread could not take because the queue was full, counted once per wait.
   uint64_t full_waits() const { return full_waits_.load(); }
 
@@ -114,8 +123,15 @@ class IngestThread {
   uint64_t malformed_seen_ = 0;  // the reader's malformed count when last booked
   // What the log and the events have said, to keep them bounded: refusal lines and events, stream
   // retirements, other experiments whose batches were seen.
+  // Refusal lines and events said so far for one cause: batches of one participant, samples too
+  // large, malformed samples.
+  struct Caps {
+    int lines = 0, events = 0;
+  };
+  Caps& caps_for(const std::string& cause);
   struct Said {
-    int rejections = 0, retirements = 0, refusal_events = 0;
+    int retirements = 0;
+    std::map<std::string, Caps> by_cause;  // at most kMaxCauses + 1 (the rest share "")
     std::set<std::string> foreign;
   } said_;
   // The last ingest event: when, and the counts it gave.
@@ -123,7 +139,7 @@ class IngestThread {
     double t = 0;
     uint64_t ok = 0, invalid = 0;
   } last_event_;
-  static constexpr int kMaxRefusalLines = 20, kMaxRefusalEvents = 100;
+
   static constexpr double kEventEveryS = 1.0;
 };
 

@@ -43,7 +43,8 @@
 // --flood-streams N: instead of a plain stream, N one-step batches once matched, each under an
 // invented worker id and session, all well-formed.
 // --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
-// worker session, with the host name --status-host (--status-host-bytes B: B characters instead).
+// worker session, with the host name --status-host (--status-host-bytes B: B characters instead);
+// with --beat-every S the same N sessions beat again every S seconds while --seconds lasts.
 // --malformed KIND: instead of a stream, samples of every topic whose bytes do not decode
 // (intruder_malformed.cpp).
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
@@ -301,7 +302,7 @@ int main(int argc, char** argv) {
   bool spec_finished = false, spec_only = false;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed;
   unsigned spec_steps = 4, spec_max_batches = 4;
-  double forge_return = NAN;
+  double forge_return = NAN, beat_every = 0;
   unsigned forge_length = 1, forge_metrics = 1, flood_streams = 0, flood_heartbeats = 0, host_bytes = 0, big_mib = 0;
   farm::cli::App app("farm_intruder");
   app.description("A participant that does what no farm program does, for the reliability and security tests.");
@@ -342,6 +343,8 @@ int main(int argc, char** argv) {
                  "N: one-step batches under N invented worker ids and sessions instead of a plain stream");
   app.add_option("--flood-heartbeats", flood_heartbeats,
                  "N: heartbeats of N invented worker sessions instead of a plain stream");
+  app.add_option("--beat-every", beat_every,
+                 "S > 0: the --flood-heartbeats sessions beat again every S seconds for --seconds (live workers)");
   app.add_option("--status-host-bytes", host_bytes, "B: a host name of B characters in the flood's heartbeats");
   add_switch("--forge-weights", forge_weights_on,
              "1: the experiment's weights as its learner publishes them, written again a million versions ahead");
@@ -496,15 +499,21 @@ int main(int argc, char** argv) {
         st.envs(1);
         st.threads(1);
         st.state("running");
-        for (unsigned k = 0; k < flood_heartbeats; ++k) {
-          st.worker_session(rng());
-          beats += beat_out.write(st);
+        std::vector<uint64_t> sessions(flood_heartbeats);
+        for (auto& s : sessions) s = rng();
+        for (const double t_beat = farm::now_seconds();;) {
+          for (uint64_t s : sessions) {
+            st.worker_session(s);
+            beats += beat_out.write(st);
+          }
+          if (beat_every <= 0 || farm::now_seconds() - t_beat + beat_every > seconds) break;
+          std::this_thread::sleep_for(std::chrono::duration<double>(beat_every));
         }
       }
       std::printf("%s: flooded %llu batches of invented streams, %llu heartbeats of invented sessions\n", id.c_str(),
                   (unsigned long long)batches, (unsigned long long)beats);
       std::fflush(stdout);
-      std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+      if (beat_every <= 0) std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
       return 0;
     }
     while (oversize && farm::now_seconds() - t0 < seconds) {

@@ -122,6 +122,71 @@ TEST(IngestThread, SlowConsumerLosesNothingAndTheQueueHoldsTheThreadBack) {
   EXPECT_GT(intake.full_waits(), 0u) << "the queue never filled: the consumer was not slower than the sender";
 }
 
+// n batches of worker `id` whose dims are not the experiment's (each refused), from a participant
+// of its own; 0 once all are acknowledged.
+int send_bad_batches(int domain, const std::string& id, uint64_t n) {
+  farm::dds::BusOptions o;
+  o.domain = domain;
+  farm::dds::Bus bus(o, "test " + id);
+  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
+                                                                                          "batch_writer");
+  for (int i = 0; i < 400 && out.matched() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  if (out.matched() == 0) return 2;
+  for (uint64_t s = 0; s < n; ++s) {
+    auto b = batch(s);
+    b.worker_id(id);
+    b.obs_dim(kObs + 1);
+    while (!out.write(b)) {
+    }
+  }
+  return out.wait_for_acks(30) ? 0 : 3;
+}
+
+// Refusal lines and events are capped per participant: a participant whose 150 refused batches
+// exhaust its own caps leaves another's refusal said (in the log and as an event).
+TEST(IngestThread, OneParticipantsRefusalsDoNotSilenceAnothers) {
+  const int domain = test_domain() + 1;
+  farm::dds::BusOptions o;
+  o.domain = domain;
+  farm::dds::Bus learner_bus(o, "test learner");
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("refusals_" + std::to_string(getpid()) + ".jsonl")).string();
+  std::filesystem::remove(path);
+  farm::EventLog events;
+  events.open(path);
+  std::vector<std::string> lines;
+  std::mutex lines_mu;
+  farm::IngestThread intake(
+      learner_bus, farm::Ingest("exp", kObs, kAct, 0), uint32_t(farm::Ingest::max_batch_bytes(kObs, kAct, 0, 1)),
+      1 << 20,
+      [&](const std::string& m) {
+        std::lock_guard<std::mutex> lk(lines_mu);
+        lines.push_back(m);
+      },
+      events);
+  intake.start(kVersion);
+  // Two participants of this process, one after the other (fewer batches than the reader's history
+  // holds, which Fast DDS's intra-process delivery does not resend).
+  EXPECT_EQ(send_bad_batches(domain, "noise", 150), 0);
+  EXPECT_EQ(send_bad_batches(domain, "w1", 1), 0);
+  const double t_end = farm::now_seconds() + 10;
+  while (intake.counters().invalid < 151 && farm::now_seconds() < t_end) intake.wait(0.05);
+  EXPECT_EQ(intake.counters().invalid, 151u);
+  std::ifstream in(path);
+  std::string line;
+  int noise = 0, w1 = 0;
+  while (std::getline(in, line)) {
+    const auto e = nlohmann::json::parse(line);
+    if (e.value("event", "") != "refusal") continue;
+    noise += e.value("worker_id", "") == "noise";
+    w1 += e.value("worker_id", "") == "w1";
+  }
+  EXPECT_EQ(noise, farm::IngestThread::kMaxRefusalEvents);
+  EXPECT_EQ(w1, 1);
+  std::lock_guard<std::mutex> lk(lines_mu);
+  EXPECT_EQ(lines.size(), size_t(farm::IngestThread::kMaxRefusalLines) + 1);
+}
+
 TEST(EventLog, OneObjectALineWithCsvColumnsAsFields) {
   const std::string path =
       (std::filesystem::temp_directory_path() / ("events_" + std::to_string(getpid()) + ".jsonl")).string();
