@@ -39,7 +39,8 @@
 // the moment it is seen, as the worker asked would, every field copied from the request and that
 // worker's last heartbeat, with each episode's return RETURN, length --forge-length (default 1)
 // and --forge-metrics metrics (default 1) of value 1. With --heartbeat 1 it is a worker of its own
-// instead: it beats as NAME (session 1, 4 envs, running) and answers only what is asked of it.
+// instead: it beats as NAME (session 1, 4 envs, running), sends a well-formed one-step batch with
+// each beat, and answers only what is asked of it.
 // --flood-streams N: instead of a plain stream, N one-step batches once matched, each under an
 // invented worker id and session, all well-formed.
 // --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
@@ -170,7 +171,8 @@ int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
 
 // --forge-answers: answers every request of `experiment` the moment it is seen (see the top).
 int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
-                  float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat) {
+                  float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat, unsigned obs,
+                  unsigned act) {
   using namespace farm::msg;
   farm::dds::Reader<EvaluationRequest, EvaluationRequestPubSubType> requests(bus, farm::dds::kEvalRequestTopic,
                                                                              "batch_reader");
@@ -178,12 +180,33 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
   // which a worker certificate allows: it may not read heartbeats) it beats as session 1.
   std::unique_ptr<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>> status;
   std::unique_ptr<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>> beats;
-  if (own_heartbeat)
+  // As a worker of its own it also delivers well-formed batches, as a worker whose evaluations the
+  // learner asks must have.
+  std::unique_ptr<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>> batches;
+  TransitionBatch b;
+  if (own_heartbeat) {
     beats = std::make_unique<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_writer");
-  else
+    batches = std::make_unique<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>>(
+        bus, farm::dds::kBatchTopic, "batch_writer");
+    b.experiment_id(experiment);
+    b.worker_id(id);
+    b.worker_session(1);
+    b.num_steps(1);
+    b.num_envs(1);
+    b.obs_dim(obs);
+    b.act_dim(act);
+    b.observations(std::vector<float>(obs, 0.5f));
+    b.actions(std::vector<float>(act, 0.f));
+    b.rewards({-1.f});
+    b.terminated({0});
+    b.truncated({0});
+    b.log_probs({0.f});
+    b.next_observations(std::vector<float>(obs, 0.5f));
+  } else {
     status = std::make_unique<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_reader");
+  }
   farm::dds::Writer<EvaluationAnswer, EvaluationAnswerPubSubType> answers(bus, farm::dds::kEvalAnswerTopic,
                                                                           "batch_writer");
   std::map<std::string, uint64_t> sessions;  // worker id -> its last heartbeat's session
@@ -203,6 +226,7 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
       st.threads(1);
       st.state("running");
       beats->write(st);
+      if (batches->matched() > 0 && batches->write(b)) b.sequence_number(b.sequence_number() + 1);
       beat_at = farm::now_seconds();
     }
     EvaluationRequest q;
@@ -366,7 +390,8 @@ int main(int argc, char** argv) {
     std::fflush(stdout);
     if (try_writers) return try_every_writer(bus, id);
     if (!std::isnan(forge_return))
-      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat);
+      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat, obs,
+                           act);
     if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
     if (!malformed.empty()) return send_malformed(bus, id, experiment, obs, act, malformed, seconds);
     if (forge_weights_on) return forge_weights(bus, id, experiment, seconds);
