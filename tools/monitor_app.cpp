@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "meter.h"
+#include "printable.h"
 
 namespace farm {
 
@@ -89,7 +90,21 @@ bool MonitorApp::wanted(const std::string& experiment) const {
 void MonitorApp::drain() {
   const double now = farm::now_seconds();
   farm::msg::WorkerStatus s;
-  while (status_in_.take(s)) {
+  eprosima::fastdds::dds::SampleInfo info;
+  while (status_in_.take(s, info)) {
+    // Under DDS Security a heartbeat says only what its writer's certificate may: the worker id must
+    // be the certificate's name, as the learner's roster asks. A leaked certificate cannot show
+    // another worker in error or invent workers in the table and the series.
+    if (!bus_.security_dir().empty() && bus_.authenticated_name(info.sample_identity.writer_guid()) != s.worker_id()) {
+      if (++refused_for_name_ <= kMaxRefusalNotes)
+        std::fprintf(stderr,
+                     "farm-monitor: ignored a heartbeat of worker '%s' from a participant whose certificate "
+                     "name is '%s'%s\n",
+                     printable(s.worker_id(), 100).c_str(),
+                     printable(bus_.authenticated_name(info.sample_identity.writer_guid()), 100).c_str(),
+                     refused_for_name_ == kMaxRefusalNotes ? " (no more such lines)" : "");
+      continue;
+    }
     // Heartbeats are network input, and anyone on the domain can invent them: texts are kept cut
     // and every table bounded (the least recently heard worker or learner makes room).
     if (s.worker_id().size() > kMaxTextBytes) s.worker_id(s.worker_id().substr(0, kMaxTextBytes));

@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <regex>
 #include <string>
 #include <thread>
@@ -127,12 +128,18 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(79));
   const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
-  ASSERT_EQ(std::system(("bash " + pki + " " + d + "/pki learner:learner worker:w1 > " + d + "/pki.log 2>&1").c_str()),
-            0)
+  ASSERT_EQ(
+      std::system(
+          ("bash " + pki + " " + d + "/pki learner:learner worker:w1 monitor:mon > " + d + "/pki.log 2>&1").c_str()),
+      0)
       << slurp(d + "/pki.log");
   std::string cfg = kConfig;
   cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 28");
   write_file(d + "/bound.txtpb", cfg);
+  // A monitor with a certificate of its own, writing its table as JSON lines.
+  Proc& monitor = set.start({FARM_MONITOR_BIN, "--domain", domain, "--security", d + "/pki/mon", "--quiet",
+                             "--interval", "1", "--log", d + "/monitor.jsonl"},
+                            "monitor");
 
   Proc& renamed =
       set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "w2", "--security", d + "/pki/w1"}, "worker-as-w2");
@@ -152,6 +159,23 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
   EXPECT_NE(set.log("worker").find("[worker w1] started"), std::string::npos) << set.log("worker");
+  // The monitor shows w1 and never the forger's w2: a heartbeat says only what its certificate may.
+  kill(monitor.pid, SIGTERM);
+  wait_for(monitor, 10);
+  int lines_with_w1 = 0, lines_with_w2 = 0;
+  {
+    std::ifstream in(d + "/monitor.jsonl");
+    std::string line;
+    while (std::getline(in, line)) {
+      const auto row = nlohmann::json::parse(line);
+      for (const auto& w : row["workers"]) {
+        lines_with_w1 += w["id"] == "w1";
+        lines_with_w2 += w["id"] == "w2";
+      }
+    }
+  }
+  EXPECT_GT(lines_with_w1, 0) << slurp(d + "/monitor.jsonl") << set.log("monitor");
+  EXPECT_EQ(lines_with_w2, 0) << slurp(d + "/monitor.jsonl");
 
   // The forger was authenticated and matched by the learner (its certificate is a worker's), so
   // its batches reached the learner: they were refused there, not lost on the way.
