@@ -183,26 +183,12 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
   // As a worker of its own it also delivers well-formed batches, as a worker whose evaluations the
   // learner asks must have.
   std::unique_ptr<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>> batches;
-  TransitionBatch b;
+  TransitionBatch b = one_step_batch(experiment, id, obs, act);
   if (own_heartbeat) {
     beats = std::make_unique<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_writer");
     batches = std::make_unique<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>>(
         bus, farm::dds::kBatchTopic, "batch_writer");
-    b.experiment_id(experiment);
-    b.worker_id(id);
-    b.worker_session(1);
-    b.num_steps(1);
-    b.num_envs(1);
-    b.obs_dim(obs);
-    b.act_dim(act);
-    b.observations(std::vector<float>(obs, 0.5f));
-    b.actions(std::vector<float>(act, 0.f));
-    b.rewards({-1.f});
-    b.terminated({0});
-    b.truncated({0});
-    b.log_probs({0.f});
-    b.next_observations(std::vector<float>(obs, 0.5f));
   } else {
     status = std::make_unique<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_reader");
@@ -462,22 +448,8 @@ int main(int argc, char** argv) {
       }
     }
     // A well-formed batch: if it got through, the learner would accept it.
-    const unsigned T = 1, N = 1;
-    farm::msg::TransitionBatch b;
-    b.experiment_id(experiment);
-    b.worker_id(id);
-    b.worker_session(1);
-    b.num_steps(T);
-    b.num_envs(N);
-    b.obs_dim(obs);
-    b.act_dim(act);
-    b.observations(std::vector<float>(T * N * obs, 0.5f));
-    b.actions(std::vector<float>(T * N * act, 0.0f));
-    b.rewards(std::vector<float>(T * N, 0.0f));
-    b.terminated(std::vector<uint8_t>(T * N, 0));
-    b.truncated(std::vector<uint8_t>(T * N, 0));
-    b.log_probs(std::vector<float>(T * N, 0.0f));
-    b.next_observations(std::vector<float>(N * obs, 0.5f));
+    const unsigned N = 1;
+    farm::msg::TransitionBatch b = one_step_batch(experiment, id, obs, act);
     uint64_t sent = 0, weights_seen = 0, specs_seen = 0;
     int max_matched = 0;
     const double t0 = farm::now_seconds();

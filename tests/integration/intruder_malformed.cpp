@@ -112,13 +112,9 @@ struct RawWriter {
 
 }  // namespace
 
-int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, unsigned obs,
-                   unsigned act, const std::string& kind, double seconds) {
-  using namespace farm::msg;
-  if (kind != "bool" && kind != "length" && kind != "truncate")
-    throw std::runtime_error("--malformed takes bool, length or truncate, not '" + kind + "'");
-  // Well-formed samples of the experiment, one per topic.
-  TransitionBatch b;
+farm::msg::TransitionBatch one_step_batch(const std::string& experiment, const std::string& id, unsigned obs,
+                                          unsigned act) {
+  farm::msg::TransitionBatch b;
   b.experiment_id(experiment);
   b.worker_id(id);
   b.worker_session(1);
@@ -129,10 +125,21 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
   b.observations(std::vector<float>(obs, 0.5f));
   b.actions(std::vector<float>(act, 0.f));
   b.rewards({0.f});
-  b.terminated({1});
+  b.terminated({0});
   b.truncated({0});
   b.log_probs({0.f});
   b.next_observations(std::vector<float>(obs, 0.5f));
+  return b;
+}
+
+int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, unsigned obs,
+                   unsigned act, const std::string& kind, double seconds) {
+  using namespace farm::msg;
+  if (kind != "bool" && kind != "length" && kind != "truncate")
+    throw std::runtime_error("--malformed takes bool, length or truncate, not '" + kind + "'");
+  // Well-formed samples of the experiment, one per topic.
+  TransitionBatch b = one_step_batch(experiment, id, obs, act);
+  b.terminated({1});
   b.final_index({0});
   b.final_observations(std::vector<float>(obs, 0.5f));
   EpisodeSummary e;

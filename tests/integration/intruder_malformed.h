@@ -1,9 +1,14 @@
-// farm_intruder's --malformed mode (intruder_malformed.cpp).
+// farm_intruder's --malformed mode and the batch its modes share (intruder_malformed.cpp).
 #pragma once
 
 #include <string>
 
 #include "dds.h"
+
+// A well-formed batch of one step of one environment, worker `id`, session 1, sequence 0: what the
+// learner of `experiment` (obs and act its sizes) accepts.
+farm::msg::TransitionBatch one_step_batch(const std::string& experiment, const std::string& id, unsigned obs,
+                                          unsigned act);
 
 // Writes samples of every farm topic broken one way (kind: bool, length or truncate) for `seconds`
 // once matched, and prints how many of each it wrote. Returns the process's exit status.

@@ -50,16 +50,19 @@ int test_domain() { return 120 + int(getpid() % 80); }
 // The worker's side, in a process of its own as on a farm (Fast DDS's intra-process shortcut would
 // not resend what a full reader history refused): n batches, each written again until the writer
 // takes it (a full reader history holds the writer back). Exit code 0 once all are written.
-int send_batches(int domain, uint64_t n) {
+// The batches are worker `id`'s; with bad_dims their dims are not the experiment's (each refused).
+int send_batches(int domain, uint64_t n, const std::string& id = "w1", bool bad_dims = false) {
   farm::dds::BusOptions o;
   o.domain = domain;
-  farm::dds::Bus bus(o, "test worker");
+  farm::dds::Bus bus(o, "test " + id);
   farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
                                                                                           "batch_writer");
   for (int i = 0; i < 400 && out.matched() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(25));
   if (out.matched() == 0) return 2;
   for (uint64_t s = 0; s < n; ++s) {
     auto b = batch(s);
+    b.worker_id(id);
+    if (bad_dims) b.obs_dim(kObs + 1);
     const double t_end = farm::now_seconds() + 60;
     while (!out.write(b))
       if (farm::now_seconds() > t_end) return 3;
@@ -122,26 +125,6 @@ TEST(IngestThread, SlowConsumerLosesNothingAndTheQueueHoldsTheThreadBack) {
   EXPECT_GT(intake.full_waits(), 0u) << "the queue never filled: the consumer was not slower than the sender";
 }
 
-// n batches of worker `id` whose dims are not the experiment's (each refused), from a participant
-// of its own; 0 once all are acknowledged.
-int send_bad_batches(int domain, const std::string& id, uint64_t n) {
-  farm::dds::BusOptions o;
-  o.domain = domain;
-  farm::dds::Bus bus(o, "test " + id);
-  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
-                                                                                          "batch_writer");
-  for (int i = 0; i < 400 && out.matched() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(25));
-  if (out.matched() == 0) return 2;
-  for (uint64_t s = 0; s < n; ++s) {
-    auto b = batch(s);
-    b.worker_id(id);
-    b.obs_dim(kObs + 1);
-    while (!out.write(b)) {
-    }
-  }
-  return out.wait_for_acks(30) ? 0 : 3;
-}
-
 // Refusal lines and events are capped per participant: a participant whose 150 refused batches
 // exhaust its own caps leaves another's refusal said (in the log and as an event).
 TEST(IngestThread, OneParticipantsRefusalsDoNotSilenceAnothers) {
@@ -167,8 +150,8 @@ TEST(IngestThread, OneParticipantsRefusalsDoNotSilenceAnothers) {
   intake.start(kVersion);
   // Two participants of this process, one after the other (fewer batches than the reader's history
   // holds, which Fast DDS's intra-process delivery does not resend).
-  EXPECT_EQ(send_bad_batches(domain, "noise", 150), 0);
-  EXPECT_EQ(send_bad_batches(domain, "w1", 1), 0);
+  EXPECT_EQ(send_batches(domain, 150, "noise", true), 0);
+  EXPECT_EQ(send_batches(domain, 1, "w1", true), 0);
   const double t_end = farm::now_seconds() + 10;
   while (intake.counters().invalid < 151 && farm::now_seconds() < t_end) intake.wait(0.05);
   EXPECT_EQ(intake.counters().invalid, 151u);
