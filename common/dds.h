@@ -193,7 +193,7 @@ class CheckedType : public PubSubType {
     if (!layout_) throw std::logic_error(std::string("no wire layout for DDS type ") + this->getName());
   }
   bool deserialize(eprosima::fastrtps::rtps::SerializedPayload_t* payload, void* data) override {
-    std::string why = wire::walk(*layout_, payload->data, payload->length);
+    std::string why = wire::walk(*layout_, payload->data, payload->length).text();
     if (why.empty()) {
       try {
         if (PubSubType::deserialize(payload, data)) return true;

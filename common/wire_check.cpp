@@ -27,28 +27,48 @@ class Walker {
  public:
   Walker(const uint8_t* data, size_t size, const Visit& visit) : d_(data), size_(size), visit_(visit) {}
 
-  std::string run(const Layout& layout, size_t* end) {
-    if (size_ < kHeader) return "payload of " + std::to_string(size_) + " bytes has no encapsulation header";
+  Check run(const Layout& layout, size_t* end) {
+    if (size_ < kHeader)
+      return fail(Fault::NoHeader, 0, "payload of " + std::to_string(size_) + " bytes has no encapsulation header");
     if (d_[0] != 0 || d_[1] > 1)
-      return "encapsulation kind " + std::to_string(d_[0]) + "," + std::to_string(d_[1]) + " is not plain CDR";
+      return fail(Fault::Encapsulation, 0,
+                  "encapsulation kind " + std::to_string(d_[0]) + "," + std::to_string(d_[1]) + " is not plain CDR");
     little_ = d_[1] == 1;
     pos_ = kHeader;
-    if (!fields(layout, "")) return error_;
+    if (!fields(layout)) return check_;
     if (size_ - pos_ > kMaxTrailing)
-      return std::to_string(size_ - pos_) + " bytes after the last field of " + layout.name + " (at most " +
-             std::to_string(kMaxTrailing) + " of padding)";
+      return fail(Fault::Trailing, pos_,
+                  std::to_string(size_ - pos_) + " bytes after the last field of " + layout.name + " (at most " +
+                      std::to_string(kMaxTrailing) + " of padding)");
     if (end) *end = pos_;
-    return "";
+    return check_;
   }
 
  private:
-  bool fail(const std::string& path, size_t at, const std::string& what) {
-    error_ = "field '" + path + "' at byte " + std::to_string(at) + ": " + what;
+  // The dotted path of the field being walked (episodes[3].metrics), made only when it is needed:
+  // a refusal or a visit, never for each field of a well-formed sample.
+  std::string path() const {
+    std::string p;
+    for (const Step& s : path_) {
+      if (!p.empty() && s.index < 0) p += '.';
+      p += s.index < 0 ? std::string(s.name) : "[" + std::to_string(s.index) + "]";
+    }
+    return p;
+  }
+  Check fail(Fault fault, size_t at, std::string what) {
+    check_.fault = fault;
+    check_.field = path();
+    check_.offset = at;
+    check_.detail = std::move(what);
+    return check_;
+  }
+  bool refuse(Fault fault, size_t at, std::string what) {
+    fail(fault, at, std::move(what));
     return false;
   }
-  bool align(const std::string& path, size_t n) {
+  bool align(size_t n) {
     const size_t pad = (n - (pos_ - kHeader) % n) % n;
-    if (size_ - pos_ < pad) return fail(path, pos_, "ends before its alignment");
+    if (size_ - pos_ < pad) return refuse(Fault::Truncated, pos_, "ends before its alignment");
     pos_ += pad;
     return true;
   }
@@ -59,36 +79,35 @@ class Walker {
   }
   // A count (of a sequence or a string): aligned, read, and bounded by the bytes left, each element
   // taking at least min_bytes.
-  bool count(const std::string& path, size_t min_bytes, uint32_t& n) {
-    if (!align(path, 4)) return false;
-    if (size_ - pos_ < 4) return fail(path, pos_, "ends before its count");
-    if (visit_) visit_(path, current_, pos_);
+  bool count(Kind k, size_t min_bytes, uint32_t& n) {
+    if (!align(4)) return false;
+    if (size_ - pos_ < 4) return refuse(Fault::Truncated, pos_, "ends before its count");
+    if (visit_) visit_(path(), k, pos_);
     n = u32_at(pos_);
     pos_ += 4;
     if (n > 0 && min_bytes > 1) {
       const size_t pad = (min_bytes - (pos_ - kHeader) % min_bytes) % min_bytes;
       if (pad > size_ - pos_ || uint64_t(n) * min_bytes > size_ - pos_ - pad)
-        return fail(path, pos_ - 4,
-                    std::to_string(n) + " elements of " + std::to_string(min_bytes) + " bytes claimed, " +
-                        std::to_string(size_ - pos_) + " bytes left");
+        return refuse(Fault::Count, pos_ - 4,
+                      std::to_string(n) + " elements of " + std::to_string(min_bytes) + " bytes claimed, " +
+                          std::to_string(size_ - pos_) + " bytes left");
     } else if (uint64_t(n) > size_ - pos_) {
-      return fail(path, pos_ - 4,
-                  std::to_string(n) + " elements claimed, " + std::to_string(size_ - pos_) + " bytes left");
+      return refuse(Fault::Count, pos_ - 4,
+                    std::to_string(n) + " elements claimed, " + std::to_string(size_ - pos_) + " bytes left");
     }
     return true;
   }
-  bool primitive(const std::string& path, Kind k) {
+  bool primitive(Kind k) {
     const size_t w = width(k);
-    if (!align(path, w)) return false;
-    if (size_ - pos_ < w) return fail(path, pos_, "ends before its " + std::to_string(w) + " bytes");
-    if (visit_) visit_(path, k, pos_);
+    if (!align(w)) return false;
+    if (size_ - pos_ < w) return refuse(Fault::Truncated, pos_, "ends before its " + std::to_string(w) + " bytes");
+    if (visit_) visit_(path(), k, pos_);
     if (k == Kind::Bool && d_[pos_] > 1)
-      return fail(path, pos_, "boolean byte " + std::to_string(d_[pos_]) + " (0 or 1 expected)");
+      return refuse(Fault::Bool, pos_, "boolean byte " + std::to_string(d_[pos_]) + " (0 or 1 expected)");
     pos_ += w;
     return true;
   }
-  bool field(const Field& f, const std::string& path) {
-    current_ = f.kind;
+  bool field(const Field& f) {
     uint32_t n = 0;
     switch (f.kind) {
       case Kind::Bool:
@@ -96,52 +115,70 @@ class Walker {
       case Kind::U64:
       case Kind::F32:
       case Kind::F64:
-        return primitive(path, f.kind);
+        return primitive(f.kind);
       case Kind::String:
-        if (!count(path, 1, n)) return false;
+        if (!count(f.kind, 1, n)) return false;
         if (n > 0 && d_[pos_ + n - 1] != 0)
-          return fail(path, pos_ - 4, "string of " + std::to_string(n) + " bytes without its terminating 0");
+          return refuse(Fault::Terminator, pos_ - 4,
+                        "string of " + std::to_string(n) + " bytes without its terminating 0");
         pos_ += n;
         return true;
       case Kind::SeqOctet:
       case Kind::SeqU32:
       case Kind::SeqF32: {
         const size_t w = width(f.kind);
-        if (!count(path, w, n)) return false;
-        if (n > 0 && !align(path, w)) return false;
+        if (!count(f.kind, w, n)) return false;
+        if (n > 0 && !align(w)) return false;
         pos_ += size_t(n) * w;
         return true;
       }
       case Kind::Struct:
-        return fields(*f.nested, path + ".");
+        return fields(*f.nested);
       case Kind::SeqStruct:
         // Each element takes at least one byte, so the count is bounded by the bytes left; each
         // element is then walked, so a false count runs out of bytes within `size` steps.
-        if (!count(path, 1, n)) return false;
-        for (uint32_t i = 0; i < n; ++i)
-          if (!fields(*f.nested, path + "[" + std::to_string(i) + "].")) return false;
+        if (!count(f.kind, 1, n)) return false;
+        for (uint32_t i = 0; i < n; ++i) {
+          path_.push_back({"", int64_t(i)});
+          const bool ok = fields(*f.nested);
+          path_.pop_back();
+          if (!ok) return false;
+        }
         return true;
     }
-    return fail(path, pos_, "unknown kind");
+    return refuse(Fault::UnknownKind, pos_, "unknown kind");
   }
-  bool fields(const Layout& layout, const std::string& prefix) {
-    for (const Field& f : layout.fields)
-      if (!field(f, prefix + f.name)) return false;
+  bool fields(const Layout& layout) {
+    for (const Field& f : layout.fields) {
+      path_.push_back({f.name, -1});
+      const bool ok = field(f);
+      path_.pop_back();
+      if (!ok) return false;
+    }
     return true;
   }
 
+  struct Step {
+    const char* name;
+    int64_t index;  // >= 0: an element of the sequence before it
+  };
   const uint8_t* d_;
   size_t size_;
   const Visit& visit_;
   size_t pos_ = 0;
   bool little_ = true;
-  Kind current_ = Kind::Bool;
-  std::string error_;
+  std::vector<Step> path_;  // at most the layouts' depth plus one index each
+  Check check_;
 };
 
 }  // namespace
 
-std::string walk(const Layout& layout, const uint8_t* data, size_t size, const Visit& visit, size_t* end) {
+std::string Check::text() const {
+  if (ok()) return "";
+  return field.empty() ? detail : "field '" + field + "' at byte " + std::to_string(offset) + ": " + detail;
+}
+
+Check walk(const Layout& layout, const uint8_t* data, size_t size, const Visit& visit, size_t* end) {
   return Walker(data, size, visit).run(layout, end);
 }
 

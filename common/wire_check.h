@@ -47,14 +47,35 @@ struct Layout {
 // (a sequence's or string's count) from the start of the payload, encapsulation included.
 using Visit = std::function<void(const std::string& path, Kind kind, size_t offset)>;
 
+// What a walk found wrong, if anything.
+enum class Fault : uint8_t {
+  None,
+  NoHeader,       // shorter than the encapsulation header
+  Encapsulation,  // not plain CDR
+  Truncated,      // ends inside a field
+  Count,          // a sequence's or string's count claims more than the bytes left
+  Bool,           // a boolean byte other than 0 or 1
+  Terminator,     // a string without its terminating 0
+  Trailing,       // more than padding after the last field
+  UnknownKind,    // a layout of an unknown kind
+};
+
+struct Check {
+  Fault fault = Fault::None;
+  std::string field;   // the dotted path of the field at fault (episodes[3].terminated); "" for the whole
+  size_t offset = 0;   // its byte in the payload, encapsulation included
+  std::string detail;  // what is wrong, in words
+  bool ok() const { return fault == Fault::None; }
+  // "" when ok; else "field 'PATH' at byte N: DETAIL" (or DETAIL alone for the whole sample).
+  std::string text() const;
+};
+
 // Checks `data` (a serialized payload: the 4-byte encapsulation header, then plain CDR in either
-// byte order) against `layout`. Returns "" when it is well-formed, else what is wrong, naming the
-// field and its offset. At most 3 bytes may follow the last field (alignment padding). Every count is
-// checked against the bytes left before anything is read past it, so the walk takes time and
-// memory proportional to `size` alone. visit, if given, is called for every field reached; end, if
+// byte order) against `layout`: ok, or the first fault with its field and offset. At most 3 bytes may follow the last
+// field (alignment padding). Every count is checked against the bytes left before anything is read past it, so the walk
+// takes time and memory proportional to `size` alone. visit, if given, is called for every field reached; end, if
 // given, receives the offset just past the last field of a well-formed sample.
-std::string walk(const Layout& layout, const uint8_t* data, size_t size, const Visit& visit = {},
-                 size_t* end = nullptr);
+Check walk(const Layout& layout, const uint8_t* data, size_t size, const Visit& visit = {}, size_t* end = nullptr);
 
 // The layouts of the wire types, one per struct of idl/farm.idl, in its field order.
 const Layout& experiment_spec();

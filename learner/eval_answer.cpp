@@ -1,11 +1,11 @@
 // EvaluationAnswer checks and size bound (eval_answer.h).
 #include "eval_answer.h"
 
+#include "config_validator.h"
 #include "task_spec.h"
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 
 namespace farm {
 
@@ -51,9 +51,11 @@ std::string check_eval_answer(const farm::msg::EvaluationAnswer& a, const EvalEx
   return "";
 }
 
-std::string returns_agree(const std::map<std::string, std::vector<double>>& by, double sigmas, double relative) {
+Agreement returns_agree(const std::map<std::string, std::vector<double>>& by, double sigmas, double relative) {
+  using V = Agreement::Verdict;
   if (by.size() < 2)
-    return "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")";
+    return {V::OneWorker,
+            "answered by one worker only (" + (by.empty() ? std::string("none") : by.begin()->first) + ")"};
   // Mean and standard error of the mean of one worker's returns.
   const auto stats = [](const std::vector<double>& v) {
     double m = 0, q = 0;
@@ -63,23 +65,19 @@ std::string returns_agree(const std::map<std::string, std::vector<double>>& by, 
     const double var = v.size() > 1 ? q / double(v.size() - 1) : 0.0;
     return std::pair<double, double>{m, std::sqrt(var / double(v.size()))};
   };
-  const auto fmt1 = [](double x) {
-    char b[64];
-    std::snprintf(b, sizeof b, "%.1f", x);
-    return std::string(b);
-  };
   for (auto a = by.begin(); a != by.end(); ++a) {
     for (auto b = std::next(a); b != by.end(); ++b) {
-      if (a->second.empty() || b->second.empty()) return "a worker's part has no episodes";
+      if (a->second.empty() || b->second.empty()) return {V::EmptyPart, "a worker's part has no episodes"};
       const auto [ma, sa] = stats(a->second);
       const auto [mb, sb] = stats(b->second);
       const double room = sigmas * std::min(sa, sb) + relative * 0.5 * (std::abs(ma) + std::abs(mb)) + 1e-6;
       if (!(std::abs(ma - mb) <= room))
-        return a->first + "'s episodes (mean return " + fmt1(ma) + ") and " + b->first + "'s (" + fmt1(mb) +
-               ") disagree by more than " + fmt1(room);
+        return {V::Disagree, a->first + "'s episodes (mean return " + config_checks::num(ma) + ") and " + b->first +
+                                 "'s (" + config_checks::num(mb) + ") disagree by more than " +
+                                 config_checks::num(room)};
     }
   }
-  return "";
+  return {};
 }
 
 uint32_t max_eval_answer_bytes(size_t experiment_id_bytes, int max_episodes, int num_metrics) {

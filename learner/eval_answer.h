@@ -31,14 +31,19 @@ struct EvalExpected {
 std::string check_eval_answer(const farm::msg::EvaluationAnswer& a, const EvalExpected& e);
 
 // Whether the returns of one evaluation, answered in parts by several workers (by worker id), agree:
-// "" when at least two workers answered and, for each pair, the difference of their mean returns is
+// they do when at least two workers answered and, for each pair, the difference of their mean returns is
 // within `sigmas` standard errors of the mean of the pair's narrower side (plus `relative` of the
-// pair's mean size); else why not. Each side's standard error comes from its own episodes, and the
+// pair's mean size); else `why` says why not. Each side's standard error comes from its own episodes, and the
 // narrower one decides: a participant that widens the spread of its own returns widens only its
 // own error, never the room the other side's episodes leave, so it cannot make a distant mean
 // agree. Under DDS Security a kept best or a stop rests on this.
-std::string returns_agree(const std::map<std::string, std::vector<double>>& returns_by_worker, double sigmas,
-                          double relative);
+struct Agreement {
+  enum class Verdict { Agree, OneWorker, EmptyPart, Disagree } verdict = Verdict::Agree;
+  std::string why;  // "" when they agree
+  bool agree() const { return verdict == Verdict::Agree; }
+};
+Agreement returns_agree(const std::map<std::string, std::vector<double>>& returns_by_worker, double sigmas,
+                        double relative);
 
 // The largest EvaluationAnswer serialized (encapsulation included) for an experiment whose
 // evaluations ask at most max_episodes episodes of a task with num_metrics metrics: the learner's

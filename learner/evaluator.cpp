@@ -413,7 +413,7 @@ void Evaluator::drop_snapshot(const std::string& dir) {
 }
 
 std::string Evaluator::confirmation(const Group& group) const {
-  return returns_agree(group.returns_by_worker, kAgreeSigmas, kAgreeRelative);
+  return returns_agree(group.returns_by_worker, kAgreeSigmas, kAgreeRelative).why;
 }
 
 std::string Evaluator::summary() const {

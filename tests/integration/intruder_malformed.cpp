@@ -72,8 +72,9 @@ std::vector<uint8_t> broken(std::vector<uint8_t> b, const farm::wire::Layout& la
   }
   std::vector<std::pair<farm::wire::Kind, size_t>> fields;
   const std::string why =
-      farm::wire::walk(layout, b.data(), b.size(),
-                       [&](const std::string&, farm::wire::Kind k, size_t at) { fields.emplace_back(k, at); });
+      farm::wire::walk(layout, b.data(), b.size(), [&](const std::string&, farm::wire::Kind k, size_t at) {
+        fields.emplace_back(k, at);
+      }).text();
   if (!why.empty()) throw std::runtime_error("the well-formed sample does not walk: " + why);
   bool changed = false;
   for (const auto& [k, at] : fields) {

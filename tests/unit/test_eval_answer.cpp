@@ -144,21 +144,22 @@ TEST(EvalAnswer, ReturnAboveAOneSidedBoundIsRefused) {
 // at -1,505 against an honest pendulum near -150 made the old combined-error rule agree); one worker
 // alone never confirms.
 TEST(EvalAnswer, ReturnsAgreeOnlyWithinTheNarrowerSidesError) {
+  using V = Agreement::Verdict;
   const std::vector<double> honest_a{-140, -160, -150, -145, -155}, honest_b{-152, -148, -139, -161, -150};
-  EXPECT_EQ(returns_agree({{"w1", honest_a}, {"w2", honest_b}}, 4.0, 0.05), "");
+  EXPECT_EQ(returns_agree({{"w1", honest_a}, {"w2", honest_b}}, 4.0, 0.05).verdict, V::Agree);
   const std::vector<double> forged{3251, 3251, 3251, 3251, -1505};
-  const std::string why = returns_agree({{"w1", honest_a}, {"w2", forged}}, 4.0, 0.05);
-  EXPECT_NE(why.find("disagree"), std::string::npos) << why;
+  const Agreement forged_part = returns_agree({{"w1", honest_a}, {"w2", forged}}, 4.0, 0.05);
+  EXPECT_EQ(forged_part.verdict, V::Disagree) << forged_part.why;
   // Widening the spread further changes nothing.
   const std::vector<double> wider{1e6, 1e6, 1e6, 1e6, -4e6 + 2000};
-  EXPECT_NE(returns_agree({{"w1", honest_a}, {"w2", wider}}, 4.0, 0.05), "");
+  EXPECT_EQ(returns_agree({{"w1", honest_a}, {"w2", wider}}, 4.0, 0.05).verdict, V::Disagree);
   // A third, honest worker does not carry a forged part through.
-  EXPECT_NE(returns_agree({{"w1", honest_a}, {"w2", forged}, {"w3", honest_b}}, 4.0, 0.05), "");
-  EXPECT_NE(returns_agree({{"w1", honest_a}}, 4.0, 0.05).find("one worker"), std::string::npos);
-  EXPECT_NE(returns_agree({}, 4.0, 0.05), "");
+  EXPECT_EQ(returns_agree({{"w1", honest_a}, {"w2", forged}, {"w3", honest_b}}, 4.0, 0.05).verdict, V::Disagree);
+  EXPECT_EQ(returns_agree({{"w1", honest_a}}, 4.0, 0.05).verdict, V::OneWorker);
+  EXPECT_EQ(returns_agree({}, 4.0, 0.05).verdict, V::OneWorker);
   // Deterministic parts that tie agree; a NaN never does.
-  EXPECT_EQ(returns_agree({{"w1", {-100, -100}}, {"w2", {-100}}}, 4.0, 0.05), "");
-  EXPECT_NE(returns_agree({{"w1", {NAN}}, {"w2", {-100}}}, 4.0, 0.05), "");
+  EXPECT_EQ(returns_agree({{"w1", {-100, -100}}, {"w2", {-100}}}, 4.0, 0.05).verdict, V::Agree);
+  EXPECT_EQ(returns_agree({{"w1", {NAN}}, {"w2", {-100}}}, 4.0, 0.05).verdict, V::Disagree);
 }
 
 }  // namespace farm
