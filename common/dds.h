@@ -178,14 +178,16 @@ std::string last_malformed(const std::string& type_name);
 // Books a malformed sample of type_name: counted, said on stderr for the first few of each type, and
 // marked for the take in progress on this thread (take_malformed_mark).
 void note_malformed(const std::string& type_name, const std::string& why);
-// Whether the sample the last take on this thread decoded was malformed; clears the mark.
+// Whether the last sample decoded on this thread was malformed; clears the mark.
 bool take_malformed_mark();
 
 // A generated type whose decoding cannot end the process: the serialized sample is first walked
 // against the type's wire layout (wire_check.h), so that a boolean byte out of range, a count past
 // the payload or truncated data is refused before anything is allocated for it, and whatever the
-// decoder still throws is caught. Fast DDS 2.9 ignores what deserialize returns and hands the
-// sample on as valid, so a refusal is marked for Reader::take_from, which skips the sample.
+// decoder still throws is caught. What Fast DDS does with a false deserialize differs between 2.9
+// releases: some hand the sample on as valid; 2.9.1 (seen in integration.malformed) goes on to
+// decode the next sample in the same take. So each decoding marks whether it refused (take_malformed_mark), and
+// Reader::take_from skips a sample only when the last decoding of its take refused.
 template <class T, class PubSubType>
 class CheckedType : public PubSubType {
  public:
@@ -196,7 +198,12 @@ class CheckedType : public PubSubType {
     std::string why = wire::walk(*layout_, payload->data, payload->length).text();
     if (why.empty()) {
       try {
-        if (PubSubType::deserialize(payload, data)) return true;
+        if (PubSubType::deserialize(payload, data)) {
+          // The mark is the last decoding's: Fast DDS 2.9.1 goes on after a failed deserialize
+          // and decodes the next sample within the same take, which must then be returned.
+          take_malformed_mark();
+          return true;
+        }
         why = "the decoder refused it";
       } catch (const std::exception& e) {
         why = std::string("the decoder failed: ") + e.what();

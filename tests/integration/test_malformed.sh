@@ -32,8 +32,9 @@ after=$(batches_ok "$dir/run")
   fail "the learner's peak memory went from ${peak_before} kB to ${peak_after} kB"
 wait $lp || fail "the learner exited with $?: $(tail -3 "$dir/learner.log")"
 wait $wp || fail "the worker exited with $?: $(tail -3 "$dir/worker.log")"
-invalid=$(csv_last "$dir/run" batches_invalid)
+invalid=$(csv_last "$dir/run" batches_invalid) lost=$(csv_last "$dir/run" batches_lost)
 # Three kinds, one malformed batch every 100 ms for 2 s each: about 60.
 [ "$invalid" -ge 30 ] || fail "only $invalid malformed batches were counted invalid"
+[ "$lost" -eq 0 ] || fail "$lost of the worker's batches lost"
 events "$dir/run" refusal | grep -q '"reason":"malformed"' || fail "no refusal event says malformed"
 farm_test_end "batches_ok $before before, $after after; invalid $invalid; learner peak ${peak_before} kB, ${peak_after} kB"
