@@ -110,6 +110,16 @@ void contact_force(const mjModel* m, const mjData* d, const std::vector<int>& ge
   }
 }
 
+void mass_center(const mjModel* m, const mjData* d, double out[3]) {
+  double mass = 0;
+  out[0] = out[1] = out[2] = 0;
+  for (int b = 0; b < m->nbody; ++b) {
+    mass += m->body_mass[b];
+    for (int k = 0; k < 3; ++k) out[k] += m->body_mass[b] * d->xipos[3 * b + k];
+  }
+  for (int k = 0; k < 3; ++k) out[k] /= std::max(mass, mjMINVAL);
+}
+
 namespace {
 
 // Contact forces above this (N) count as a touch (legged_gym's contact threshold).
@@ -182,12 +192,53 @@ void obs_contact(const Ctx& c, const ObsBinding& b, double* out) {
   for (size_t i = 0; i < k.geoms.size(); ++i) out[i] = touches(c.d, k.geoms[i], k.other) ? 1.0 : 0.0;
 }
 
+// MuJoCo's per-body arrays as they stand after the step (Gymnasium's Humanoid-v4 observes them
+// whole): cinert, each body's inertia and mass (10), and cvel, its velocity (angular, linear; 6),
+// both taken about the centre of mass of the body's tree with world axes, from the kinematics of
+// the step's last forward pass; cfrc_ext, the contact and applied forces on it (torque, force; 6),
+// from mj_rnePostConstraint after the step (after a reset, what mj_forward left: zeros unless a
+// sensor needs them, as in Gymnasium).
+void obs_cinert(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) std::copy_n(c.d->cinert + 10 * b.ids[i], 10, out + 10 * i);
+}
+void obs_cvel(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) std::copy_n(c.d->cvel + 6 * b.ids[i], 6, out + 6 * i);
+}
+void obs_cfrc_ext(const Ctx& c, const ObsBinding& b, double* out) {
+  for (size_t i = 0; i < b.ids.size(); ++i) std::copy_n(c.d->cfrc_ext + 6 * b.ids[i], 6, out + 6 * i);
+}
+// The actuators' generalized forces, per dof, less `skip` leading dofs (a free root's six).
+void obs_qfrc_actuator(const Ctx& c, const ObsBinding& b, double* out) {
+  for (int i = b.cfg->skip(); i < c.m->nv; ++i) out[i - b.cfg->skip()] = c.d->qfrc_actuator[i];
+}
+void obs_com_pos(const Ctx& c, const ObsBinding&, double* out) { mass_center(c.m, c.d, out); }
+// The centre of mass's velocity (world): the mass-weighted mean of each body's centre-of-mass
+// velocity, MuJoCo's subtree_linvel of the world body.
+void obs_com_vel(const Ctx& c, const ObsBinding&, double* out) {
+  double mass = 0, v[6];
+  out[0] = out[1] = out[2] = 0;
+  for (int body = 1; body < c.m->nbody; ++body) {
+    mj_objectVelocity(c.m, c.d, mjOBJ_BODY, body, v, 0);
+    mass += c.m->body_mass[body];
+    for (int k = 0; k < 3; ++k) out[k] += c.m->body_mass[body] * v[3 + k];
+  }
+  for (int k = 0; k < 3; ++k) out[k] /= std::max(mass, mjMINVAL);
+}
+
 // Reward terms: the value before the weight.
 
 double rew_alive(const Ctx&, const RewardBinding&) { return 1.0; }
 double rew_forward_progress(const Ctx& c, const RewardBinding& b) {
   const int ax = b.cfg->axis(), body = b.ids[0];
   return (c.d->xpos[3 * body + ax] - c.s.xpos_before[3 * body + ax]) / c.task.agent_dt();
+}
+// The centre of mass's displacement along `axis` over the step, per second: Gymnasium's
+// x_velocity of Humanoid (mass_center after minus before, over dt).
+double rew_com_progress(const Ctx& c, const RewardBinding& b) {
+  double com[3];
+  mass_center(c.m, c.d, com);
+  const int ax = b.cfg->axis();
+  return (com[ax] - c.s.com_before[ax]) / c.task.agent_dt();
 }
 // A slide joint's displacement over the step, per second: Gymnasium's x_velocity of its planar
 // models (HalfCheetah, Hopper, Walker2d: qpos[0] after minus before, over dt). The first joint named.
@@ -335,6 +386,15 @@ bool end_orientation(const Ctx& c, const TerminationBinding& b) {
   projected_gravity(c.m, c.d, b.ids[0], g);
   return -g[2] < b.cfg->min();
 }
+// A named joint's position outside [min, max] (Hopper's and Walker2d's healthy_angle_range on the
+// rooty hinge, Walker2d's healthy_z_range on the rootz slide).
+bool end_joint_pos(const Ctx& c, const TerminationBinding& b) {
+  for (int j : b.ids) {
+    const double q = c.d->qpos[c.m->jnt_qposadr[j]];
+    if (!(q >= b.cfg->min() && q <= b.cfg->max())) return true;
+  }
+  return false;
+}
 bool end_non_finite(const Ctx& c, const TerminationBinding& b) {
   for (int i = 0; i < c.m->nv; ++i)
     if (!std::isfinite(c.d->qvel[i]) || std::abs(c.d->qvel[i]) > b.cfg->max()) return true;
@@ -419,12 +479,14 @@ void bind(const config::TermsConfig& cfg, const ModelInfo& info, const mjModel* 
     ObsBinding b{&o, lookup(kObs, o.term(), "observation"), {}, observation_size(o, info, root, act_dim), {}};
     b.ids = items(names_of(observation_terms(), o.term()), o, info, m, root, b.contacts);
     out.obs.push_back(std::move(b));
+    if (o.term() == "cfrc_ext") out.rne_post_constraint = true;
   }
   for (int i = 0; i < cfg.reward_size(); ++i) {
     const auto& r = cfg.reward(i);
     RewardBinding b{&r, lookup(kRewards, r.term(), "reward"), {}, i, {}};
     b.ids = items(names_of(reward_terms(), r.term()), r, info, m, root, b.contacts);
     out.rewards.push_back(std::move(b));
+    if (r.term() == "com_progress") out.com_before = true;
   }
   for (const auto& t : cfg.termination()) {
     TerminationBinding b{&t, lookup(kTerminations, t.term(), "termination"), {}, {}};

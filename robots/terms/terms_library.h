@@ -62,6 +62,11 @@ struct Bound {
   std::vector<ObsBinding> obs;
   std::vector<RewardBinding> rewards;
   std::vector<TerminationBinding> terminations;
+  // What the step computes only for the terms that read it: MuJoCo's post-constraint quantities
+  // (mj_rnePostConstraint after the physics steps: cfrc_ext, cacc, cfrc_int), and the model's
+  // centre of mass before the physics steps (TermsState::com_before).
+  bool rne_post_constraint = false;
+  bool com_before = false;
 };
 
 // Binds the config's terms to the model: the functions by name, the names to ids. Throws
@@ -81,5 +86,8 @@ void contact_force(const mjModel_* m, const mjData_* d, const std::vector<int>& 
                    double out[3]);
 // True when a geom of the group touches a geom outside it (and in `other` where that is not empty).
 bool touches(const mjData_* d, const std::vector<int>& geoms, const std::vector<int>& other);
+// The model's centre of mass, Gymnasium's mass_center: the mass-weighted mean of every body's
+// centre of mass (xipos), from the kinematics of the step's last forward pass.
+void mass_center(const mjModel_* m, const mjData_* d, double out[3]);
 
 }  // namespace farm::robots::terms

@@ -59,6 +59,7 @@ std::vector<std::pair<int, std::string>> candidates(Names kind, const ModelInfo&
       break;
     case Names::Bodies:
     case Names::BodiesRequired:
+    case Names::AllBodies:
     case Names::Contacts:
     case Names::ContactsRequired:
       for (size_t b = 1; b < m.bodies.size(); ++b) c.emplace_back(int(b), m.bodies[b]);
@@ -81,6 +82,7 @@ const char* kind_name(Names k) {
       return "hinge or slide joint";
     case Names::Bodies:
     case Names::BodiesRequired:
+    case Names::AllBodies:
     case Names::Contacts:
     case Names::ContactsRequired:
       return "body";
@@ -102,6 +104,10 @@ std::vector<int> select(Names kind, const google::protobuf::RepeatedPtrField<std
   std::vector<int> ids;
   if (names.empty()) {
     if (kind == Names::Bodies || kind == Names::Contacts) return {root};
+    if (kind == Names::AllBodies) {
+      for (size_t b = 0; b < model.bodies.size(); ++b) ids.push_back(int(b));  // the world included
+      return ids;
+    }
     if (kind == Names::BodiesRequired) throw std::invalid_argument("names: expected at least one body name");
     if (kind == Names::ContactsRequired)
       throw std::invalid_argument("names: expected at least one body name (or geoms: geom names)");

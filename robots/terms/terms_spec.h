@@ -15,8 +15,10 @@ namespace farm::robots::terms {
 
 // What a term's `names` select. Contacts / ContactsRequired: bodies by `names`, or geoms by the
 // term's `geoms` in place of them (a foot that is one geom of a calf body); Contacts with neither
-// selects the root body. Geoms is what `geoms` and `other` select from.
-enum class Names { None, Joints, Bodies, BodiesRequired, Sensors, Geoms, Contacts, ContactsRequired };
+// selects the root body. Geoms is what `geoms` and `other` select from. AllBodies: bodies as
+// Bodies, but empty selects every body of the model, the world (id 0) first: the whole of one of
+// MuJoCo's per-body arrays, as Gymnasium's Humanoid-v4 observes data.cinert, cvel and cfrc_ext.
+enum class Names { None, Joints, Bodies, BodiesRequired, AllBodies, Sensors, Geoms, Contacts, ContactsRequired };
 
 inline constexpr int kQpos = -1, kQvel = -2, kSensorDim = -3, kActDim = -4;
 

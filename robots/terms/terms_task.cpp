@@ -363,12 +363,16 @@ StepResult TermsTask::step(TaskState& base, const float* action, float* obs) con
   }
   std::copy(d->xpos, d->xpos + 3 * m->nbody, s.xpos_before.begin());
   std::copy(d->qpos, d->qpos + m->nq, s.qpos_before.begin());
+  if (bound_->com_before) mass_center(m, d, s.com_before.data());
   if (a.type() == "actuator") apply_action(s, d);
   for (int k = 0; k < cfg_.control_substeps(); ++k) {
     if (a.type() == "position") apply_action(s, d);
     mj_step(m, d);
     if (s.after_physics_step) s.after_physics_step();
   }
+  // mj_step leaves cfrc_ext (and cacc, cfrc_int) as they were unless a sensor needs them;
+  // Gymnasium's MuJoCo environments compute them once after the step's physics steps, as here.
+  if (bound_->rne_post_constraint) mj_rnePostConstraint(m, d);
   ++s.step;
   StepResult r;
   bool finite = true;

@@ -29,6 +29,7 @@ struct TermsState : TaskState {
   double heading_target = 0;        // heading commands: the yaw the robot is asked to face (rad)
   std::vector<double> xpos_before;  // every body's position before the step (world)
   std::vector<double> qpos_before;
+  std::array<double, 3> com_before{};  // the centre of mass before the step, where a term reads it
   double start_x = 0;
   int push_every_steps = 0;
   bool ended_by_term = false;

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>
 
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -344,6 +345,194 @@ TEST(TermsTask, TerminationsEndTheEpisodeAndSayWhy) {
   for (int t = 0; t < 1000; ++t) last = free.task->step(*free.state, a.data(), free.obs.data());
   EXPECT_TRUE(last.truncated);
   EXPECT_FALSE(last.terminated);
+}
+
+// A shipped config's task of terms, with `extra` merged into its terms (repeated fields append).
+struct Shipped {
+  std::unique_ptr<TermsTask> task;
+  std::unique_ptr<TaskState> state;
+  std::vector<float> obs;
+  explicit Shipped(const std::string& config, const std::string& extra = "", bool own_observations = false) {
+    auto cfg = load_config_file(kConfigs + "/" + config);
+    auto* terms = cfg.mutable_task()->mutable_terms();
+    if (own_observations) terms->clear_observation();
+    config::TermsConfig more;
+    EXPECT_TRUE(google::protobuf::TextFormat::ParseFromString(extra, &more)) << extra;
+    terms->MergeFrom(more);
+    task = std::make_unique<TermsTask>(*terms);
+    state = task->make_state();
+    obs.resize(task->spec().obs_dim);
+    task->reset(*state, 7, obs.data());
+  }
+  const mjModel* m() const { return task->model(); }
+  const mjData* d() const { return state->data; }
+  StepResult step(const std::vector<float>& a) { return task->step(*state, a.data(), obs.data()); }
+};
+
+// Gymnasium's mass_center: sum(body_mass * xipos) / sum(body_mass), over every body.
+std::array<double, 3> mass_center_of(const mjModel* m, const mjData* d) {
+  std::array<double, 3> c{};
+  double mass = 0;
+  for (int b = 0; b < m->nbody; ++b) {
+    mass += m->body_mass[b];
+    for (int k = 0; k < 3; ++k) c[k] += m->body_mass[b] * d->xipos[3 * b + k];
+  }
+  for (double& x : c) x /= mass;
+  return c;
+}
+
+// An action that differs per entry and per step, nowhere 0.
+std::vector<float> swing(int n, int t) {
+  std::vector<float> a(n);
+  for (int i = 0; i < n; ++i) a[i] = float(0.8 * std::sin(0.7 * t + 1.3 * i) + (i % 2 ? 0.15 : -0.15));
+  return a;
+}
+
+// Humanoid-v4's step, read back from mjData: observation qpos[2:], qvel, cinert, cvel,
+// qfrc_actuator, cfrc_ext (mj_rnePostConstraint after the step), reward 1.25 x the centre of mass's
+// x velocity + 5 - 0.1 x |data.ctrl|^2, termination when qpos[2] leaves [1, 2].
+TEST(TermsTask, HumanoidIsGymnasiumsV4) {
+  Shipped h("humanoid_sac.txtpb");
+  const mjModel* m = h.m();
+  ASSERT_EQ(m->nbody, 14);
+  ASSERT_EQ(m->nq, 24);
+  ASSERT_EQ(m->nv, 23);
+  EXPECT_EQ(h.task->spec().obs_dim, 376);
+  EXPECT_EQ(h.task->spec().act_dim, 17);
+  EXPECT_EQ(h.task->spec().max_episode_steps, 1000);
+  EXPECT_DOUBLE_EQ(h.task->agent_dt(), 0.015);
+  mjData* copy = mj_makeData(m);
+  bool contact_force = false, ended = false;
+  int t = 0;
+  for (; t < 300 && !ended; ++t) {
+    const auto before = mass_center_of(m, h.d());
+    const StepResult r = h.step(swing(17, t));
+    const mjData* d = h.d();
+    double ctrl = 0;
+    for (int i = 0; i < m->nu; ++i) ctrl += d->ctrl[i] * d->ctrl[i];
+    EXPECT_GT(ctrl, 0) << "step " << t;
+    const double x_vel = (mass_center_of(m, d)[0] - before[0]) / 0.015;
+    EXPECT_NEAR(r.reward, 1.25 * x_vel + 5.0 - 0.1 * ctrl, 1e-4) << "step " << t;
+    EXPECT_EQ(r.terminated, !(d->qpos[2] >= 1.0 && d->qpos[2] <= 2.0)) << "step " << t << " z " << d->qpos[2];
+    ended = r.terminated || r.truncated;
+    // cfrc_ext as MuJoCo computes it for this state, on a copy.
+    mj_copyData(copy, m, d);
+    mju_zero(copy->cfrc_ext, 6 * m->nbody);
+    mj_rnePostConstraint(m, copy);
+    std::vector<double> want(d->qpos + 2, d->qpos + m->nq);
+    want.insert(want.end(), d->qvel, d->qvel + m->nv);
+    want.insert(want.end(), d->cinert, d->cinert + 10 * m->nbody);
+    want.insert(want.end(), d->cvel, d->cvel + 6 * m->nbody);
+    want.insert(want.end(), d->qfrc_actuator, d->qfrc_actuator + m->nv);
+    want.insert(want.end(), copy->cfrc_ext, copy->cfrc_ext + 6 * m->nbody);
+    ASSERT_EQ(want.size(), h.obs.size());
+    for (size_t i = 0; i < want.size(); ++i)
+      EXPECT_FLOAT_EQ(h.obs[i], float(want[i])) << "step " << t << " entry " << i;
+    for (int i = 6; i < 6 * m->nbody; ++i) contact_force = contact_force || copy->cfrc_ext[i] != 0;
+    // The values the terms read are not all zero: the check above compares something.
+    double cinert = 0, cvel = 0, qfrc = 0;
+    for (int i = 0; i < 10 * m->nbody; ++i) cinert += std::abs(d->cinert[i]);
+    for (int i = 0; i < 6 * m->nbody; ++i) cvel += std::abs(d->cvel[i]);
+    for (int i = 6; i < m->nv; ++i) qfrc += std::abs(d->qfrc_actuator[i]);
+    EXPECT_GT(cinert * cvel * qfrc, 0) << "step " << t;
+  }
+  mj_deleteData(copy);
+  EXPECT_TRUE(contact_force) << "no contact force in " << t << " steps";
+  EXPECT_TRUE(ended) << "the humanoid did not fall below z 1 in " << t << " steps";
+  EXPECT_GT(t, 5);
+}
+
+// Humanoid-v5's layout (the world body and the root's dofs left out) by names and skip; the centre
+// of mass's position and velocity; no mj_rnePostConstraint where no term reads cfrc_ext.
+TEST(TermsTask, PerBodyTermsTakeNamesAndTheCentreOfMassIsMuJoCos) {
+  Shipped h("humanoid_sac.txtpb",
+            "observation { term: \"cinert\" names: \".*\" }"
+            "observation { term: \"cvel\" names: \"left_.*\" names: \"torso\" }"
+            "observation { term: \"qfrc_actuator\" skip: 6 }"
+            "observation { term: \"com_pos\" }"
+            "observation { term: \"com_vel\" }",
+            true);
+  const mjModel* m = h.m();
+  EXPECT_EQ(h.task->spec().obs_dim, 13 * 10 + 6 * 6 + 17 + 3 + 3);
+  const int torso = mj_name2id(m, mjOBJ_BODY, "torso");
+  std::vector<int> cvel_bodies;
+  for (int b = 1; b < m->nbody; ++b)
+    if (std::string(mj_id2name(m, mjOBJ_BODY, b)).rfind("left_", 0) == 0) cvel_bodies.push_back(b);
+  cvel_bodies.push_back(torso);
+  ASSERT_EQ(cvel_bodies.size(), 6u);
+  mjData* copy = mj_makeData(m);
+  for (int t = 0; t < 20; ++t) {
+    const StepResult r = h.step(swing(17, t));
+    if (r.terminated) break;
+    const mjData* d = h.d();
+    std::vector<double> want(d->cinert + 10, d->cinert + 10 * m->nbody);
+    for (int b : cvel_bodies) want.insert(want.end(), d->cvel + 6 * b, d->cvel + 6 * b + 6);
+    want.insert(want.end(), d->qfrc_actuator + 6, d->qfrc_actuator + m->nv);
+    const auto com = mass_center_of(m, d);
+    want.insert(want.end(), com.begin(), com.end());
+    mj_copyData(copy, m, d);
+    mj_subtreeVel(m, copy);  // the world body's subtree: the whole model
+    want.insert(want.end(), copy->subtree_linvel, copy->subtree_linvel + 3);
+    ASSERT_EQ(want.size(), h.obs.size());
+    for (size_t i = 0; i < want.size(); ++i)
+      EXPECT_NEAR(h.obs[i], want[i], 1e-5 * std::max(1.0, std::abs(want[i]))) << "step " << t << " entry " << i;
+    EXPECT_GT(std::abs(copy->subtree_linvel[2]), 0) << "step " << t;  // falling: the check compares something
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(com[k], d->subtree_com[k], 1e-9);
+    // No term reads cfrc_ext: mj_step leaves it as the reset did, though the feet touch the floor.
+    for (int i = 0; i < 6 * m->nbody; ++i) EXPECT_EQ(d->cfrc_ext[i], 0) << "step " << t;
+  }
+  mj_deleteData(copy);
+}
+
+// com_progress along y and z: the centre of mass's displacement over the step, per second.
+TEST(TermsTask, ComProgressIsTheCentreOfMassesVelocityOverTheStep) {
+  Shipped h("humanoid_sac.txtpb",
+            "reward { term: \"com_progress\" axis: 2 weight: 2 } reward { term: \"com_progress\" axis: 1 }");
+  const mjModel* m = h.m();
+  for (int t = 0; t < 15; ++t) {
+    const auto before = mass_center_of(m, h.d());
+    const StepResult r = h.step(swing(17, t));
+    const mjData* d = h.d();
+    const auto after = mass_center_of(m, d);
+    double ctrl = 0;
+    for (int i = 0; i < m->nu; ++i) ctrl += d->ctrl[i] * d->ctrl[i];
+    const double v[3] = {(after[0] - before[0]) / 0.015, (after[1] - before[1]) / 0.015,
+                         (after[2] - before[2]) / 0.015};
+    EXPECT_NE(v[2], 0);
+    EXPECT_NEAR(r.reward, 1.25 * v[0] + 5.0 - 0.1 * ctrl + 2 * v[2] + v[1], 1e-4) << "step " << t;
+  }
+}
+
+// joint_pos ends the episode on the step a named joint's position leaves [min, max] (Hopper's
+// healthy_angle_range on its rooty hinge; here the cheetah's).
+TEST(TermsTask, JointPosEndsTheEpisodeWhenAJointLeavesItsRange) {
+  Shipped c("half_cheetah_sac.txtpb", "termination { term: \"joint_pos\" names: \"rooty\" min: -0.2 max: 0.2 }");
+  const mjModel* m = c.m();
+  const int rooty = m->jnt_qposadr[mj_name2id(m, mjOBJ_JOINT, "rooty")];
+  int t = 0;
+  bool ended = false;
+  for (; t < 500 && !ended; ++t) {
+    const StepResult r = c.step(swing(6, t));
+    const double q = c.d()->qpos[rooty];
+    EXPECT_EQ(r.terminated, !(q >= -0.2 && q <= 0.2)) << "step " << t << " rooty " << q;
+    ended = r.terminated;
+  }
+  EXPECT_TRUE(ended) << "rooty stayed within [-0.2, 0.2] for " << t << " steps";
+  EXPECT_GT(t, 1);
+  // Empty names: every hinge and slide joint, each against the same range.
+  Shipped all("half_cheetah_sac.txtpb", "termination { term: \"joint_pos\" min: -0.5 max: 0.5 }");
+  for (t = 0; t < 500; ++t) {
+    const StepResult r = all.step(swing(6, t));
+    bool out = false;
+    for (int j = 0; j < all.m()->njnt; ++j) {
+      const double q = all.d()->qpos[all.m()->jnt_qposadr[j]];
+      out = out || !(q >= -0.5 && q <= 0.5);
+    }
+    EXPECT_EQ(r.terminated, out) << "step " << t;
+    if (r.terminated) break;
+  }
+  EXPECT_LT(t, 500);
+  EXPECT_GT(t, 0);
 }
 
 // Every registered term builds and gives finite values on the hexapod (a term added to the
