@@ -60,6 +60,8 @@ void check_sac(const Section& s, const config::SacConfig& c) {
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",
           "expected \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
+  s.check(c.matmul_dtype() == "float32" || c.matmul_dtype() == "bfloat16", "matmul_dtype",
+          "expected \"float32\" or \"bfloat16\", got \"" + c.matmul_dtype() + "\"");
 }
 
 void check_dqn(const Section& s, const config::DqnConfig& c) {

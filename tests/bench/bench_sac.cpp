@@ -3,6 +3,13 @@
 // touching sac.cpp or the replay buffer.
 //   bench_sac [--seconds S] [--threads N[,N...]] [--batch B] [--device cpu|cuda[:N]] [--check N] [--tf32|--no-tf32]
 //             [--actor-on-previous-critic] [--obs N --act N --hidden H[,H...]]
+//             [--batches B[,B...] [--hidden-sets "H,H;H,H,H"] [--dtypes float32,bfloat16]]
+// --batches measures the learner's path only (CUDA graph, 8 queued replays, batches drawn on the
+// GPU; on the CPU one update per sampled batch) at each batch size, for each network of
+// --hidden-sets (default: --hidden, else 256-256 and 512-512-512), and prints one table:
+// updates/s, samples/s (batch x updates/s) and each row's samples/s over the first batch's, same
+// network, same run; with --dtypes each network at each sac.matmul_dtype listed, and the ratio
+// is over the best samples/s at the first batch, same network, whatever its dtype.
 // --obs/--act/--hidden measure one other shape instead (Kaya: --obs 21 --act 6 --hidden 128,128).
 // The share of time the update loop waits for data is the replay sampling (and, on a GPU, the
 // host-to-device copy inside the update is counted as update time).
@@ -203,6 +210,74 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   return ok;
 }
 
+// "256,256;512,512,512" -> {{256,256},{512,512,512}}; empty on a malformed list.
+std::vector<std::vector<int>> parse_hidden_sets(const std::string& text) {
+  std::vector<std::vector<int>> sets;
+  std::stringstream all(text);
+  std::string one;
+  while (std::getline(all, one, ';')) {
+    std::vector<int> layers;
+    std::stringstream items(one);
+    std::string item;
+    while (std::getline(items, item, ',')) {
+      char* end = nullptr;
+      const long v = std::strtol(item.c_str(), &end, 10);
+      if (item.empty() || *end != '\0' || v < 1 || v > (1 << 20)) return {};
+      layers.push_back(int(v));
+    }
+    if (layers.empty()) return {};
+    sets.push_back(layers);
+  }
+  return sets;
+}
+
+// The large-batch series: the learner's own path at each batch size, one table per run.
+void series(const std::vector<std::vector<int>>& nets, const std::vector<int>& batches,
+            const std::vector<std::string>& dtypes, const std::string& device, double seconds, farm::ReplayBuffer& buf,
+            std::mt19937_64& rng) {
+  const bool cuda = device.rfind("cuda", 0) == 0;
+  struct Row {
+    std::string net, dtype;
+    int batch;
+    double updates, samples, ratio;
+  };
+  std::vector<Row> rows;
+  for (const auto& hidden : nets) {
+    const std::string net = describe(g_obs, hidden, g_act);
+    const size_t first_row = rows.size();
+    double first = 0;  // the best samples/s at the first batch, this network
+    for (const std::string& dtype : dtypes)
+      for (int batch : batches) {
+        farm::config::SacConfig cfg;
+        cfg.set_cuda_tf32(g_tf32);
+        cfg.set_actor_on_previous_critic(g_beside);
+        for (int h : hidden) cfg.add_hidden(h);
+        cfg.set_device(device);
+        cfg.set_matmul_dtype(dtype);
+        farm::Sac sac(cfg, g_obs, g_act, 1);
+        Rate r;
+        if (cuda && sac.uses_cuda_graph()) {
+          farm::DeviceReplay on_gpu(buf.capacity(), g_obs, g_act, sac.device(), cfg.gamma());
+          on_gpu.load_from(buf);
+          r = measure(sac, buf, batch, seconds, rng, farm::kUpdatesPerGroup, &on_gpu);
+        } else {
+          r = measure(sac, buf, batch, seconds, rng);
+        }
+        const double ups = r.n / r.elapsed, sps = ups * batch;
+        if (batch == batches.front()) first = std::max(first, sps);
+        rows.push_back({net, dtype, batch, ups, sps, 0});
+        print_rate((std::string(cuda ? " learner's path, " : " ") + dtype).c_str(), net, batch, device, 1, r);
+      }
+    for (size_t i = first_row; i < rows.size(); ++i) rows[i].ratio = rows[i].samples / first;
+  }
+  std::printf("\n%-22s %-9s %8s %12s %14s %s\n", "network", "matmuls", "batch", "updates/s", "samples/s",
+              "samples/s over the best at the first batch, same network");
+  for (const Row& r : rows)
+    std::printf("%-22s %-9s %8d %12.0f %14.0f %.1fx\n", r.net.c_str(), r.dtype.c_str(), r.batch, r.updates, r.samples,
+                r.ratio);
+  std::fflush(stdout);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -211,7 +286,10 @@ int main(int argc, char** argv) {
   std::vector<int> threads{1, 2};
   std::string device = "cpu";
   int check_updates = 200;
-  std::vector<int> hidden;  // --hidden: one network size instead of the two of g_hidden
+  std::vector<int> hidden;   // --hidden: one network size instead of the two of g_hidden
+  std::vector<int> batches;  // --batches: the large-batch series instead
+  std::string hidden_sets;
+  std::vector<std::string> dtypes{"float32"};
   farm::cli::App app("bench_sac");
   app.description(
       "SAC learner throughput, by default on the pendulum shapes (obs 3, act 1; 64-64 and 256-256 "
@@ -229,6 +307,12 @@ int main(int argc, char** argv) {
   app.add_option("--obs", g_obs, "Observation size")->check(CLI::Range(1, 1 << 20))->capture_default_str();
   app.add_option("--act", g_act, "Action size")->check(CLI::Range(1, 1 << 20))->capture_default_str();
   bench::add_hidden(app, hidden)->description("Hidden layer sizes, comma-separated (default: 64,64 and 256,256)");
+  bench::add_list(app, "--batches", batches, "Batch sizes of the large-batch series (the learner's path only)")
+      ->check(CLI::Range(1, 1 << 30));
+  app.add_option("--hidden-sets", hidden_sets,
+                 "Networks of the series, ';' between networks, ',' between layers (default: 256,256;512,512,512)");
+  bench::add_list(app, "--dtypes", dtypes, "sac.matmul_dtype values of the series (float32, bfloat16)")
+      ->check(CLI::IsMember({"float32", "bfloat16"}));
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   if (!hidden.empty()) g_hidden = {hidden};
 
@@ -238,6 +322,19 @@ int main(int argc, char** argv) {
   fill(buf, buf.capacity(), rng);
   const bool cuda = device.rfind("cuda", 0) == 0;
   bool ok = true;
+  if (!batches.empty()) {
+    std::vector<std::vector<int>> nets = hidden.empty() ? std::vector<std::vector<int>>{{256, 256}, {512, 512, 512}}
+                                                        : std::vector<std::vector<int>>{hidden};
+    if (!hidden_sets.empty()) nets = parse_hidden_sets(hidden_sets);
+    if (nets.empty()) {
+      std::fprintf(stderr, "bench_sac: --hidden-sets '%s' is not layer sizes like 256,256;512,512,512\n",
+                   hidden_sets.c_str());
+      return 2;
+    }
+    farm::configure_compute(threads.empty() ? 1 : threads[0]);
+    series(nets, batches, dtypes, device, seconds, buf, rng);
+    return 0;
+  }
   if (cuda)
     std::printf("sac.cuda_tf32 %s: matrix products in %s, eager and graph alike\n", g_tf32 ? "true" : "false",
                 g_tf32 ? "TF32 (cuBLAS)" : "full FP32");

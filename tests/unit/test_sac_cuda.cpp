@@ -189,6 +189,41 @@ TEST(SacCuda, FusedKernelsMatchTorchOps) {
   EXPECT_LE(relative_difference(fused.target_critic_parameters(), ops.target_critic_parameters()), 1e-4);
 }
 
+// The large-batch path: odd widths (an observation of 17, an action of 6) padded to 8-aligned
+// products from 1,024 rows on, the critics' hidden layers as one product and one bias-and-ReLU
+// pass (with the bias gradient as a product), the actor's loss as a two-stage reduction over
+// 2,048 rows, in float32 and in bfloat16 (sac.matmul_dtype): the same update as torch's ops, and
+// bfloat16 near float32.
+TEST(SacCuda, LargeBatchPathMatchesTorchOps) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  constexpr int kObs = 17, kAct = 6, kRows = 2048, kUpdates = 10;
+  std::vector<SacStats> float32_stats;
+  for (const std::string dtype : {"float32", "bfloat16"}) {
+    SCOPED_TRACE(dtype);
+    auto cfg = cuda_config();
+    cfg.set_cuda_tf32(false);
+    cfg.set_matmul_dtype(dtype);
+    auto ops_cfg = cfg;
+    ops_cfg.set_cuda_fused_kernels(false);
+    Sac fused(cfg, kObs, kAct, 5), ops(ops_cfg, kObs, kAct, 5);
+    if (!fused.uses_fused_kernels()) GTEST_SKIP() << "built without a CUDA compiler (no fused kernels)";
+    // bfloat16 rounds each product's output to 8 bits of mantissa, where the two paths round at
+    // different points (after the bias in one, in the product's epilogue in the other).
+    const double tol = dtype == "float32" ? 1e-4 : 2e-2;
+    for (int k = 0; k < kUpdates; ++k) {
+      const SacStats f = fused.update(random_batch(kRows, kObs, kAct, 900 + k));
+      const SacStats o = ops.update(random_batch(kRows, kObs, kAct, 900 + k));
+      expect_stats_near(f, o, tol, k);
+      if (dtype == "float32")
+        float32_stats.push_back(f);
+      else
+        expect_stats_near(f, float32_stats[k], 5e-2, k);
+    }
+    EXPECT_LE(relative_difference(fused.actor_parameters(), ops.actor_parameters()), tol);
+    EXPECT_LE(relative_difference(fused.critic_parameters(), ops.critic_parameters()), tol);
+  }
+}
+
 // Only where a GPU and a CUDA LibTorch are there: a graph that draws its own batches from a replay
 // on the GPU (sac.replay_on_device), queued as the learner queues them, computes what the eager
 // update computes drawing the same rows, with torch's ops and with the fused kernels (the gather).

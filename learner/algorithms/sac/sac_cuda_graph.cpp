@@ -97,7 +97,7 @@ struct SquashedSample : torch::autograd::Function<SquashedSample> {
 };
 
 // The actor's loss mean(alpha * log_prob - min(q[0], q[1])) from q [2, B], log_prob [B] and the
-// temperature alpha [1] (held fixed): one reduction kernel, its gradient in one more.
+// temperature alpha [1] (held fixed): one two-stage reduction, its gradient in one kernel more.
 struct ActorObjective : torch::autograd::Function<ActorObjective> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_in,
                                const torch::Tensor& log_prob_in, const torch::Tensor& alpha_in) {
@@ -106,10 +106,11 @@ struct ActorObjective : torch::autograd::Function<ActorObjective> {
     const auto alpha = kernel_input(alpha_in, 1, "alpha");
     if (q.size(1) != B) throw std::invalid_argument("sac fused kernel: q is not [2, B]");
     auto loss = torch::empty({}, q.options());
-    launched(
-        sac_kernels::actor_objective_forward(q.data_ptr<float>(), log_prob.data_ptr<float>(), alpha.data_ptr<float>(),
-                                             loss.data_ptr<float>(), int(B), current_stream()),
-        "actor_objective_forward");
+    auto partial = torch::empty({sac_kernels::actor_objective_partials(int(B))}, q.options());
+    launched(sac_kernels::actor_objective_forward(q.data_ptr<float>(), log_prob.data_ptr<float>(),
+                                                  alpha.data_ptr<float>(), partial.data_ptr<float>(),
+                                                  loss.data_ptr<float>(), int(B), current_stream()),
+             "actor_objective_forward");
     ctx->save_for_backward({q, alpha});
     return loss;
   }
@@ -128,6 +129,54 @@ struct ActorObjective : torch::autograd::Function<ActorObjective> {
     return {g_q, g_log_prob, torch::Tensor()};
   }
 };
+
+// A critic layer as sac_detail::TwinLayerFn: the product by cuBLAS, the bias and ReLU in one pass
+// over it (torch's baddbmm first writes the broadcast bias into the output, a pass of its own, and
+// ReLU is another); backward: ReLU's mask in one pass, then three products, the bias gradient
+// among them as ones [2, 1, B] @ g (a sum over the batch at cuBLAS's bandwidth, where torch's
+// reduction ran at a third of it on a batch of 32,768).
+struct TwinLayer : torch::autograd::Function<TwinLayer> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x, const torch::Tensor& w,
+                               const torch::Tensor& b, bool relu) {
+    auto y = torch::bmm(x, w);
+    const auto bias = b.contiguous();
+    launched(sac_kernels::bias_relu_forward(y.data_ptr(), bias.data_ptr(), y.numel(), int(y.size(2)), y.size(1), relu,
+                                            y.scalar_type() == torch::kBFloat16, current_stream()),
+             "bias_relu_forward");
+    ctx->save_for_backward({x, w, y});
+    ctx->saved_data["relu"] = relu;
+    return y;
+  }
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const torch::Tensor &x = saved[0], &w = saved[1], &y = saved[2];
+    torch::Tensor g = grads[0].contiguous();
+    if (ctx->saved_data["relu"].toBool()) {
+      auto g_in = torch::empty_like(y);
+      launched(sac_kernels::relu_backward(y.data_ptr(), g.data_ptr(), g_in.data_ptr(), y.numel(),
+                                          y.scalar_type() == torch::kBFloat16, current_stream()),
+               "relu_backward");
+      g = g_in;
+    }
+    torch::Tensor g_x, g_w, g_b;
+    if (ctx->needs_input_grad(0)) g_x = torch::bmm(g, w.transpose(1, 2));
+    if (ctx->needs_input_grad(1)) g_w = torch::bmm(x.transpose(1, 2), g);
+    if (ctx->needs_input_grad(2)) g_b = torch::bmm(torch::ones({g.size(0), 1, g.size(1)}, g.options()), g);
+    return {g_x, g_w, g_b, torch::Tensor()};
+  }
+};
+
+torch::Tensor twin_layer(const torch::Tensor& x, const torch::Tensor& w, const torch::Tensor& b, bool relu) {
+  // The kernels' shapes: 16-byte packs of a row, float32 or bfloat16 on CUDA; else torch's ops.
+  const int pack = x.scalar_type() == torch::kBFloat16 ? 8 : 4;
+  if (!x.is_cuda() || w.size(2) % pack != 0 || x.scalar_type() != w.scalar_type() ||
+      (x.scalar_type() != torch::kFloat && x.scalar_type() != torch::kBFloat16)) {
+    auto y = torch::baddbmm(b, x, w);
+    return relu ? y.relu_() : y;
+  }
+  return TwinLayer::apply(x, w, b, relu);
+}
 
 // The critics' target r + gamma * (1 - done) * (min(next_q[0], next_q[1]) - alpha * next_log_prob).
 torch::Tensor fused_soft_target(const torch::Tensor& next_q_in, const torch::Tensor& next_log_prob_in,
@@ -444,6 +493,14 @@ struct Sac::Impl::CudaGraph {
   int next_slot = 0;
 };
 #endif  // FARM_CUDA_GRAPHS
+
+sac_detail::TwinLayerFn sac_detail::fused_twin_layer() {
+#if defined(FARM_CUDA_GRAPHS) && defined(FARM_CUDA_KERNELS)
+  return &twin_layer;
+#else
+  return nullptr;
+#endif
+}
 
 bool Sac::Impl::use_graph() const {
 #ifdef FARM_CUDA_GRAPHS

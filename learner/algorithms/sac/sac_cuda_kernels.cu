@@ -4,6 +4,8 @@
 // formulas, which is what a small network's update waits for on a GPU.
 #include "sac_cuda_kernels.h"
 
+#include <cuda_bf16.h>
+
 namespace farm::sac_kernels {
 namespace {
 
@@ -74,20 +76,36 @@ __global__ void soft_target_k(const float* __restrict__ next_q, const float* __r
   target[b] = rewards[b] + gamma * soft_v * (1.f - terminated[b]);
 }
 
-// One block: the batch is at most a few thousand rows.
-__global__ void actor_objective_forward_k(const float* __restrict__ q, const float* __restrict__ log_prob,
-                                          const float* __restrict__ alpha, float* __restrict__ loss, int B) {
+// Block sums in a grid-stride loop, one partial per block; then one block sums the partials. A
+// batch of tens of thousands would keep a single block busy for a tenth of a millisecond.
+constexpr int kMaxPartials = 128;
+
+__device__ float block_sum(float s) {
   __shared__ float partial[kThreads];
-  const float a = alpha[0];
-  float s = 0.f;
-  for (int b = threadIdx.x; b < B; b += blockDim.x) s += a * log_prob[b] - min_nan(q[b], q[B + b]);
   partial[threadIdx.x] = s;
   __syncthreads();
   for (int stride = blockDim.x / 2; stride > 0; stride /= 2) {
     if (threadIdx.x < stride) partial[threadIdx.x] += partial[threadIdx.x + stride];
     __syncthreads();
   }
-  if (threadIdx.x == 0) loss[0] = partial[0] / float(B);
+  return partial[0];
+}
+
+__global__ void actor_objective_partial_k(const float* __restrict__ q, const float* __restrict__ log_prob,
+                                          const float* __restrict__ alpha, float* __restrict__ partial, int B) {
+  const float a = alpha[0];
+  float s = 0.f;
+  for (int b = blockIdx.x * blockDim.x + threadIdx.x; b < B; b += gridDim.x * blockDim.x)
+    s += a * log_prob[b] - min_nan(q[b], q[B + b]);
+  const float total = block_sum(s);
+  if (threadIdx.x == 0) partial[blockIdx.x] = total;
+}
+
+__global__ void actor_objective_total_k(const float* __restrict__ partial, int n, float* __restrict__ loss, int B) {
+  float s = 0.f;
+  for (int i = threadIdx.x; i < n; i += blockDim.x) s += partial[i];
+  const float total = block_sum(s);
+  if (threadIdx.x == 0) loss[0] = total / float(B);
 }
 
 __global__ void actor_objective_backward_k(const float* __restrict__ q, const float* __restrict__ alpha,
@@ -127,7 +145,97 @@ __global__ void gather_rows_k(const float* __restrict__ rows, const double* __re
     out[plane * (O + A + 2) + (long long)b * O + (c - O - A - 2)] = v;
 }
 
+// 16 bytes a thread: 8 bfloat16 or 4 float32 values, loaded and stored as one uint4.
+template <typename T>
+struct Pack {
+  static constexpr int kN = 16 / sizeof(T);
+  union {
+    uint4 raw;
+    T v[kN];
+  };
+};
+__device__ __forceinline__ float to_f(float x) { return x; }
+__device__ __forceinline__ float to_f(__nv_bfloat16 x) { return __bfloat162float(x); }
+template <typename T>
+__device__ __forceinline__ T from_f(float x);
+template <>
+__device__ __forceinline__ float from_f<float>(float x) {
+  return x;
+}
+template <>
+__device__ __forceinline__ __nv_bfloat16 from_f<__nv_bfloat16>(float x) {
+  return __float2bfloat16(x);
+}
+
+template <typename T>
+__global__ void bias_relu_k(T* __restrict__ y, const T* __restrict__ bias, long long packs, int cols,
+                            long long rows_per_bias, bool relu) {
+  constexpr int kN = Pack<T>::kN;
+  for (long long p = (long long)blockIdx.x * blockDim.x + threadIdx.x; p < packs;
+       p += (long long)gridDim.x * blockDim.x) {
+    const long long i = p * kN;
+    const long long row = i / cols;
+    const T* b = bias + (row / rows_per_bias) * cols + (i % cols);
+    Pack<T> pk;
+    pk.raw = reinterpret_cast<const uint4*>(y)[p];
+#pragma unroll
+    for (int k = 0; k < kN; ++k) {
+      float v = to_f(pk.v[k]) + to_f(b[k]);
+      if (relu && v < 0.f) v = 0.f;
+      pk.v[k] = from_f<T>(v);
+    }
+    reinterpret_cast<uint4*>(y)[p] = pk.raw;
+  }
+}
+
+template <typename T>
+__global__ void relu_backward_k(const T* __restrict__ y, const T* __restrict__ g, T* __restrict__ g_in,
+                                long long packs) {
+  constexpr int kN = Pack<T>::kN;
+  for (long long p = (long long)blockIdx.x * blockDim.x + threadIdx.x; p < packs;
+       p += (long long)gridDim.x * blockDim.x) {
+    Pack<T> yp, gp;
+    yp.raw = reinterpret_cast<const uint4*>(y)[p];
+    gp.raw = reinterpret_cast<const uint4*>(g)[p];
+#pragma unroll
+    for (int k = 0; k < kN; ++k)
+      if (to_f(yp.v[k]) <= 0.f) gp.v[k] = from_f<T>(0.f);
+    reinterpret_cast<uint4*>(g_in)[p] = gp.raw;
+  }
+}
+
+int grid_for(long long packs) {
+  const long long blocks = (packs + kThreads - 1) / kThreads;
+  return int(blocks < 65535 ? (blocks < 1 ? 1 : blocks) : 65535);
+}
+
 }  // namespace
+
+cudaError_t bias_relu_forward(void* y, const void* bias, long long n, int cols, long long rows_per_bias, bool relu,
+                              bool bf16, cudaStream_t stream) {
+  const int k = bf16 ? Pack<__nv_bfloat16>::kN : Pack<float>::kN;
+  if (n % k != 0 || cols % k != 0) return cudaErrorInvalidValue;
+  if (bf16)
+    bias_relu_k<<<grid_for(n / k), kThreads, 0, stream>>>(
+        static_cast<__nv_bfloat16*>(y), static_cast<const __nv_bfloat16*>(bias), n / k, cols, rows_per_bias, relu);
+  else
+    bias_relu_k<<<grid_for(n / k), kThreads, 0, stream>>>(static_cast<float*>(y), static_cast<const float*>(bias),
+                                                          n / k, cols, rows_per_bias, relu);
+  return cudaGetLastError();
+}
+
+cudaError_t relu_backward(const void* y, const void* g, void* g_in, long long n, bool bf16, cudaStream_t stream) {
+  const int k = bf16 ? Pack<__nv_bfloat16>::kN : Pack<float>::kN;
+  if (n % k != 0) return cudaErrorInvalidValue;
+  if (bf16)
+    relu_backward_k<<<grid_for(n / k), kThreads, 0, stream>>>(static_cast<const __nv_bfloat16*>(y),
+                                                              static_cast<const __nv_bfloat16*>(g),
+                                                              static_cast<__nv_bfloat16*>(g_in), n / k);
+  else
+    relu_backward_k<<<grid_for(n / k), kThreads, 0, stream>>>(
+        static_cast<const float*>(y), static_cast<const float*>(g), static_cast<float*>(g_in), n / k);
+  return cudaGetLastError();
+}
 
 cudaError_t gather_rows(const float* rows, const double* u, const long long* fill, float* out, int B, int O, int A,
                         cudaStream_t stream) {
@@ -157,9 +265,16 @@ cudaError_t soft_target(const float* next_q, const float* next_log_prob, const f
   return cudaGetLastError();
 }
 
-cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* loss, int B,
-                                    cudaStream_t stream) {
-  actor_objective_forward_k<<<1, kThreads, 0, stream>>>(q, log_prob, alpha, loss, B);
+int actor_objective_partials(int B) {
+  return B < 1 ? 1 : (blocks_for(B) < kMaxPartials ? blocks_for(B) : kMaxPartials);
+}
+
+cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* partial,
+                                    float* loss, int B, cudaStream_t stream) {
+  const int n = actor_objective_partials(B);
+  actor_objective_partial_k<<<n, kThreads, 0, stream>>>(q, log_prob, alpha, partial, B);
+  if (const cudaError_t e = cudaGetLastError(); e != cudaSuccess) return e;
+  actor_objective_total_k<<<1, kThreads, 0, stream>>>(partial, n, loss, B);
   return cudaGetLastError();
 }
 

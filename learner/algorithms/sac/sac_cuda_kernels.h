@@ -29,8 +29,11 @@ cudaError_t soft_target(const float* next_q, const float* next_log_prob, const f
                         const float* terminated, float gamma, float* target, int B, cudaStream_t stream);
 
 // The actor's loss: loss[0] = mean over B of alpha[0] * log_prob - min(q[0], q[1]), q [2, B].
-cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* loss, int B,
-                                    cudaStream_t stream);
+// partial: actor_objective_partials(B) floats of scratch (each block's sum, then summed in a fixed
+// order: the same loss for the same input on every run).
+int actor_objective_partials(int B);
+cudaError_t actor_objective_forward(const float* q, const float* log_prob, const float* alpha, float* partial,
+                                    float* loss, int B, cudaStream_t stream);
 
 // Its gradient for an upstream g_loss[0]: g_q [2, B] (to the smaller critic, half each on a tie, as
 // torch::min gives it) and g_log_prob [B].
@@ -43,5 +46,14 @@ cudaError_t actor_objective_backward(const float* q, const float* alpha, const f
 // then actions [B, A], rewards [B], terminated [B] and next_obs [B, O], each contiguous.
 cudaError_t gather_rows(const float* rows, const double* u, const long long* fill, float* out, int B, int O, int A,
                         cudaStream_t stream);
+
+// A hidden layer's epilogue over y [n / cols, cols] (the critics' [2, B, H] products): y += bias,
+// bias [2, H] picked by the row's critic (row / rows_per_bias), then ReLU where `relu` (NaN kept,
+// as torch's). In place; float32 or bfloat16 (`bf16`), contiguous, 16-byte aligned.
+cudaError_t bias_relu_forward(void* y, const void* bias, long long n, int cols, long long rows_per_bias, bool relu,
+                              bool bf16, cudaStream_t stream);
+
+// ReLU's gradient from its output: g_in[i] = y[i] <= 0 ? 0 : g[i] (torch's threshold_backward).
+cudaError_t relu_backward(const void* y, const void* g, void* g_in, long long n, bool bf16, cudaStream_t stream);
 
 }  // namespace farm::sac_kernels

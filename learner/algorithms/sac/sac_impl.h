@@ -8,6 +8,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -27,6 +28,36 @@ inline void linear_init_(torch::Tensor t, int64_t fan_in) {
   t.uniform_(-bound, bound);
 }
 
+// A critic layer's x [2, B, in] @ w [2, in, out] + b [2, 1, out], then ReLU where `relu`, with a
+// backward that takes the bias gradient as a product too (sac_cuda_graph.cpp, fused kernels).
+using TwinLayerFn = torch::Tensor (*)(const torch::Tensor& x, const torch::Tensor& w, const torch::Tensor& b,
+                                      bool relu);
+// The fused layer where this build has the kernels, else null.
+TwinLayerFn fused_twin_layer();
+
+// Padding (padded_input) from this many rows on: below it the products are too small for their
+// kernel to matter, and the padding's few launches would lengthen a latency-bound update.
+constexpr int64_t kPadFromRows = 1024;
+
+// Zero columns that make n a multiple of 8.
+inline int64_t to_multiple_of_8(int64_t n) { return (8 - n % 8) % 8; }
+
+// x [..., in] and a weight with `in` along dimension `dim`, both widened with zeros to a multiple
+// of 8: the same products (the added terms are exact zeros, and the weight's gradient is the
+// slice of the widened one), but cuBLAS runs 8-aligned matrices on its tensor-core kernels, while
+// an odd width (an observation of 17, a critic input of 23) sends the products and, worst, the
+// weight gradient summed over a batch of tens of thousands to its slow unaligned ones: at a batch
+// of 32,768 that one gradient took a third of a SAC update on an H100. The networks' parameters
+// keep their shapes (checkpoints and the workers' weights are unchanged).
+inline std::pair<torch::Tensor, torch::Tensor> padded_input(const torch::Tensor& x, const torch::Tensor& w,
+                                                            int64_t dim) {
+  const int64_t extra = to_multiple_of_8(x.size(-1));
+  if (extra == 0) return {x, w};
+  std::vector<int64_t> pad_w(2 * (w.dim() - dim), 0);  // constant_pad_nd lists the last dimension first
+  pad_w.back() = extra;
+  return {torch::constant_pad_nd(x, {0, extra}), torch::constant_pad_nd(w, pad_w)};
+}
+
 // Plain MLP of torch::nn::Linear layers, so that weight.flatten() then bias is the flat layout the
 // workers' EigenMlp reads.
 struct ActorImpl : torch::nn::Module {
@@ -35,14 +66,39 @@ struct ActorImpl : torch::nn::Module {
       layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
   }
   torch::Tensor forward(torch::Tensor x) {
+    const bool cast = compute != torch::kFloat;  // sac.matmul_dtype
+    const bool pad = pad_on_cuda && x.size(0) >= kPadFromRows;
+    if (!cast && !pad) {
+      for (size_t i = 0; i < layers.size(); ++i) {
+        x = layers[i]->forward(x);
+        if (i + 1 < layers.size()) tanh_hidden ? x.tanh_() : x.relu_();
+      }
+      return x;
+    }
+    if (cast) x = x.to(compute);
+    const int64_t out = layers.back()->weight.size(0);
     for (size_t i = 0; i < layers.size(); ++i) {
-      x = layers[i]->forward(x);
+      torch::Tensor w = layers[i]->weight, b = layers[i]->bias;  // [out, in], [out]
+      if (cast) {
+        w = w.to(compute);
+        b = b.to(compute);
+      }
+      if (pad && i == 0) std::tie(x, w) = padded_input(x, w, 1);
+      if (pad && i + 1 == layers.size()) {
+        const int64_t extra = to_multiple_of_8(out);
+        w = torch::constant_pad_nd(w, {0, 0, 0, extra});
+        b = torch::constant_pad_nd(b, {0, extra});
+      }
+      x = torch::linear(x, w, b);
       if (i + 1 < layers.size()) tanh_hidden ? x.tanh_() : x.relu_();
     }
-    return x;
+    if (x.size(1) != out) x = x.narrow(1, 0, out);
+    return cast ? x.to(torch::kFloat) : x;
   }
   std::vector<torch::nn::Linear> layers;
   bool tanh_hidden;
+  torch::ScalarType compute = torch::kFloat;  // sac.matmul_dtype
+  bool pad_on_cuda = false;                   // see padded_input
 };
 TORCH_MODULE(Actor);
 
@@ -62,16 +118,47 @@ struct TwinCriticImpl : torch::nn::Module {
   }
   // obs [B, obs], act [B, act] -> [2, B]: row 0 is Q1, row 1 is Q2.
   torch::Tensor forward(const torch::Tensor& obs, const torch::Tensor& act) {
-    const auto sa = torch::cat({obs, act}, 1);
-    torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
-    for (size_t i = 0; i < w.size(); ++i) {
-      x = torch::baddbmm(b[i], x, w[i]);
-      if (i + 1 < w.size()) tanh_hidden ? x.tanh_() : x.relu_();
+    const bool cast = compute != torch::kFloat;  // sac.matmul_dtype
+    const bool pad = pad_on_cuda && obs.size(0) >= kPadFromRows;
+    if (!cast && !pad && !layer) {
+      const auto sa = torch::cat({obs, act}, 1);
+      torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
+      for (size_t i = 0; i < w.size(); ++i) {
+        x = torch::baddbmm(b[i], x, w[i]);
+        if (i + 1 < w.size()) tanh_hidden ? x.tanh_() : x.relu_();
+      }
+      return x.squeeze(-1);
     }
-    return x.squeeze(-1);
+    torch::Tensor sa = cast ? torch::cat({obs.to(compute), act.to(compute)}, 1) : torch::cat({obs, act}, 1);
+    torch::Tensor x;
+    for (size_t i = 0; i < w.size(); ++i) {
+      torch::Tensor wi = cast ? w[i].to(compute) : w[i],
+                    bi = cast ? b[i].to(compute) : b[i];  // [2, in, out], [2, 1, out]
+      if (i == 0) {
+        if (pad) std::tie(sa, wi) = padded_input(sa, wi, 1);
+        x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
+      }
+      if (pad && i + 1 == w.size()) {
+        const int64_t extra = to_multiple_of_8(wi.size(2));
+        wi = torch::constant_pad_nd(wi, {0, extra});
+        bi = torch::constant_pad_nd(bi, {0, extra});
+      }
+      const bool hidden = i + 1 < w.size();
+      if (layer && hidden && !tanh_hidden) {
+        x = layer(x, wi, bi, true);
+        continue;
+      }
+      x = torch::baddbmm(bi, x, wi);
+      if (hidden) tanh_hidden ? x.tanh_() : x.relu_();
+    }
+    x = x.narrow(2, 0, 1).squeeze(-1);
+    return cast ? x.to(torch::kFloat) : x;
   }
   std::vector<torch::Tensor> w, b;
   bool tanh_hidden;
+  torch::ScalarType compute = torch::kFloat;  // sac.matmul_dtype
+  bool pad_on_cuda = false;                   // see padded_input
+  TwinLayerFn layer = nullptr;                // the hidden layers' fused product, bias and ReLU
 };
 TORCH_MODULE(TwinCritic);
 
@@ -113,6 +200,14 @@ inline void step(torch::optim::Optimizer& opt, const torch::Tensor& param, const
   opt.step();
 }
 
+// SacConfig.matmul_dtype: "float32" or "bfloat16" (anything else is refused by config validation).
+inline torch::ScalarType matmul_dtype(const config::SacConfig& c) {
+  if (c.matmul_dtype() != "float32" && c.matmul_dtype() != "bfloat16")
+    throw std::invalid_argument("sac.matmul_dtype must be \"float32\" or \"bfloat16\", got \"" + c.matmul_dtype() +
+                                "\"");
+  return c.matmul_dtype() == "bfloat16" ? torch::kBFloat16 : torch::kFloat;
+}
+
 // SacConfig.activation: "tanh" or "relu" (anything else is refused by config validation).
 inline bool tanh_hidden(const config::SacConfig& c) {
   if (c.activation() != "relu" && c.activation() != "tanh")
@@ -148,6 +243,10 @@ struct Sac::Impl {
         actor_p(*sac_detail::placed(actor, device)),
         critic_p(*sac_detail::placed(critic, device)),
         target_p(*sac_detail::placed(critic_target, device)) {
+    actor->compute = critic->compute = critic_target->compute = sac_detail::matmul_dtype(c);
+    actor->pad_on_cuda = critic->pad_on_cuda = critic_target->pad_on_cuda = device.is_cuda();
+    if (device.is_cuda() && c.cuda_fused_kernels())
+      critic->layer = critic_target->layer = sac_detail::fused_twin_layer();
     {
       torch::NoGradGuard no_grad;
       target_p.flat.copy_(critic_p.flat);
