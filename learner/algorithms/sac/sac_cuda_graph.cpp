@@ -132,9 +132,8 @@ struct ActorObjective : torch::autograd::Function<ActorObjective> {
 
 // A critic layer as sac_detail::TwinLayerFn: the product by cuBLAS, the bias and ReLU in one pass
 // over it (torch's baddbmm first writes the broadcast bias into the output, a pass of its own, and
-// ReLU is another); backward: ReLU's mask in one pass, then three products, the bias gradient
-// among them as ones [2, 1, B] @ g (a sum over the batch at cuBLAS's bandwidth, where torch's
-// reduction ran at a third of it on a batch of 32,768).
+// ReLU is another); backward: ReLU's mask and the bias gradient (the sum over the batch, which
+// torch reduces in a pass of its own) in one pass, then the two products.
 struct TwinLayer : torch::autograd::Function<TwinLayer> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x, const torch::Tensor& w,
                                const torch::Tensor& b, bool relu) {
@@ -151,18 +150,30 @@ struct TwinLayer : torch::autograd::Function<TwinLayer> {
                                                  torch::autograd::variable_list grads) {
     const auto saved = ctx->get_saved_variables();
     const torch::Tensor &x = saved[0], &w = saved[1], &y = saved[2];
-    torch::Tensor g = grads[0].contiguous();
-    if (ctx->saved_data["relu"].toBool()) {
+    torch::Tensor g = grads[0].contiguous(), g_b;
+    const bool bf16 = y.scalar_type() == torch::kBFloat16;
+    if (ctx->saved_data["relu"].toBool() && y.size(2) / (bf16 ? 8 : 4) <= 256) {
+      // ReLU's mask and the bias gradient in one pass (per-chunk sums, then a sum over chunks).
       auto g_in = torch::empty_like(y);
-      launched(sac_kernels::relu_backward(y.data_ptr(), g.data_ptr(), g_in.data_ptr(), y.numel(),
-                                          y.scalar_type() == torch::kBFloat16, current_stream()),
-               "relu_backward");
+      auto partial = torch::empty({y.size(0), sac_kernels::relu_backward_bias_chunks(y.size(1)), y.size(2)},
+                                  y.options().dtype(torch::kFloat));
+      launched(sac_kernels::relu_backward_bias(y.data_ptr(), g.data_ptr(), g_in.data_ptr(), partial.data_ptr<float>(),
+                                               int(y.size(0)), y.size(1), int(y.size(2)), bf16, current_stream()),
+               "relu_backward_bias");
+      g = g_in;
+      if (ctx->needs_input_grad(2)) g_b = partial.sum(1, /*keepdim=*/true).to(y.scalar_type());
+    } else if (ctx->saved_data["relu"].toBool()) {
+      auto g_in = torch::empty_like(y);
+      launched(
+          sac_kernels::relu_backward(y.data_ptr(), g.data_ptr(), g_in.data_ptr(), y.numel(), bf16, current_stream()),
+          "relu_backward");
       g = g_in;
     }
-    torch::Tensor g_x, g_w, g_b;
+    torch::Tensor g_x, g_w;
     if (ctx->needs_input_grad(0)) g_x = torch::bmm(g, w.transpose(1, 2));
     if (ctx->needs_input_grad(1)) g_w = torch::bmm(x.transpose(1, 2), g);
-    if (ctx->needs_input_grad(2)) g_b = torch::bmm(torch::ones({g.size(0), 1, g.size(1)}, g.options()), g);
+    if (ctx->needs_input_grad(2) && !g_b.defined())
+      g_b = torch::bmm(torch::ones({g.size(0), 1, g.size(1)}, g.options()), g);
     return {g_x, g_w, g_b, torch::Tensor()};
   }
 };
@@ -465,7 +476,7 @@ struct Sac::Impl::CudaGraph {
     const auto grads = torch::autograd::grad({loss}, net.params);
     std::vector<torch::Tensor> flat;
     flat.reserve(grads.size());
-    for (const auto& g : grads) flat.push_back(g.view(-1));
+    for (const auto& g : grads) flat.push_back(g.reshape(-1));  // a fused layer's gradient may be a transposed view
     return torch::cat(flat);
   }
 

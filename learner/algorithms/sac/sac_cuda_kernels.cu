@@ -204,6 +204,41 @@ __global__ void relu_backward_k(const T* __restrict__ y, const T* __restrict__ g
   }
 }
 
+template <typename T>
+__global__ void relu_backward_bias_k(const T* __restrict__ y, const T* __restrict__ g, T* __restrict__ g_in,
+                                     float* __restrict__ partial, long long rows, int cols, long long chunk_rows,
+                                     int chunks) {
+  constexpr int kN = Pack<T>::kN;
+  extern __shared__ float sums[];  // [blockDim.y][cols]
+  const int packs = cols / kN, px = threadIdx.x, group = blockIdx.z, chunk = blockIdx.y;
+  const long long r0 = chunk * chunk_rows, r1 = r0 + chunk_rows < rows ? r0 + chunk_rows : rows;
+  float acc[kN];
+#pragma unroll
+  for (int k = 0; k < kN; ++k) acc[k] = 0.f;
+  for (long long r = r0 + threadIdx.y; r < r1; r += blockDim.y) {
+    const long long p = (group * rows + r) * packs + px;
+    Pack<T> yp, gp;
+    yp.raw = reinterpret_cast<const uint4*>(y)[p];
+    gp.raw = reinterpret_cast<const uint4*>(g)[p];
+#pragma unroll
+    for (int k = 0; k < kN; ++k) {
+      if (to_f(yp.v[k]) <= 0.f) gp.v[k] = from_f<T>(0.f);
+      acc[k] += to_f(gp.v[k]);
+    }
+    reinterpret_cast<uint4*>(g_in)[p] = gp.raw;
+  }
+#pragma unroll
+  for (int k = 0; k < kN; ++k) sums[threadIdx.y * cols + px * kN + k] = acc[k];
+  __syncthreads();
+  if (threadIdx.y != 0) return;
+#pragma unroll
+  for (int k = 0; k < kN; ++k) {
+    float s = 0.f;
+    for (int j = 0; j < int(blockDim.y); ++j) s += sums[j * cols + px * kN + k];
+    partial[((long long)group * chunks + chunk) * cols + px * kN + k] = s;
+  }
+}
+
 int grid_for(long long packs) {
   const long long blocks = (packs + kThreads - 1) / kThreads;
   return int(blocks < 65535 ? (blocks < 1 ? 1 : blocks) : 65535);
@@ -221,6 +256,30 @@ cudaError_t bias_relu_forward(void* y, const void* bias, long long n, int cols, 
   else
     bias_relu_k<<<grid_for(n / k), kThreads, 0, stream>>>(static_cast<float*>(y), static_cast<const float*>(bias),
                                                           n / k, cols, rows_per_bias, relu);
+  return cudaGetLastError();
+}
+
+int relu_backward_bias_chunks(long long rows) {
+  const long long c = rows / 256;
+  return int(c < 1 ? 1 : (c > 256 ? 256 : c));
+}
+
+cudaError_t relu_backward_bias(const void* y, const void* g, void* g_in, float* partial, int groups, long long rows,
+                               int cols, bool bf16, cudaStream_t stream) {
+  const int k = bf16 ? Pack<__nv_bfloat16>::kN : Pack<float>::kN;
+  if (cols % k != 0 || cols / k > kThreads || groups < 1 || rows < 1) return cudaErrorInvalidValue;
+  const int packs = cols / k, chunks = relu_backward_bias_chunks(rows);
+  const long long chunk_rows = (rows + chunks - 1) / chunks;
+  const dim3 block(packs, kThreads / packs > 0 ? kThreads / packs : 1), grid(1, chunks, groups);
+  const size_t shared = sizeof(float) * block.y * cols;
+  if (bf16)
+    relu_backward_bias_k<<<grid, block, shared, stream>>>(
+        static_cast<const __nv_bfloat16*>(y), static_cast<const __nv_bfloat16*>(g), static_cast<__nv_bfloat16*>(g_in),
+        partial, rows, cols, chunk_rows, chunks);
+  else
+    relu_backward_bias_k<<<grid, block, shared, stream>>>(static_cast<const float*>(y), static_cast<const float*>(g),
+                                                          static_cast<float*>(g_in), partial, rows, cols, chunk_rows,
+                                                          chunks);
   return cudaGetLastError();
 }
 

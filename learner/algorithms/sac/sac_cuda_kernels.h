@@ -56,4 +56,12 @@ cudaError_t bias_relu_forward(void* y, const void* bias, long long n, int cols, 
 // ReLU's gradient from its output: g_in[i] = y[i] <= 0 ? 0 : g[i] (torch's threshold_backward).
 cudaError_t relu_backward(const void* y, const void* g, void* g_in, long long n, bool bf16, cudaStream_t stream);
 
+// ReLU's gradient and the bias gradient in one pass, for y, g and g_in [groups, rows, cols] (a
+// critic a group): g_in as relu_backward's, and partial [groups, chunks, cols] (float32) the sums
+// of g_in over each chunk of relu_backward_bias_chunks(rows) rows, to be summed over the chunks
+// (a fixed order: the same sums on every run). cols / (16 / element size) at most 256.
+int relu_backward_bias_chunks(long long rows);
+cudaError_t relu_backward_bias(const void* y, const void* g, void* g_in, float* partial, int groups, long long rows,
+                               int cols, bool bf16, cudaStream_t stream);
+
 }  // namespace farm::sac_kernels
