@@ -2,7 +2,8 @@
 // samples-per-insert limiter allows, the policy published every few updates (and whenever updates
 // starve, so neither side waits for the other), evaluations on a timer, the step scaled where the
 // data outrun the updates. Its numbers come from the algorithm's config section: learning_starts,
-// max_updates_per_step, publish_every_updates, batch_size.
+// max_updates_per_step (or samples_per_insert, where the section has it and sets it),
+// publish_every_updates, batch_size.
 #include <google/protobuf/descriptor.h>
 #include <google/protobuf/message.h>
 
@@ -50,17 +51,35 @@ double section_number(const config::ExperimentConfig& cfg, const std::string& fi
   }
 }
 
+// `field` of the algorithm's config section where the section has it, else `otherwise`.
+double section_number_or(const config::ExperimentConfig& cfg, const std::string& field, double otherwise) {
+  const auto* section = cfg.GetDescriptor()->FindFieldByName(cfg.algorithm());
+  if (!section || !section->message_type() || !section->message_type()->FindFieldByName(field)) return otherwise;
+  return section_number(cfg, field);
+}
+
+// Updates per env step received: samples_per_insert / batch_size where the section sets
+// samples_per_insert (a ratio that means the same at any batch size), else max_updates_per_step.
+double updates_per_step(const config::ExperimentConfig& cfg) {
+  const double spi = section_number_or(cfg, "samples_per_insert", 0);
+  if (spi <= 0) return section_number(cfg, "max_updates_per_step");
+  if (section_number_or(cfg, "max_step_scale", 1) > 1)
+    throw std::invalid_argument(cfg.algorithm() + ".samples_per_insert and " + cfg.algorithm() +
+                                ".max_step_scale > 1 both set the update-to-data ratio: set one of them");
+  return spi / section_number(cfg, "batch_size");
+}
+
 class ReplayPacing final : public Pacing {
  public:
   ReplayPacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
       : Pacing(std::move(algo), cfg, spec),
         batch_size_(int(section_number(cfg_, "batch_size"))),
-        per_step_(section_number(cfg_, "max_updates_per_step")),
+        per_step_(updates_per_step(cfg_)),
         publish_every_(int(section_number(cfg_, "publish_every_updates"))),
         limiter_(int64_t(section_number(cfg_, "learning_starts")), per_step_, cfg_.stop().max_updates()) {}
 
   std::string csv_header() const override {
-    return "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,buffer_fill,"
+    return "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,samples_per_insert,buffer_fill,"
            "policy_version,policy_lag,critic_loss,actor_loss,alpha,mean_return,eval_return,"
            "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers";
   }
@@ -86,6 +105,7 @@ class ReplayPacing final : public Pacing {
     const int n = limiter_.allowed(algo_->updates(), algo_->holding().rows, farm.env_steps(), ready);
     if (n > 0) {
       check(algo_->update(n, version_));
+      samples_ += double(n) * batch_size_ * step_scale_;
       updates_meter_.add(n);
       updates_since_publish_ += n;
     }
@@ -111,24 +131,25 @@ class ReplayPacing final : public Pacing {
     const double upd_rate = updates_meter_.rate();
     const int64_t updates = algo_->updates();
     const double utd = f.env_steps > 0 ? double(updates) / double(f.env_steps) : 0.0;
+    const double spi = f.env_steps > 0 ? samples_ / double(f.env_steps) : 0.0;  // samples per transition
     const Holding h = algo_->holding();
     const double fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
     const double critic = latest("critic loss"), actor = latest("actor loss");
     const double alpha = std::isnan(last_.get("alpha")) ? latest("epsilon") : latest("alpha");
     std::ostringstream o;
     o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", f.in_rate) << " steps/s (" << f.env_steps << ") | "
-      << fmt("%.0f", upd_rate) << " upd/s (" << updates << ", utd " << fmt("%.3f", utd) << ") | buffer "
-      << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag) << " | return "
-      << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok << " lost "
-      << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers " << f.workers
-      << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
+      << fmt("%.0f", upd_rate) << " upd/s (" << updates << ", utd " << fmt("%.3f", utd) << ", spi " << fmt("%.2f", spi)
+      << ") | buffer " << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag)
+      << " | return " << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok
+      << " lost " << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers "
+      << f.workers << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
     farm.log(o.str());
     std::ostringstream row;
     row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << updates << ','
-        << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.4f", fill) << ',' << version() << ','
-        << fmt("%.2f", f.lag) << ',' << fmt("%.5g", critic) << ',' << fmt("%.5g", actor) << ',' << fmt("%.5g", alpha)
-        << ',' << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ',' << f.ok << ',' << f.lost << ','
-        << f.duplicate << ',' << f.invalid << ',' << f.workers;
+        << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.3f", spi) << ',' << fmt("%.4f", fill)
+        << ',' << version() << ',' << fmt("%.2f", f.lag) << ',' << fmt("%.5g", critic) << ',' << fmt("%.5g", actor)
+        << ',' << fmt("%.5g", alpha) << ',' << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ','
+        << f.ok << ',' << f.lost << ',' << f.duplicate << ',' << f.invalid << ',' << f.workers;
     farm.csv_row(row.str());
     stats->updates = updates;
     stats->updates_per_second = upd_rate;
@@ -228,6 +249,7 @@ class ReplayPacing final : public Pacing {
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;
   int step_scale_ = 1;
+  double samples_ = 0;  // samples the updates drew (batch_size x step scale each): samples_per_insert's numerator
   static constexpr double kStepWindowSeconds = 1.0;
   double step_window_start_ = -1;
   int64_t step_window_updates_ = 0;

@@ -12,6 +12,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -258,6 +259,60 @@ TEST(SacStepScale, DriverScalesWhileDataOutrunUpdatesAndBack) {
   ASSERT_GT(farm.lines_.size(), grown) << ::testing::PrintToString(farm.lines_);
   EXPECT_NE(farm.lines_.back().find("sac step x1 from update"), std::string::npos) << farm.lines_.back();
   EXPECT_NE(farm.lines_.back().find("batch 16, learning rates x1.00"), std::string::npos) << farm.lines_.back();
+}
+
+std::vector<std::string> split(const std::string& line, char sep) {
+  std::vector<std::string> out;
+  std::stringstream in(line);
+  std::string item;
+  while (std::getline(in, item, sep)) out.push_back(item);
+  return out;
+}
+
+// sac.samples_per_insert: the same ratio at batches of 16 and 32 lets the updates draw the same
+// samples per env step (twice the updates at half the batch), the limit holds, and the learner's
+// CSV row says the ratio the updates reached. With sac.max_step_scale too, the pacing refuses.
+TEST(ReplayPacing, SamplesPerInsertMeansTheSameAtAnyBatch) {
+  struct Csv final : Farm {
+    void publish(const PolicyParams&, uint32_t) override {}
+    std::vector<LiveWorker> live_workers() const override { return {}; }
+    double first_worker_heard() const override { return 0; }
+    FarmFigures figures() const override { return {}; }
+    uint64_t env_steps() const override { return 400; }
+    double elapsed() const override { return 0; }
+    bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
+    void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
+    void log(const std::string&) const override {}
+    void csv_row(const std::string& row) override { last = row; }
+    std::string last;
+  };
+  const auto spec = step_scale_spec();
+  for (const int batch : {16, 32}) {
+    SCOPED_TRACE("batch " + std::to_string(batch));
+    auto cfg = step_scale_config();
+    cfg.mutable_sac()->set_max_step_scale(1);
+    cfg.mutable_sac()->set_batch_size(batch);
+    cfg.mutable_sac()->set_samples_per_insert(32);  // 32 samples a step: 2 updates of 16, 1 of 32
+    auto pacing = make_replay_pacing(make_algorithm(cfg, spec), cfg, spec);
+    Csv farm;
+    pacing->start(farm);
+    ASSERT_TRUE(pacing->take(OneStep(256).batch));
+    for (int k = 0; k < 400; ++k) pacing->train(farm, true);
+    // The limiter: updates made < per_step x env steps + 1, per_step = 32 / batch.
+    EXPECT_EQ(pacing->updates(), 32 * 400 / batch + 1);
+    FarmFigures f;
+    f.env_steps = 400;
+    AlgorithmStats stats;
+    pacing->progress(farm, f, 1.0, &stats);
+    const auto header = split(pacing->csv_header(), ','), row = split(farm.last, ',');
+    ASSERT_EQ(header.size(), row.size()) << farm.last;
+    const auto at = std::find(header.begin(), header.end(), "samples_per_insert") - header.begin();
+    ASSERT_LT(size_t(at), header.size()) << pacing->csv_header();
+    EXPECT_NEAR(std::stod(row[at]), double(pacing->updates()) * batch / 400, 1e-3) << farm.last;
+  }
+  auto both = step_scale_config();  // max_step_scale 4
+  both.mutable_sac()->set_samples_per_insert(32);
+  EXPECT_THROW(make_replay_pacing(make_algorithm(both, spec), both, spec), std::invalid_argument);
 }
 
 // The replay driver over SAC whose groups return with their last 3 updates' figures still out (as
