@@ -99,6 +99,41 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   check_lr_decay(s, c.lr_decay_updates(), c.lr_decay_to());
 }
 
+void check_td3(const Section& s, const config::Td3Config& c) {
+  s.positive("actor_lr", c.actor_lr());
+  s.positive("critic_lr", c.critic_lr());
+  s.non_negative("weight_decay", c.weight_decay());
+  s.in_unit("gamma", c.gamma());
+  s.in_unit("tau", c.tau());
+  s.positive("batch_size", c.batch_size());
+  if (c.buffer_size() < c.batch_size())
+    s.fail("buffer_size", "expected >= td3.batch_size (" + num(c.batch_size()) + "), got " + num(c.buffer_size()));
+  s.non_negative("learning_starts", c.learning_starts());
+  s.check(c.learning_starts() <= c.buffer_size(), "learning_starts",
+          "expected <= td3.buffer_size (" + num(c.buffer_size()) +
+              "), since updates wait for this many rows in the replay buffer; got " + num(c.learning_starts()));
+  s.layer_sizes("hidden", c.hidden());
+  s.layer_sizes("critic_hidden", c.critic_hidden());
+  s.positive("init_scale", c.init_scale());
+  s.at_least("num_atoms", c.num_atoms(), 2);
+  s.check(std::isfinite(c.v_min()) && std::isfinite(c.v_max()) && c.v_min() < c.v_max(), "v_min",
+          "expected finite td3.v_min < td3.v_max (" + num(c.v_max()) + "), got " + num(c.v_min()));
+  s.non_negative("policy_noise", c.policy_noise());
+  s.non_negative("noise_clip", c.noise_clip());
+  s.at_least("policy_delay", c.policy_delay(), 1);
+  s.positive("std_min", c.std_min());
+  s.check(c.std_min() <= c.std_max(), "std_max",
+          "expected >= td3.std_min (" + num(c.std_min()) + "), got " + num(c.std_max()));
+  s.non_negative("max_grad_norm", c.max_grad_norm());
+  s.at_least("n_step", c.n_step(), 1);
+  s.positive("max_updates_per_step", c.max_updates_per_step());
+  s.check(c.samples_per_insert() >= 0, "samples_per_insert",
+          "expected 0 (off) or more, got " + num(c.samples_per_insert()));
+  s.positive("publish_every_updates", c.publish_every_updates());
+  s.check(valid_device_name(c.device()), "device",
+          "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
+}
+
 void check_ppo(const Section& s, const config::PpoConfig& c) {
   s.check(c.variant() == "clip_kl" || c.variant() == "plain", "variant",
           "expected \"clip_kl\" or \"plain\", got \"" + c.variant() + "\"");
@@ -167,6 +202,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   check_sac(root.nest("sac", c.sac()), c.sac());
   if (c.algorithm() == "dqn") check_dqn(root.nest("dqn", c.dqn()), c.dqn());
   if (c.algorithm() == "ppo") check_ppo(root.nest("ppo", c.ppo()), c.ppo());
+  if (c.algorithm() == "td3") check_td3(root.nest("td3", c.td3()), c.td3());
 
   const Section e = root.nest("eval", c.eval());
   e.positive("episodes", c.eval().episodes());
@@ -288,11 +324,13 @@ std::string resume_change(const config::ExperimentConfig& was, const config::Exp
   };
   if (now.algorithm() == "sac") return rows("sac", was.sac().n_step(), was.sac().gamma(), now.sac().gamma());
   if (now.algorithm() == "dqn") return rows("dqn", was.dqn().n_step(), was.dqn().gamma(), now.dqn().gamma());
+  if (now.algorithm() == "td3") return rows("td3", was.td3().n_step(), was.td3().gamma(), now.td3().gamma());
   return "";
 }
 
 void check_config(const config::SacConfig& c) { check_in_code(c, "sac", check_sac); }
 void check_config(const config::DqnConfig& c) { check_in_code(c, "dqn", check_dqn); }
 void check_config(const config::PpoConfig& c) { check_in_code(c, "ppo", check_ppo); }
+void check_config(const config::Td3Config& c) { check_in_code(c, "td3", check_td3); }
 
 }  // namespace farm

@@ -26,7 +26,7 @@ struct ConfigError : std::runtime_error {
 
 // Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3"). Every range
 // a task or an algorithm needs of its section is checked here; only the section of the task that
-// runs (task.name) is checked, and the dqn and ppo sections only when the algorithm is theirs.
+// runs (task.name) is checked, and the dqn, ppo and td3 sections only when the algorithm is theirs.
 config::ExperimentConfig load_config_file(const std::string& path);
 // The ExperimentConfig fields marked as algorithm sections (farm_options.proto), in schema order:
 // the names `algorithm` may take.
@@ -46,7 +46,7 @@ void clear_output_paths(config::ExperimentConfig* cfg);
 config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source);
 
 // What a run resumed with config `now` from a checkpoint written with config `was` may not change:
-// the algorithm, and for SAC and DQN the gamma its replay rows were summed with where they sum
+// the algorithm, and for SAC, DQN and TD3 the gamma its replay rows were summed with where they sum
 // several rewards (n_step > 1: resumed with another gamma, they would mix two). "" when none changed.
 std::string resume_change(const config::ExperimentConfig& was, const config::ExperimentConfig& now);
 
@@ -64,6 +64,7 @@ bool valid_device_name(const std::string& name);
 void check_config(const config::SacConfig& c);
 void check_config(const config::DqnConfig& c);
 void check_config(const config::PpoConfig& c);
+void check_config(const config::Td3Config& c);
 
 // Hidden sizes of the SAC networks (the schema's default when the list is empty).
 std::vector<int> sac_hidden(const config::SacConfig& sac);

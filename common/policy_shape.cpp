@@ -20,6 +20,16 @@ std::vector<int> ppo_hidden(const config::PpoConfig& ppo) {
   return {ppo.hidden().begin(), ppo.hidden().end()};
 }
 
+std::vector<int> td3_hidden(const config::Td3Config& td3) {
+  if (td3.hidden_size() == 0) return {512, 256, 128};  // FastTD3 actor_hidden_dim 512: 512, /2, /4
+  return {td3.hidden().begin(), td3.hidden().end()};
+}
+
+std::vector<int> td3_critic_hidden(const config::Td3Config& td3) {
+  if (td3.critic_hidden_size() == 0) return {1024, 512, 256};  // FastTD3 critic_hidden_dim 1024: 1024, /2, /4
+  return {td3.critic_hidden().begin(), td3.critic_hidden().end()};
+}
+
 namespace {
 
 MlpLayout layout(int in, const std::vector<int>& hidden, int out, Activation activation) {
@@ -66,6 +76,17 @@ PolicyParams ppo_policy_shape(const config::PpoConfig& ppo, int obs_dim, int act
   return p;
 }
 
+PolicyParams td3_policy_shape(const config::Td3Config& td3, int obs_dim, int act_dim) {
+  PolicyParams p;
+  p.head = PolicyHead::kSquashedGaussian;
+  p.layout = layout(obs_dim, td3_hidden(td3), 2 * act_dim, Activation::kRelu);
+  if (td3.normalize_observations()) {
+    p.obs_mean.assign(size_t(obs_dim), 0.f);
+    p.obs_std.assign(size_t(obs_dim), 1.f);
+  }
+  return p;
+}
+
 PolicyParams policy_shape(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
   const std::string& a = cfg.algorithm();
   if (a == "sac") return sac_policy_shape(cfg.sac(), spec.obs_dim, spec.act_dim);
@@ -76,7 +97,8 @@ PolicyParams policy_shape(const config::ExperimentConfig& cfg, const robots::Tas
     return dqn_policy_shape(spec.obs_dim, spec.num_actions, cfg.dqn());
   }
   if (a == "ppo") return ppo_policy_shape(cfg.ppo(), spec.obs_dim, spec.act_dim);
-  throw std::invalid_argument("no policy shape for algorithm '" + a + "' (known: sac, dqn, ppo)");
+  if (a == "td3") return td3_policy_shape(cfg.td3(), spec.obs_dim, spec.act_dim);
+  throw std::invalid_argument("no policy shape for algorithm '" + a + "' (known: sac, dqn, ppo, td3)");
 }
 
 PolicyParams untrained_policy(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {

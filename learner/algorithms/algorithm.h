@@ -1,7 +1,7 @@
 // An algorithm as the learner runs it: it takes the workers' data, learns from it, and hands back
 // the policy. Everything around that is the learner's (learner/farm_service.h): ingest, the pace
 // of updates against the data (learner/pacing.h), publishing, evaluations, checkpoints, the log.
-// SAC, DQN and PPO implement this class; a new algorithm does too, and adds one line to registry.cpp.
+// SAC, DQN, PPO and TD3 implement this class; a new algorithm does too, and adds one line to registry.cpp.
 #pragma once
 
 #include <cstdint>

@@ -8,6 +8,7 @@ namespace farm {
 std::unique_ptr<Algorithm> make_sac(const config::ExperimentConfig&, const robots::TaskSpec&);
 std::unique_ptr<Algorithm> make_dqn(const config::ExperimentConfig&, const robots::TaskSpec&);
 std::unique_ptr<Algorithm> make_ppo(const config::ExperimentConfig&, const robots::TaskSpec&);
+std::unique_ptr<Algorithm> make_td3(const config::ExperimentConfig&, const robots::TaskSpec&);
 
 const std::vector<AlgorithmRegistration>& algorithms() {
   // One line per algorithm.
@@ -15,6 +16,7 @@ const std::vector<AlgorithmRegistration>& algorithms() {
       {"sac", &make_sac, false},
       {"dqn", &make_dqn, false},
       {"ppo", &make_ppo, true},
+      {"td3", &make_td3, false},
   };
   return kAlgorithms;
 }
@@ -51,6 +53,7 @@ PolicyParams read_saved_policy(config::ExperimentConfig cfg, const robots::TaskS
   cfg.mutable_sac()->set_device("cpu");
   cfg.mutable_dqn()->set_device("cpu");
   cfg.mutable_ppo()->set_device("cpu");
+  cfg.mutable_td3()->set_device("cpu");
   auto algo = make_algorithm(cfg, spec);
   if (!dir.empty()) algo->load_networks(dir);
   *updates = algo->updates();

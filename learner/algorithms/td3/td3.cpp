@@ -1,0 +1,473 @@
+#include "td3.h"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+#include <utility>
+
+#include "archive_io.h"
+#include "compute.h"
+#include "config.h"
+#include "obs_normalizer.h"
+#include "policy_shape.h"
+
+namespace farm {
+
+namespace {
+
+std::vector<int64_t> layer_sizes(int in, const std::vector<int>& hidden, int out) {
+  std::vector<int64_t> s{in};
+  s.insert(s.end(), hidden.begin(), hidden.end());
+  s.push_back(out);
+  return s;
+}
+
+// The deterministic actor: Linear layers with ReLU between them and tanh on the output, so that
+// weight.flatten() then bias of each layer is the workers' flat layout. The hidden layers keep
+// torch::nn::Linear's default initialization (PyTorch's, as FastTD3's nn.Linear); the output layer
+// starts at N(0, init_scale) weights and zero bias (FastTD3 init_scale).
+struct ActorImpl : torch::nn::Module {
+  ActorImpl(const std::vector<int64_t>& sizes, double init_scale) {
+    for (size_t i = 0; i + 1 < sizes.size(); ++i)
+      layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
+    torch::NoGradGuard no_grad;
+    layers.back()->weight.normal_(0.0, init_scale);
+    layers.back()->bias.zero_();
+  }
+  torch::Tensor forward(torch::Tensor x) {
+    for (size_t i = 0; i < layers.size(); ++i) {
+      x = layers[i]->forward(x);
+      if (i + 1 < layers.size()) x.relu_();
+    }
+    return torch::tanh(x);
+  }
+  std::vector<torch::nn::Linear> layers;
+};
+TORCH_MODULE(Actor);
+
+// Both critics in one module, evaluated together as batched products over a leading critic
+// dimension of 2; weights [critic, in, out], biases [critic, 1, out], each initialized uniform in
+// +-1/sqrt(fan_in) as torch's nn.Linear (FastTD3's critics). Output: logits [2, B, num_atoms].
+struct TwinCriticImpl : torch::nn::Module {
+  explicit TwinCriticImpl(const std::vector<int64_t>& sizes) {
+    torch::NoGradGuard no_grad;
+    for (size_t i = 0; i + 1 < sizes.size(); ++i) {
+      const std::string k = std::to_string(i);
+      const double bound = 1.0 / std::sqrt(double(sizes[i]));
+      w.push_back(register_parameter("w" + k, torch::empty({2, sizes[i], sizes[i + 1]}).uniform_(-bound, bound)));
+      b.push_back(register_parameter("b" + k, torch::empty({2, 1, sizes[i + 1]}).uniform_(-bound, bound)));
+    }
+  }
+  torch::Tensor forward(const torch::Tensor& obs, const torch::Tensor& act) {
+    const auto sa = torch::cat({obs, act}, 1);
+    torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
+    for (size_t i = 0; i < w.size(); ++i) {
+      x = torch::baddbmm(b[i], x, w[i]);
+      if (i + 1 < w.size()) x.relu_();
+    }
+    return x;
+  }
+  std::vector<torch::Tensor> w, b;
+};
+TORCH_MODULE(TwinCritic);
+
+// One network's parameters made views of one contiguous buffer: the optimizer, the gradient
+// clipping and the polyak step each run a handful of ops on it instead of some per tensor.
+struct FlatParams {
+  explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
+    int64_t n = 0;
+    for (const auto& p : params) n += p.numel();
+    flat = torch::empty({n}, params[0].options());
+    torch::NoGradGuard no_grad;
+    int64_t offset = 0;
+    for (auto& p : params) {
+      const auto view = flat.narrow(0, offset, p.numel()).view(p.sizes());
+      view.copy_(p);
+      p.set_(view);
+      offset += p.numel();
+    }
+  }
+  std::vector<torch::Tensor> params;  // the module's own parameter tensors, in module order
+  torch::Tensor flat;
+};
+
+// Moves a module's parameters to `d` before FlatParams gathers them there.
+template <class M>
+M& placed(M& m, torch::Device d) {
+  m->to(d);
+  return m;
+}
+
+// The gradient of `loss` with respect to `net` alone (the actor's loss runs through the critics
+// without producing their gradients), its norm clipped to max_norm where max_norm > 0, then the
+// optimizer's step.
+void step(torch::optim::Optimizer& opt, FlatParams& net, const torch::Tensor& loss, double max_norm) {
+  const auto grads = torch::autograd::grad({loss}, net.params);
+  std::vector<torch::Tensor> flat;
+  flat.reserve(grads.size());
+  for (const auto& g : grads) flat.push_back(g.reshape(-1));
+  net.flat.mutable_grad() = torch::cat(flat);
+  if (max_norm > 0) torch::nn::utils::clip_grad_norm_(net.flat, max_norm);
+  opt.step();
+}
+
+std::string sizes_str(const std::vector<int64_t>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + std::to_string(v[i]);
+  return s;
+}
+
+// Parameters are stored by name, so that a file of other network sizes is refused by name and
+// shape instead of being reinterpreted.
+void write_params(torch::serialize::OutputArchive& root, const std::string& key, const torch::nn::Module& m) {
+  torch::serialize::OutputArchive a;
+  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
+  root.write(key, a);
+}
+
+std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
+                                       const torch::nn::Module& m, const std::string& file) {
+  torch::serialize::InputArchive a;
+  if (!root.try_read(key, a)) throw std::runtime_error("td3 checkpoint " + file + ": no '" + key + "'");
+  std::vector<torch::Tensor> out;
+  for (const auto& p : m.named_parameters()) {
+    torch::Tensor t;
+    if (!a.try_read(p.key(), t))
+      throw std::runtime_error("td3 checkpoint " + file + ": no '" + key + "." + p.key() + "'");
+    if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
+      throw std::runtime_error("td3 checkpoint " + file + ": '" + key + "." + p.key() + "' has shape " +
+                               shape_str(t.sizes()) + ", expected " + shape_str(p.value().sizes()));
+    out.push_back(t);
+  }
+  return out;
+}
+
+void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
+  torch::NoGradGuard no_grad;
+  for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
+}
+
+torch::Tensor doubles(const std::vector<double>& v) {
+  return torch::tensor(v, torch::TensorOptions().dtype(torch::kDouble)).reshape({int64_t(v.size())});
+}
+
+std::vector<double> to_doubles(const torch::Tensor& t) {
+  const auto c = t.to(torch::kCPU, torch::kDouble).contiguous();
+  return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
+}
+
+const config::Td3Config& checked(const config::Td3Config& cfg, uint64_t seed) {
+  check_config(cfg);  // the loader's checks, for a config built in code
+  torch::manual_seed(seed);
+  return cfg;
+}
+
+}  // namespace
+
+torch::Tensor c51_support(int num_atoms, double v_min, double v_max, const torch::TensorOptions& options) {
+  return torch::linspace(v_min, v_max, num_atoms, options);
+}
+
+torch::Tensor c51_projection(const torch::Tensor& probs, const torch::Tensor& rewards, const torch::Tensor& discount,
+                             double v_min, double v_max) {
+  const int64_t k = probs.size(-1);
+  const double dz = (v_max - v_min) / double(k - 1);
+  const auto z = c51_support(int(k), v_min, v_max, probs.options());
+  const auto shifted = torch::addcmul(rewards.unsqueeze(-1), discount.unsqueeze(-1), z).clamp_(v_min, v_max);
+  const auto b = ((shifted - v_min) / dz).clamp_(0.0, double(k - 1));  // the atom's fractional index
+  const auto lower = b.floor(), upper = b.ceil();
+  // On an atom (lower == upper) the lower neighbour takes it all; otherwise the split is linear.
+  const auto to_lower = (upper - b).add_(lower.eq(upper).to(b.scalar_type()));
+  const auto to_upper = b - lower;
+  auto out = torch::zeros_like(probs);
+  out.scatter_add_(-1, lower.to(torch::kLong), probs * to_lower);
+  out.scatter_add_(-1, upper.to(torch::kLong), probs * to_upper);
+  return out;
+}
+
+torch::Tensor c51_expected_value(const torch::Tensor& probs, const torch::Tensor& support) {
+  return (probs * support).sum(-1);
+}
+
+torch::Tensor td3_critic_target(const torch::Tensor& next_probs1, const torch::Tensor& next_probs2,
+                                const torch::Tensor& rewards, const torch::Tensor& discount, double v_min, double v_max,
+                                bool clipped_double_q) {
+  const auto p1 = c51_projection(next_probs1, rewards, discount, v_min, v_max);
+  const auto p2 = c51_projection(next_probs2, rewards, discount, v_min, v_max);
+  if (!clipped_double_q) return torch::stack({p1, p2});
+  const auto z = c51_support(int(p1.size(-1)), v_min, v_max, p1.options());
+  const auto first_smaller = c51_expected_value(p1, z).lt(c51_expected_value(p2, z)).unsqueeze(-1);
+  const auto picked = torch::where(first_smaller, p1, p2);
+  return torch::stack({picked, picked});
+}
+
+torch::Tensor c51_cross_entropy(const torch::Tensor& target, const torch::Tensor& logits) {
+  return -(target * torch::log_softmax(logits, -1)).sum(-1).mean(-1).sum();
+}
+
+struct Td3::Impl {
+  Impl(const config::Td3Config& c, int obs, int act)
+      : cfg(c),
+        obs_dim(obs),
+        act_dim(act),
+        hidden(td3_hidden(c)),
+        critic_hidden(td3_critic_hidden(c)),
+        device(learner_device(c.device(), "td3.device")),
+        actor(layer_sizes(obs, hidden, act), c.init_scale()),
+        critic(layer_sizes(obs + act, critic_hidden, c.num_atoms())),
+        critic_target(layer_sizes(obs + act, critic_hidden, c.num_atoms())),
+        actor_p(*placed(actor, device)),
+        critic_p(*placed(critic, device)),
+        target_p(*placed(critic_target, device)),
+        support(c51_support(c.num_atoms(), c.v_min(), c.v_max(), torch::TensorOptions().device(device))),
+        normalizer(obs),
+        last_actor_loss(torch::zeros({}, torch::TensorOptions().device(device))) {
+    {
+      torch::NoGradGuard no_grad;
+      target_p.flat.copy_(critic_p.flat);
+      for (auto& t : target_p.params) t.requires_grad_(false);
+    }
+    actor_opt =
+        std::make_unique<torch::optim::AdamW>(std::vector<torch::Tensor>{actor_p.flat},
+                                              torch::optim::AdamWOptions(c.actor_lr()).weight_decay(c.weight_decay()));
+    critic_opt =
+        std::make_unique<torch::optim::AdamW>(std::vector<torch::Tensor>{critic_p.flat},
+                                              torch::optim::AdamWOptions(c.critic_lr()).weight_decay(c.weight_decay()));
+  }
+
+  // Raw observations [B, obs_dim] on the device, normalized as the workers normalize them.
+  torch::Tensor normalized(const torch::Tensor& obs) const {
+    if (!cfg.normalize_observations()) return obs;
+    const auto mean = torch::tensor(normalizer.mean()).to(device), std = torch::tensor(normalizer.std()).to(device);
+    return (obs - mean) / std;
+  }
+
+  void apply_learning_rates() {
+    for (auto [opt, lr] : {std::pair{actor_opt.get(), cfg.actor_lr()}, std::pair{critic_opt.get(), cfg.critic_lr()}})
+      for (auto& group : opt->param_groups())
+        static_cast<torch::optim::AdamWOptions&>(group.options()).lr(lr).weight_decay(cfg.weight_decay());
+  }
+
+  config::Td3Config cfg;
+  int obs_dim, act_dim;
+  std::vector<int> hidden, critic_hidden;
+  torch::Device device;
+  Actor actor;
+  TwinCritic critic, critic_target;
+  FlatParams actor_p, critic_p, target_p;
+  torch::Tensor support;
+  ObsNormalizer normalizer;
+  torch::Tensor last_actor_loss;  // the figure reported between the actor's steps
+  std::unique_ptr<torch::optim::AdamW> actor_opt, critic_opt;
+  int64_t updates = 0;
+};
+
+Td3::Td3(const config::Td3Config& cfg, int obs_dim, int act_dim, uint64_t seed)
+    : impl_(std::make_unique<Impl>(checked(cfg, seed), obs_dim, act_dim)) {}
+Td3::~Td3() = default;
+Td3::Td3(Td3&&) noexcept = default;
+Td3& Td3::operator=(Td3&&) noexcept = default;
+
+void Td3::observe(const float* obs, int64_t rows) {
+  if (impl_->cfg.normalize_observations()) impl_->normalizer.update(obs, rows);
+}
+
+Td3Stats Td3::update(const SampledBatch& sampled) {
+  Impl& s = *impl_;
+  const config::Td3Config& c = s.cfg;
+  // Multi-step rows (td3.n_step): gamma * (1 - terminated) of the folded batch is gamma^h * (1 -
+  // terminated) of the row.
+  const SampledBatch host = fold_horizon(sampled, c.gamma());
+  const auto on = [&](const torch::Tensor& t) { return s.device.is_cpu() ? t : t.to(s.device); };
+  const auto obs = s.normalized(on(host.obs)), next_obs = s.normalized(on(host.next_obs));
+  const auto actions = on(host.actions), rewards = on(host.rewards);
+  const auto discount = (1.0 - on(host.terminated)) * c.gamma();
+
+  torch::Tensor target;
+  {
+    torch::NoGradGuard no_grad;
+    // Target policy smoothing, from the online actor (FastTD3 keeps no target actor).
+    const auto noise = (torch::randn_like(actions) * c.policy_noise()).clamp_(-c.noise_clip(), c.noise_clip());
+    const auto next_action = (s.actor->forward(next_obs) + noise).clamp_(-1.0, 1.0);
+    const auto next_probs = torch::softmax(s.critic_target->forward(next_obs, next_action), -1);
+    target =
+        td3_critic_target(next_probs[0], next_probs[1], rewards, discount, c.v_min(), c.v_max(), c.clipped_double_q());
+  }
+  const auto logits = s.critic->forward(obs, actions);
+  const auto critic_loss = c51_cross_entropy(target, logits);
+  step(*s.critic_opt, s.critic_p, critic_loss, c.max_grad_norm());
+
+  Td3Stats st;
+  // FastTD3's order: the actor's step after the critics', against the critics just stepped.
+  st.actor_stepped = s.updates % c.policy_delay() == c.policy_delay() - 1;
+  if (st.actor_stepped) {
+    const auto q = c51_expected_value(torch::softmax(s.critic->forward(obs, s.actor->forward(obs)), -1), s.support);
+    const auto value = c.clipped_double_q() ? torch::min(q[0], q[1]) : q.mean(0);
+    const auto actor_loss = -value.mean();
+    step(*s.actor_opt, s.actor_p, actor_loss, c.max_grad_norm());
+    s.last_actor_loss = actor_loss.detach();
+  }
+  {
+    torch::NoGradGuard no_grad;
+    s.target_p.flat.lerp_(s.critic_p.flat, c.tau());
+    const auto q_mean = c51_expected_value(torch::softmax(logits.detach(), -1), s.support).mean();
+    // One read-back for the figures: on a GPU each item() is a synchronization.
+    const auto figures = torch::stack({critic_loss.detach().reshape({}), s.last_actor_loss.reshape({}), q_mean})
+                             .to(torch::kCPU, torch::kDouble);
+    const double* f = figures.data_ptr<double>();
+    st.critic_loss = f[0];
+    st.actor_loss = f[1];
+    st.q_mean = f[2];
+  }
+  ++s.updates;
+  return st;
+}
+
+double Td3::exploration_std() const { return 0.5 * (impl_->cfg.std_min() + impl_->cfg.std_max()); }
+
+PolicyParams Td3::export_policy(uint64_t version) const {
+  const Impl& s = *impl_;
+  PolicyParams p = td3_policy_shape(s.cfg, s.obs_dim, s.act_dim);
+  p.version = version;
+  torch::NoGradGuard no_grad;
+  std::vector<torch::Tensor> flat;
+  for (size_t i = 0; i < s.actor->layers.size(); ++i) {
+    torch::Tensor w = s.actor->layers[i]->weight.detach().to(torch::kCPU);
+    torch::Tensor b = s.actor->layers[i]->bias.detach().to(torch::kCPU);
+    if (i + 1 == s.actor->layers.size()) {
+      // The head's log-std rows: zero weights, the exploration std's log as bias.
+      w = torch::cat({w, torch::zeros_like(w)}, 0);
+      b = torch::cat({b, torch::full_like(b, std::log(exploration_std()))}, 0);
+    }
+    flat.push_back(w.reshape(-1));
+    flat.push_back(b.reshape(-1));
+  }
+  const auto all = torch::cat(flat).contiguous();
+  p.params.assign(all.data_ptr<float>(), all.data_ptr<float>() + all.numel());
+  if (s.cfg.normalize_observations()) {
+    p.obs_mean = s.normalizer.mean();
+    p.obs_std = s.normalizer.std();
+  }
+  return p;
+}
+
+int64_t Td3::updates() const { return impl_->updates; }
+bool Td3::on_gpu() const { return impl_->device.is_cuda(); }
+torch::Device Td3::device() const { return impl_->device; }
+int Td3::obs_dim() const { return impl_->obs_dim; }
+int Td3::act_dim() const { return impl_->act_dim; }
+const std::vector<int>& Td3::hidden() const { return impl_->hidden; }
+const std::vector<int>& Td3::critic_hidden() const { return impl_->critic_hidden; }
+torch::Tensor Td3::support() const { return impl_->support; }
+
+torch::Tensor Td3::deterministic_action(const torch::Tensor& obs) const {
+  torch::NoGradGuard no_grad;
+  return impl_->actor->forward(impl_->normalized(obs.to(impl_->device))).to(obs.device());
+}
+
+torch::Tensor Td3::critic_logits(const torch::Tensor& obs, const torch::Tensor& actions) const {
+  torch::NoGradGuard no_grad;
+  Impl& s = *impl_;
+  return s.critic->forward(s.normalized(obs.to(s.device)), actions.to(s.device)).to(obs.device());
+}
+
+std::vector<torch::Tensor> Td3::actor_parameters() const { return impl_->actor_p.params; }
+std::vector<torch::Tensor> Td3::critic_parameters() const { return impl_->critic_p.params; }
+std::vector<torch::Tensor> Td3::target_critic_parameters() const { return impl_->target_p.params; }
+
+namespace {
+// What a file must match: observation and action sizes, atoms, the hidden sizes of actor and
+// critics (-1 between them).
+std::vector<int64_t> shape_meta(int obs, int act, int atoms, const std::vector<int>& hidden,
+                                const std::vector<int>& critic_hidden) {
+  std::vector<int64_t> m{obs, act, atoms};
+  m.insert(m.end(), hidden.begin(), hidden.end());
+  m.push_back(-1);
+  m.insert(m.end(), critic_hidden.begin(), critic_hidden.end());
+  return m;
+}
+}  // namespace
+
+void Td3::save(const std::string& dir) const {
+  const Impl& s = *impl_;
+  std::filesystem::create_directories(dir);
+  const std::string file = dir + "/td3.pt", tmp = file + ".tmp";
+  try {
+    torch::serialize::OutputArchive root;
+    root.write("meta", torch::tensor(shape_meta(s.obs_dim, s.act_dim, s.cfg.num_atoms(), s.hidden, s.critic_hidden),
+                                     torch::kInt64));
+    root.write("support", doubles({s.cfg.v_min(), s.cfg.v_max()}));
+    write_params(root, "actor", *s.actor);
+    write_params(root, "critic", *s.critic);
+    write_params(root, "critic_target", *s.critic_target);
+    for (const auto& [key, opt] : {std::pair<const char*, torch::optim::Optimizer*>{"actor_optim", s.actor_opt.get()},
+                                   {"critic_optim", s.critic_opt.get()}}) {
+      torch::serialize::OutputArchive a;
+      opt->save(a);
+      root.write(key, a);
+    }
+    root.write("obs_count", doubles({s.normalizer.count()}));
+    root.write("obs_mean", doubles(s.normalizer.raw_mean()));
+    root.write("obs_m2", doubles(s.normalizer.raw_m2()));
+    root.write("last_actor_loss", s.last_actor_loss.detach().to(torch::kCPU));
+    root.write("updates", torch::full({1}, s.updates, torch::kInt64));
+    save_archive(root, tmp);
+  } catch (const c10::Error& e) {
+    throw std::runtime_error("td3 checkpoint " + tmp + ": " + e.what_without_backtrace());
+  }
+  if (std::rename(tmp.c_str(), file.c_str()) != 0)
+    throw std::runtime_error("td3 checkpoint " + file + ": cannot rename " + tmp + " to it");
+}
+
+void Td3::load(const std::string& dir) {
+  Impl& s = *impl_;
+  const std::string file = dir + "/td3.pt";
+  auto fail = [&](const std::string& what) { return std::runtime_error("td3 checkpoint " + file + ": " + what); };
+  try {
+    torch::serialize::InputArchive root;
+    root.load_from(file, s.device);
+    torch::Tensor meta, support;
+    if (!root.try_read("meta", meta)) throw fail("no 'meta'");
+    const auto want = shape_meta(s.obs_dim, s.act_dim, s.cfg.num_atoms(), s.hidden, s.critic_hidden);
+    meta = meta.to(torch::kCPU).contiguous();
+    const std::vector<int64_t> got(meta.data_ptr<int64_t>(), meta.data_ptr<int64_t>() + meta.numel());
+    if (got != want)
+      throw fail("networks are obs,act,atoms,actor hidden,-1,critic hidden = " + sizes_str(got) + ", expected " +
+                 sizes_str(want));
+    if (!root.try_read("support", support) || support.numel() != 2) throw fail("missing or misshapen 'support'");
+    const auto vs = to_doubles(support);
+    if (vs[0] != s.cfg.v_min() || vs[1] != s.cfg.v_max())
+      throw fail("its critics' support is [" + std::to_string(vs[0]) + ", " + std::to_string(vs[1]) +
+                 "], this config's td3.v_min, td3.v_max [" + std::to_string(s.cfg.v_min()) + ", " +
+                 std::to_string(s.cfg.v_max()) + "]");
+    const auto actor = read_params(root, "actor", *s.actor, file);
+    const auto critic = read_params(root, "critic", *s.critic, file);
+    const auto target = read_params(root, "critic_target", *s.critic_target, file);
+    torch::Tensor count, mean, m2, actor_loss, updates;
+    if (!root.try_read("obs_count", count) || !root.try_read("obs_mean", mean) || !root.try_read("obs_m2", m2) ||
+        count.numel() != 1 || mean.numel() != s.obs_dim || m2.numel() != s.obs_dim)
+      throw fail("missing or misshapen observation moments");
+    if (!root.try_read("last_actor_loss", actor_loss) || actor_loss.numel() != 1)
+      throw fail("missing or misshapen 'last_actor_loss'");
+    if (!root.try_read("updates", updates) || updates.numel() != 1) throw fail("missing or misshapen 'updates'");
+    torch::serialize::InputArchive actor_opt, critic_opt;
+    if (!root.try_read("actor_optim", actor_opt) || !root.try_read("critic_optim", critic_opt))
+      throw fail("missing optimizer state");
+
+    copy_into(s.actor_p.params, actor);
+    copy_into(s.critic_p.params, critic);
+    copy_into(s.target_p.params, target);
+    s.actor_opt->load(actor_opt);
+    s.critic_opt->load(critic_opt);
+    s.normalizer.set_state(to_doubles(count)[0], to_doubles(mean), to_doubles(m2));
+    s.last_actor_loss = actor_loss.reshape({}).to(s.device, torch::kFloat);
+    s.updates = updates.to(torch::kCPU).item<int64_t>();
+    // The saved optimizers carry the rates they ran with; this run's are its config's.
+    s.apply_learning_rates();
+  } catch (const c10::Error& e) {
+    throw fail(e.what_without_backtrace());
+  }
+}
+
+}  // namespace farm
