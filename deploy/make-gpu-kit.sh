@@ -45,6 +45,9 @@ cp -a $arch/libcivetweb.so* $arch/libprometheus-cpp-core.so* "$kit/lib/"
 cp -a /usr/include/openssl "$kit/include/"
 cp -a /usr/include/x86_64-linux-gnu/openssl/* "$kit/include/openssl/" 2>/dev/null || true
 cp -a $arch/libcrypto.so* "$kit/lib/"
+# What Fast DDS links beside it (its security plugins, its persistence service): a bare host may
+# lack them.
+cp -a $arch/libssl.so* $arch/libsqlite3.so* "$kit/lib/"
 # Header-only: CLI11 (every program's command-line options, common/cli.h) and nlohmann-json (the
 # learner's events.jsonl).
 cp -a /usr/include/CLI /usr/include/nlohmann "$kit/include/"

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Builds farm-learner against the GPU host's CUDA LibTorch and runs training seeds of an
+# off-policy config with tests/bench/bench_seeds.sh, workers from the kit's Debian-built
+# farm-worker, in one call.
+#   tools/gpu-offpolicy-train.sh CONFIG "SEEDS" "WORKER COUNTS" [OUT_DIR]   (default: runs/gpu-train)
+# Needs a full kit from deploy/make-gpu-kit.sh (Fast DDS included) in gpukit-full/ (FARM_GPU_KIT
+# overrides). STOP, SET_BLOCK and SET_LINES pass to bench_seeds.sh.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+config=${1:?usage: gpu-offpolicy-train.sh CONFIG SEEDS COUNTS [OUT_DIR]} seeds=${2:?} counts=${3:?}
+out=${4:-$root/runs/gpu-train}
+mkdir -p "$out"
+export FARM_GPU_KIT=${FARM_GPU_KIT:-$root/gpukit-full} OMP_WAIT_POLICY=PASSIVE
+export LD_LIBRARY_PATH="$FARM_GPU_KIT/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$out/gpu.txt"
+FARM_GPU_TARGETS=farm-learner "$root/deploy/build-gpu.sh" "$root/build-gpu" >"$out/build.log" 2>&1 ||
+  { tail -40 "$out/build.log"; exit 1; }
+"$root/tests/bench/bench_seeds.sh" "$root/build-gpu/learner/farm-learner" "$FARM_GPU_KIT/debian-bin/farm-worker" \
+  "$config" "$seeds" "$counts" "$out/seeds" 2>&1 | tee "$out/bench_seeds.txt"
+# Each run's files one level up (a caller that fetches only shallow paths still gets them), and
+# the first worker's last lines where a run got no env steps.
+for run in "$out"/seeds/seed*/w*; do
+  [ -d "$run" ] || continue
+  tag=$(basename "$(dirname "$run")")_$(basename "$run")
+  for f in learner/learner.csv learner/summary.txt learner/events.jsonl learner.log worker-1.log; do
+    [ -f "$run/$f" ] && cp "$run/$f" "$out/${tag}_$(basename "$f")"
+  done
+  if ! grep -q '^env steps *[1-9]' "$run/learner/summary.txt" 2>/dev/null; then
+    echo "== $tag: no env steps; worker-1.log ends:"
+    tail -15 "$run/worker-1.log" 2>/dev/null || echo "(no worker log)"
+  fi
+done
