@@ -46,8 +46,8 @@
 // --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
 // worker session, with the host name --status-host (--status-host-bytes B: B characters instead);
 // with --beat-every S the same N sessions beat again every S seconds while --seconds lasts.
-// --malformed KIND: instead of a stream, samples of every topic whose bytes do not decode
-// (intruder_malformed.cpp).
+// --malformed KIND [--fuzz-seed N] [--dump DIR]: instead of a stream, samples of every topic whose
+// bytes do not decode, or (fuzz) mutated afresh each time (intruder_malformed.cpp).
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
 // id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
 #include <dlfcn.h>
@@ -310,7 +310,8 @@ int main(int argc, char** argv) {
   double seconds = 10;
   bool hostile = false, forge_weights_on = false, oversize = false, try_writers = false, heartbeat = false;
   bool spec_finished = false, spec_only = false;
-  std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed;
+  std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed, dump_dir;
+  uint64_t fuzz_seed = 1;
   unsigned spec_steps = 4, spec_max_batches = 4;
   double forge_return = NAN, beat_every = 0;
   unsigned forge_length = 1, forge_metrics = 1, flood_streams = 0, flood_heartbeats = 0, host_bytes = 0, big_mib = 0;
@@ -359,7 +360,10 @@ int main(int argc, char** argv) {
   add_switch("--forge-weights", forge_weights_on,
              "1: the experiment's weights as its learner publishes them, written again a million versions ahead");
   app.add_option("--malformed", malformed,
-                 "bool, length or truncate: broken samples of every topic instead of a stream");
+                 "bool, length, truncate or fuzz: broken samples of every topic instead of a stream");
+  app.add_option("--fuzz-seed", fuzz_seed, "Seed of --malformed fuzz's mutations")->capture_default_str();
+  app.add_option("--dump", dump_dir,
+                 "DIR: --malformed writes each topic's broken sample to DIR/<type>_<kind>.hex, not to the bus");
   app.add_option("--big-to-workers", big_mib,
                  "MB: a spec, weights and an evaluation request of MB MiB each, instead of a stream");
   app.add_option("--token-name", g_token_name,
@@ -379,7 +383,8 @@ int main(int argc, char** argv) {
       return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat, obs,
                            act);
     if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
-    if (!malformed.empty()) return send_malformed(bus, id, experiment, obs, act, malformed, seconds);
+    if (!malformed.empty())
+      return send_malformed(bus, id, experiment, obs, act, malformed, seconds, fuzz_seed, dump_dir);
     if (forge_weights_on) return forge_weights(bus, id, experiment, seconds);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {

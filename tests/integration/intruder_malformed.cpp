@@ -6,6 +6,9 @@
 //   length    every sequence's and string's count set to the number of bytes left in the sample
 //             (the batch carries a megabyte of episode metrics, so that the counts claim a lot)
 //   truncate  the sample cut after half its bytes
+//   fuzz      every sample written mutated afresh (seeded): one to four of a byte set at random,
+//             a field's word (count, length or value) set to a random or extreme number, the
+//             sample cut anywhere, bytes inserted or removed
 // To the learner: TransitionBatch, WorkerStatus, EvaluationAnswer; to the workers: ExperimentSpec,
 // PolicyWeights, EvaluationRequest. One of each every 100 ms for --seconds once matched; it prints
 // how many of each it wrote.
@@ -13,8 +16,11 @@
 
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 #include <memory>
+#include <random>
 #include <thread>
 #include <vector>
 
@@ -93,6 +99,61 @@ std::vector<uint8_t> broken(std::vector<uint8_t> b, const farm::wire::Layout& la
   return b;
 }
 
+// `good` mutated one to four ways, for --malformed fuzz. The encapsulation header is left alone
+// in most samples, so that the mutations reach the walk and the decoder behind it.
+std::vector<uint8_t> fuzzed(const std::vector<uint8_t>& good, const farm::wire::Layout& layout, std::mt19937_64& rng) {
+  std::vector<size_t> words;  // offsets of the fields' first words, from the well-formed sample
+  farm::wire::walk(layout, good.data(), good.size(),
+                   [&](const std::string&, farm::wire::Kind, size_t at) { words.push_back(at); });
+  std::vector<uint8_t> b = good;
+  auto pick = [&](size_t n) { return size_t(rng() % std::max<size_t>(n, 1)); };
+  const int edits = 1 + int(rng() % 4);
+  for (int e = 0; e < edits && b.size() > 4; ++e) {
+    const size_t from = rng() % 16 == 0 ? 0 : 4;
+    switch (rng() % 5) {
+      case 0:  // a byte
+        b[from + pick(b.size() - from)] = uint8_t(rng());
+        break;
+      case 1: {  // a field's word: random, or one of the extremes a decoder must bound
+        if (words.empty()) break;
+        const size_t at = words[pick(words.size())];
+        if (at + 4 > b.size()) break;
+        const uint32_t extremes[] = {0u, 1u, 0x7fffffffu, 0x80000000u, 0xffffffffu, uint32_t(b.size())};
+        const uint32_t v = rng() % 2 ? uint32_t(rng()) : extremes[pick(6)];
+        std::memcpy(&b[at], &v, 4);
+        break;
+      }
+      case 2:  // cut anywhere past the header
+        b.resize(4 + pick(b.size() - 4));
+        break;
+      case 3: {  // bytes inserted
+        const size_t at = from + pick(b.size() - from), n = 1 + pick(8);
+        std::vector<uint8_t> extra(n);
+        for (auto& x : extra) x = uint8_t(rng());
+        b.insert(b.begin() + std::ptrdiff_t(at), extra.begin(), extra.end());
+        break;
+      }
+      default: {  // bytes removed
+        const size_t at = from + pick(b.size() - from), n = std::min(b.size() - at, 1 + pick(8));
+        b.erase(b.begin() + std::ptrdiff_t(at), b.begin() + std::ptrdiff_t(at + n));
+      }
+    }
+  }
+  if (b.size() < 4) b.resize(4, 0);  // the raw type sends at least a header
+  return b;
+}
+
+// bytes as hex, 32 to a line (the corpus's format).
+void write_hex(const std::string& path, const std::vector<uint8_t>& bytes) {
+  std::ofstream out(path);
+  for (size_t i = 0; i < bytes.size(); ++i) {
+    char h[3];
+    std::snprintf(h, sizeof h, "%02x", bytes[i]);
+    out << h << ((i + 1) % 32 == 0 || i + 1 == bytes.size() ? "\n" : "");
+  }
+  if (!out) throw std::runtime_error("cannot write " + path);
+}
+
 struct RawWriter {
   RawWriter(farm::dds::Bus& bus, const char* topic, const std::string& type_name, const char* profile) : bus(bus) {
     fdds::Topic* t = bus.topic(topic, fdds::TypeSupport(new RawType(type_name, 64u << 20)));
@@ -134,10 +195,11 @@ farm::msg::TransitionBatch one_step_batch(const std::string& experiment, const s
 }
 
 int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, unsigned obs,
-                   unsigned act, const std::string& kind, double seconds) {
+                   unsigned act, const std::string& kind, double seconds, uint64_t fuzz_seed,
+                   const std::string& dump_dir) {
   using namespace farm::msg;
-  if (kind != "bool" && kind != "length" && kind != "truncate")
-    throw std::runtime_error("--malformed takes bool, length or truncate, not '" + kind + "'");
+  if (kind != "bool" && kind != "length" && kind != "truncate" && kind != "fuzz")
+    throw std::runtime_error("--malformed takes bool, length, truncate or fuzz, not '" + kind + "'");
   // Well-formed samples of the experiment, one per topic.
   TransitionBatch b = one_step_batch(experiment, id, obs, act);
   b.terminated({1});
@@ -148,7 +210,8 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
   e.length(1);
   // For the length bomb, a megabyte after the episodes' count: a decoder that trusts the count
   // allocates an episode summary for each of those bytes.
-  if (kind == "length") e.metrics(std::vector<float>(1 << 18, 0.f));
+  // (A dumped one, for the corpus, keeps 16 floats: the counts still claim every byte left.)
+  if (kind == "length") e.metrics(std::vector<float>(dump_dir.empty() ? 1 << 18 : 16, 0.f));
   b.episodes({e});
   WorkerStatus st;
   st.worker_id(id);
@@ -198,13 +261,25 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
       {farm::dds::kEvalRequestTopic, "batch_writer", farm::wire::evaluation_request(),
        serialized<EvaluationRequest, EvaluationRequestPubSubType>(q)},
   };
+  std::mt19937_64 rng(fuzz_seed);
   std::vector<std::unique_ptr<RawWriter>> writers;
+  std::vector<const Target*> sources;  // each writer's well-formed sample (fuzz)
   for (Target& t : targets) {
-    t.bytes = broken(t.bytes, t.layout, kind);
+    const std::vector<uint8_t> good = t.bytes;
+    t.bytes = kind == "fuzz" ? fuzzed(good, t.layout, rng) : broken(t.bytes, t.layout, kind);
     if (t.bytes.empty()) continue;  // nothing of this kind to break in this type
+    if (!dump_dir.empty()) {
+      std::filesystem::create_directories(dump_dir);
+      const std::string full = t.layout.name, type = full.substr(full.rfind(':') + 1);  // farm::msg::X -> X
+      write_hex(dump_dir + "/" + type + "_" + kind + ".hex", t.bytes);
+      continue;
+    }
     writers.push_back(std::make_unique<RawWriter>(bus, t.topic, t.layout.name, t.profile));
     writers.back()->sample.bytes = t.bytes;
+    t.bytes = good;
+    sources.push_back(&t);
   }
+  if (!dump_dir.empty()) return 0;
   const double t_match = farm::now_seconds();
   auto all_matched = [&] {
     for (const auto& w : writers)
@@ -214,11 +289,16 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
   while (!all_matched() && farm::now_seconds() - t_match < 15)
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
   for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
-    for (auto& w : writers) w->sent += w->writer->write(&w->sample);
+    for (size_t i = 0; i < writers.size(); ++i) {
+      auto& w = writers[i];
+      if (kind == "fuzz") w->sample.bytes = fuzzed(sources[i]->bytes, sources[i]->layout, rng);
+      w->sent += w->writer->write(&w->sample);
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   for (auto& w : writers) w->writer->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(2.0));
-  std::printf("%s: malformed (%s) samples written:", id.c_str(), kind.c_str());
+  std::printf("%s: malformed (%s, seed %llu) samples written:", id.c_str(), kind.c_str(),
+              (unsigned long long)fuzz_seed);
   for (const auto& w : writers)
     std::printf(" %s %llu (matched %d)", w->writer->get_topic()->get_name().c_str(), (unsigned long long)w->sent,
                 w->matched());

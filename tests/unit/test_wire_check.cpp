@@ -5,7 +5,12 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
 #include <random>
+#include <string>
 
 #include "dds.h"
 #include "farmPubSubTypes.h"
@@ -288,6 +293,60 @@ TEST(WireCheck, MutatedSamplesOfEveryTopicNeverThrow) {
   farm::msg::LearnerStats ls;
   ls.experiment_id("e");
   mutations_never_throw<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>(ls, 5000, 23);
+}
+
+// The regression corpus, tests/data/wire_corpus/<type>_<kind>.hex: samples of each kind that ended
+// a learner or a worker before the readers checked them (farm_intruder --malformed KIND --dump DIR
+// wrote them). Each is refused by its type's checked decoding, without an exception, and named.
+template <class T, class PubSubType>
+bool refused(const std::vector<uint8_t>& bytes, std::string* why) {
+  farm::dds::CheckedType<T, PubSubType> type;
+  SerializedPayload_t payload(uint32_t(bytes.size()));
+  std::memcpy(payload.data, bytes.data(), bytes.size());
+  payload.length = uint32_t(bytes.size());
+  T out;
+  const bool ok = type.deserialize(&payload, &out);
+  farm::dds::take_malformed_mark();
+  *why = farm::dds::last_malformed(type.getName());
+  return !ok;
+}
+
+std::vector<uint8_t> read_hex(const std::string& path) {
+  std::ifstream in(path);
+  std::vector<uint8_t> bytes;
+  std::string line;
+  while (std::getline(in, line))
+    for (size_t i = 0; i + 1 < line.size(); i += 2)
+      bytes.push_back(uint8_t(std::stoul(line.substr(i, 2), nullptr, 16)));
+  return bytes;
+}
+
+TEST(WireCheck, TheRegressionCorpusIsRefused) {
+  using namespace farm::msg;
+  const std::map<std::string, std::function<bool(const std::vector<uint8_t>&, std::string*)>> by_type = {
+      {"TransitionBatch", refused<TransitionBatch, TransitionBatchPubSubType>},
+      {"WorkerStatus", refused<WorkerStatus, WorkerStatusPubSubType>},
+      {"EvaluationAnswer", refused<EvaluationAnswer, EvaluationAnswerPubSubType>},
+      {"ExperimentSpec", refused<ExperimentSpec, ExperimentSpecPubSubType>},
+      {"PolicyWeights", refused<PolicyWeights, PolicyWeightsPubSubType>},
+      {"EvaluationRequest", refused<EvaluationRequest, EvaluationRequestPubSubType>},
+  };
+  int files = 0;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/tests/data/wire_corpus")) {
+    const std::string name = e.path().stem().string();
+    SCOPED_TRACE(name);
+    const auto it = by_type.find(name.substr(0, name.find('_')));
+    ASSERT_NE(it, by_type.end()) << "a corpus file of no known type";
+    const auto bytes = read_hex(e.path().string());
+    ASSERT_GE(bytes.size(), 4u);
+    std::string why;
+    bool refused_it = false;
+    EXPECT_NO_THROW(refused_it = it->second(bytes, &why));
+    EXPECT_TRUE(refused_it);
+    EXPECT_FALSE(why.empty());
+    ++files;
+  }
+  EXPECT_GE(files, 15);  // every topic, each kind it can be broken by
 }
 
 }  // namespace
