@@ -61,7 +61,7 @@ for way in var flag both; do
   grep -q "batches  *ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$out/run/summary.txt" ||
     fail "$way: summary: $(cat "$out/run/summary.txt" 2>/dev/null)"
   # The roster's events of the worker: its join, then (once it built them) its 3 envs on 1 thread.
-  events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -q '"change":"joined"' ||
+  events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -c '"change":"joined"' >/dev/null ||
     fail "$way: no join event of pw: $(events "$out/run" worker)"
   events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -Eq '"change":"(joined|sized)".*"envs":3,.*"threads":1' ||
     fail "$way: no event gives the worker's 3 envs on 1 thread: $(events "$out/run" worker)"

@@ -35,7 +35,7 @@ note="the run stopped on its env step limit before its first evaluation (eval.ev
 grep -q "^note              $note" "$dir/unevaluated/summary.txt" || fail "no note in the summary"
 
 run evaluated 0.2
-events "$dir/evaluated" evaluation | grep -qF '"label":"eval"' || fail "evaluated: no evaluation before the limit"
+events "$dir/evaluated" evaluation | grep -cF '"label":"eval"' >/dev/null || fail "evaluated: no evaluation before the limit"
 grep -q "^note" "$dir/evaluated/summary.txt" && fail "evaluated: a note where the run was evaluated: $(cat "$dir/evaluated/summary.txt")"
 
 farm_test_end
