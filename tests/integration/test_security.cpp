@@ -119,6 +119,61 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
   set.cleanup(::testing::Test::HasFailure());
 }
 
+// Fuzzed samples from certified participants end no process: one with a worker's certificate
+// writes mutated batches, heartbeats and answers to the learner, one with a learner's certificate
+// (a leaked one) mutated specs, weights and evaluation requests to the worker (farm_intruder
+// --malformed fuzz, seeded). The learner and the worker run to the learner's time limit and exit
+// cleanly, the worker's batches keep arriving, and the fuzzed batches that reached the learner
+// are counted invalid.
+TEST(Security, FuzzedSamplesFromCertifiedParticipantsEndNoProcess) {
+  ProcessSet set;
+  const std::string d = set.dir(), domain = std::to_string(private_domain(85));
+  const std::string pki = std::string(FARM_SOURCE_DIR) + "/deploy/make-pki.sh";
+  ASSERT_EQ(std::system(("bash " + pki + " " + d +
+                         "/pki learner:learner worker:worker-a worker:fuzz-w learner:fuzz-l > " + d + "/pki.log 2>&1")
+                            .c_str()),
+            0)
+      << slurp(d + "/pki.log");
+  std::string cfg = kConfig;
+  cfg.replace(cfg.find("max_seconds: 40"), 15, "max_seconds: 26");
+  write_file(d + "/fuzzed.txtpb", cfg);
+  Proc& learner = set.start({FARM_LEARNER_BIN, "--config", d + "/fuzzed.txtpb", "--run-dir", d + "/run", "--domain",
+                             domain, "--security", d + "/pki/learner"},
+                            "learner");
+  Proc& worker =
+      set.start({FARM_WORKER_BIN, "--domain", domain, "--id", "worker-a", "--security", d + "/pki/worker-a"}, "worker");
+  auto fuzzer = [&](const std::string& id, const char* seed) -> Proc& {
+    return set.start({FARM_INTRUDER_BIN, "--domain", domain, "--experiment", "it_secure", "--id", id, "--security",
+                      d + "/pki/" + id, "--seconds", "8", "--malformed", "fuzz", "--fuzz-seed", seed},
+                     id);
+  };
+  Proc& to_learner = fuzzer("fuzz-w", "11");
+  Proc& to_worker = fuzzer("fuzz-l", "12");
+  for (Proc* p : {&to_learner, &to_worker}) EXPECT_EQ(wait_for(*p, 60), 0) << p->log << "\n" << slurp(p->log);
+  ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
+  EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
+
+  // Each fuzzer reached the readers it aimed at: matched on its topics, samples written.
+  std::smatch m;
+  const std::regex wrote(R"((\S+) (\d+) \(matched (\d+)\))");
+  for (const auto& [id, topic] :
+       {std::pair{"fuzz-w", "farm/TransitionBatch"}, std::pair{"fuzz-l", "farm/PolicyWeights"}}) {
+    const std::string out = set.log(id);
+    bool reached = false;
+    for (auto it = std::sregex_iterator(out.begin(), out.end(), wrote); it != std::sregex_iterator(); ++it)
+      reached |= (*it)[1] == topic && std::stoi((*it)[2]) > 0 && std::stoi((*it)[3]) >= 1;
+    EXPECT_TRUE(reached) << id << " wrote no matched " << topic << ":\n" << out;
+  }
+  const std::string summary = slurp(d + "/run/summary.txt");
+  ASSERT_TRUE(
+      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
+      << summary;
+  EXPECT_GT(std::stoll(m[1]), 100) << summary;
+  EXPECT_EQ(m[2], "0") << summary;
+  EXPECT_GT(std::stoll(m[4]), 0) << summary;
+  set.cleanup(::testing::Test::HasFailure());
+}
+
 // A worker's id is its certificate's name. A worker started with a valid certificate for w1 and
 // `--id w2` is refused at start; a modified sender with w1's certificate that writes batches and
 // heartbeats as w2 (farm_intruder: its --id is their worker id) gets every batch that reaches the
