@@ -267,6 +267,15 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   ws.positive("max_batches_per_version", w.max_batches_per_version());
   ws.check(w.nice() >= 0 && w.nice() <= 19, "nice",
            "expected 0..19 (a worker may lower its priority, not raise it), got " + num(w.nice()));
+  ws.check(w.exploration_scale_min() > 0 && w.exploration_scale_min() <= w.exploration_scale_max() &&
+               w.exploration_scale_max() <= 100,
+           "exploration_scale_min",
+           "expected 0 < exploration_scale_min <= exploration_scale_max <= 100, got " + num(w.exploration_scale_min()) +
+               " and " + num(w.exploration_scale_max()));
+  const bool scaled = w.exploration_scale_min() != 1 || w.exploration_scale_max() != 1;
+  ws.check(!scaled || (c.algorithm() != "ppo" && c.algorithm() != "dqn"), "exploration_scale_min",
+           "per-environment noise scales are for off-policy continuous actions; " + c.algorithm() +
+               " needs the policy's own noise (keep exploration_scale_min and _max at 1)");
 
   root.check(!c.run_root().empty(), "run_root", "expected a directory path");
   root.positive("checkpoint_every_seconds", c.checkpoint_every_seconds());

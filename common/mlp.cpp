@@ -244,12 +244,12 @@ void Policy::act(const float* obs, int rows, std::mt19937_64& rng, bool determin
 }
 
 void Policy::act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic, float* actions,
-                         float* log_prob) {
-  act_rows(obs, rows, row_rngs, 1, deterministic, actions, log_prob);
+                         float* log_prob, const float* row_scale) {
+  act_rows(obs, rows, row_rngs, 1, deterministic, actions, log_prob, row_scale);
 }
 
 void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                      float* actions, float* log_prob) {
+                      float* actions, float* log_prob, const float* row_scale) {
   if (rows <= 0) return;
   const int od = obs_dim(), ad = act_dim();
   const float* x = obs;
@@ -289,11 +289,12 @@ void Policy::act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t 
     // A fresh distribution per row: libstdc++'s normal caches its second draw, and a row's
     // noise must come from that row's generator only.
     std::normal_distribution<float> normal(0.f, 1.f);
-    float lp = 0.f;
+    const float scale = row_scale ? row_scale[r] : 1.f;
+    float lp = row_scale ? -float(ad) * std::log(scale) : 0.f;
     for (int i = 0; i < ad; ++i) {
       const float log_std = std::clamp(log_std_raw[i], p_.log_std_min, p_.log_std_max);
       const float eps = normal(rng);
-      const float u = mean[i] + std::exp(log_std) * eps;
+      const float u = mean[i] + std::exp(log_std) * scale * eps;
       const float t = std::tanh(u);
       a[i] = t;
       lp += -0.5f * eps * eps - log_std - kHalfLog2Pi - std::log(1.f - t * t + kTanhLogEps);

@@ -115,12 +115,15 @@ class Policy {
   void act(const float* obs, int rows, std::mt19937_64& rng, bool deterministic, float* actions, float* log_prob);
   // As act(), but row r draws its noise from row_rngs[r] only, so a row's action does not
   // depend on which other rows share the call (rollouts reproducible across thread splits).
+  // row_scale (null: 1 for every row): kSquashedGaussian's std of row r times row_scale[r] > 0
+  // (worker.exploration_scale_min/max), its log_prob that of the scaled Gaussian; the other
+  // heads ignore it.
   void act_per_row(const float* obs, int rows, std::mt19937_64* row_rngs, bool deterministic, float* actions,
-                   float* log_prob);
+                   float* log_prob, const float* row_scale = nullptr);
 
  private:
   void act_rows(const float* obs, int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic,
-                float* actions, float* log_prob);
+                float* actions, float* log_prob, const float* row_scale = nullptr);
   void act_gaussian(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,
                     float* log_prob);
   void act_discrete(int rows, std::mt19937_64* rngs, size_t rng_stride, bool deterministic, float* actions,

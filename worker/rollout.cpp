@@ -62,6 +62,23 @@ void Rollout::set_policy(const PolicyParams& p) {
   has_policy_ = true;
 }
 
+void Rollout::set_exploration_scales(double lo, double hi) {
+  if (!(lo > 0 && lo <= hi))
+    throw std::invalid_argument("Rollout: exploration scales must satisfy 0 < min <= max, got " + std::to_string(lo) +
+                                " and " + std::to_string(hi));
+  scale_.clear();
+  if (lo == 1 && hi == 1) return;
+  scale_lo_ = float(lo);
+  scale_hi_ = float(hi);
+  scale_.resize(size_t(env_.num_envs()));
+  for (int i = 0; i < env_.num_envs(); ++i) scale_[size_t(i)] = draw_scale(i);
+}
+
+float Rollout::draw_scale(int env) {
+  std::uniform_real_distribution<float> u(scale_lo_, scale_hi_);
+  return u(noise_rng_[size_t(env)]);
+}
+
 void Rollout::thread_main(int k) {
   uint64_t seen = 0;
   for (;;) {
@@ -97,7 +114,7 @@ void Rollout::run_chunk(Chunk& c, int T, RolloutBatch& out) {
     float* obs_t = out.obs.data() + (row0 + b) * od;
     std::memcpy(obs_t, env_.obs(b), sizeof(float) * rows * od);
     c.policy.act_per_row(obs_t, rows, noise_rng_.data() + b, false, out.actions.data() + (row0 + b) * ad,
-                         out.log_probs.data() + row0 + b);
+                         out.log_probs.data() + row0 + b, scale_.empty() ? nullptr : scale_.data() + b);
     const int before = c.ends.size();
     const auto t1 = Clock::now();
     env_.step_range(b, c.end, out.actions.data() + row0 * ad, out.rewards.data() + row0, out.terminated.data() + row0,
@@ -107,6 +124,8 @@ void Rollout::run_chunk(Chunk& c, int T, RolloutBatch& out) {
     simulate += t2 - t1;
     for (int i = before; i < c.ends.size(); ++i) {
       c.end_index.push_back(uint32_t(row0 + c.ends.env(i)));
+      // A new episode, a new noise factor (the chunk owns its envs' entries and generators).
+      if (!scale_.empty()) scale_[size_t(c.ends.env(i))] = draw_scale(c.ends.env(i));
     }
   }
   std::memcpy(out.next_obs.data() + size_t(b) * od, env_.obs(b), sizeof(float) * rows * od);

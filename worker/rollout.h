@@ -42,6 +42,13 @@ class Rollout {
   void collect(int T, RolloutBatch& out);
 
   uint64_t env_steps() const { return env_steps_; }  // over all collect() calls
+
+  // worker.exploration_scale_min/max: each env draws a factor on its policy noise uniformly in
+  // [lo, hi] now and at the start of each of its episodes, from its own noise generator. 1 and
+  // 1: none (the policy's own noise). Call between collect()s.
+  void set_exploration_scales(double lo, double hi);
+  // The env's current factor (1 where none is set).
+  float exploration_scale(int env) const { return scale_.empty() ? 1.f : scale_[size_t(env)]; }
   // Where collect() time went, over all calls: thread-seconds in policy inference and in
   // stepping the simulation, summed over the pool's threads, and wall seconds inside collect().
   struct Timing {
@@ -67,6 +74,9 @@ class Rollout {
 
   VecEnv env_;
   std::vector<std::mt19937_64> noise_rng_;  // per env
+  std::vector<float> scale_;                // per env: set_exploration_scales; empty: none
+  float scale_lo_ = 1.f, scale_hi_ = 1.f;
+  float draw_scale(int env);
   std::vector<Chunk> chunks_;
   uint64_t version_ = 0;
   bool has_policy_ = false;

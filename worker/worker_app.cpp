@@ -254,6 +254,19 @@ std::string lower_priority(int nice) {
 
 }  // namespace
 
+namespace {
+
+// ", each env's noise x U(a, b) per episode" where worker.exploration_scale_min/max set one.
+std::string scales_note(const config::WorkerConfig& w) {
+  if (w.exploration_scale_min() == 1 && w.exploration_scale_max() == 1) return "";
+  char buf[96];
+  std::snprintf(buf, sizeof buf, ", each env's noise x U(%g, %g) per episode", w.exploration_scale_min(),
+                w.exploration_scale_max());
+  return buf;
+}
+
+}  // namespace
+
 void WorkerApp::join(const SpecIn& in) {
   const farm::msg::ExperimentSpec& s = in.spec;
   // Batches of an earlier join keep their session; the numbering restarts below.
@@ -277,6 +290,7 @@ void WorkerApp::join(const SpecIn& in) {
     if (sender_.sent() > 0) session_ = farm::dds::random_session_id();
     uint64_t seed = s.seed() ^ fnv1a(opt_.id);
     rollout_ = std::make_unique<Rollout>(task, envs, opt_.threads, seed);
+    rollout_->set_exploration_scales(cfg.worker().exploration_scale_min(), cfg.worker().exploration_scale_max());
     if (experiment_.empty()) {
       experiment_ = s.experiment_id();
       intake_.bind(experiment_);
@@ -290,7 +304,7 @@ void WorkerApp::join(const SpecIn& in) {
     const std::string nice_note = lower_priority(cfg.worker().nice());
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
         " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
-        " steps per batch" + nice_note);
+        " steps per batch" + nice_note + scales_note(cfg.worker()));
     // Said now, not after the first collect: the beat thread re-sends the last status the loop
     // built, which was the one of a worker waiting for a spec, so a long first collect (mCLARI's:
     // 6-8 s) kept the learner from counting this worker until it ended.

@@ -129,6 +129,23 @@ TEST(Config, StepScaleIsBounded) {
   }
 }
 
+// worker.exploration_scale_min/max: a range above 0, and only for off-policy continuous actions.
+TEST(Config, ExplorationScalesAreARangeForOffPolicyContinuousActions) {
+  const std::string w = "worker {\n  exploration_scale_min: 0.4\n  exploration_scale_max: 1.6\n}\n";
+  EXPECT_EQ(error_of("experiment_id: \"a\"\n" + w), "");
+  EXPECT_EQ(error_of("experiment_id: \"a\"\nalgorithm: \"td3\"\n" + w), "");
+  for (const char* algo : {"ppo", "dqn"}) {
+    const std::string e = error_of("experiment_id: \"a\"\nalgorithm: \"" + std::string(algo) + "\"\n" + w);
+    EXPECT_NE(e.find("worker.exploration_scale_min"), std::string::npos) << e;
+    EXPECT_NE(e.find(std::string(algo) + " needs the policy's own noise"), std::string::npos) << e;
+  }
+  for (const char* bad : {"exploration_scale_min: 0", "exploration_scale_min: 2", "exploration_scale_max: 101"}) {
+    const std::string e = error_of("experiment_id: \"a\"\nworker {\n  " + std::string(bad) + "\n}\n");
+    EXPECT_NE(e.find("expected 0 < exploration_scale_min <= exploration_scale_max <= 100"), std::string::npos)
+        << bad << ": " << e;
+  }
+}
+
 TEST(Config, NestedTaskFieldIsLocated) {
   std::string e = error_of("experiment_id: \"a\"\ntask {\n  pendulum {\n    dt: 0\n  }\n}\n");
   EXPECT_NE(e.find("exp.txtpb:4:"), std::string::npos) << e;

@@ -411,6 +411,36 @@ TEST(Policy, PerRowNoiseDoesNotDependOnBatch) {
   EXPECT_NE(act_a[0], act_a[1]);
 }
 
+// worker.exploration_scale_min/max: row r's pre-tanh noise is the policy's times row_scale[r],
+// from the same draws (atanh(a) - mean doubles with a scale of 2, row by row), and its log_prob is
+// the scaled Gaussian's; no scale is a scale of 1.
+TEST(Policy, RowScalesMultiplyTheNoiseOfTheirRowsOnly) {
+  const PolicyParams p = small_policy(-0.9f);
+  Policy policy(p);
+  const int rows = 3;
+  const std::vector<float> obs = {0.8f, -0.4f, 0.8f, -0.4f, 0.8f, -0.4f};
+  float mean, log_std;
+  mean_and_log_std(p, 0.8f, -0.4f, &mean, &log_std);
+  auto draw = [&](const float* scale, float* act, float* lp) {
+    std::vector<std::mt19937_64> rngs{std::mt19937_64(1), std::mt19937_64(2), std::mt19937_64(3)};
+    policy.act_per_row(obs.data(), rows, rngs.data(), false, act, lp, scale);
+  };
+  float plain[3], lp_plain[3], ones[3], lp_ones[3], scaled[3], lp_scaled[3];
+  const float one[3] = {1.f, 1.f, 1.f}, scale[3] = {2.f, 1.f, 0.5f};
+  draw(nullptr, plain, lp_plain);
+  draw(one, ones, lp_ones);
+  draw(scale, scaled, lp_scaled);
+  for (int r = 0; r < rows; ++r) {
+    SCOPED_TRACE("row " + std::to_string(r));
+    EXPECT_EQ(plain[r], ones[r]);
+    EXPECT_EQ(lp_plain[r], lp_ones[r]);
+    const double noise = std::atanh(double(plain[r])) - mean;
+    EXPECT_NEAR(std::atanh(double(scaled[r])) - mean, scale[r] * noise, 1e-4);
+    EXPECT_NEAR(lp_scaled[r], gaussian_tanh_log_prob(scaled[r], mean, log_std + std::log(scale[r])), 2e-3);
+  }
+  EXPECT_NE(plain[0], scaled[0]);
+}
+
 TEST(Policy, RejectsInconsistentParams) {
   PolicyParams odd = small_policy(0.f);
   odd.layout = {{2, 2, 3}, Activation::kRelu};

@@ -214,6 +214,37 @@ TEST(Rollout, BatchShapesAndEpisodeBookkeeping) {
   EXPECT_EQ(rollout.env_steps(), uint64_t(2 * T * N));
 }
 
+// worker.exploration_scale_min/max: each env's factor lies in the range, stays through its
+// episode, and is drawn anew when the episode ends; the envs differ; 1 and 1 set none.
+TEST(Rollout, EachEnvDrawsItsNoiseScaleAtEachEpisodesStart) {
+  const int N = 6, L = 10;
+  Rollout rollout(pendulum(L), N, 2, 7);
+  rollout.set_policy(random_policy(3));
+  EXPECT_THROW(rollout.set_exploration_scales(0.0, 1.0), std::invalid_argument);
+  EXPECT_THROW(rollout.set_exploration_scales(2.0, 1.0), std::invalid_argument);
+  rollout.set_exploration_scales(1.0, 1.0);
+  EXPECT_EQ(rollout.exploration_scale(0), 1.f);
+  rollout.set_exploration_scales(0.4, 1.6);
+  std::vector<float> first(N);
+  for (int n = 0; n < N; ++n) {
+    first[n] = rollout.exploration_scale(n);
+    EXPECT_GE(first[n], 0.4f);
+    EXPECT_LE(first[n], 1.6f);
+  }
+  EXPECT_NE(first[0], first[1]);
+  RolloutBatch out;
+  rollout.collect(L - 1, out);  // every episode one step short of its end
+  for (int n = 0; n < N; ++n) EXPECT_EQ(rollout.exploration_scale(n), first[n]) << "env " << n;
+  rollout.collect(1, out);  // the episodes end: new factors
+  int redrawn = 0;
+  for (int n = 0; n < N; ++n) {
+    EXPECT_GE(rollout.exploration_scale(n), 0.4f);
+    EXPECT_LE(rollout.exploration_scale(n), 1.6f);
+    redrawn += rollout.exploration_scale(n) != first[n];
+  }
+  EXPECT_EQ(redrawn, N);
+}
+
 TEST(Rollout, RejectsMismatchedPolicy) {
   Rollout rollout(pendulum(), 2, 1, 1);
   PolicyParams p;
