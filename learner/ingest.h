@@ -28,8 +28,10 @@ struct WorkerAccount {
   bool ended = false;             // end_of_stream seen
   double last_seen = 0.0;         // seconds on the learner's clock
   std::vector<uint64_t> missing;  // gap sequence numbers that may still arrive late
-  // The participant whose batches opened (or, after a restore, first continued) the stream: the
-  // stream takes batches from it alone. Not checkpointed: a resumed learner binds it again.
+  // The participant whose batches opened the stream (its DDS GUID prefix): the stream takes
+  // batches from it alone. Checkpointed, so that a resumed learner keeps the binding of a worker
+  // that stayed up and no other participant can take the stream by writing first after the resume;
+  // empty (a record without it): the next writer binds it.
   std::string writer;
 };
 

@@ -16,6 +16,7 @@ void to_record(const WorkerAccount& w, bool retired, config::WorkerAccountRecord
   r->set_ended(w.ended);
   for (uint64_t s : w.missing) r->add_missing(s);
   if (retired) r->set_retired(true);
+  if (!w.writer.empty()) r->set_writer(w.writer);
 }
 
 WorkerAccount from_record(const config::WorkerAccountRecord& r, double now) {
@@ -29,6 +30,7 @@ WorkerAccount from_record(const config::WorkerAccountRecord& r, double now) {
   w.invalid = r.invalid();
   w.env_steps = r.env_steps();
   w.ended = r.ended();
+  w.writer = r.writer();
   w.last_seen = now;
   // As Ingest keeps them: numbers below the next expected one, at most kMaxMissing.
   for (uint64_t s : r.missing())

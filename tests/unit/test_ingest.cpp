@@ -394,6 +394,34 @@ TEST_F(Fixture, StreamTakesBatchesOnlyFromItsWriter) {
   EXPECT_EQ(ingest.counters().invalid, 1u);
 }
 
+// The binding survives a checkpoint: after a resume, a participant that writes first under an
+// open or a retired stream's id and session (a thief that read both off the bus) is refused, and
+// the worker that stayed up, on the participant that opened the stream, carries on with it.
+TEST_F(Fixture, ResumedStreamsKeepTheirWriter) {
+  auto w2 = [](uint64_t seq) {
+    auto b = make_batch(seq);
+    b.worker_id("w2");
+    return b;
+  };
+  EXPECT_EQ(ingest.accept(make_batch(0), 5, 10.0, out, eps, nullptr, "P1"), "");
+  EXPECT_EQ(ingest.accept(w2(0), 5, 650.0, out, eps, nullptr, "P2"), "");
+  EXPECT_EQ(ingest.expire(700.0, 600.0), 1u);  // w1's stream retired, w2's open
+  farm::config::CheckpointManifest m;
+  farm::accounts_to_manifest(ingest, m);
+
+  Ingest resumed{"exp", kObs, kAct, 0};
+  farm::accounts_from_manifest(m, resumed, 1e6);
+  for (const auto& [batch, owner] : {std::pair{make_batch(1), "P1"}, std::pair{w2(1), "P2"}}) {
+    SCOPED_TRACE(batch.worker_id());
+    const std::string why = resumed.accept(batch, 5, 1e6 + 1, out, eps, nullptr, "THIEF");
+    EXPECT_NE(why.find("from another participant"), std::string::npos) << why;
+    EXPECT_EQ(resumed.accept(batch, 5, 1e6 + 2, out, eps, nullptr, owner), "");
+  }
+  EXPECT_EQ(resumed.counters().lost, 0u);
+  EXPECT_EQ(resumed.workers().at({"w1", 7}).received, 2u);
+  EXPECT_EQ(resumed.workers().at({"w2", 7}).received, 2u);
+}
+
 // DDS Security: a worker's id is its certificate's name. A batch whose worker id differs from the
 // authenticated name of the participant that wrote it (a w1 certificate sending as w2), or that
 // comes from a participant with no authenticated name, is refused as invalid: nothing trained on,
