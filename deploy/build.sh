@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Configures and builds everything into ./build (Release). Incremental when run again.
+# Configures and builds into ./build (Release): the targets named, else everything. Incremental
+# when run again.
+#   deploy/build.sh [TARGET ...]      e.g. deploy/build.sh farm-learner farm-worker
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${FARM_BUILD_DIR:-$ROOT/build}"
@@ -7,4 +9,6 @@ if [ ! -f "$BUILD/build.ninja" ]; then
   cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release
 fi
 # Torch translation units need ~1.5 GB each; two at a time fits a small machine.
-cmake --build "$BUILD" -j "${FARM_BUILD_JOBS:-$(nproc)}"
+targets=()
+[ $# -gt 0 ] && targets=(--target "$@")
+cmake --build "$BUILD" -j "${FARM_BUILD_JOBS:-$(nproc)}" "${targets[@]}"

@@ -15,7 +15,9 @@ DOMAIN="${FARM_DOMAIN:-0}"
 PROFILES="${FARM_DDS_PROFILES:-$ROOT/deploy/discovery/local.xml}"
 
 "$ROOT/deploy/install-deps.sh"
-"$ROOT/deploy/build.sh"
+# The main job runs the learner and the worker: it builds those (and what they link), nothing
+# else; deploy/test.sh builds the rest.
+"$ROOT/deploy/build.sh" farm-learner farm-worker
 BIN="${FARM_BUILD_DIR:-$ROOT/build}"
 
 cd "$ROOT"
