@@ -28,4 +28,37 @@ std::string shape_str(c10::IntArrayRef shape) {
   return o.str();
 }
 
+std::string sizes_str(const std::vector<int64_t>& sizes) {
+  std::string s;
+  for (size_t i = 0; i < sizes.size(); ++i) s += (i ? "," : "") + std::to_string(sizes[i]);
+  return s;
+}
+
+void write_params(torch::serialize::OutputArchive& root, const std::string& key, const torch::nn::Module& m) {
+  torch::serialize::OutputArchive a;
+  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
+  root.write(key, a);
+}
+
+std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
+                                       const torch::nn::Module& m, const std::string& what, const std::string& file) {
+  torch::serialize::InputArchive a;
+  if (!root.try_read(key, a)) throw std::runtime_error(what + " " + file + ": no '" + key + "'");
+  std::vector<torch::Tensor> out;
+  for (const auto& p : m.named_parameters()) {
+    torch::Tensor t;
+    if (!a.try_read(p.key(), t)) throw std::runtime_error(what + " " + file + ": no '" + key + "." + p.key() + "'");
+    if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
+      throw std::runtime_error(what + " " + file + ": '" + key + "." + p.key() + "' has shape " + shape_str(t.sizes()) +
+                               ", expected " + shape_str(p.value().sizes()));
+    out.push_back(t);
+  }
+  return out;
+}
+
+void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
+  torch::NoGradGuard no_grad;
+  for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
+}
+
 }  // namespace farm

@@ -27,43 +27,6 @@ namespace {
 
 using namespace sac_detail;
 
-std::string sizes_str(const std::vector<int64_t>& v) {
-  std::string s;
-  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + std::to_string(v[i]);
-  return s;
-}
-
-// Parameters are stored by name so a file from a network of other sizes is caught by name and
-// shape instead of being silently reinterpreted.
-void write_params(torch::serialize::OutputArchive& root, const std::string& key, const torch::nn::Module& m) {
-  torch::serialize::OutputArchive a;
-  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
-  root.write(key, a);
-}
-
-// Reads and checks every tensor before anything is changed; returns them in named_parameters order.
-std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
-                                       const torch::nn::Module& m, const std::string& file) {
-  torch::serialize::InputArchive a;
-  if (!root.try_read(key, a)) throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "'");
-  std::vector<torch::Tensor> out;
-  for (const auto& p : m.named_parameters()) {
-    torch::Tensor t;
-    if (!a.try_read(p.key(), t))
-      throw std::runtime_error("sac checkpoint " + file + ": no '" + key + "." + p.key() + "'");
-    if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
-      throw std::runtime_error("sac checkpoint " + file + ": '" + key + "." + p.key() + "' has shape " +
-                               shape_str(t.sizes()) + ", expected " + shape_str(p.value().sizes()));
-    out.push_back(t);
-  }
-  return out;
-}
-
-void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
-  torch::NoGradGuard no_grad;
-  for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
-}
-
 }  // namespace
 
 torch::Tensor sac_critic_target(const torch::Tensor& reward, const torch::Tensor& terminated,
@@ -290,9 +253,9 @@ void Sac::load(const std::string& dir) {
     if (root.try_read("activation", tanh) && tanh.item<int64_t>() != int64_t(s.actor->tanh_hidden))
       throw fail("its networks use another activation than this config's sac.activation '" + s.cfg.activation() + "'");
 
-    const auto actor = read_params(root, "actor", *s.actor, file);
-    const auto critic = read_params(root, "critic", *s.critic, file);
-    const auto target = read_params(root, "critic_target", *s.critic_target, file);
+    const auto actor = read_params(root, "actor", *s.actor, "sac checkpoint", file);
+    const auto critic = read_params(root, "critic", *s.critic, "sac checkpoint", file);
+    const auto target = read_params(root, "critic_target", *s.critic_target, "sac checkpoint", file);
     torch::Tensor log_alpha, updates;
     if (!root.try_read("log_alpha", log_alpha) || log_alpha.sizes() != s.log_alpha.sizes())
       throw fail("missing or misshapen 'log_alpha'");

@@ -15,11 +15,15 @@
 #include "compute.h"
 #include "config.h"
 #include "device_replay.h"
+#include "flat_params.h"
 #include "sac.h"
 
 namespace farm {
 
 namespace sac_detail {
+
+using farm::FlatParams;
+using farm::placed;
 
 // Matches torch::nn::Linear's default init (kaiming_uniform with a = sqrt(5) reduces to this), so
 // the fused critics start from the same distribution as sb3's nn.Linear critics.
@@ -173,27 +177,6 @@ struct TwinCriticImpl : torch::nn::Module {
 };
 TORCH_MODULE(TwinCritic);
 
-// One network's parameters made views of a single contiguous buffer. Adam and the polyak update
-// then run a handful of ops on one tensor instead of a handful per parameter tensor: on small
-// networks the per-op overhead, not the arithmetic, is what an update costs.
-struct FlatParams {
-  explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
-    int64_t n = 0;
-    for (const auto& p : params) n += p.numel();
-    flat = torch::empty({n}, params.empty() ? torch::TensorOptions() : params[0].options());
-    torch::NoGradGuard no_grad;
-    int64_t offset = 0;
-    for (auto& p : params) {
-      const auto view = flat.narrow(0, offset, p.numel()).view(p.sizes());
-      view.copy_(p);
-      p.set_(view);
-      offset += p.numel();
-    }
-  }
-  std::vector<torch::Tensor> params;  // the module's own parameter tensors, in module order
-  torch::Tensor flat;
-};
-
 // autograd::grad computes only what these parameters need (the actor loss runs through the
 // critics without producing critic weight gradients), and the result replaces the previous .grad
 // instead of accumulating into it: zero_grad(set_to_none) without a pass of its own.
@@ -224,13 +207,6 @@ inline bool tanh_hidden(const config::SacConfig& c) {
   if (c.activation() != "relu" && c.activation() != "tanh")
     throw std::invalid_argument("sac.activation must be \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
   return c.activation() == "tanh";
-}
-
-// Moves a module's parameters to `d` before FlatParams gathers them there.
-template <class M>
-inline M& placed(M& m, torch::Device d) {
-  m->to(d);
-  return m;
 }
 
 }  // namespace sac_detail

@@ -9,6 +9,7 @@
 #include "archive_io.h"
 #include "compute.h"
 #include "config.h"
+#include "flat_params.h"
 #include "obs_normalizer.h"
 #include "policy_shape.h"
 
@@ -72,33 +73,6 @@ struct TwinCriticImpl : torch::nn::Module {
 };
 TORCH_MODULE(TwinCritic);
 
-// One network's parameters made views of one contiguous buffer: the optimizer, the gradient
-// clipping and the polyak step each run a handful of ops on it instead of some per tensor.
-struct FlatParams {
-  explicit FlatParams(torch::nn::Module& m) : params(m.parameters()) {
-    int64_t n = 0;
-    for (const auto& p : params) n += p.numel();
-    flat = torch::empty({n}, params[0].options());
-    torch::NoGradGuard no_grad;
-    int64_t offset = 0;
-    for (auto& p : params) {
-      const auto view = flat.narrow(0, offset, p.numel()).view(p.sizes());
-      view.copy_(p);
-      p.set_(view);
-      offset += p.numel();
-    }
-  }
-  std::vector<torch::Tensor> params;  // the module's own parameter tensors, in module order
-  torch::Tensor flat;
-};
-
-// Moves a module's parameters to `d` before FlatParams gathers them there.
-template <class M>
-M& placed(M& m, torch::Device d) {
-  m->to(d);
-  return m;
-}
-
 // The gradient of `loss` with respect to `net` alone (the actor's loss runs through the critics
 // without producing their gradients), its norm clipped to max_norm where max_norm > 0, then the
 // optimizer's step.
@@ -110,42 +84,6 @@ void step(torch::optim::Optimizer& opt, FlatParams& net, const torch::Tensor& lo
   net.flat.mutable_grad() = torch::cat(flat);
   if (max_norm > 0) torch::nn::utils::clip_grad_norm_(net.flat, max_norm);
   opt.step();
-}
-
-std::string sizes_str(const std::vector<int64_t>& v) {
-  std::string s;
-  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + std::to_string(v[i]);
-  return s;
-}
-
-// Parameters are stored by name, so that a file of other network sizes is refused by name and
-// shape instead of being reinterpreted.
-void write_params(torch::serialize::OutputArchive& root, const std::string& key, const torch::nn::Module& m) {
-  torch::serialize::OutputArchive a;
-  for (const auto& p : m.named_parameters()) a.write(p.key(), p.value().detach().to(torch::kCPU));
-  root.write(key, a);
-}
-
-std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
-                                       const torch::nn::Module& m, const std::string& file) {
-  torch::serialize::InputArchive a;
-  if (!root.try_read(key, a)) throw std::runtime_error("td3 checkpoint " + file + ": no '" + key + "'");
-  std::vector<torch::Tensor> out;
-  for (const auto& p : m.named_parameters()) {
-    torch::Tensor t;
-    if (!a.try_read(p.key(), t))
-      throw std::runtime_error("td3 checkpoint " + file + ": no '" + key + "." + p.key() + "'");
-    if (t.sizes() != p.value().sizes() || t.scalar_type() != p.value().scalar_type())
-      throw std::runtime_error("td3 checkpoint " + file + ": '" + key + "." + p.key() + "' has shape " +
-                               shape_str(t.sizes()) + ", expected " + shape_str(p.value().sizes()));
-    out.push_back(t);
-  }
-  return out;
-}
-
-void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
-  torch::NoGradGuard no_grad;
-  for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
 }
 
 torch::Tensor doubles(const std::vector<double>& v) {
@@ -441,9 +379,9 @@ void Td3::load(const std::string& dir) {
       throw fail("its critics' support is [" + std::to_string(vs[0]) + ", " + std::to_string(vs[1]) +
                  "], this config's td3.v_min, td3.v_max [" + std::to_string(s.cfg.v_min()) + ", " +
                  std::to_string(s.cfg.v_max()) + "]");
-    const auto actor = read_params(root, "actor", *s.actor, file);
-    const auto critic = read_params(root, "critic", *s.critic, file);
-    const auto target = read_params(root, "critic_target", *s.critic_target, file);
+    const auto actor = read_params(root, "actor", *s.actor, "td3 checkpoint", file);
+    const auto critic = read_params(root, "critic", *s.critic, "td3 checkpoint", file);
+    const auto target = read_params(root, "critic_target", *s.critic_target, "td3 checkpoint", file);
     torch::Tensor count, mean, m2, actor_loss, updates;
     if (!root.try_read("obs_count", count) || !root.try_read("obs_mean", mean) || !root.try_read("obs_m2", m2) ||
         count.numel() != 1 || mean.numel() != s.obs_dim || m2.numel() != s.obs_dim)
