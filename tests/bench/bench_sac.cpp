@@ -51,6 +51,17 @@ bool g_beside = farm::config::SacConfig().actor_on_previous_critic();
 int g_obs = 3, g_act = 1;
 std::vector<std::vector<int>> g_hidden{{64, 64}, {256, 256}};
 
+// The SAC config every measurement of the run uses: --tf32, --actor-on-previous-critic, the
+// network's hidden layers and the device.
+farm::config::SacConfig sac_config(const std::vector<int>& hidden, const std::string& device) {
+  farm::config::SacConfig cfg;
+  cfg.set_cuda_tf32(g_tf32);
+  cfg.set_actor_on_previous_critic(g_beside);
+  for (int h : hidden) cfg.add_hidden(h);
+  cfg.set_device(device);
+  return cfg;
+}
+
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 void fill(farm::ReplayBuffer& buf, int64_t n, std::mt19937_64& rng) {
@@ -165,11 +176,7 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   const int kObs = g_obs, kAct = g_act;
   std::vector<farm::SampledBatch> batches;
   for (int i = 0; i < updates; ++i) batches.push_back(buf.sample(batch, rng));
-  farm::config::SacConfig cfg;
-  cfg.set_cuda_tf32(g_tf32);
-  cfg.set_actor_on_previous_critic(g_beside);
-  for (int h : hidden) cfg.add_hidden(h);
-  cfg.set_device(device);
+  farm::config::SacConfig cfg = sac_config(hidden, device);
   cfg.set_cuda_graph(false);
   std::vector<farm::SacStats> eager_stats;
   farm::Sac eager(cfg, kObs, kAct, 7);  // constructing seeds the CPU and CUDA generators
@@ -248,11 +255,7 @@ void series(const std::vector<std::vector<int>>& nets, const std::vector<int>& b
     double first = 0;  // the best samples/s at the first batch, this network
     for (const std::string& dtype : dtypes)
       for (int batch : batches) {
-        farm::config::SacConfig cfg;
-        cfg.set_cuda_tf32(g_tf32);
-        cfg.set_actor_on_previous_critic(g_beside);
-        for (int h : hidden) cfg.add_hidden(h);
-        cfg.set_device(device);
+        farm::config::SacConfig cfg = sac_config(hidden, device);
         cfg.set_matmul_dtype(dtype);
         farm::Sac sac(cfg, g_obs, g_act, 1);
         Rate r;
@@ -348,11 +351,7 @@ int main(int argc, char** argv) {
   for (const std::vector<int>& hidden : g_hidden) {
     for (int n_threads : threads) {
       farm::configure_compute(n_threads);
-      farm::config::SacConfig cfg;
-      cfg.set_cuda_tf32(g_tf32);
-      cfg.set_actor_on_previous_critic(g_beside);
-      for (int h : hidden) cfg.add_hidden(h);
-      cfg.set_device(device);
+      farm::config::SacConfig cfg = sac_config(hidden, device);
       const std::string net = describe(kObs, hidden, kAct);
       if (!cuda) {
         farm::Sac sac(cfg, kObs, kAct, 1);
