@@ -33,6 +33,13 @@ void check_lr_decay(const Section& s, int64_t updates, double to) {
   s.check(to > 0 && to <= 1, "lr_decay_to", "expected a fraction in (0, 1] of the configured rates, got " + num(to));
 }
 
+// sac/dqn.samples_per_insert: 0 (off) or more, and not beside a step scale, which also sets the ratio.
+void check_samples_per_insert(const Section& s, double samples_per_insert, int max_step_scale) {
+  s.check(samples_per_insert >= 0, "samples_per_insert", "expected 0 (off) or more, got " + num(samples_per_insert));
+  s.check(samples_per_insert == 0 || max_step_scale == 1, "samples_per_insert",
+          "samples_per_insert and max_step_scale > 1 both set the update-to-data ratio: set one of them");
+}
+
 void check_sac(const Section& s, const config::SacConfig& c) {
   s.positive("actor_lr", c.actor_lr());
   s.positive("critic_lr", c.critic_lr());
@@ -60,10 +67,7 @@ void check_sac(const Section& s, const config::SacConfig& c) {
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",
           "expected \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
-  s.check(c.samples_per_insert() >= 0, "samples_per_insert",
-          "expected 0 (off) or more, got " + num(c.samples_per_insert()));
-  s.check(c.samples_per_insert() == 0 || c.max_step_scale() == 1, "samples_per_insert",
-          "samples_per_insert and max_step_scale > 1 both set the update-to-data ratio: set one of them");
+  check_samples_per_insert(s, c.samples_per_insert(), c.max_step_scale());
   s.check(c.matmul_dtype() == "float32" || c.matmul_dtype() == "bfloat16", "matmul_dtype",
           "expected \"float32\" or \"bfloat16\", got \"" + c.matmul_dtype() + "\"");
 }
@@ -86,10 +90,7 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   s.positive("max_grad_norm", c.max_grad_norm());
   s.layer_sizes("hidden", c.hidden());
   s.positive("max_updates_per_step", c.max_updates_per_step());
-  s.check(c.samples_per_insert() >= 0, "samples_per_insert",
-          "expected 0 (off) or more, got " + num(c.samples_per_insert()));
-  s.check(c.samples_per_insert() == 0 || c.max_step_scale() == 1, "samples_per_insert",
-          "samples_per_insert and max_step_scale > 1 both set the update-to-data ratio: set one of them");
+  check_samples_per_insert(s, c.samples_per_insert(), c.max_step_scale());
   s.positive("publish_every_updates", c.publish_every_updates());
   s.at_least("n_step", c.n_step(), 1);
   s.check(valid_device_name(c.device()), "device",

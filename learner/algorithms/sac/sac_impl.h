@@ -40,8 +40,8 @@ using TwinLayerFn = torch::Tensor (*)(const torch::Tensor& x, const torch::Tenso
 TwinLayerFn fused_twin_layer();
 
 // The large-batch path (padded_input, TwinLayerFn) from this many rows on. Below it an update is
-// bound by its chain of launches, not by bytes or products: the padding's and the fused layers'
-// extra launches made a SAC update at a batch of 256 up to a third slower on an H100.
+// bound by its chain of launches, not by bytes or products, and the padding and the fused layers
+// only add launches to it.
 constexpr int64_t kLargeBatchRows = 1024;
 
 // Zero columns that make n a multiple of 8.
@@ -75,13 +75,6 @@ struct ActorImpl : torch::nn::Module {
     const bool large = x.size(0) >= kLargeBatchRows;
     const bool pad = pad_on_cuda && large;
     const TwinLayerFn layer = large ? this->layer : nullptr;
-    if (!cast && !pad && !layer) {
-      for (size_t i = 0; i < layers.size(); ++i) {
-        x = layers[i]->forward(x);
-        if (i + 1 < layers.size()) tanh_hidden ? x.tanh_() : x.relu_();
-      }
-      return x;
-    }
     if (cast) x = x.to(compute);
     const int64_t out = layers.back()->weight.size(0);
     for (size_t i = 0; i < layers.size(); ++i) {
@@ -135,15 +128,6 @@ struct TwinCriticImpl : torch::nn::Module {
     const bool large = obs.size(0) >= kLargeBatchRows;
     const bool pad = pad_on_cuda && large;
     const TwinLayerFn layer = large ? this->layer : nullptr;
-    if (!cast && !pad && !layer) {
-      const auto sa = torch::cat({obs, act}, 1);
-      torch::Tensor x = sa.unsqueeze(0).expand({2, sa.size(0), sa.size(1)});
-      for (size_t i = 0; i < w.size(); ++i) {
-        x = torch::baddbmm(b[i], x, w[i]);
-        if (i + 1 < w.size()) tanh_hidden ? x.tanh_() : x.relu_();
-      }
-      return x.squeeze(-1);
-    }
     torch::Tensor sa = cast ? torch::cat({obs.to(compute), act.to(compute)}, 1) : torch::cat({obs, act}, 1);
     torch::Tensor x;
     for (size_t i = 0; i < w.size(); ++i) {
