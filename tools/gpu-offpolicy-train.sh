@@ -4,13 +4,18 @@
 # farm-worker, in one call.
 #   tools/gpu-offpolicy-train.sh CONFIG "SEEDS" "WORKER COUNTS" [OUT_DIR]   (default: runs/gpu-train)
 # Needs a full kit from deploy/make-gpu-kit.sh (Fast DDS included) in gpukit-full/ (FARM_GPU_KIT
-# overrides). STOP, SET_BLOCK and SET_LINES pass to bench_seeds.sh.
+# overrides), or its archive gpukit-full.tar.xz, unpacked there first (the archive is a fifth of the
+# kit's size to carry). STOP, SET_BLOCK and SET_LINES pass to bench_seeds.sh.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 config=${1:?usage: gpu-offpolicy-train.sh CONFIG SEEDS COUNTS [OUT_DIR]} seeds=${2:?} counts=${3:?}
 out=${4:-$root/runs/gpu-train}
 mkdir -p "$out"
 export FARM_GPU_KIT=${FARM_GPU_KIT:-$root/gpukit-full} OMP_WAIT_POLICY=PASSIVE
+if [ ! -d "$FARM_GPU_KIT/lib" ] && [ -f "$FARM_GPU_KIT.tar.xz" ]; then
+  mkdir -p "$FARM_GPU_KIT"
+  tar -xJf "$FARM_GPU_KIT.tar.xz" --strip-components=1 -C "$FARM_GPU_KIT"
+fi
 export LD_LIBRARY_PATH="$FARM_GPU_KIT/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$out/gpu.txt"
 FARM_GPU_TARGETS=farm-learner "$root/deploy/build-gpu.sh" "$root/build-gpu" >"$out/build.log" 2>&1 ||
