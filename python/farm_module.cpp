@@ -101,6 +101,23 @@ class VecEnvPy {
     env_.reset_all();
   }
 
+  // Starts a new episode in each env of `envs` alone (Gymnasium's partial reset); where its entry of
+  // `seeds` holds a seed, that env's seed generator is restarted with it first (reseed_env).
+  void reset_envs(const std::vector<int>& envs, const std::vector<std::optional<uint64_t>>& seeds) {
+    if (seeds.size() != envs.size())
+      throw py::value_error("reset_envs: " + std::to_string(envs.size()) + " envs but " + std::to_string(seeds.size()) +
+                            " seeds");
+    for (int e : envs)
+      if (e < 0 || e >= env_.num_envs())
+        throw py::value_error("reset_envs: env " + std::to_string(e) + " outside [0, " +
+                              std::to_string(env_.num_envs()) + ")");
+    py::gil_scoped_release nogil;
+    for (size_t k = 0; k < envs.size(); ++k) {
+      if (seeds[k]) env_.reseed_env(envs[k], *seeds[k]);
+      env_.reset(envs[k]);
+    }
+  }
+
   // Copies actions in (checked against the shape and dtype the task takes), then steps every env
   // with the GIL released.
   void step(py::array actions) {
@@ -394,6 +411,7 @@ PYBIND11_MODULE(_farm, m) {
       .def("terminated", [](py::object self) { return self.cast<VecEnvPy&>().terminated(self); })
       .def("truncated", [](py::object self) { return self.cast<VecEnvPy&>().truncated(self); })
       .def("reset", &VecEnvPy::reset, py::arg("seed") = py::none())
+      .def("reset_envs", &VecEnvPy::reset_envs, py::arg("envs"), py::arg("seeds"))
       .def("step", &VecEnvPy::step, py::arg("actions"))
       .def("ended", &VecEnvPy::ended);
 
