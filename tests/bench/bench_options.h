@@ -2,6 +2,8 @@
 // CLI::Option so a program can change the default's wording or add a check.
 #pragma once
 
+#include <cstdlib>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -39,6 +41,27 @@ CLI::Option* add_list(CLI::App& app, const std::string& name, std::vector<T>& va
 // --hidden H[,H...]: the hidden layer sizes, each >= 1.
 inline CLI::Option* add_hidden(CLI::App& app, std::vector<int>& hidden) {
   return add_list(app, "--hidden", hidden, "Hidden layer sizes")->check(CLI::Range(1, 1 << 20));
+}
+
+// Networks as --hidden-sets gives them: "256,256;512,512,512" -> {{256,256},{512,512,512}}; empty on a malformed list.
+inline std::vector<std::vector<int>> parse_hidden_sets(const std::string& text) {
+  std::vector<std::vector<int>> sets;
+  std::stringstream all(text);
+  std::string one;
+  while (std::getline(all, one, ';')) {
+    std::vector<int> layers;
+    std::stringstream items(one);
+    std::string item;
+    while (std::getline(items, item, ',')) {
+      char* end = nullptr;
+      const long v = std::strtol(item.c_str(), &end, 10);
+      if (item.empty() || *end != '\0' || v < 1 || v > (1 << 20)) return {};
+      layers.push_back(int(v));
+    }
+    if (layers.empty()) return {};
+    sets.push_back(layers);
+  }
+  return sets;
 }
 
 }  // namespace bench

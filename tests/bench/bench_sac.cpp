@@ -217,27 +217,6 @@ bool check_graph(const std::vector<int>& hidden, int batch, const std::string& d
   return ok;
 }
 
-// "256,256;512,512,512" -> {{256,256},{512,512,512}}; empty on a malformed list.
-std::vector<std::vector<int>> parse_hidden_sets(const std::string& text) {
-  std::vector<std::vector<int>> sets;
-  std::stringstream all(text);
-  std::string one;
-  while (std::getline(all, one, ';')) {
-    std::vector<int> layers;
-    std::stringstream items(one);
-    std::string item;
-    while (std::getline(items, item, ',')) {
-      char* end = nullptr;
-      const long v = std::strtol(item.c_str(), &end, 10);
-      if (item.empty() || *end != '\0' || v < 1 || v > (1 << 20)) return {};
-      layers.push_back(int(v));
-    }
-    if (layers.empty()) return {};
-    sets.push_back(layers);
-  }
-  return sets;
-}
-
 // The large-batch series: the learner's own path at each batch size, one table per run.
 void series(const std::vector<std::vector<int>>& nets, const std::vector<int>& batches,
             const std::vector<std::string>& dtypes, const std::string& device, double seconds, farm::ReplayBuffer& buf,
@@ -328,7 +307,7 @@ int main(int argc, char** argv) {
   if (!batches.empty()) {
     std::vector<std::vector<int>> nets = hidden.empty() ? std::vector<std::vector<int>>{{256, 256}, {512, 512, 512}}
                                                         : std::vector<std::vector<int>>{hidden};
-    if (!hidden_sets.empty()) nets = parse_hidden_sets(hidden_sets);
+    if (!hidden_sets.empty()) nets = bench::parse_hidden_sets(hidden_sets);
     if (nets.empty()) {
       std::fprintf(stderr, "bench_sac: --hidden-sets '%s' is not layer sizes like 256,256;512,512,512\n",
                    hidden_sets.c_str());
