@@ -48,10 +48,19 @@
 // with --beat-every S the same N sessions beat again every S seconds while --seconds lasts.
 // --malformed KIND [--fuzz-seed N] [--dump DIR]: instead of a stream, samples of every topic whose
 // bytes do not decode, or (fuzz) mutated afresh each time (intruder_malformed.cpp).
+// --forge-removal 1: instead of a stream, raw UDP and no DDS: once it has read the experiment's spec
+// (which names the learner's GUID prefix), every --removal-every-ms (default 50) an SPDP DATA(p[UD])
+// in the learner's name (RTPS header and key of the learner's prefix, status disposed and
+// unregistered), the message a participant sends as it leaves, to the metatraffic unicast ports of
+// participant ids 0..119 of the domain on 127.0.0.1 and to the domain's discovery multicast group.
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
 // id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
+#include <arpa/inet.h>
 #include <dlfcn.h>
+#include <netinet/in.h>
 #include <openssl/x509.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
@@ -280,6 +289,101 @@ int big_to_workers(farm::dds::Bus& bus, const std::string& id, const std::string
 
 // The experiment's weights as its learner publishes them, each written again under a version a
 // million ahead: a worker that ran them would send batches of a version no learner published.
+// The SPDP message a participant sends as it leaves (Fast DDS 2.9's form), in the name of the
+// participant of `prefix`: a DATA(p[UD]) of the SPDP writer with the key hash and status disposed
+// and unregistered inline, and the participant's GUID as the key. Little-endian throughout.
+std::vector<uint8_t> participant_removal(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix, uint32_t seq) {
+  std::vector<uint8_t> m = {'R', 'T', 'P', 'S', 2, 3, 0x01, 0x0f};
+  m.insert(m.end(), prefix.value, prefix.value + 12);
+  const auto put16 = [&m](uint16_t v) { m.insert(m.end(), {uint8_t(v), uint8_t(v >> 8)}); };
+  const auto put32 = [&m](uint32_t v) {
+    m.insert(m.end(), {uint8_t(v), uint8_t(v >> 8), uint8_t(v >> 16), uint8_t(v >> 24)});
+  };
+  const auto guid = [&] {
+    m.insert(m.end(), prefix.value, prefix.value + 12);
+    m.insert(m.end(), {0x00, 0x00, 0x01, 0xc1});
+  };
+  m.insert(m.end(), {0x15, 0x0b});  // DATA, flags E | Q | K
+  const size_t len_at = m.size();
+  put16(0);
+  put16(0);                                     // extra flags
+  put16(16);                                    // octets to inline QoS
+  m.insert(m.end(), {0x00, 0x01, 0x00, 0xc7});  // SPDP reader
+  m.insert(m.end(), {0x00, 0x01, 0x00, 0xc2});  // SPDP writer
+  put32(0);
+  put32(seq);
+  put16(0x0070);  // PID_KEY_HASH
+  put16(16);
+  guid();
+  put16(0x0071);  // PID_STATUS_INFO: disposed | unregistered
+  put16(4);
+  m.insert(m.end(), {0, 0, 0, 3});
+  put16(0x0001);  // PID_SENTINEL
+  put16(0);
+  m.insert(m.end(), {0x00, 0x03, 0x00, 0x00});  // PL_CDR_LE
+  put16(0x0050);                                // PID_PARTICIPANT_GUID
+  put16(16);
+  guid();
+  put16(0x0001);
+  put16(0);
+  const size_t len = m.size() - len_at - 2;
+  m[len_at] = uint8_t(len);
+  m[len_at + 1] = uint8_t(len >> 8);
+  return m;
+}
+
+int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
+                  double every_ms) {
+  farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(bus, farm::dds::kSpecTopic,
+                                                                                         "latest_reader");
+  eprosima::fastrtps::rtps::GuidPrefix_t learner;
+  bool found = false;
+  for (const double t0 = farm::now_seconds(); !found && farm::now_seconds() - t0 < 15;) {
+    spec.wait(0.2);
+    farm::msg::ExperimentSpec s;
+    eprosima::fastdds::dds::SampleInfo info;
+    while (spec.take(s, info))
+      if (s.experiment_id() == experiment) {
+        learner = info.sample_identity.writer_guid().guidPrefix;
+        found = true;
+      }
+  }
+  if (!found) {
+    std::printf("%s: no spec of experiment '%s' in 15 s: no learner to name\n", id.c_str(), experiment.c_str());
+    return 4;
+  }
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  if (fd < 0) throw std::runtime_error("cannot open a UDP socket");
+  const unsigned char loop = 1;
+  ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_LOOP, &loop, sizeof loop);
+  const uint32_t base = 7400 + 250 * uint32_t(bus.domain());
+  std::vector<sockaddr_in> to;
+  const auto add = [&to](const char* ip, uint32_t port) {
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_port = htons(uint16_t(port));
+    ::inet_pton(AF_INET, ip, &a.sin_addr);
+    to.push_back(a);
+  };
+  add("239.255.0.1", base);                                                // discovery multicast
+  for (uint32_t p = 0; p < 120; ++p) add("127.0.0.1", base + 10 + 2 * p);  // metatraffic unicast
+  char hex[40] = "";
+  for (int k = 0; k < 12; ++k) std::snprintf(hex + 2 * k, 3, "%02x", learner.value[k]);
+  std::printf("%s: naming learner %s in participant removals\n", id.c_str(), hex);
+  std::fflush(stdout);
+  uint64_t sent = 0;
+  uint32_t seq = 1000;
+  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
+    const std::vector<uint8_t> m = participant_removal(learner, ++seq);
+    for (const sockaddr_in& a : to)
+      sent += ::sendto(fd, m.data(), m.size(), 0, reinterpret_cast<const sockaddr*>(&a), sizeof a) == ssize_t(m.size());
+    std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(every_ms));
+  }
+  ::close(fd);
+  std::printf("%s: sent %llu participant removals in the learner's name\n", id.c_str(), (unsigned long long)sent);
+  return 0;
+}
+
 int forge_weights(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds) {
   using farm::msg::PolicyWeights;
   farm::dds::Reader<PolicyWeights, farm::msg::PolicyWeightsPubSubType> in(bus, farm::dds::kWeightsTopic,
@@ -309,7 +413,8 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false, forge_weights_on = false, oversize = false, try_writers = false, heartbeat = false;
-  bool spec_finished = false, spec_only = false;
+  bool spec_finished = false, spec_only = false, forge_removal_on = false;
+  double removal_every_ms = 50;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed, dump_dir;
   uint64_t fuzz_seed = 1;
   unsigned spec_steps = 4, spec_max_batches = 4;
@@ -366,6 +471,10 @@ int main(int argc, char** argv) {
                  "DIR: --malformed writes each topic's broken sample to DIR/<type>_<kind>.hex, not to the bus");
   app.add_option("--big-to-workers", big_mib,
                  "MB: a spec, weights and an evaluation request of MB MiB each, instead of a stream");
+  add_switch("--forge-removal", forge_removal_on,
+             "1: raw UDP participant removals in the learner's name to every discovery port of the domain");
+  app.add_option("--removal-every-ms", removal_every_ms, "Milliseconds between --forge-removal rounds")
+      ->capture_default_str();
   app.add_option("--token-name", g_token_name,
                  "NAME: its identity token says CN=NAME while it authenticates with the certificate of --security");
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
@@ -386,6 +495,7 @@ int main(int argc, char** argv) {
     if (!malformed.empty())
       return send_malformed(bus, id, experiment, obs, act, malformed, seconds, fuzz_seed, dump_dir);
     if (forge_weights_on) return forge_weights(bus, id, experiment, seconds);
+    if (forge_removal_on) return forge_removal(bus, id, experiment, seconds, removal_every_ms);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
