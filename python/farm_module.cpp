@@ -102,18 +102,20 @@ class VecEnvPy {
   }
 
   // Starts a new episode in each env of `envs` alone (Gymnasium's partial reset); where its entry of
-  // `seeds` holds a seed, that env's seed generator is restarted with it first (reseed_env).
-  void reset_envs(const std::vector<int>& envs, const std::vector<std::optional<uint64_t>>& seeds) {
-    if (seeds.size() != envs.size())
+  // `seeds` holds a seed, that env's seed generator is restarted with it and its entry of `streams`
+  // first (reseed_env).
+  void reset_envs(const std::vector<int>& envs, const std::vector<std::optional<uint64_t>>& seeds,
+                  const std::vector<uint64_t>& streams) {
+    if (seeds.size() != envs.size() || streams.size() != envs.size())
       throw py::value_error("reset_envs: " + std::to_string(envs.size()) + " envs but " + std::to_string(seeds.size()) +
-                            " seeds");
+                            " seeds and " + std::to_string(streams.size()) + " streams");
     for (int e : envs)
       if (e < 0 || e >= env_.num_envs())
         throw py::value_error("reset_envs: env " + std::to_string(e) + " outside [0, " +
                               std::to_string(env_.num_envs()) + ")");
     py::gil_scoped_release nogil;
     for (size_t k = 0; k < envs.size(); ++k) {
-      if (seeds[k]) env_.reseed_env(envs[k], *seeds[k]);
+      if (seeds[k]) env_.reseed_env(envs[k], *seeds[k], streams[k]);
       env_.reset(envs[k]);
     }
   }
@@ -411,7 +413,7 @@ PYBIND11_MODULE(_farm, m) {
       .def("terminated", [](py::object self) { return self.cast<VecEnvPy&>().terminated(self); })
       .def("truncated", [](py::object self) { return self.cast<VecEnvPy&>().truncated(self); })
       .def("reset", &VecEnvPy::reset, py::arg("seed") = py::none())
-      .def("reset_envs", &VecEnvPy::reset_envs, py::arg("envs"), py::arg("seeds"))
+      .def("reset_envs", &VecEnvPy::reset_envs, py::arg("envs"), py::arg("seeds"), py::arg("streams"))
       .def("step", &VecEnvPy::step, py::arg("actions"))
       .def("ended", &VecEnvPy::ended);
 

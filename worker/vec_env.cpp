@@ -36,7 +36,9 @@ void VecEnv::reseed(uint64_t seed) {
   for (size_t i = 0; i < states_.size(); ++i) seed_state_[i] = mix_seed(seed, first_index_ + uint64_t(i));
 }
 
-void VecEnv::reseed_env(int env, uint64_t seed) { seed_state_.at(size_t(env)) = mix_seed(seed, 0); }
+void VecEnv::reseed_env(int env, uint64_t seed, uint64_t stream) {
+  seed_state_.at(size_t(env)) = mix_seed(seed, stream);
+}
 
 void VecEnv::reset(int env) {
   task_->reset(*states_[env], splitmix64(seed_state_[env]), obs_.data() + size_t(env) * obs_dim_);

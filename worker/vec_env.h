@@ -67,10 +67,11 @@ class VecEnv {
   void reset_all();
   // Restarts every env's seed generator as the constructor does for `seed` (no env is reset).
   void reseed(uint64_t seed);
-  // Restarts env `env`'s seed generator alone, as reseed(seed) restarts env 0's of a VecEnv made
-  // with first_index 0: an env reseeded with `seed` repeats the episodes of a one-env VecEnv of seed
-  // `seed`, whatever its index (Gymnasium's reset(seed=[...]) for each env its own seed).
-  void reseed_env(int env, uint64_t seed);
+  // Restarts env `env`'s seed generator alone, as reseed(seed) restarts env `stream`'s of a VecEnv
+  // made with first_index 0. With stream 0, an env reseeded with `seed` repeats the episodes of a
+  // one-env VecEnv of seed `seed`, whatever its index (Gymnasium's reset(seed=[...]), each env its
+  // own seed); with stream `env`, it is reseeded as reseed(seed) would (a partial reset with one seed).
+  void reseed_env(int env, uint64_t seed, uint64_t stream = 0);
   void reset(int env);
   // Starts a new episode in env `env` in the task's evaluation condition `condition`.
   void reset_in_condition(int env, int condition);

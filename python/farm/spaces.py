@@ -1,13 +1,15 @@
-"""Box and Discrete space descriptors.
+"""Box, Discrete and MultiDiscrete space descriptors, and ``batch_space``.
 
-Real ``gymnasium.spaces`` when gymnasium can be imported; otherwise small stand-ins with the same
-attributes and methods a vector env's user reads (``shape``, ``dtype``, ``low``, ``high``, ``n``,
-``sample``, ``contains``, ``seed``). Debian 12 has no gymnasium package, and nothing here needs one.
+Real ``gymnasium.spaces`` (and ``gymnasium.vector.utils.batch_space``) when gymnasium can be
+imported; otherwise small stand-ins with the same attributes and methods a vector env's user reads
+(``shape``, ``dtype``, ``low``, ``high``, ``n``, ``nvec``, ``sample``, ``contains``, ``seed``,
+``np_random``). Debian 12 has no gymnasium package, and nothing here needs one.
 """
 import numpy as np
 
 try:  # pragma: no cover - taken only where gymnasium is installed
-    from gymnasium.spaces import Box, Discrete  # noqa: F401
+    from gymnasium.spaces import Box, Discrete, MultiDiscrete  # noqa: F401
+    from gymnasium.vector.utils import batch_space  # noqa: F401
 
     GYMNASIUM = True
 except ImportError:
@@ -67,3 +69,41 @@ except ImportError:
 
         def __eq__(self, other):
             return isinstance(other, Discrete) and self.n == other.n
+
+    class MultiDiscrete:
+        """One integer per entry of ``nvec``: entry ``i`` in ``0 .. nvec[i] - 1`` (a batch of Discrete)."""
+
+        def __init__(self, nvec, dtype=np.int64, seed=None):
+            self.nvec = np.asarray(nvec, dtype=dtype)
+            self.shape = self.nvec.shape
+            self.dtype = np.dtype(dtype)
+            self.np_random = np.random.default_rng(seed)
+
+        def seed(self, seed=None):
+            self.np_random = np.random.default_rng(seed)
+            return [seed]
+
+        def sample(self):
+            return self.np_random.integers(self.nvec).astype(self.dtype)
+
+        def contains(self, x):
+            x = np.asarray(x)
+            return (x.shape == self.shape and np.issubdtype(x.dtype, np.integer)
+                    and bool(np.all(x >= 0) and np.all(x < self.nvec)))
+
+        def __repr__(self):
+            return "MultiDiscrete(%s)" % self.nvec
+
+        def __eq__(self, other):
+            return isinstance(other, MultiDiscrete) and np.array_equal(self.nvec, other.nvec)
+
+    def batch_space(space, n=1):
+        """The space of ``n`` stacked samples of ``space``, as Gymnasium's ``batch_space`` makes it:
+        a Box gains a leading axis of ``n``; a Discrete becomes ``MultiDiscrete([space.n] * n)``."""
+        if isinstance(space, Box):
+            low = np.broadcast_to(space.low, (n,) + space.shape)
+            high = np.broadcast_to(space.high, (n,) + space.shape)
+            return Box(low, high, (n,) + space.shape, space.dtype)
+        if isinstance(space, Discrete):
+            return MultiDiscrete(np.full(n, space.n), dtype=space.dtype)
+        raise TypeError("batch_space: no batch of %r" % (space,))
