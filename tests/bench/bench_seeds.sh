@@ -14,6 +14,9 @@
 #   RATIO_AT_MOST=0.5 the bound the ratios are counted against
 #   REPORT_ONLY=1     no runs: the table from the runs already in OUT_DIR
 #   CONFIG_ONLY=1     no runs: only write each seed's config, OUT_DIR/seedN.txtpb
+#   GOAL_RETURN=12000 also report, from each run's events.jsonl, when its evaluations first reached
+#                     that return and whether it kept it (tests/bench/keep_report.py; KEEP_WITHIN,
+#                     default 0.1, is the fraction of the kept best a later evaluation may lose)
 # A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
 # the table: each count's median time to goal (and the median ratio) over the seeds that reached
 # it, a sign test of the ratios against the bound, then each run's evaluations from its learner's
@@ -178,3 +181,13 @@ for c in "${count_list[@]}"; do
   done
   echo "$c workers:$list (median $(printf '%s' "$vals" | median %.0f))"
 done
+
+# Whether each run kept the goal it reached (its events, not its log).
+if [ -n "${GOAL_RETURN:-}" ]; then
+  runs=()
+  for s in "${seed_list[@]}"; do
+    for c in "${count_list[@]}"; do runs+=("seed $s, $c workers=$out/seed$s/w$c/learner/events.jsonl"); done
+  done
+  echo
+  python3 "$here/keep_report.py" --goal "$GOAL_RETURN" --within "${KEEP_WITHIN:-0.1}" "${runs[@]}"
+fi

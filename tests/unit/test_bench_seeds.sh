@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # tests/bench/bench_seeds.sh REPORT_ONLY=1: its table from runs already made (bench_workers.sh
-# rows and learner logs): each ratio, the count within the bound (a run that missed the goal is
+# rows and learner logs; with GOAL_RETURN, their events): each ratio, the count within the bound (a run that missed the goal is
 # not), the medians over the seeds that reached the goal, each run's evaluations, the updates at
 # each run's goal evaluation, and the errors.
 # usage: test_bench_seeds.sh SOURCE_DIR
@@ -60,6 +60,24 @@ grep -qxF "15 workers: 13864 - - - (median 13864)" <<<"$out" || fail "updates at
 out=$(RATIO_AT_MOST=0.2 bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "bound: $out"
 grep -qF "15 workers within 0.2 of 2 workers' time: 1 of 4 seeds" <<<"$out" || fail "RATIO_AT_MOST 0.2: $out"
 grep -qF "at most 0.2 by a sign test over 4 seeds: 1 within, p = 0.9375" <<<"$out" || fail "sign test, 0.2: $out"
+# GOAL_RETURN: from each run's events, the time its evaluations first reached the goal and whether
+# the final and every evaluation from then on stayed within KEEP_WITHIN of the kept best.
+ev() {  # DIR LABEL MEAN ASKED_S CONFIRMED
+  printf '{"event":"evaluation","label":"%s","mean":%s,"asked_elapsed_s":%s,"elapsed_s":%s,"confirmed":%s}\n' \
+    "$2" "$3" "$4" "$4" "$5" >>"$1/learner/events.jsonl"
+}
+for r in seed1/w2 seed1/w15; do mkdir -p "$T/out/$r/learner"; done
+ev "$T/out/seed1/w2" eval 8 10 true; ev "$T/out/seed1/w2" eval 12.5 20 true; ev "$T/out/seed1/w2" eval 3 25 false
+ev "$T/out/seed1/w2" eval 11.5 30 true; ev "$T/out/seed1/w2" final 12.0 40 true
+echo '{"event":"best","score":12.5}' >>"$T/out/seed1/w2/learner/events.jsonl"
+ev "$T/out/seed1/w15" eval 12.0 5 true; ev "$T/out/seed1/w15" eval 10.0 10 true; ev "$T/out/seed1/w15" final 12.2 12 true
+out=$(GOAL_RETURN=12 bs "$T/kaya.txtpb" "1" "2 15" "$T/out" 2>&1) || fail "GOAL_RETURN: $out"
+grep -qxF "| seed 1, 2 workers | 20.0 s | 12.5 | 12.0 (0.96) | 11.5 (0.92) | kept |" <<<"$out" || fail "kept run: $out"
+grep -qxF "| seed 1, 15 workers | 5.0 s | 12.2 | 12.2 (1.00) | 10.0 (0.82) | not kept: below 11.0 |" <<<"$out" ||
+  fail "a run that lost more than a tenth after the goal: $out"
+grep -qxF "2 of 2 runs reached 12; 1 kept it" <<<"$out" || fail "keep count: $out"
+out=$(GOAL_RETURN=12 KEEP_WITHIN=0.2 bs "$T/kaya.txtpb" "1" "2 15" "$T/out" 2>&1) || fail "KEEP_WITHIN: $out"
+grep -qxF "2 of 2 runs reached 12; 2 kept it" <<<"$out" || fail "KEEP_WITHIN 0.2: $out"
 # Errors name what is wrong and exit 2.
 set +e
 err=$(bs "$T/kaya.txtpb" "1 5" "2 15" "$T/out" 2>&1); rc=$?
