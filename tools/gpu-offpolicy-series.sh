@@ -8,12 +8,13 @@
 # SERIES_SECONDS (default 2) is the time measured per figure; SERIES_ARGS are added to
 # bench_offpolicy's (e.g. --algorithms sac). Needs a kit from deploy/make-gpu-kit.sh in gpukit/
 # (FARM_GPU_KIT overrides) on a host without the Debian packages; the learner core is built
-# without Fast DDS.
+# without Fast DDS unless FARM_WITH_DDS=ON (a full kit: the build folder of
+# tools/gpu-offpolicy-train.sh is then reused as it is).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 out=${1:-$root/runs/gpu-series}
 mkdir -p "$out"
-export FARM_GPU_KIT=${FARM_GPU_KIT:-$root/gpukit} FARM_WITH_DDS=OFF
+export FARM_GPU_KIT=${FARM_GPU_KIT:-$root/gpukit} FARM_WITH_DDS=${FARM_WITH_DDS:-OFF}
 export FARM_GPU_TARGETS=${FARM_GPU_TARGETS:-bench_offpolicy} OMP_WAIT_POLICY=PASSIVE
 export LD_LIBRARY_PATH="$FARM_GPU_KIT/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$out/gpu.txt"
