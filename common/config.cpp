@@ -1,7 +1,5 @@
 #include "config.h"
 #include "config_validator.h"
-#include "task_specs.h"
-#include "terms/mjcf_bundle.h"
 
 #include <google/protobuf/io/tokenizer.h>
 #include <google/protobuf/text_format.h>
@@ -181,7 +179,7 @@ void check_ppo(const Section& s, const config::PpoConfig& c) {
           "expected >= 0 (0: only at the end), got " + num(c.eval_every_fits()));
 }
 
-void validate(const config::ExperimentConfig& c, Validator& v) {
+void validate(const config::ExperimentConfig& c, Validator& v, const TaskKnowledge& tasks) {
   const Section root(v, c, "");
   if (!c.has_experiment_id() || c.experiment_id().empty())
     root.fail("experiment_id", "required: a name for the run, e.g. \"my_robot_sac\"");
@@ -199,7 +197,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
     root.fail("algorithm", "expected one of: " + known + "; got \"" + c.algorithm() + "\"");
   }
 
-  robots::check_task_section(root.nest("task", c.task()), c.task());
+  tasks.check_section(root.nest("task", c.task()), c.task());
   check_sac(root.nest("sac", c.sac()), c.sac());
   if (c.algorithm() == "dqn") check_dqn(root.nest("dqn", c.dqn()), c.dqn());
   if (c.algorithm() == "ppo") check_ppo(root.nest("ppo", c.ppo()), c.ppo());
@@ -221,7 +219,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
   if (!c.eval().best_metric().empty()) {
     std::vector<std::string> metrics;
     try {
-      metrics = robots::task_spec(c.task()).metric_names;
+      metrics = tasks.metric_names(c.task());
     } catch (const std::invalid_argument& err) {
       e.fail("best_metric", std::string("names one of the task's metrics: ") + err.what());
     }
@@ -242,7 +240,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
     // has no metrics to name.
     std::vector<std::string> metrics;
     try {
-      metrics = robots::task_spec(c.task()).metric_names;
+      metrics = tasks.metric_names(c.task());
     } catch (const std::invalid_argument& e) {
       s.fail("eval_goal", std::string("a goal names one of the task's metrics: ") + e.what(), 0);
     }
@@ -290,7 +288,7 @@ void validate(const config::ExperimentConfig& c, Validator& v) {
 }  // namespace
 
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
-                                           const std::string& folder) {
+                                           const std::string& folder, const TaskKnowledge& tasks) {
   config::ExperimentConfig cfg;
   pb::TextFormat::Parser parser;
   Collector errors(source);
@@ -301,25 +299,11 @@ config::ExperimentConfig parse_config_text(const std::string& text, const std::s
     throw ConfigError(errors.first().empty() ? source + ": cannot parse config" : errors.first());
   }
   Validator v(source, &tree);
-  // A task of terms names its model by a path relative to the config file (or an absolute one): the
-  // model's files are read here, once, and travel in the config from then on.
-  const auto& given = cfg.task().terms();
-  if (!folder.empty() && cfg.task().name() == "terms" && given.model_files_size() == 0 && !given.model().empty()) {
-    auto* terms = cfg.mutable_task()->mutable_terms();
-    const Section t = Section(v, cfg, "").nest("task", cfg.task()).nest("terms", cfg.task().terms());
-    try {
-      const std::string& model = terms->model();
-      robots::terms::read_model_folder(model[0] == '/' ? model : folder + "/" + model, terms);
-    } catch (const robots::terms::ModelError& e) {
-      t.fail("model", e.what());
-    }
-  }
-  validate(cfg, v);
+  // A task may name files by a path relative to the config file (or an absolute one): they are
+  // read here, once, and travel in the config from then on.
+  if (!folder.empty()) tasks.read_files(cfg.mutable_task(), folder, Section(v, cfg, "").nest("task", cfg.task()));
+  validate(cfg, v, tasks);
   return cfg;
-}
-
-config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source) {
-  return parse_config_text(text, source, "");
 }
 
 std::string resume_change(const config::ExperimentConfig& was, const config::ExperimentConfig& now) {

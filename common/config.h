@@ -3,6 +3,7 @@
 // line and the field.
 #pragma once
 
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -24,18 +25,38 @@ struct ConfigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+namespace config_checks {
+class Section;
+}
+
+// What the checks need to know of the tasks, which common/ does not: the robots' registry gives it
+// (robots::task_knowledge(), robots/task_specs.h, with loaders that pass it). Each is called where
+// the checks of the task belong, so that its errors name the file, the line and the field as every
+// other check does.
+struct TaskKnowledge {
+  // Reads into the task's section the files it names relative to `folder` (a config file's folder:
+  // a task of terms' model); fails through `task`, the section "task".
+  std::function<void(config::TaskConfig* cfg, const std::string& folder, const config_checks::Section& task)>
+      read_files;
+  // The range checks of the section of the task that runs (task.<name>).
+  std::function<void(const config_checks::Section& task, const config::TaskConfig& cfg)> check_section;
+  // The task's metric names (eval.best_metric and stop.eval_goal name one); throws
+  // std::invalid_argument for a task it does not know.
+  std::function<std::vector<std::string>(const config::TaskConfig& cfg)> metric_names;
+};
+
 // Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3"). Every range
 // a task or an algorithm needs of its section is checked here; only the section of the task that
 // runs (task.name) is checked, and the dqn, ppo and td3 sections only when the algorithm is theirs.
-config::ExperimentConfig load_config_file(const std::string& path);
+config::ExperimentConfig load_config_file(const std::string& path, const TaskKnowledge& tasks);
 // The ExperimentConfig fields marked as algorithm sections (farm_options.proto), in schema order:
 // the names `algorithm` may take.
 std::vector<std::string> algorithm_sections();
-config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source);
-// The same for the text of a config file in `folder`: a task of terms' model (task.terms.model,
-// relative to that folder) is read with the files it names into task.terms.model_files.
+// load_config_file's checks on the text of a config file in `folder` ("" for a text of no folder,
+// whose model paths are not read): the files a task names (task.terms.model, relative to that
+// folder) are read into the config.
 config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
-                                           const std::string& folder);
+                                           const std::string& folder, const TaskKnowledge& tasks);
 
 // Fields that name a file the process building the task writes (marked output_path in the schema):
 // the set ones, by path ("task.<section>.<field>"), and a way to clear them all.
@@ -43,7 +64,8 @@ std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg)
 void clear_output_paths(config::ExperimentConfig* cfg);
 // parse_config_text for a config that came over the bus (a worker's ExperimentSpec): it may not
 // name a file for the receiving host to write; ConfigError names the field.
-config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source);
+config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source,
+                                               const TaskKnowledge& tasks);
 
 // What a run resumed with config `now` from a checkpoint written with config `was` may not change:
 // the algorithm, and for SAC, DQN and TD3 the gamma its replay rows were summed with where they sum

@@ -58,10 +58,11 @@ std::vector<std::string> output_path_fields(const config::ExperimentConfig& cfg)
 
 void clear_output_paths(config::ExperimentConfig* cfg) { walk_output_paths(cfg, "", true, nullptr); }
 
-config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source) {
+config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source,
+                                               const TaskKnowledge& tasks) {
   config::ExperimentConfig cfg;
   try {
-    cfg = parse_config_text(text, source);
+    cfg = parse_config_text(text, source, "", tasks);
   } catch (const ConfigError& e) {
     // The sender knows a field this program does not: a newer build. Said first, so a cut message keeps it.
     if (std::string(e.what()).find("has no field named") == std::string::npos) throw;
@@ -75,13 +76,13 @@ config::ExperimentConfig parse_config_from_bus(const std::string& text, const st
   return cfg;
 }
 
-config::ExperimentConfig load_config_file(const std::string& path) {
+config::ExperimentConfig load_config_file(const std::string& path, const TaskKnowledge& tasks) {
   std::ifstream in(path);
   if (!in) throw ConfigError(path + ": cannot open config file");
   std::stringstream ss;
   ss << in.rdbuf();
   const size_t slash = path.find_last_of('/');
-  return parse_config_text(ss.str(), path, slash == std::string::npos ? "." : path.substr(0, slash));
+  return parse_config_text(ss.str(), path, slash == std::string::npos ? "." : path.substr(0, slash), tasks);
 }
 
 std::string config_to_text(const config::ExperimentConfig& cfg) {

@@ -1,6 +1,6 @@
 // The machinery of the config checks in config.cpp: the parser's first error with its place, and
-// the Validator and Section that name an out-of-range field by FILE:LINE:COL and its path. Only
-// config.cpp includes it.
+// the Validator and Section that name an out-of-range field by FILE:LINE:COL and its path. Included
+// by config.cpp and by the checks of each task's section (robots/<robot>/*_spec.cpp).
 #pragma once
 
 #include <google/protobuf/io/tokenizer.h>

@@ -1,5 +1,6 @@
 // What a task looks like from outside: its name, observation and action sizes, episode limit and
 // metric names. Plain data, so the learner's algorithms and the wire code read it without MuJoCo.
+// A task's spec from its config is robots::task_spec() (robots/task_specs.h).
 #pragma once
 
 #include <cmath>
@@ -46,11 +47,5 @@ inline bool return_within_range(double episode_return, double length, double rew
     return false;
   return true;
 }
-
-// The spec of the task cfg names, from the config alone (no MuJoCo), as its robot's folder defines
-// it (robots/tasks.def, robots/task_specs.cpp): what robots::make_task(cfg) builds reports the same
-// spec() (tests/unit/test_task_conformance.cpp). Throws std::invalid_argument for a task it does
-// not know.
-TaskSpec task_spec(const config::TaskConfig& cfg);
 
 }  // namespace farm::robots

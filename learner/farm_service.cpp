@@ -12,6 +12,7 @@
 #include "policy_file.h"
 #include "printable.h"
 #include "registry.h"
+#include "task_specs.h"
 
 namespace farm {
 
@@ -335,7 +336,8 @@ void FarmService::resume_from_checkpoint() {
   // What the checkpoint's own config says its state is may not change under it (resume_change).
   if (m.has_config_text()) {
     try {
-      const std::string why = resume_change(parse_config_text(m.config_text(), "the checkpoint's config"), cfg_);
+      const std::string why =
+          resume_change(robots::parse_config_text(m.config_text(), "the checkpoint's config"), cfg_);
       if (!why.empty()) throw std::runtime_error("--resume: " + why);
     } catch (const ConfigError& e) {
       // Written by an older learner whose config today's checks refuse: nothing to compare with.

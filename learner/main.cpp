@@ -11,6 +11,7 @@
 #include "config.h"
 #include "dds.h"
 #include "farm_service.h"
+#include "task_specs.h"
 
 using namespace farm;
 
@@ -49,7 +50,7 @@ int main(int argc, char** argv) {
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   config::ExperimentConfig cfg;
   try {
-    cfg = load_config_file(opt.config_path);
+    cfg = robots::load_config_file(opt.config_path);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "farm-learner: %s\n", e.what());
     return 2;

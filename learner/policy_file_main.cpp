@@ -19,7 +19,7 @@
 #include "farm_config.pb.h"
 #include "policy_file.h"
 #include "registry.h"
-#include "task_spec.h"
+#include "task_specs.h"
 
 namespace fs = std::filesystem;
 
@@ -39,7 +39,7 @@ int main(int argc, char** argv) {
     farm::config::ExperimentConfig cfg;
     uint64_t version = 0;
     if (!config_path.empty()) {
-      cfg = farm::load_config_file(config_path);
+      cfg = farm::robots::load_config_file(config_path);
     } else {
       const fs::path manifest_file = fs::path(dir) / "manifest.txtpb";
       std::ifstream in(manifest_file);
@@ -51,7 +51,7 @@ int main(int argc, char** argv) {
       farm::config::CheckpointManifest m;
       if (!google::protobuf::TextFormat::ParseFromString(text.str(), &m) || m.config_text().empty())
         throw std::runtime_error(manifest_file.string() + " is not a checkpoint manifest with its config_text");
-      cfg = farm::parse_config_text(m.config_text(), manifest_file.string() + " config_text");
+      cfg = farm::robots::parse_config_text(m.config_text(), manifest_file.string() + " config_text");
       version = m.policy_version();
     }
     int64_t updates = 0;

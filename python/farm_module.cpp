@@ -29,6 +29,7 @@
 #include "mlp.h"
 #include "policy_file.h"
 #include "task.h"
+#include "task_specs.h"
 #include "vec_env.h"
 
 namespace py = pybind11;
@@ -41,12 +42,13 @@ namespace {
 std::shared_ptr<const farm::robots::Task> task_of(const std::string& config) {
   farm::config::TaskConfig task;
   if (fs::is_regular_file(config)) {
-    task = farm::load_config_file(config).task();
+    task = farm::robots::load_config_file(config).task();
   } else if (config.find('/') != std::string::npos ||
              (config.size() > 7 && config.substr(config.size() - 7) == ".txtpb")) {
     throw std::invalid_argument("no config file " + config);
   } else {
-    task = farm::parse_config_text("experiment_id: \"python\" task { name: \"" + config + "\" }", config).task();
+    task =
+        farm::robots::parse_config_text("experiment_id: \"python\" task { name: \"" + config + "\" }", config).task();
   }
   return std::shared_ptr<const farm::robots::Task>(farm::robots::make_task(task));
 }

@@ -26,7 +26,7 @@
 #include "mlp.h"
 #include "roster_thread.h"
 #include "spec_publisher.h"
-#include "task_spec.h"
+#include "task_specs.h"
 #include "weight_publisher.h"
 
 namespace py = pybind11;
@@ -51,7 +51,7 @@ py::str wire_text(const std::string& s) {
 class LearnerBus {
  public:
   LearnerBus(const std::string& config, int domain, const std::string& profiles, const std::string& events_path)
-      : cfg_(farm::load_config_file(config)),
+      : cfg_(farm::robots::load_config_file(config)),
         task_(farm::robots::task_spec(cfg_.task())),
         bus_(
             [&] {

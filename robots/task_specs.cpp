@@ -2,6 +2,9 @@
 
 #include <stdexcept>
 
+#include "config_validator.h"
+#include "terms/mjcf_bundle.h"
+
 namespace farm::robots {
 
 #define TASK(name, family, make, spec, check)                                    \
@@ -43,6 +46,44 @@ std::vector<std::string> registered_task_names() {
   std::vector<std::string> names;
   for (const auto& e : kSpecs) names.emplace_back(e.name);
   return names;
+}
+
+namespace {
+
+// A task of terms names its model by a path relative to the config's folder (or an absolute one):
+// the model's files are read into task.terms.model_files, unless they came with the config.
+void read_task_files(config::TaskConfig* cfg, const std::string& folder, const config_checks::Section& task) {
+  const auto& given = cfg->terms();
+  if (cfg->name() != "terms" || given.model_files_size() > 0 || given.model().empty()) return;
+  config::TermsConfig* section = cfg->mutable_terms();
+  const config_checks::Section t = task.nest("terms", cfg->terms());
+  try {
+    const std::string& model = section->model();
+    terms::read_model_folder(model[0] == '/' ? model : folder + "/" + model, section);
+  } catch (const terms::ModelError& e) {
+    t.fail("model", e.what());
+  }
+}
+
+}  // namespace
+
+const TaskKnowledge& task_knowledge() {
+  static const TaskKnowledge k{&read_task_files, &check_task_section,
+                               [](const config::TaskConfig& cfg) { return task_spec(cfg).metric_names; }};
+  return k;
+}
+
+config::ExperimentConfig load_config_file(const std::string& path) {
+  return farm::load_config_file(path, task_knowledge());
+}
+
+config::ExperimentConfig parse_config_text(const std::string& text, const std::string& source,
+                                           const std::string& folder) {
+  return farm::parse_config_text(text, source, folder, task_knowledge());
+}
+
+config::ExperimentConfig parse_config_from_bus(const std::string& text, const std::string& source) {
+  return farm::parse_config_from_bus(text, source, task_knowledge());
 }
 
 }  // namespace farm::robots

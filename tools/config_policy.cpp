@@ -7,6 +7,7 @@
 #include "config.h"
 #include "policy_file.h"
 #include "policy_shape.h"
+#include "task_specs.h"
 
 namespace fs = std::filesystem;
 
@@ -14,7 +15,7 @@ namespace farm::tools {
 
 RunPolicy config_policy(const std::string& config_path, const std::string& dir) {
   if (!dir.empty() && !fs::is_directory(dir)) throw std::runtime_error("checkpoint folder " + dir + " does not exist");
-  RunPolicy r = with_task(load_config_file(config_path));
+  RunPolicy r = with_task(robots::load_config_file(config_path));
   r.dir = dir;
   if (dir.empty()) {
     r.policy = untrained_policy(r.config, r.task->spec());

@@ -28,6 +28,7 @@
 #include "mclari/terrain.h"
 #include "mlp.h"
 #include "rollout.h"
+#include "task_specs.h"
 
 namespace mclari = farm::robots::mclari;
 
@@ -183,7 +184,7 @@ int main(int argc, char** argv) {
                  "Also run one episode per terrain and write the gait and figures of each step (STEPS.csv)");
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   try {
-    const auto cfg = farm::load_config_file(config_path);
+    const auto cfg = farm::robots::load_config_file(config_path);
     if (cfg.task().name() != "mclari")
       throw std::invalid_argument(config_path + ": task.name is '" + cfg.task().name() + "', expected 'mclari'");
     std::map<int, Best> best;

@@ -27,6 +27,7 @@
 #include "mclari/mclari_task.h"
 #include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
+#include "task_specs.h"
 
 using farm::robots::McLariState;
 using farm::robots::McLariTask;
@@ -103,7 +104,7 @@ int main(int argc, char** argv) {
         throw std::invalid_argument("--groups: " + std::to_string(g) + " not in [0, 27)");
 
     farm::config::MclariConfig base;
-    if (!config_path.empty()) base = farm::load_config_file(config_path).task().mclari();
+    if (!config_path.empty()) base = farm::robots::load_config_file(config_path).task().mclari();
     if (spp > 0) base.set_steps_per_period(spp);
     for (int f : freqs)
       if (f < base.min_frequency() || f > base.max_frequency())

@@ -12,6 +12,7 @@
 
 #include "config.h"
 #include "policy_file.h"
+#include "task_specs.h"
 
 namespace farm::tools {
 
@@ -102,7 +103,7 @@ RunPolicy load_run_policy(const std::string& dir) {
     throw std::runtime_error("no policy in " + dir + ": no manifest.txtpb" + hint);
   }
   const config::CheckpointManifest m = read_manifest_file(manifest);
-  RunPolicy r = with_task(parse_config_text(m.config_text(), manifest.string() + " config_text"));
+  RunPolicy r = with_task(robots::parse_config_text(m.config_text(), manifest.string() + " config_text"));
   r.dir = dir;
   r.manifest = m;
   const fs::path file = fs::path(dir) / kPolicyFileName;

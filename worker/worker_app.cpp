@@ -22,6 +22,7 @@
 #include "config.h"
 #include "printable.h"
 #include "task.h"
+#include "task_specs.h"
 
 namespace farm {
 
@@ -156,7 +157,7 @@ std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) con
   if (s.config_text() != joined_.spec.config_text()) {
     config::ExperimentConfig cfg;
     try {
-      cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+      cfg = robots::parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     } catch (const std::exception& e) {
       return e.what();
     }
@@ -272,7 +273,8 @@ void WorkerApp::join(const SpecIn& in) {
   // Batches of an earlier join keep their session; the numbering restarts below.
   sender_.drain(false, [this] { heartbeat(); });
   try {
-    config::ExperimentConfig cfg = parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
+    config::ExperimentConfig cfg =
+        robots::parse_config_from_bus(s.config_text(), "ExperimentSpec(" + s.experiment_id() + ")");
     int envs = opt_.envs > 0 ? opt_.envs : cfg.worker().envs_per_worker();
     // A spec off the bus sizes this worker's batches: bounded before anything is allocated.
     if (s.steps_per_batch() < 1 || s.steps_per_batch() > uint32_t(kMaxStepsPerBatch) ||

@@ -1,4 +1,5 @@
-// The loader's checks of task.terms (common/config.cpp calls them for a task named "terms").
+// The loader's checks of task.terms (the task registry, robots/task_specs.cpp, gives them to
+// common/config.cpp's checks for a task named "terms").
 #pragma once
 
 #include "farm_config.pb.h"

@@ -13,12 +13,13 @@
 #include <vector>
 
 #include "bench_ingest.h"
+#include "task_specs.h"
 
 namespace bench_ingest {
 
 Shape shape_of(const std::string& config) {
   Shape s;
-  s.cfg = farm::load_config_file(config);
+  s.cfg = farm::robots::load_config_file(config);
   s.spec = farm::robots::task_spec(s.cfg.task());
   s.steps = int(s.cfg.worker().steps_per_batch());
   s.envs = int(s.cfg.worker().envs_per_worker());

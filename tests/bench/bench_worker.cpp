@@ -38,6 +38,7 @@
 #include "mlp.h"
 #include "rollout.h"
 #include "task.h"
+#include "task_specs.h"
 
 namespace {
 
@@ -311,7 +312,7 @@ int main(int argc, char** argv) {
   farm::config::ExperimentConfig cfg;
   try {
     if (!config_path.empty()) {
-      cfg = farm::load_config_file(config_path);
+      cfg = farm::robots::load_config_file(config_path);
       farm::clear_output_paths(&cfg);  // as a worker does: the task is built, nothing written
       task_cfg = cfg.task();
       if (!envs_given) envs = cfg.worker().envs_per_worker();
@@ -377,7 +378,7 @@ int main(int argc, char** argv) {
     std::shared_ptr<const farm::robots::Task> other;
     farm::config::ExperimentConfig other_cfg;
     try {
-      other_cfg = farm::load_config_file(against_path);
+      other_cfg = farm::robots::load_config_file(against_path);
       farm::clear_output_paths(&other_cfg);
       other = farm::robots::make_task(other_cfg.task());
     } catch (const std::exception& e) {

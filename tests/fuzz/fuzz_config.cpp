@@ -5,13 +5,14 @@
 #include <string>
 
 #include "config.h"
+#include "task_specs.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::string text(reinterpret_cast<const char*>(data), size);
   try {
-    farm::config::ExperimentConfig cfg = farm::parse_config_text(text, "fuzz.txtpb");
+    farm::config::ExperimentConfig cfg = farm::robots::parse_config_text(text, "fuzz.txtpb");
     // What loads must survive a round trip through the text form.
-    farm::parse_config_text(farm::config_to_text(cfg), "roundtrip.txtpb");
+    farm::robots::parse_config_text(farm::config_to_text(cfg), "roundtrip.txtpb");
   } catch (const farm::ConfigError& e) {
     if (std::string(e.what()).find("fuzz.txtpb") == std::string::npos) {
       std::fprintf(stderr, "config error does not name its source: %s\n", e.what());

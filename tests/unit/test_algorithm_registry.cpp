@@ -19,6 +19,7 @@
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "policy_shape.h"
 #include "registry.h"
+#include "task_specs.h"
 
 namespace {
 
@@ -45,7 +46,7 @@ farm::config::ExperimentConfig config_for(const std::string& algorithm) {
   const std::string text = "experiment_id: \"registry_test\"\nalgorithm: \"" + algorithm +
                            "\"\nsac { hidden: [8, 8] }\ndqn { hidden: [8] }\nppo { hidden: [8, 8] }\n"
                            "td3 { hidden: [8, 8] critic_hidden: [8, 8] }\n";
-  return farm::parse_config_text(text, "registry_test.txtpb");
+  return farm::robots::parse_config_text(text, "registry_test.txtpb");
 }
 
 // The spec an algorithm is meant for: DQN takes discrete actions, the others continuous ones.
@@ -199,7 +200,7 @@ struct Rows {
 // checkpoint's accounts hold (the manifest's env_steps), not only those up to the last version
 // exported before the checkpoint.
 TEST(DqnAlgorithm, ExplorationResumesFromEveryStepTheCheckpointHolds) {
-  const auto cfg = farm::parse_config_text(
+  const auto cfg = farm::robots::parse_config_text(
       "experiment_id: \"dqn_resume\"\nalgorithm: \"dqn\"\n"
       "dqn { hidden: [8] buffer_size: 1000 batch_size: 4 learning_starts: 0 schedule_env_steps: 1000 "
       "exploration_fraction: 1 }\n",
@@ -227,7 +228,7 @@ TEST(DqnAlgorithm, ExplorationResumesFromEveryStepTheCheckpointHolds) {
 // the configured step there whatever dqn.max_step_scale says, and its start line says so. Where the
 // pacing sets a scale, the minibatch follows it.
 TEST(DqnAlgorithm, TheCpuKeepsTheConfiguredStep) {
-  const auto cfg = farm::parse_config_text(
+  const auto cfg = farm::robots::parse_config_text(
       "experiment_id: \"dqn_scale\"\nalgorithm: \"dqn\"\n"
       "dqn { hidden: [8] buffer_size: 1000 batch_size: 16 learning_starts: 0 max_step_scale: 4 device: \"cpu\" }\n",
       "dqn_scale.txtpb");

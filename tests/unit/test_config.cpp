@@ -13,9 +13,10 @@
 #include "mobile/mobile_spec.h"
 #include "pendulum/pendulum_spec.h"
 #include "quadruped/quadruped_spec.h"
+#include "task_specs.h"
 
 using farm::ConfigError;
-using farm::parse_config_text;
+using farm::robots::parse_config_text;
 
 namespace {
 
@@ -166,7 +167,7 @@ TEST(Config, UnknownAlgorithmListsTheKnownOnes) {
 
 TEST(Config, MissingFileIsNamed) {
   try {
-    farm::load_config_file("/nonexistent/dir/exp.txtpb");
+    farm::robots::load_config_file("/nonexistent/dir/exp.txtpb");
     FAIL() << "no error";
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/dir/exp.txtpb"), std::string::npos);
@@ -177,7 +178,7 @@ TEST(Config, ShippedConfigsLoad) {
   int n = 0;
   for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
     if (e.path().extension() != ".txtpb") continue;
-    EXPECT_NO_THROW(farm::load_config_file(e.path().string())) << e.path();
+    EXPECT_NO_THROW(farm::robots::load_config_file(e.path().string())) << e.path();
     ++n;
   }
   EXPECT_GE(n, 8);
@@ -192,7 +193,7 @@ TEST(Config, ShippedConfigsStopOnTheirGoalOrOnTime) {
   int n = 0;
   for (const auto& e : std::filesystem::directory_iterator(std::string(FARM_SOURCE_DIR) + "/deploy/configs")) {
     if (e.path().extension() != ".txtpb") continue;
-    const auto c = farm::load_config_file(e.path().string());
+    const auto c = farm::robots::load_config_file(e.path().string());
     EXPECT_EQ(c.stop().max_env_steps(), 0) << e.path() << ": stops on an env step limit";
     if (c.stop().max_updates() > 0)
       EXPECT_GT(c.stop().max_seconds(), 0) << e.path() << ": an update limit without a time limit";
@@ -207,37 +208,37 @@ TEST(Config, ShippedConfigsStopOnTheirGoalOrOnTime) {
 TEST(Config, ExperimentIdIsASafeFolderName) {
   for (const char* id : {".", "..", "a/b"}) {
     try {
-      farm::parse_config_text(std::string("experiment_id: \"") + id + "\"\n", "x.txtpb");
+      farm::robots::parse_config_text(std::string("experiment_id: \"") + id + "\"\n", "x.txtpb");
       ADD_FAILURE() << id << " accepted";
     } catch (const farm::ConfigError& e) {
       EXPECT_NE(std::string(e.what()).find("x.txtpb:1:"), std::string::npos) << e.what();
     }
   }
-  EXPECT_NO_THROW(farm::parse_config_text("experiment_id: \"run.2\"\n", "x"));
+  EXPECT_NO_THROW(farm::robots::parse_config_text("experiment_id: \"run.2\"\n", "x"));
 }
 
 // A worker's sizes are bounded where the config is read, with the line named.
 TEST(Config, WorkerSizesAreBounded) {
   try {
-    farm::parse_config_text("experiment_id: \"w\"\nworker {\n  envs_per_worker: 5000\n}\n", "w.txtpb");
+    farm::robots::parse_config_text("experiment_id: \"w\"\nworker {\n  envs_per_worker: 5000\n}\n", "w.txtpb");
     ADD_FAILURE() << "accepted";
   } catch (const farm::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("w.txtpb:3:"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("expected 1..4096, got 5000"), std::string::npos) << e.what();
   }
-  EXPECT_THROW(farm::parse_config_text("experiment_id: \"w\"\nworker { steps_per_batch: 100000 }\n", "w"),
+  EXPECT_THROW(farm::robots::parse_config_text("experiment_id: \"w\"\nworker { steps_per_batch: 100000 }\n", "w"),
                farm::ConfigError);
 }
 
 // worker.nice lowers a worker's priority; a config (one off the bus included) may not ask a worker
 // to raise it, nor name a value setpriority() would clamp.
 TEST(Config, WorkerNiceIsAPriorityToLowerTo) {
-  EXPECT_EQ(farm::parse_config_text("experiment_id: \"w\"\n", "w").worker().nice(), 0);
-  EXPECT_EQ(farm::parse_config_text("experiment_id: \"w\"\nworker { nice: 10 }\n", "w").worker().nice(), 10);
+  EXPECT_EQ(farm::robots::parse_config_text("experiment_id: \"w\"\n", "w").worker().nice(), 0);
+  EXPECT_EQ(farm::robots::parse_config_text("experiment_id: \"w\"\nworker { nice: 10 }\n", "w").worker().nice(), 10);
   for (const char* v : {"-5", "20"}) {
     try {
-      farm::parse_config_from_bus(std::string("experiment_id: \"w\"\nworker {\n  nice: ") + v + "\n}\n",
-                                  "ExperimentSpec(w)");
+      farm::robots::parse_config_from_bus(std::string("experiment_id: \"w\"\nworker {\n  nice: ") + v + "\n}\n",
+                                          "ExperimentSpec(w)");
       ADD_FAILURE() << "nice " << v << " accepted";
     } catch (const farm::ConfigError& e) {
       EXPECT_NE(std::string(e.what()).find("ExperimentSpec(w):3:"), std::string::npos) << e.what();
@@ -254,10 +255,10 @@ TEST(Config, WorkerNiceIsAPriorityToLowerTo) {
 // A config from the bus may not name a file for the receiving host to write.
 TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
   const std::string text = "experiment_id: \"m\"\ntask { name: \"mclari\" mclari { hfield_png: \"/etc/cron.d/x\" } }\n";
-  auto cfg = farm::parse_config_text(text, "learner.txtpb");  // the learner's own file may
+  auto cfg = farm::robots::parse_config_text(text, "learner.txtpb");  // the learner's own file may
   ASSERT_EQ(farm::output_path_fields(cfg), std::vector<std::string>{"task.mclari.hfield_png"});
   try {
-    farm::parse_config_from_bus(text, "ExperimentSpec(m)");
+    farm::robots::parse_config_from_bus(text, "ExperimentSpec(m)");
     ADD_FAILURE() << "accepted";
   } catch (const farm::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("ExperimentSpec(m): field 'task.mclari.hfield_png' names a file"),
@@ -267,14 +268,15 @@ TEST(Config, ConfigFromTheBusNamesNoFileToWrite) {
   farm::clear_output_paths(&cfg);
   EXPECT_TRUE(farm::output_path_fields(cfg).empty());
   EXPECT_EQ(cfg.task().name(), "mclari");
-  EXPECT_NO_THROW(farm::parse_config_from_bus(farm::config_to_text(cfg), "ExperimentSpec(m)"));
+  EXPECT_NO_THROW(farm::robots::parse_config_from_bus(farm::config_to_text(cfg), "ExperimentSpec(m)"));
 }
 
 // A field this program does not know, in a config from the bus, means the learner was built from
 // newer sources than this worker: the error says so (its own wording names only the field).
 TEST(Config, UnknownFieldFromTheBusSaysTheWorkerIsOlder) {
   try {
-    farm::parse_config_from_bus("experiment_id: \"m\"\nsac { field_of_a_newer_build: true }\n", "ExperimentSpec(m)");
+    farm::robots::parse_config_from_bus("experiment_id: \"m\"\nsac { field_of_a_newer_build: true }\n",
+                                        "ExperimentSpec(m)");
     ADD_FAILURE() << "accepted";
   } catch (const farm::ConfigError& e) {
     const std::string what = e.what();
@@ -283,7 +285,7 @@ TEST(Config, UnknownFieldFromTheBusSaysTheWorkerIsOlder) {
     EXPECT_EQ(what.rfind("ExperimentSpec(m) was written by a newer build than this program", 0), 0u) << what;
   }
   try {
-    farm::parse_config_text("sac { field_of_a_newer_build: true }\n", "mine.txtpb");
+    farm::robots::parse_config_text("sac { field_of_a_newer_build: true }\n", "mine.txtpb");
     ADD_FAILURE() << "accepted";
   } catch (const farm::ConfigError& e) {
     EXPECT_EQ(std::string(e.what()).find("newer build"), std::string::npos) << "a local file: " << e.what();

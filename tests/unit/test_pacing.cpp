@@ -26,6 +26,7 @@
 #include "registry.h"
 #include "samples_per_insert.h"
 #include "step_size.h"
+#include "task_specs.h"
 
 namespace farm {
 namespace {
@@ -116,7 +117,7 @@ class StepScaleOnAnyDevice final : public Algorithm {
 };
 
 config::ExperimentConfig step_scale_config() {
-  return parse_config_text(
+  return robots::parse_config_text(
       "experiment_id: \"step_scale\" algorithm: \"sac\" eval { every_seconds: 1000 }\n"
       "sac { hidden: [8, 8] batch_size: 16 learning_starts: 64 max_updates_per_step: 1 max_step_scale: 4 }\n",
       "step_scale.txtpb");
@@ -190,8 +191,8 @@ TEST(LrDecay, EachOffPolicyAlgorithmTakesTheScheduledRates) {
   for (const std::string algorithm : {"sac", "dqn"}) {
     const std::string base = "experiment_id: \"lr\" algorithm: \"" + algorithm + "\"\n" + algorithm +
                              " { hidden: [8, 8] batch_size: 16 learning_starts: 0";
-    const auto plain = parse_config_text(base + " }\n", "lr.txtpb");
-    const auto decay = parse_config_text(base + " lr_decay_updates: 32 lr_decay_to: 0.25 }\n", "lr.txtpb");
+    const auto plain = robots::parse_config_text(base + " }\n", "lr.txtpb");
+    const auto decay = robots::parse_config_text(base + " lr_decay_updates: 32 lr_decay_to: 0.25 }\n", "lr.txtpb");
     auto spec = step_scale_spec();
     if (algorithm == "dqn") spec.num_actions = 3;  // OneStep's actions (0.1) are index 0
     auto run = [&spec](const config::ExperimentConfig& cfg, int updates) {
@@ -417,7 +418,7 @@ class RoundFarm final : public Farm {
 // and were first heard 2 s ago, so that its first version is published.
 std::unique_ptr<Pacing> started_round_pacing(RoundFarm& farm, std::vector<Farm::LiveWorker> live,
                                              const std::string& ppo_more = "") {
-  const auto cfg = parse_config_text(
+  const auto cfg = robots::parse_config_text(
       "experiment_id: \"rounds\" algorithm: \"ppo\" eval { every_seconds: 100000 }\n"
       "worker { envs_per_worker: 8 steps_per_batch: 4 }\n"
       "ppo { hidden: [8, 8] steps_per_fit: 256 mini_batch_size: 64 epochs: 1 " +
@@ -501,7 +502,7 @@ TEST(RoundPacing, AWorkerThatStopsSendingIsNotWaitedForPastTheStallTime) {
 }
 
 config::ExperimentConfig resume_config() {
-  return parse_config_text(
+  return robots::parse_config_text(
       "experiment_id: \"resume\" algorithm: \"ppo\"\n"
       "ppo { hidden: [8, 8] steps_per_fit: 64 mini_batch_size: 16 epochs: 1 }\n",
       "resume.txtpb");

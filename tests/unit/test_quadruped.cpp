@@ -15,6 +15,7 @@
 #include "quadruped/quadruped_task.h"
 #include "quadruped_testing.h"
 #include "task.h"
+#include "task_specs.h"
 
 using namespace farm;
 using namespace farm::robots;
@@ -373,7 +374,7 @@ TEST(Quadruped, BadConfigNamesTheField) {
 TEST(Quadruped, ShippedConfigsBuildTheirTasks) {
   for (const char* f : {"a1_ppo", "honey_badger_ppo", "silver_badger_ppo"}) {
     SCOPED_TRACE(f);
-    const auto c = farm::load_config_file(std::string(FARM_SOURCE_DIR) + "/deploy/configs/" + f + ".txtpb");
+    const auto c = farm::robots::load_config_file(std::string(FARM_SOURCE_DIR) + "/deploy/configs/" + f + ".txtpb");
     EXPECT_EQ(c.algorithm(), "ppo");
     auto t = make_task(c.task());
     EXPECT_EQ(t->spec().act_dim, c.task().name() == "silver_badger" ? 13 : 12);

@@ -14,6 +14,7 @@
 
 #include "config.h"
 #include "task.h"
+#include "task_specs.h"
 #include "terms/mjcf_bundle.h"
 #include "terms/terms_spec.h"
 #include "terms/terms_task.h"

@@ -12,6 +12,7 @@
 
 #include "config.h"
 #include "task.h"
+#include "task_specs.h"
 
 namespace farm::robots {
 namespace {
