@@ -36,10 +36,10 @@ try:  # pragma: no cover - taken only where gymnasium is installed
     from gymnasium.vector import VectorEnv as _Base
 
     try:
-        from gymnasium.vector import AutoresetMode
-    except ImportError:  # Gymnasium before 1.1 has no AutoresetMode
+        from gymnasium.vector.vector_env import AutoresetMode
+    except ImportError:  # Gymnasium 0.29 has no AutoresetMode
         AutoresetMode = None
-    _GymClosedError = gymnasium.error.ClosedEnvironmentError
+    _GymClosedError = getattr(gymnasium.error, "ClosedEnvironmentError", RuntimeError)
 except ImportError:
     gymnasium = None
     _Base = None

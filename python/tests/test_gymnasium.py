@@ -8,10 +8,11 @@ import pytest
 import farm
 
 gymnasium = pytest.importorskip("gymnasium")
-if not hasattr(gymnasium.vector, "AutoresetMode"):
+try:
+    from gymnasium.vector.vector_env import AutoresetMode
+except ImportError:
     pytest.skip("Gymnasium %s: farm follows 1.1 and later (AutoresetMode)" % gymnasium.__version__,
                 allow_module_level=True)
-from gymnasium.vector import AutoresetMode  # noqa: E402
 from gymnasium.wrappers import vector as vw  # noqa: E402
 
 

@@ -67,8 +67,8 @@ def test_attributes_spaces_and_dtypes(config):
     assert env.unwrapped is env
     mode = env.metadata["autoreset_mode"]
     assert mode == farm.AutoresetMode.SAME_STEP and mode.value == "SameStep"
-    if gymnasium is not None and hasattr(gymnasium.vector, "AutoresetMode"):
-        assert mode is gymnasium.vector.AutoresetMode.SAME_STEP
+    if gymnasium is not None and hasattr(gymnasium.vector.vector_env, "AutoresetMode"):
+        assert mode is gymnasium.vector.vector_env.AutoresetMode.SAME_STEP
     single_obs, single_act = env.single_observation_space, env.single_action_space
     assert single_obs.dtype == np.float32 and len(single_obs.shape) == 1
     assert env.observation_space.shape == (N,) + single_obs.shape and env.observation_space.dtype == np.float32
