@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "checkpoint.h"
+#include "dds.h"
 #include "eval_answer.h"
 #include "meter.h"
 #include "policy_file.h"
@@ -24,19 +25,19 @@ constexpr int kMaxEvalRejectionsLogged = 20;
 
 Evaluator::Evaluator(farm::dds::Bus& bus, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec,
                      const RosterThread& roster, EventLog& events, Log log, std::string dir)
-    : bus_(bus),
+    : Evaluator(
+          bus_eval_channel(bus, cfg, spec), cfg, spec, [&roster] { return roster.workers(); }, events, std::move(log),
+          std::move(dir)) {}
+
+Evaluator::Evaluator(std::unique_ptr<EvalChannel> channel, const config::ExperimentConfig& cfg,
+                     const robots::TaskSpec& spec, Workers workers, EventLog& events, Log log, std::string dir)
+    : channel_(std::move(channel)),
       cfg_(cfg),
       spec_(spec),
-      roster_(roster),
+      workers_(std::move(workers)),
       events_(events),
       log_(std::move(log)),
       dir_(std::move(dir)),
-      out_writer_(bus, farm::dds::kEvalRequestTopic, "batch_writer"),
-      // Answers over what this experiment's evaluations can hold are refused before memory is taken.
-      in_(bus, farm::dds::kEvalAnswerTopic, "batch_reader",
-          max_eval_answer_bytes(cfg.experiment_id().size(),
-                                std::max(cfg.eval().episodes(), cfg.eval().final_episodes()),
-                                int(spec.metric_names.size()))),
       session_(farm::dds::random_session_id()) {}
 
 bool Evaluator::ask(const PolicyParams& policy, const EvalAsk& ask,
@@ -81,7 +82,7 @@ bool Evaluator::ask(const PolicyParams& policy, const EvalAsk& ask,
   const int ready = int(ready_workers().size());
   int parts = min_each > 0 ? std::max(1, std::min(ready, ask.episodes / min_each)) : 1;
   // Under security, two workers at least where two are ready (confirmation()).
-  if (!bus_.security_dir().empty() && ready >= 2 && ask.episodes >= 2) parts = std::max(parts, 2);
+  if (channel_->secured() && ready >= 2 && ask.episodes >= 2) parts = std::max(parts, 2);
   group.parts = group.parts_left = parts;
   const uint64_t seed = cfg_.seed() + 1000003ull * ++evaluations_;
   bool sent = true;
@@ -109,7 +110,7 @@ bool Evaluator::ask(const PolicyParams& policy, const EvalAsk& ask,
 
 std::vector<RosterThread::Worker> Evaluator::ready_workers() const {
   std::vector<RosterThread::Worker> ready;
-  for (auto& w : roster_.workers())
+  for (auto& w : workers_())
     if (w.live && w.view.last.envs() > 0 && w.view.last.state() != "error" &&
         (!delivered_ || delivered_(w.view.last.worker_id(), w.view.writer)))
       ready.push_back(std::move(w));
@@ -146,7 +147,7 @@ bool Evaluator::send(Request& r) {
   m.seed(r.seed);
   m.first_episode(uint32_t(r.first_episode));
   farm::dds::to_wire(group.policy, cfg_.experiment_id(), m.policy());
-  if (!out_writer_.write(m)) {
+  if (!channel_->write(m)) {
     // The reliable history is full (a reader that does not acknowledge): counted as asked, and
     // lost when its time is up.
     log_("evaluation request " + std::to_string(r.id) + " to " + r.worker_id + " could not be written now");
@@ -166,12 +167,13 @@ bool Evaluator::send(Request& r) {
 
 std::vector<Evaluator::Done> Evaluator::poll() {
   std::vector<Done> done;
-  if (out_.empty() && !in_.matched()) {
+  if (out_.empty() && !channel_->matched()) {
     done.swap(done_);
     return done;
   }
-  while (in_.take(answer_, answer_info_)) take_answer();
+  while (channel_->take(answer_, answer_writer_)) take_answer();
   const double now = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
+  const std::vector<RosterThread::Worker> roster = workers_();
   for (size_t i = 0; i < out_.size();) {
     Request& r = out_[i];
     if (r.worker_id.empty()) {
@@ -179,8 +181,8 @@ std::vector<Evaluator::Done> Evaluator::poll() {
       ++i;
       continue;
     }
-    const auto w = roster_.find(r.roster_key);
-    const bool dead = !w || !w->live;
+    const auto w = std::find_if(roster.begin(), roster.end(), [&r](const auto& c) { return c.key == r.roster_key; });
+    const bool dead = w == roster.end() || !w->live;
     if (!dead && now - r.asked_at < timeout) {
       ++i;
       continue;
@@ -217,13 +219,12 @@ void Evaluator::take_answer() {
   // answer that merely matches them may come from anyone. It is bound to the participant whose
   // heartbeats put the worker in the roster (and, under DDS Security, whose certificate bears the
   // worker's id). Not used; the request stays out for the worker asked.
-  const auto& guid = answer_info_.sample_identity.writer_guid();
   std::string not_asked;
-  if (!it->writer.empty() && farm::dds::participant_key(guid) != it->writer)
+  if (!it->writer.empty() && answer_writer_.participant != it->writer)
     not_asked = "written by another participant than worker " + it->worker_id + "'s, the one asked";
-  else if (!bus_.security_dir().empty() && bus_.authenticated_name(guid) != it->worker_id)
-    not_asked = "written by a participant whose certificate name is '" + printable(bus_.authenticated_name(guid), 100) +
-                "', not '" + it->worker_id + "'";
+  else if (channel_->secured() && answer_writer_.certificate_name != it->worker_id)
+    not_asked = "written by a participant whose certificate name is '" +
+                printable(answer_writer_.certificate_name, 100) + "', not '" + it->worker_id + "'";
   if (!not_asked.empty()) {
     ++n_.invalid;
     if (++rejections_logged_ <= kMaxEvalRejectionsLogged)
@@ -300,7 +301,7 @@ void Evaluator::take_answer() {
     log_("evaluation of policy v" + std::to_string(group.ask.version) + " complete: " + std::to_string(rep.episodes) +
          " episodes from " + std::to_string(group.parts) + " workers, " + fmt("%.1f", now_seconds() - group.asked_at) +
          " s since asked");
-  if (!bus_.security_dir().empty()) {
+  if (channel_->secured()) {
     const std::string why = confirmation(group);
     rep.confirmed = why.empty();
     if (!rep.confirmed)

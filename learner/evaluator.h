@@ -6,18 +6,21 @@
 // in eval.answer_timeout_seconds is counted lost and asked once more of another worker; a part
 // lost twice gives up its whole evaluation. Under DDS Security a report is confirmed only when two
 // workers answered and agree (confirmation()). The evaluator owns its requests, its snapshots and
-// its counts; what ended comes back from poll(), for the learner's loop to hand on.
+// its counts; what ended comes back from poll(), for the learner's loop to hand on. It reaches the
+// bus only through its channel (eval_channel.h) and the roster only through the workers it lists,
+// so that unit tests drive it without processes or DDS (tests/unit/test_evaluator.cpp).
 #pragma once
 
 #include <cstdint>
 #include <deque>
 #include <functional>
 #include <map>
+#include <memory>
 #include <set>
 #include <string>
 #include <vector>
 
-#include "dds.h"
+#include "eval_channel.h"
 #include "events.h"
 #include "farm_config.pb.h"
 #include "pacing.h"
@@ -29,9 +32,15 @@ namespace farm {
 class Evaluator {
  public:
   using Log = std::function<void(const std::string&)>;
+  // The workers of the roster as they are now (live or not), in roster order.
+  using Workers = std::function<std::vector<RosterThread::Worker>()>;
   // dir: where the networks of each evaluation are kept while it is out (<run dir>/evaluating).
+  // Requests and answers over the bus's evaluation topics, to the workers of `roster`.
   Evaluator(farm::dds::Bus& bus, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec,
             const RosterThread& roster, EventLog& events, Log log, std::string dir);
+  // Requests and answers over `channel`, to the workers `workers` lists.
+  Evaluator(std::unique_ptr<EvalChannel> channel, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec,
+            Workers workers, EventLog& events, Log log, std::string dir);
 
   // Where set, evaluations go only to workers for which delivered(worker id, participant of its
   // heartbeats) holds: those whose batches the learner has taken.
@@ -57,7 +66,7 @@ class Evaluator {
   // (asking them again once), sends the waiting ones; returns the evaluations that ended.
   std::vector<Done> poll();
   // Waits up to `seconds` for an answer.
-  void wait(double seconds) { in_.wait(seconds); }
+  void wait(double seconds) { channel_->wait(seconds); }
   // Gives up every evaluation still out (counted lost where it was asked), each said in the log
   // with how long it was waited for; returns them.
   std::vector<Done> give_up_all(double waited_seconds);
@@ -114,7 +123,7 @@ class Evaluator {
   // pair's narrower side (plus kAgreeRelative of their size; returns_agree, eval_answer.h). "" when
   // confirmed; else why not.
   std::string confirmation(const Group& group) const;
-  // Live workers that have built their environments, by roster key.
+  // Live workers that have built their environments, in roster order.
   std::vector<RosterThread::Worker> ready_workers() const;
   // Sends r to a live worker of the roster, in turn (another than r.avoid where possible); false
   // when there is none.
@@ -131,23 +140,21 @@ class Evaluator {
   // Remembers a request id lost or given up (bounded), so an answer that still comes counts late.
   void close_id(uint64_t id);
 
-  farm::dds::Bus& bus_;
+  std::unique_ptr<EvalChannel> channel_;
   const config::ExperimentConfig& cfg_;
   const robots::TaskSpec& spec_;
-  const RosterThread& roster_;
+  Workers workers_;
   Delivered delivered_;
   EventLog& events_;
   Log log_;
   std::string dir_;
-  farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> out_writer_;
-  farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> in_;
   std::deque<Request> out_;           // parts asked, not yet answered or given up
   std::map<uint64_t, Group> groups_;  // evaluations with parts out
   std::vector<Done> done_;            // ended since the last poll()
   std::set<uint64_t> closed_;         // ids lost or given up, for answers that come late (bounded)
   std::string last_key_;              // the roster key asked last, for the turn
   farm::msg::EvaluationAnswer answer_;
-  eprosima::fastdds::dds::SampleInfo answer_info_;  // of answer_: its writer
+  EvalChannel::Writer answer_writer_;  // who wrote answer_
   uint64_t session_, next_group_ = 0, next_id_ = 0, evaluations_ = 0;
   // Parts asked (retries included), answered, lost, refused as invalid, and answers that came late.
   struct Counts {
