@@ -71,8 +71,8 @@ def test_termination_is_not_a_time_limit():
         for i in np.flatnonzero(dones):
             seen += 1
             assert "terminal_observation" in infos[i]
-            if infos[i]["episode"]["l"] < 400:  # ended before the Jetbot's time limit
-                assert infos[i]["TimeLimit.truncated"] is False
+            assert infos[i]["episode"]["l"] < 3000  # before the Jetbot's time limit: a crash or a goal
+            assert infos[i]["TimeLimit.truncated"] is False
         if seen >= 4:
             break
     assert seen >= 4
