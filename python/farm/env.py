@@ -152,7 +152,7 @@ class Env(_Base):
         if isinstance(self.action_space, Discrete):
             a = action.detach().cpu().numpy() if hasattr(action, "detach") else action
             a = np.asarray(a)
-            if a.shape != ():
+            if a.shape != () or a.dtype.kind not in "iu":
                 raise ValueError("action: expected an integer in [0, %d), got shape %s of %s"
                                  % (self.action_space.n, a.shape, a.dtype))
             batch = to_actions(a.reshape(1), self.action_space, 1)
@@ -165,7 +165,7 @@ class Env(_Base):
             dim = self.action_space.shape[0]
             if a.shape == () and dim == 1:
                 a = a.reshape(1)
-            if a.shape != (dim,):
+            if a.shape != (dim,) or a.dtype.kind not in "fiu":
                 raise ValueError("action: expected shape (%d,) of real numbers%s, got shape %s of %s"
                                  % (dim, " or a number" if dim == 1 else "", a.shape, a.dtype))
             batch = to_actions(a.reshape(1, dim), self.action_space, 1)

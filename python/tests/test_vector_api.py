@@ -291,8 +291,12 @@ def test_single_env(config):
         if ended == 2:
             break
     assert ended >= 1
-    with pytest.raises(ValueError, match="action: expected"):
-        env.step(np.zeros((2, 2, 2)))
+    for bad in (np.zeros((2, 2, 2)), "a", [0.5, "a"]):
+        with pytest.raises(ValueError, match=r"^action: expected"):
+            env.step(bad)
+    if isinstance(env.action_space, farm.Discrete):
+        with pytest.raises(ValueError, match=r"^action: expected an integer in \[0, %d\)" % env.action_space.n):
+            env.step(0.5)
     env.close()
     env.close()
     with pytest.raises(farm.ClosedEnvironmentError):
