@@ -42,6 +42,11 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             in.set_num_actions(task_spec_.num_actions);
             in.set_reward_bound(task_spec_.reward_bound, task_spec_.reward_min, task_spec_.reward_max);
             in.set_max_episode_steps(task_spec_.max_episode_steps);
+            // Called on the ingest thread; roster_ is made before any batch is taken (start()).
+            in.set_announcer([this](const std::string& id, uint64_t session) {
+              const auto w = roster_.find(id + "#" + std::to_string(session));
+              return w ? w->view.writer : std::string();
+            });
             return in;
           }(),
           static_cast<uint32_t>(std::min<uint64_t>(

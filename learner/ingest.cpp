@@ -197,6 +197,12 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     if (why.empty() && back != retired_.end() && !back->second.writer.empty() && !writer.empty() &&
         back->second.writer != writer)
       why = "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
+    if (why.empty() && back == retired_.end() && announcer_ && !writer.empty()) {
+      const std::string announced = announcer_(b.worker_id(), b.worker_session());
+      if (!announced.empty() && announced != writer)
+        why = "the first batch of " + b.worker_id() + " session " + std::to_string(b.worker_session()) +
+              " from another participant than the one whose heartbeats announced it";
+    }
     if (!why.empty()) {
       ++counters_.invalid;
       return why;

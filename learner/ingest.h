@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <string>
 #include <utility>
@@ -143,6 +144,13 @@ class Ingest {
   // The task's time limit (TaskSpec::max_episode_steps; 0: none): an episode summary longer than it
   // is refused.
   void set_max_episode_steps(int steps) { max_episode_steps_ = steps; }
+  // Who announced a worker session: the participant (dds::participant_key) of the first heartbeat of
+  // (worker id, session), "" when none was heard. A stream then opens only from that participant:
+  // a session number is random and first read off the bus in its worker's own heartbeat, so a
+  // participant that copies it and writes the first batch under it (a stream thief) is refused,
+  // counted invalid on no account. A stream whose heartbeat is not heard yet opens from its writer.
+  using Announcer = std::function<std::string(const std::string& worker_id, uint64_t session)>;
+  void set_announcer(Announcer announcer) { announcer_ = std::move(announcer); }
 
   // No task observes or is rewarded beyond this magnitude: a batch with an observation or reward
   // beyond it is refused. Squared (a critic's or a value's error), it stays a float32, so one
@@ -158,6 +166,7 @@ class Ingest {
   int num_actions_ = 0;
   double reward_bound_ = HUGE_VAL, reward_min_ = -HUGE_VAL, reward_max_ = HUGE_VAL;
   int max_episode_steps_ = 0;
+  Announcer announcer_;
   IngestCounters counters_;
   size_t missing_total_ = 0;  // the sizes of every account's `missing`, open and retired
   // Moves an open account to retired_ (bounded, oldest out first).

@@ -53,6 +53,9 @@
 // in the learner's name (RTPS header and key of the learner's prefix, status disposed and
 // unregistered), the message a participant sends as it leaves, to the metatraffic unicast ports of
 // participant ids 0..119 of the domain on 127.0.0.1 and to the domain's discovery multicast group.
+// --steal-streams 1: instead of a stream, a thief: it reads the heartbeats of the experiment and, for
+// each worker session it hears of (at most 16), writes well-formed one-step batches under that
+// worker's id and session, numbered from 0, every 50 ms: whoever writes first would own the stream.
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
 // id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
 #include <arpa/inet.h>
@@ -384,6 +387,40 @@ int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string&
   return 0;
 }
 
+// --steal-streams: batches under every worker session heard of, numbered from 0, every 50 ms.
+int steal_streams(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
+                  unsigned obs, unsigned act) {
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> beats(
+      bus, farm::dds::kWorkerStatusTopic, "status_reader");
+  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
+                                                                                          "batch_writer");
+  std::map<std::pair<std::string, uint64_t>, uint64_t> next;  // (worker id, session) -> next sequence number
+  uint64_t sent = 0;
+  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
+    farm::msg::WorkerStatus st;
+    while (beats.take(st))
+      if (st.experiment_id() == experiment && st.worker_id() != id && next.size() < 16 &&
+          next.emplace(std::make_pair(st.worker_id(), st.worker_session()), 0).second) {
+        std::printf("%s: stealing the stream of %s session %llu\n", id.c_str(), st.worker_id().c_str(),
+                    (unsigned long long)st.worker_session());
+        std::fflush(stdout);
+      }
+    for (auto& [stream, seq] : next) {
+      farm::msg::TransitionBatch b = one_step_batch(experiment, stream.first, obs, act);
+      b.worker_session(stream.second);
+      b.sequence_number(seq);
+      if (out.write(b)) {
+        ++seq;
+        ++sent;
+      }
+    }
+    beats.wait(0.05);
+  }
+  std::printf("%s: sent %llu batches under %zu worker sessions not its own\n", id.c_str(), (unsigned long long)sent,
+              next.size());
+  return 0;
+}
+
 int forge_weights(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds) {
   using farm::msg::PolicyWeights;
   farm::dds::Reader<PolicyWeights, farm::msg::PolicyWeightsPubSubType> in(bus, farm::dds::kWeightsTopic,
@@ -413,7 +450,7 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false, forge_weights_on = false, oversize = false, try_writers = false, heartbeat = false;
-  bool spec_finished = false, spec_only = false, forge_removal_on = false;
+  bool spec_finished = false, spec_only = false, forge_removal_on = false, steal = false;
   double removal_every_ms = 50;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed, dump_dir;
   uint64_t fuzz_seed = 1;
@@ -471,6 +508,8 @@ int main(int argc, char** argv) {
                  "DIR: --malformed writes each topic's broken sample to DIR/<type>_<kind>.hex, not to the bus");
   app.add_option("--big-to-workers", big_mib,
                  "MB: a spec, weights and an evaluation request of MB MiB each, instead of a stream");
+  add_switch("--steal-streams", steal,
+             "1: batches under each worker session its heartbeats name, numbered from 0 (a stream thief)");
   add_switch("--forge-removal", forge_removal_on,
              "1: raw UDP participant removals in the learner's name to every discovery port of the domain");
   app.add_option("--removal-every-ms", removal_every_ms, "Milliseconds between --forge-removal rounds")
@@ -496,6 +535,7 @@ int main(int argc, char** argv) {
       return send_malformed(bus, id, experiment, obs, act, malformed, seconds, fuzz_seed, dump_dir);
     if (forge_weights_on) return forge_weights(bus, id, experiment, seconds);
     if (forge_removal_on) return forge_removal(bus, id, experiment, seconds, removal_every_ms);
+    if (steal) return steal_streams(bus, id, experiment, seconds, obs, act);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
     if (!eval_worker.empty()) {
       farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(

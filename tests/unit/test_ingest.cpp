@@ -394,6 +394,25 @@ TEST_F(Fixture, StreamTakesBatchesOnlyFromItsWriter) {
   EXPECT_EQ(ingest.counters().invalid, 1u);
 }
 
+// A thief that reads a new worker's session off its heartbeat and writes the first batch under it
+// does not open the stream: the participant of the heartbeat does. A session whose heartbeat was
+// not heard opens from its writer, as before.
+TEST_F(Fixture, AStreamOpensOnlyFromTheParticipantThatAnnouncedIt) {
+  ingest.set_announcer([](const std::string& id, uint64_t session) {
+    return id == "w1" && session == 7 ? std::string("WORKER") : std::string();
+  });
+  const std::string why = ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "THIEF");
+  EXPECT_NE(why.find("whose heartbeats announced it"), std::string::npos) << why;
+  EXPECT_EQ(ingest.workers().count({"w1", 7}), 0u);
+  EXPECT_EQ(ingest.counters().invalid, 1u);
+  EXPECT_EQ(ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "WORKER"), "");
+  EXPECT_EQ(ingest.accept(make_batch(1), 5, 0.0, out, eps, nullptr, "WORKER"), "");
+  EXPECT_EQ(ingest.workers().at({"w1", 7}).received, 2u);
+  auto unheard = make_batch(0);
+  unheard.worker_session(8);
+  EXPECT_EQ(ingest.accept(unheard, 5, 0.0, out, eps, nullptr, "OTHER"), "");
+}
+
 // The binding survives a checkpoint: after a resume, a participant that writes first under an
 // open or a retired stream's id and session (a thief that read both off the bus) is refused, and
 // the worker that stayed up, on the participant that opened the stream, carries on with it.
