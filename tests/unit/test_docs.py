@@ -1,8 +1,11 @@
 #!/usr/bin/env python3
 """The documents hold together: every relative link of README.md and docs/ resolves; the pages a
 user reads (README.md, docs/guides/, docs/results/) stay short (README at most 150 lines, a page at
-most 300) and cite no commit hash; and every figure in a results page's tables is in a data file the
-page links to (its per-seed results), so a table cannot drift from what was measured.
+most 300) and cite no commit hash; and every figure in a results page's table is in the row for
+that seed (or label) of the data files linked before the table, so a table cannot drift from what
+was measured. A row is matched to its seed, not to its column: a figure moved between two columns
+of the same seed's row (or of one seed's file) passes. A self-test edits the pages in memory
+(figures given to the wrong seed) and fails if the results check lets such an edit through.
 The history of how figures were reached is in docs/record/, which only the link check covers.
 
   tests/unit/test_docs.py SOURCE_DIR
@@ -63,21 +66,134 @@ def table_figures(text):
                 yield n.replace(",", "").lstrip("+")
 
 
+
+
+def letters(text):
+    return re.sub(r"[^a-z]", "", text.lower())
+
+
+def row_key(label):
+    """A table row's key: (seed, name, label). "2", "seed 2" and "Honey Badger, seed 2, 15 workers"
+    give seed 2 (the last with the name "honeybadger"); a row without a seed ("median") its label."""
+    label = label.strip()
+    m = re.search(r"^(\d+)$|\bseed\s*(\d+)\b", label, re.I)
+    seed = int(m.group(1) or m.group(2)) if m else None
+    head = label.split(",")[0]
+    name = letters(head) if seed is not None and "," in label and not re.search(r"\d", head) else ""
+    return seed, name, letters(label)
+
+
+def table_blocks(text):
+    """Each table of a text (outside code) with the text before it: (prose, header, rows), a row
+    being (label, cells)."""
+    blocks, prose, table = [], [], []
+
+    def close():
+        if table:
+            sep = next((i for i, l in enumerate(table) if re.match(r"\|\s*:?-", l)), None)
+            cells = [[c.strip() for c in l.strip().strip("|").split("|")] for l in table]
+            header = cells[sep - 1] if sep else None
+            rows = [c for i, c in enumerate(cells) if sep is None or i > sep]
+            blocks.append(("\n".join(prose), header, [(r[0], r[1:]) for r in rows]))
+            prose.clear()
+            table.clear()
+
+    for line in outside_code(text).splitlines():
+        if line.startswith("|"):
+            table.append(line)
+        else:
+            close()
+            prose.append(line)
+    close()
+    return blocks
+
+
+def cell_figures(cell):
+    for n in FIGURE.findall(re.sub(r"\[[^\]]*\]\([^)]*\)", "", cell)):
+        yield n.replace(",", "").lstrip("+")
+
+
+def numbers(text):
+    return {n.lstrip("+") for n in NUMBER.findall(text)}
+
+
+def data_records(path):
+    """What a data file holds, row by row: (seed, label, context, numbers). A file whose name
+    carries a seed ("_seed2_") is one run's and one record; a CSV with a seed column, a row each; a
+    markdown table, a row each, its context the section it is in ("== seed 2", "## hexapod_s2");
+    any other file is one record with no seed."""
+    text = path.read_text(errors="replace")
+    m = re.search(r"seed(\d+)", path.name)
+    if m:
+        return [(int(m.group(1)), "", letters(path.name), numbers(text))]
+    lines = text.splitlines()
+    if path.suffix == ".csv" and lines and lines[0].split(",")[0].strip() == "seed":
+        return [(int(float(l.split(",")[0])), "", letters(path.name), numbers(l))
+                for l in lines[1:] if l.strip()]
+    records, heading, run, last = [], "", "", ""
+    for line in lines:
+        if line.startswith("=="):
+            run = line
+        elif line.startswith("#"):
+            # a "##" heading stands alone; "#" comment lines before a block are read together
+            heading = heading + line if last.startswith("#") and not line.startswith("##") else line
+            run = ""
+        elif line.startswith("|") and not re.match(r"\|\s*:?-", line):
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            seed, _, label = row_key(cells[0])
+            records.append((seed, label, letters(path.name + heading + run), numbers("|".join(cells[1:]))))
+        last = line
+    return records or [(None, "", letters(path.name), numbers(text))]
+
+
+def row_numbers(key, records):
+    """The numbers of the data rows for a table row: those of its seed (or label), of the robot
+    it names; one-run files without a seed stand for any seed of what they name."""
+    seed, name, label = key
+    named = [r for r in records if name in r[2]]
+    if seed is None:
+        match = [r for r in named if r[0] is None and r[1] == label]
+    else:
+        match = [r for r in named if r[0] == seed] or [r for r in named if r[0] is None and not r[1]]
+    if not match:
+        return None
+    return set().union(*(r[3] for r in match))
+
+
 def check_results(src, fails):
+    """Each figure of a results table is in the row of its data for that seed (or label, "median"):
+    the data being the data files the text before the table links (or the table before's)."""
     for page in sorted((src / "docs" / "results").glob("*.md")):
-        text = page.read_text()
-        data = [(page.parent / t.split("#")[0]).resolve() for t in LINK.findall(text)]
-        data = [d for d in data if d.is_file() and "data" in d.parts]
+        check_results_page(src, page, page.read_text(), fails)
+
+
+def check_results_page(src, page, text, fails):
+    where = page.relative_to(src)
+    if not any("data" in (page.parent / t.split("#")[0]).resolve().parts for t in LINK.findall(text)):
+        fails.append(f"{where}: names no data file (a link into docs/data/)")
+    data = []
+    for prose, header, rows in table_blocks(text):
+        linked = [(page.parent / t.split("#")[0]).resolve() for t in LINK.findall(prose)]
+        linked = [d for d in linked if d.is_file() and "data" in d.parts]
+        data = linked or data
         if not data:
-            fails.append(f"{page.relative_to(src)}: names no data file (a link into docs/data/)")
+            fails.append(f"{where}: a table before any link into docs/data/ ({rows[0][0] if rows else header})")
             continue
-        tokens = set()
-        for d in data:
-            for n in NUMBER.findall(d.read_text(errors="replace")):
-                tokens.add(n.lstrip("+"))
-        for n in table_figures(text):
-            if n not in tokens:
-                fails.append(f"{page.relative_to(src)}: table figure {n} is in none of its data files")
+        records = [r for d in data for r in data_records(d)]
+        everything = set().union(*(r[3] for r in records))
+        for n in (f for c in (header or [])[1:] for f in cell_figures(c)):
+            if n not in everything:
+                fails.append(f"{where}: header figure {n} is in none of its data files")
+        for label, cells in rows:
+            known = row_numbers(row_key(label), records)
+            if known is None:
+                fails.append(f"{where}: row '{label}' has no row for it in "
+                             + ", ".join(d.name for d in data))
+                continue
+            for n in (f for c in cells for f in cell_figures(c)):
+                if n not in known:
+                    fails.append(f"{where}: row '{label}': figure {n} is not in its data row ("
+                                 + ", ".join(d.name for d in data) + ")")
 
 
 def check_readme_figures(src, fails):
@@ -99,6 +215,39 @@ def check_readme_figures(src, fails):
                 fails.append(f"README.md: figure {n} of the {page.stem} row is in no table of {target.group(1)}")
 
 
+def self_test(src, fails):
+    """The results check catches a figure changed to one its data files hold for another seed (in
+    the Jetbot and mCLARI tables), and each table's rows given to another seed."""
+    results = src / "docs" / "results"
+    edits = [("jetbot.md", "| 1 | 24 | 1241200 | 20 | 99 |", "| 1 | 24 | 1241200 | 20 | 96 |"),
+             ("mclari.md", "| 2 | 1500 | 153440 | 611769 | 94 |", "| 2 | 1500 | 153440 | 611769 | 90 |")]
+    for name, before, after in edits:
+        text = (results / name).read_text()
+        if before not in text:
+            fails.append(f"self-test: docs/results/{name} no longer holds '{before}'; name another edit")
+            continue
+        caught = []
+        check_results_page(src, results / name, text.replace(before, after, 1), caught)
+        if not caught:
+            fails.append(f"self-test: '{after}' in docs/results/{name} passes the results check")
+    for page in sorted(results.glob("*.md")):
+        lines = page.read_text().splitlines()
+        for prose, header, rows in table_blocks(page.read_text()):
+            seeds = [label for label, _ in rows if re.fullmatch(r"\d+", label)]
+            if len(seeds) < 2:
+                continue
+            a, b = seeds[0], seeds[1]
+            swapped = [re.sub(rf"^\|\s*{a}\s*\|", f"| {b} |", l) if l.startswith(f"| {a} |") else
+                       re.sub(rf"^\|\s*{b}\s*\|", f"| {a} |", l) if l.startswith(f"| {b} |") else l
+                       for l in lines]
+            caught = []
+            check_results_page(src, page, "\n".join(swapped), caught)
+            if not caught:
+                fails.append(f"self-test: {page.name}: seeds {a} and {b} swapped in the table of "
+                             f"'{rows[0][0]}' pass the results check")
+            break
+
+
 def main():
     src = Path(sys.argv[1]).resolve()
     fails = []
@@ -106,6 +255,8 @@ def main():
     check_user_pages(src, fails)
     check_results(src, fails)
     check_readme_figures(src, fails)
+    if not fails:
+        self_test(src, fails)
     for f in fails:
         print("FAIL: " + f)
     if not fails:
