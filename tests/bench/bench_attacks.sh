@@ -1,64 +1,107 @@
 #!/usr/bin/env bash
-# The learner's updates/s before and during each attack of docs/record/reliability.md's trust rows, on
-# this machine: per attack a fresh pendulum learner (deploy/configs/pendulum_sac.txtpb) and one
-# worker; once the learner has updated for WARM seconds, the updates/s of the BEFORE seconds just
-# passed, then the attack (farm_intruder), then the updates/s of the attack's seconds, from the
-# learner's learner.csv (one row a second). Prints one line per attack with the ratio against the
-# bound 0.9 (within 10 % of before), and the learner's batch counts at the end.
+# Training during every attack of docs/record/reliability.md's trust rows, on this machine: per attack
+# a fresh pendulum learner (deploy/configs/pendulum_sac.txtpb) and one worker; once the learner has
+# updated for WARM seconds, its updates/s and accepted env steps/s over the BEFORE seconds just
+# passed, then the attack (farm_intruder) and the same rates over the attack's seconds, from the
+# learner's learner.csv (one row a second); then the learner and the worker are stopped (SIGINT). Prints one line per
+# attack with both ratios against the bound 0.9 (within 10 % of before) and the learner's batch
+# counts at the end. The attacks marked "security" run the farm with DDS Security (a PKI from
+# deploy/make-pki.sh; the attacker holds a worker certificate of its own, w2: a leaked one).
 #   tests/bench/bench_attacks.sh LEARNER WORKER INTRUDER SOURCE_DIR [OUT_DIR]
 # Environment: WARM (default 8), BEFORE (default 5), DOMAIN (default 150), ONLY (the attacks to run,
 # by number, e.g. "3 4"; default all).
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
 out=${5:-/tmp/farm_bench_attacks}
-warm=${WARM:-8} before=${BEFORE:-5} domain=${DOMAIN:-150} only=${ONLY:-}
+warm=${WARM:-8} before=${BEFORE:-5} domain=${DOMAIN:-150} only=${ONLY:-} nice=${ATTACKER_NICE:+nice -n $ATTACKER_NICE}
 mkdir -p "$out"
-# updates at the last row of CSV, and its elapsed seconds
-last_row() { awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == "updates") u = i; if ($i == "elapsed_s") e = i }; next }
-                       { lu = $u; le = $e } END { print le + 0, lu + 0 }' "$1" 2>/dev/null; }
+# elapsed seconds, updates and env steps at the last row of CSV
+last_row() { awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == "updates") u = i; if ($i == "elapsed_s") e = i; if ($i == "env_steps") s = i }; next }
+                       { lu = $u; le = $e; ls = $s } END { print le + 0, lu + 0, ls + 0 }' "$1" 2>/dev/null; }
+# NAME|SECURITY (0 or 1)|farm_intruder's flags: CFG is the experiment's config, WID the worker's id
 attacks=(
-  "forged answers|--forge-answers -1 --forge-length 200 --seconds 6"
-  "specs of another writer|--spec-only 1 --spec-config CFG --spec-steps 2147483647 --seconds 6"
-  "invented streams and heartbeats|--flood-streams 5000 --flood-heartbeats 10000 --status-host-bytes 60000 --seconds 4"
-  "200 MiB samples to workers|--big-to-workers 200 --seconds 4"
+  "forged answers|0|--forge-answers -1 --forge-length 200 --seconds 6"
+  "specs of another writer|0|--spec-only 1 --spec-config CFG --spec-steps 2147483647 --seconds 6"
+  "invented streams and heartbeats|0|--flood-streams 5000 --flood-heartbeats 10000 --status-host-bytes 60000 --seconds 4"
+  "200 MiB samples to workers|0|--big-to-workers 200 --seconds 4"
+  "malformed samples (bool 2)|0|--malformed bool --seconds 6"
+  "length bombs|0|--malformed length --seconds 6"
+  "fuzzed samples of every topic|0|--malformed fuzz --fuzz-seed 7 --seconds 6"
+  "removals in the learner's name|0|--forge-removal 1 --seconds 6"
+  "a copy of the learner's spec|0|--spec-only 1 --spec-config CFG --spec-steps 25 --spec-max-batches 1000 --seconds 6"
+  "batches and beats as the worker|0|--id WID --heartbeat 1 --seconds 6"
+  "a thief under the worker's session|0|--steal-streams 1 --seconds 6"
+  "200 invented live workers|0|--flood-heartbeats 200 --beat-every 1 --seconds 6"
+  "forged status to the monitor|0|--heartbeat 1 --status-error disk_failure --seconds 6"
+  "wide-spread answers, leaked cert|1|--heartbeat 1 --forge-answers 0 --forge-length 200 --seconds 6"
+  "heartbeat flood, leaked cert|1|--flood-heartbeats 2000 --beat-every 0.1 --seconds 6"
+  "removals in the learner's name|1|--forge-removal 1 --seconds 6"
+  "status as another worker, leaked|1|--id WID --heartbeat 1 --status-error disk_failure --seconds 6"
 )
-printf '%-34s %12s %12s %7s %6s  %s\n' attack "before upd/s" "during upd/s" ratio bound "batches at the end"
+pki="$out/pki"
+needs_pki=0
+printf '%-44s %9s %9s %6s %9s %9s %6s %6s  %s\n' attack "upd/s" during ratio "steps/s" during ratio bound \
+  "batches at the end"
 k=0
 for a in "${attacks[@]}"; do
-  name=${a%%|*} flags=${a#*|} k=$((k + 1)) d=$domain
+  name=${a%%|*} rest=${a#*|} k=$((k + 1)) d=$domain
+  secure=${rest%%|*} flags=${rest#*|}
   domain=$((domain + 1))
   [ -n "$only" ] && [[ " $only " != *" $k "* ]] && continue
+  wid=bw$k
+  sec_l=() sec_w=() sec_i=() iid=intruder$k
+  if [ "$secure" = 1 ]; then
+    if [ "$needs_pki" = 0 ]; then
+      rm -rf "$pki"
+      workers=()
+      for j in $(seq ${#attacks[@]}); do workers+=("worker:bw$j"); done
+      bash "$src/deploy/make-pki.sh" "$pki" learner:learner worker:w2 "${workers[@]}" >"$out/pki.log" 2>&1 ||
+        { echo "make-pki.sh failed: $(tail -3 "$out/pki.log")"; exit 1; }
+      needs_pki=1
+    fi
+    sec_l=(--security "$pki/learner") sec_w=(--security "$pki/$wid") sec_i=(--security "$pki/w2") iid=w2
+  fi
   cfg="$out/a$k.txtpb"
-  awk '/^stop \{/ { print "stop { max_seconds: 40 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
+  awk '/^stop \{/ { print "stop { max_seconds: 60 }"; skip = 1; next } skip { if ($0 ~ /^\}/) skip = 0; next } { print }' \
     "$src/deploy/configs/pendulum_sac.txtpb" |
     sed -e "s/^experiment_id: .*/experiment_id: \"bench_attack$k\"/" -e 's/^log_every_seconds: .*/log_every_seconds: 1/' >"$cfg"
   rm -rf "$out/run$k"
-  "$learner" --config "$cfg" --run-dir "$out/run$k" --domain $d >"$out/learner$k.log" 2>&1 &
+  "$learner" --config "$cfg" --run-dir "$out/run$k" --domain $d "${sec_l[@]}" >"$out/learner$k.log" 2>&1 &
   lp=$!
-  "$worker" --domain $d --id bw$k --envs 4 >"$out/worker$k.log" 2>&1 &
+  "$worker" --domain $d --id $wid --envs 4 "${sec_w[@]}" >"$out/worker$k.log" 2>&1 &
   wp=$!
   csv="$out/run$k/learner.csv"
   first=""
   for _ in $(seq 300); do
-    read -r e u < <(last_row "$csv")
+    read -r e u s < <(last_row "$csv")
     [ -z "$first" ] && [ "${u:-0}" -gt 0 ] && first=$e
     [ -n "$first" ] && awk -v e="$e" -v f="$first" -v w="$warm" 'BEGIN { exit !(e - f >= w) }' && break
     sleep 0.2
   done
-  read -r e1 u1 < <(last_row "$csv")
+  read -r e1 u1 s1 < <(last_row "$csv")
   sleep "$before"
-  read -r e2 u2 < <(last_row "$csv")
+  read -r e2 u2 s2 < <(last_row "$csv")
+  flags=${flags//CFG/$cfg}
   # shellcheck disable=SC2086
-  "$intruder" --domain $d --experiment "bench_attack$k" --id intruder$k --obs 3 --act 1 ${flags//CFG/$cfg} \
+  [[ " $flags " == *" --id "* ]] || flags="--id $iid $flags"
+  # shellcheck disable=SC2086
+  $nice "$intruder" --domain $d --experiment "bench_attack$k" --obs 3 --act 1 "${sec_i[@]}" ${flags//WID/$wid} \
     >"$out/intruder$k.log" 2>&1
-  read -r e3 u3 < <(last_row "$csv")
+  read -r e3 u3 s3 < <(last_row "$csv")
+  kill -INT $lp 2>/dev/null
   wait $lp
+  kill -INT $wp 2>/dev/null
   wait $wp
-  batches=$(grep '^batches' "$out/run$k/summary.txt" 2>/dev/null | sed 's/^batches *//')
-  awk -v n="$name" -v e1="$e1" -v u1="$u1" -v e2="$e2" -v u2="$u2" -v e3="$e3" -v u3="$u3" -v b="$batches" 'BEGIN {
-    rb = 0; rd = 0; r = 0
-    if (e2 > e1) rb = (u2 - u1) / (e2 - e1)
-    if (e3 > e2) rd = (u3 - u2) / (e3 - e2)
-    if (rb > 0) r = rd / rb
-    printf "%-34s %12.0f %12.0f %7.2f %6s  %s\n", n, rb, rd, r, "0.9", b }'
+  batches=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
+    { r = "ok " $c["batches_ok"] ", lost " $c["batches_lost"] ", duplicate " $c["batches_duplicate"] ", invalid " $c["batches_invalid"] }
+    END { print r }' "$csv")
+  [ "$secure" = 1 ] && name="$name (security)"
+  awk -v n="$name" -v e1="$e1" -v u1="$u1" -v s1="$s1" -v e2="$e2" -v u2="$u2" -v s2="$s2" -v e3="$e3" -v u3="$u3" \
+    -v s3="$s3" -v b="$batches" 'BEGIN {
+    ub = 0; ud = 0; ur = 0; sb = 0; sd = 0; sr = 0
+    if (e2 > e1) { ub = (u2 - u1) / (e2 - e1); sb = (s2 - s1) / (e2 - e1) }
+    if (e3 > e2) { ud = (u3 - u2) / (e3 - e2); sd = (s3 - s2) / (e3 - e2) }
+    if (ub > 0) ur = ud / ub
+    if (sb > 0) sr = sd / sb
+    printf "%-44s %9.0f %9.0f %6.2f %9.0f %9.0f %6.2f %6s  %s\n", n, ub, ud, ur, sb, sd, sr, "0.9", b }'
 done
