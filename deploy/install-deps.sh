@@ -37,8 +37,25 @@ if [ ${#missing[@]} -eq 0 ]; then
   exit 0
 fi
 
+# Debian's prometheus package is here for its binaries (the scrape test runs its own server on
+# 127.0.0.1). Installed alone, without its recommended node exporter, and the service its package
+# starts is stopped and disabled: the install leaves nothing listening that the user did not ask
+# for. A prometheus installed before is left as it was.
+rest=()
+server=0
+for p in "${missing[@]}"; do
+  if [ "$p" = prometheus ]; then server=1; else rest+=("$p"); fi
+done
+
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
 echo "install-deps: installing ${missing[*]}"
 $SUDO apt-get update -q
-DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q "${missing[@]}"
+if [ ${#rest[@]} -gt 0 ]; then DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q "${rest[@]}"; fi
+if [ $server = 1 ]; then
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends prometheus
+  if [ -d /run/systemd/system ]; then
+    $SUDO systemctl disable --now prometheus.service
+    echo "install-deps: the prometheus service Debian started is stopped and disabled (the tests run their own)"
+  fi
+fi
