@@ -3,8 +3,9 @@
 user reads (README.md, docs/guides/, docs/results/) stay short (README at most 150 lines, a page at
 most 300) and cite no commit hash; and every figure in a results page's table is in the row for
 that seed (or label) of the data files linked before the table, so a table cannot drift from what
-was measured. A row is matched to its seed, not to its column: a figure moved between two columns
-of the same seed's row (or of one seed's file) passes. A self-test edits the pages in memory
+was measured. A column whose header names a row of a seed's data file ("plain-dry") is matched to
+that row; other columns only to the seed's row or file, so a figure moved between two of them
+passes. A self-test edits the pages in memory
 (figures given to the wrong seed) and fails if the results check lets such an edit through.
 The history of how figures were reached is in docs/record/, which only the link check covers.
 
@@ -124,9 +125,14 @@ def data_records(path):
     any other file is one record with no seed."""
     text = path.read_text(errors="replace")
     m = re.search(r"seed(\d+)", path.name)
-    if m:
-        return [(int(m.group(1)), "", letters(path.name), numbers(text))]
     lines = text.splitlines()
+    if m:
+        # the whole file, and its table rows by their label ("plain-dry") for a page's columns
+        seed = int(m.group(1))
+        return [(seed, "", letters(path.name), numbers(text))] + [
+            (seed, letters(c[0]), letters(path.name), numbers("|".join(c[1:])))
+            for c in ([x.strip() for x in l.strip().strip("|").split("|")] for l in lines
+                      if l.startswith("|") and not re.match(r"\|\s*:?-", l)) if letters(c[0])]
     if path.suffix == ".csv" and lines and lines[0].split(",")[0].strip() == "seed":
         return [(int(float(l.split(",")[0])), "", letters(path.name), numbers(l))
                 for l in lines[1:] if l.strip()]
@@ -184,16 +190,24 @@ def check_results_page(src, page, text, fails):
         for n in (f for c in (header or [])[1:] for f in cell_figures(c)):
             if n not in everything:
                 fails.append(f"{where}: header figure {n} is in none of its data files")
+        columns = [letters(h) for h in (header or [])[1:]]
         for label, cells in rows:
-            known = row_numbers(row_key(label), records)
+            key = row_key(label)
+            known = row_numbers(key, records)
             if known is None:
                 fails.append(f"{where}: row '{label}' has no row for it in "
                              + ", ".join(d.name for d in data))
                 continue
-            for n in (f for c in cells for f in cell_figures(c)):
-                if n not in known:
-                    fails.append(f"{where}: row '{label}': figure {n} is not in its data row ("
-                                 + ", ".join(d.name for d in data) + ")")
+            for i, c in enumerate(cells):
+                # a column named as a row of the seed's file ("plain-dry"): that row's figures
+                column = [r[3] for r in records if key[0] is not None and r[0] == key[0] and i < len(columns)
+                          and columns[i] and r[1] == columns[i]]
+                here = set().union(*column) if column else known
+                for n in cell_figures(c):
+                    if n not in here:
+                        fails.append(f"{where}: row '{label}': figure {n} is not in its data row"
+                                     + (f" for '{header[i + 1]}'" if column else "") + " ("
+                                     + ", ".join(d.name for d in data) + ")")
 
 
 def check_readme_figures(src, fails):
