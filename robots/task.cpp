@@ -10,9 +10,9 @@
 namespace farm::robots {
 
 // Each registered task's make function, declared from its line of robots/tasks.def.
-#define TASK(name, family, make, spec, check)                \
-  namespace family {                                         \
-  std::unique_ptr<Task> make(const config::TaskConfig& cfg); \
+#define TASK(name, family, make, spec, check, section, number) \
+  namespace family {                                           \
+  std::unique_ptr<Task> make(const config::TaskConfig& cfg);   \
   }
 #include "tasks.def"
 #undef TASK
@@ -68,7 +68,7 @@ struct Registration {
 
 // robots/tasks.def: one line per task.
 const Registration kTasks[] = {
-#define TASK(name, family, make, spec, check) {#name, &family::make},
+#define TASK(name, family, make, spec, check, section, number) {#name, &family::make},
 #include "tasks.def"
 #undef TASK
 };

@@ -1,13 +1,15 @@
 #include "task_specs.h"
 
 #include <stdexcept>
+#include <type_traits>
+#include <utility>
 
 #include "config_validator.h"
 #include "terms/mjcf_bundle.h"
 
 namespace farm::robots {
 
-#define TASK(name, family, make, spec, check)                                    \
+#define TASK(name, family, make, spec, check, section, number)                   \
   namespace family {                                                             \
   TaskSpec spec(const config::TaskConfig& cfg);                                  \
   void check(const config_checks::Section& task, const config::TaskConfig& cfg); \
@@ -23,8 +25,16 @@ struct SpecEntry {
   void (*check)(const config_checks::Section&, const config::TaskConfig&);
 };
 
+// Each task's config section is the field of TaskConfig its registration line makes (the build
+// writes TaskConfig from tasks.def), of the message the line names.
+#define TASK(name, family, make, spec, check, section, number)                                                      \
+  static_assert(std::is_same_v<std::decay_t<decltype(std::declval<config::TaskConfig>().name())>, config::section>, \
+                "task." #name " is not a " #section);
+#include "tasks.def"
+#undef TASK
+
 const SpecEntry kSpecs[] = {
-#define TASK(name, family, make, spec, check) {#name, &family::spec, &family::check},
+#define TASK(name, family, make, spec, check, section, number) {#name, &family::spec, &family::check},
 #include "tasks.def"
 #undef TASK
 };

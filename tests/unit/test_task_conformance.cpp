@@ -273,9 +273,10 @@ TEST(TaskRegistry, CommonNamesNoRobot) {
       EXPECT_FALSE(std::regex_search(lines[i], robot)) << e.path().string() << ":" << i + 1 << ": " << lines[i];
   }
   EXPECT_GT(files, 10);
-  // The same search finds the robots where they are: the task section's fields.
+  // The same search finds the robots where they are: their registration lines, which the task
+  // section's fields are made from.
   int found = 0;
-  for (const auto& line : code_lines(std::string(FARM_SOURCE_DIR) + "/robots/tasks/tasks.proto"))
+  for (const auto& line : code_lines(std::string(FARM_SOURCE_DIR) + "/robots/tasks.def"))
     found += std::regex_search(line, robot);
   EXPECT_GE(found, 8);
 }
