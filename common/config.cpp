@@ -133,6 +133,48 @@ void check_td3(const Section& s, const config::Td3Config& c) {
           "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
 }
 
+void check_fastsac(const Section& s, const config::FastSacConfig& c) {
+  s.positive("actor_lr", c.actor_lr());
+  s.positive("critic_lr", c.critic_lr());
+  s.positive("alpha_lr", c.alpha_lr());
+  s.non_negative("weight_decay", c.weight_decay());
+  s.non_negative("alpha_weight_decay", c.alpha_weight_decay());
+  s.check(c.adam_beta1() >= 0 && c.adam_beta1() < 1, "adam_beta1", "expected in [0, 1), got " + num(c.adam_beta1()));
+  s.check(c.adam_beta2() >= 0 && c.adam_beta2() < 1, "adam_beta2", "expected in [0, 1), got " + num(c.adam_beta2()));
+  s.in_unit("gamma", c.gamma());
+  s.in_unit("tau", c.tau());
+  s.positive("batch_size", c.batch_size());
+  if (c.buffer_size() < c.batch_size())
+    s.fail("buffer_size", "expected >= fastsac.batch_size (" + num(c.batch_size()) + "), got " + num(c.buffer_size()));
+  s.non_negative("learning_starts", c.learning_starts());
+  s.check(c.learning_starts() <= c.buffer_size(), "learning_starts",
+          "expected <= fastsac.buffer_size (" + num(c.buffer_size()) +
+              "), since updates wait for this many rows in the replay buffer; got " + num(c.learning_starts()));
+  s.layer_sizes("hidden", c.hidden());
+  s.layer_sizes("critic_hidden", c.critic_hidden());
+  s.check(c.activation() == "relu" || c.activation() == "tanh" || c.activation() == "elu", "activation",
+          "expected \"relu\", \"tanh\" or \"elu\", got \"" + c.activation() + "\"");
+  s.at_least("num_atoms", c.num_atoms(), 2);
+  s.check(std::isfinite(c.v_min()) && std::isfinite(c.v_max()) && c.v_min() < c.v_max(), "v_min",
+          "expected finite fastsac.v_min < fastsac.v_max (" + num(c.v_max()) + "), got " + num(c.v_min()));
+  s.at_least("policy_delay", c.policy_delay(), 1);
+  s.check(std::isfinite(c.log_std_min()) && std::isfinite(c.log_std_max()) && c.log_std_min() < c.log_std_max(),
+          "log_std_min",
+          "expected finite fastsac.log_std_min < fastsac.log_std_max (" + num(c.log_std_max()) + "), got " +
+              num(c.log_std_min()));
+  s.finite_positive("initial_alpha", c.initial_alpha());
+  s.check(std::isfinite(c.target_entropy_ratio()), "target_entropy_ratio",
+          "expected a finite number, got " + num(c.target_entropy_ratio()));
+  s.non_negative("max_grad_norm", c.max_grad_norm());
+  s.at_least("n_step", c.n_step(), 1);
+  s.positive("max_updates_per_step", c.max_updates_per_step());
+  s.check(c.samples_per_insert() >= 0, "samples_per_insert",
+          "expected 0 (off) or more, got " + num(c.samples_per_insert()));
+  s.positive("publish_every_updates", c.publish_every_updates());
+  s.check(valid_device_name(c.device()), "device",
+          "expected \"cpu\", \"cuda\", \"cuda:N\" or \"auto\", got \"" + c.device() + "\"");
+}
+
 void check_ppo(const Section& s, const config::PpoConfig& c) {
   s.check(c.variant() == "clip_kl" || c.variant() == "plain", "variant",
           "expected \"clip_kl\" or \"plain\", got \"" + c.variant() + "\"");
@@ -202,6 +244,7 @@ void validate(const config::ExperimentConfig& c, Validator& v, const TaskKnowled
   if (c.algorithm() == "dqn") check_dqn(root.nest("dqn", c.dqn()), c.dqn());
   if (c.algorithm() == "ppo") check_ppo(root.nest("ppo", c.ppo()), c.ppo());
   if (c.algorithm() == "td3") check_td3(root.nest("td3", c.td3()), c.td3());
+  if (c.algorithm() == "fastsac") check_fastsac(root.nest("fastsac", c.fastsac()), c.fastsac());
 
   const Section e = root.nest("eval", c.eval());
   e.positive("episodes", c.eval().episodes());
@@ -319,6 +362,8 @@ std::string resume_change(const config::ExperimentConfig& was, const config::Exp
   if (now.algorithm() == "sac") return rows("sac", was.sac().n_step(), was.sac().gamma(), now.sac().gamma());
   if (now.algorithm() == "dqn") return rows("dqn", was.dqn().n_step(), was.dqn().gamma(), now.dqn().gamma());
   if (now.algorithm() == "td3") return rows("td3", was.td3().n_step(), was.td3().gamma(), now.td3().gamma());
+  if (now.algorithm() == "fastsac")
+    return rows("fastsac", was.fastsac().n_step(), was.fastsac().gamma(), now.fastsac().gamma());
   return "";
 }
 
@@ -326,5 +371,6 @@ void check_config(const config::SacConfig& c) { check_in_code(c, "sac", check_sa
 void check_config(const config::DqnConfig& c) { check_in_code(c, "dqn", check_dqn); }
 void check_config(const config::PpoConfig& c) { check_in_code(c, "ppo", check_ppo); }
 void check_config(const config::Td3Config& c) { check_in_code(c, "td3", check_td3); }
+void check_config(const config::FastSacConfig& c) { check_in_code(c, "fastsac", check_fastsac); }
 
 }  // namespace farm

@@ -47,7 +47,8 @@ struct TaskKnowledge {
 
 // Throws ConfigError ("FILE:LINE:COL: field 'sac.batch_size': expected > 0, got -3"). Every range
 // a task or an algorithm needs of its section is checked here; only the section of the task that
-// runs (task.name) is checked, and the dqn, ppo and td3 sections only when the algorithm is theirs.
+// runs (task.name) is checked, and the dqn, ppo, td3 and fastsac sections only when the algorithm is
+// theirs.
 config::ExperimentConfig load_config_file(const std::string& path, const TaskKnowledge& tasks);
 // The ExperimentConfig fields marked as algorithm sections (farm_options.proto), in schema order:
 // the names `algorithm` may take.
@@ -87,6 +88,7 @@ void check_config(const config::SacConfig& c);
 void check_config(const config::DqnConfig& c);
 void check_config(const config::PpoConfig& c);
 void check_config(const config::Td3Config& c);
+void check_config(const config::FastSacConfig& c);
 
 // Hidden sizes of the SAC networks (the schema's default when the list is empty).
 std::vector<int> sac_hidden(const config::SacConfig& sac);

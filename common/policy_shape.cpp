@@ -30,6 +30,16 @@ std::vector<int> td3_critic_hidden(const config::Td3Config& td3) {
   return {td3.critic_hidden().begin(), td3.critic_hidden().end()};
 }
 
+std::vector<int> fastsac_hidden(const config::FastSacConfig& fastsac) {
+  if (fastsac.hidden_size() == 0) return {512, 256, 128};  // FastSAC actor_hidden_dim 512: 512, /2, /4
+  return {fastsac.hidden().begin(), fastsac.hidden().end()};
+}
+
+std::vector<int> fastsac_critic_hidden(const config::FastSacConfig& fastsac) {
+  if (fastsac.critic_hidden_size() == 0) return {768, 384, 192};  // FastSAC critic_hidden_dim 768: 768, /2, /4
+  return {fastsac.critic_hidden().begin(), fastsac.critic_hidden().end()};
+}
+
 namespace {
 
 MlpLayout layout(int in, const std::vector<int>& hidden, int out, Activation activation) {
@@ -87,6 +97,19 @@ PolicyParams td3_policy_shape(const config::Td3Config& td3, int obs_dim, int act
   return p;
 }
 
+PolicyParams fastsac_policy_shape(const config::FastSacConfig& fastsac, int obs_dim, int act_dim) {
+  PolicyParams p;
+  p.head = PolicyHead::kSquashedGaussian;
+  p.layout = layout(obs_dim, fastsac_hidden(fastsac), 2 * act_dim, activation_from_name(fastsac.activation()));
+  p.log_std_min = float(fastsac.log_std_min());
+  p.log_std_max = float(fastsac.log_std_max());
+  if (fastsac.normalize_observations()) {
+    p.obs_mean.assign(size_t(obs_dim), 0.f);
+    p.obs_std.assign(size_t(obs_dim), 1.f);
+  }
+  return p;
+}
+
 PolicyParams policy_shape(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {
   const std::string& a = cfg.algorithm();
   if (a == "sac") return sac_policy_shape(cfg.sac(), spec.obs_dim, spec.act_dim);
@@ -98,7 +121,8 @@ PolicyParams policy_shape(const config::ExperimentConfig& cfg, const robots::Tas
   }
   if (a == "ppo") return ppo_policy_shape(cfg.ppo(), spec.obs_dim, spec.act_dim);
   if (a == "td3") return td3_policy_shape(cfg.td3(), spec.obs_dim, spec.act_dim);
-  throw std::invalid_argument("no policy shape for algorithm '" + a + "' (known: sac, dqn, ppo, td3)");
+  if (a == "fastsac") return fastsac_policy_shape(cfg.fastsac(), spec.obs_dim, spec.act_dim);
+  throw std::invalid_argument("no policy shape for algorithm '" + a + "' (known: sac, dqn, ppo, td3, fastsac)");
 }
 
 PolicyParams untrained_policy(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec) {

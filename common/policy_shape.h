@@ -20,6 +20,10 @@ std::vector<int> ppo_hidden(const config::PpoConfig& ppo);
 // 1024-512-256 when empty.
 std::vector<int> td3_hidden(const config::Td3Config& td3);
 std::vector<int> td3_critic_hidden(const config::Td3Config& td3);
+// FastSAC's: fastsac.hidden and fastsac.critic_hidden, or its 512-256-128 and 768-384-192 when
+// empty.
+std::vector<int> fastsac_hidden(const config::FastSacConfig& fastsac);
+std::vector<int> fastsac_critic_hidden(const config::FastSacConfig& fastsac);
 
 // Each algorithm's policy without parameters (params empty; PPO's log_std at its initial value and,
 // where it normalizes observations, the normalizer of no data: mean 0, std 1).
@@ -30,6 +34,9 @@ PolicyParams ppo_policy_shape(const config::PpoConfig& ppo, int obs_dim, int act
 // (zero) and bias (log of the exploration std); with an observation normalizer where
 // td3.normalize_observations.
 PolicyParams td3_policy_shape(const config::Td3Config& td3, int obs_dim, int act_dim);
+// FastSAC: the squashed-Gaussian head over [mean | log_std] in fastsac.activation, its log-std
+// bounds, with an observation normalizer where fastsac.normalize_observations.
+PolicyParams fastsac_policy_shape(const config::FastSacConfig& fastsac, int obs_dim, int act_dim);
 
 // The shape of cfg.algorithm()'s policy for a task of this spec. Throws std::invalid_argument
 // naming an algorithm it does not know.

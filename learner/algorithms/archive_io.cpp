@@ -1,10 +1,14 @@
 #include "archive_io.h"
 
+#include <torch/torch.h>
+
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <sstream>
 #include <stdexcept>
+
+#include "obs_normalizer.h"
 
 namespace farm {
 
@@ -59,6 +63,30 @@ std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, con
 void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src) {
   torch::NoGradGuard no_grad;
   for (size_t i = 0; i < dst.size(); ++i) dst[i].copy_(src[i]);
+}
+
+torch::Tensor doubles(const std::vector<double>& v) {
+  return torch::tensor(v, torch::TensorOptions().dtype(torch::kDouble)).reshape({int64_t(v.size())});
+}
+
+std::vector<double> to_doubles(const torch::Tensor& t) {
+  const auto c = t.to(torch::kCPU, torch::kDouble).contiguous();
+  return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
+}
+
+void write_moments(torch::serialize::OutputArchive& root, const ObsNormalizer& n) {
+  root.write("obs_count", doubles({n.count()}));
+  root.write("obs_mean", doubles(n.raw_mean()));
+  root.write("obs_m2", doubles(n.raw_m2()));
+}
+
+bool read_moments(torch::serialize::InputArchive& root, ObsNormalizer& n) {
+  torch::Tensor count, mean, m2;
+  if (!root.try_read("obs_count", count) || !root.try_read("obs_mean", mean) || !root.try_read("obs_m2", m2) ||
+      count.numel() != 1 || mean.numel() != n.dim() || m2.numel() != n.dim())
+    return false;
+  n.set_state(to_doubles(count)[0], to_doubles(mean), to_doubles(m2));
+  return true;
 }
 
 }  // namespace farm

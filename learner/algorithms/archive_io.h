@@ -13,6 +13,8 @@
 
 namespace farm {
 
+class ObsNormalizer;
+
 // Throws std::runtime_error naming the file and the system's reason.
 void save_archive(torch::serialize::OutputArchive& archive, const std::string& path);
 
@@ -30,6 +32,16 @@ void write_params(torch::serialize::OutputArchive& root, const std::string& key,
 // in named_parameters order. Errors name `what` (e.g. "sac checkpoint"), the file and the tensor.
 std::vector<torch::Tensor> read_params(torch::serialize::InputArchive& root, const std::string& key,
                                        const torch::nn::Module& m, const std::string& what, const std::string& file);
+
+// A checkpoint's figures as a 1-D double tensor, and back (from any device and type).
+torch::Tensor doubles(const std::vector<double>& v);
+std::vector<double> to_doubles(const torch::Tensor& t);
+
+// An observation normalizer's running moments under obs_count, obs_mean and obs_m2 of `root`.
+// read_moments restores them and returns true, or returns false and changes nothing where one is
+// missing or not of the normalizer's size.
+void write_moments(torch::serialize::OutputArchive& root, const ObsNormalizer& n);
+bool read_moments(torch::serialize::InputArchive& root, ObsNormalizer& n);
 
 // dst[i] = src[i], outside autograd.
 void copy_into(const std::vector<torch::Tensor>& dst, const std::vector<torch::Tensor>& src);

@@ -9,15 +9,19 @@ std::unique_ptr<Algorithm> make_sac(const config::ExperimentConfig&, const robot
 std::unique_ptr<Algorithm> make_dqn(const config::ExperimentConfig&, const robots::TaskSpec&);
 std::unique_ptr<Algorithm> make_ppo(const config::ExperimentConfig&, const robots::TaskSpec&);
 std::unique_ptr<Algorithm> make_td3(const config::ExperimentConfig&, const robots::TaskSpec&);
+std::unique_ptr<Algorithm> make_fastsac(const config::ExperimentConfig&, const robots::TaskSpec&);
 
 const std::vector<AlgorithmRegistration>& algorithms() {
   // One line per algorithm.
+  // clang-format off
   static const std::vector<AlgorithmRegistration> kAlgorithms = {
       {"sac", &make_sac, false},
       {"dqn", &make_dqn, false},
       {"ppo", &make_ppo, true},
       {"td3", &make_td3, false},
+      {"fastsac", &make_fastsac, false},
   };
+  // clang-format on
   return kAlgorithms;
 }
 
@@ -54,6 +58,7 @@ PolicyParams read_saved_policy(config::ExperimentConfig cfg, const robots::TaskS
   cfg.mutable_dqn()->set_device("cpu");
   cfg.mutable_ppo()->set_device("cpu");
   cfg.mutable_td3()->set_device("cpu");
+  cfg.mutable_fastsac()->set_device("cpu");
   auto algo = make_algorithm(cfg, spec);
   if (!dir.empty()) algo->load_networks(dir);
   *updates = algo->updates();

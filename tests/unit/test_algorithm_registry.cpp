@@ -45,7 +45,8 @@ farm::robots::TaskSpec discrete_spec() {
 farm::config::ExperimentConfig config_for(const std::string& algorithm) {
   const std::string text = "experiment_id: \"registry_test\"\nalgorithm: \"" + algorithm +
                            "\"\nsac { hidden: [8, 8] }\ndqn { hidden: [8] }\nppo { hidden: [8, 8] }\n"
-                           "td3 { hidden: [8, 8] critic_hidden: [8, 8] }\n";
+                           "td3 { hidden: [8, 8] critic_hidden: [8, 8] }\n"
+                           "fastsac { hidden: [8, 8] critic_hidden: [8, 8] }\n";
   return farm::robots::parse_config_text(text, "registry_test.txtpb");
 }
 

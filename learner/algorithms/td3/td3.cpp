@@ -73,28 +73,6 @@ struct TwinCriticImpl : torch::nn::Module {
 };
 TORCH_MODULE(TwinCritic);
 
-// The gradient of `loss` with respect to `net` alone (the actor's loss runs through the critics
-// without producing their gradients), its norm clipped to max_norm where max_norm > 0, then the
-// optimizer's step.
-void step(torch::optim::Optimizer& opt, FlatParams& net, const torch::Tensor& loss, double max_norm) {
-  const auto grads = torch::autograd::grad({loss}, net.params);
-  std::vector<torch::Tensor> flat;
-  flat.reserve(grads.size());
-  for (const auto& g : grads) flat.push_back(g.reshape(-1));
-  net.flat.mutable_grad() = torch::cat(flat);
-  if (max_norm > 0) torch::nn::utils::clip_grad_norm_(net.flat, max_norm);
-  opt.step();
-}
-
-torch::Tensor doubles(const std::vector<double>& v) {
-  return torch::tensor(v, torch::TensorOptions().dtype(torch::kDouble)).reshape({int64_t(v.size())});
-}
-
-std::vector<double> to_doubles(const torch::Tensor& t) {
-  const auto c = t.to(torch::kCPU, torch::kDouble).contiguous();
-  return std::vector<double>(c.data_ptr<double>(), c.data_ptr<double>() + c.numel());
-}
-
 const config::Td3Config& checked(const config::Td3Config& cfg, uint64_t seed) {
   check_config(cfg);  // the loader's checks, for a config built in code
   torch::manual_seed(seed);
@@ -234,7 +212,7 @@ Td3Stats Td3::update(const SampledBatch& sampled) {
   }
   const auto logits = s.critic->forward(obs, actions);
   const auto critic_loss = c51_cross_entropy(target, logits);
-  step(*s.critic_opt, s.critic_p, critic_loss, c.max_grad_norm());
+  step_flat(*s.critic_opt, s.critic_p, critic_loss, c.max_grad_norm());
 
   Td3Stats st;
   // FastTD3's order: the actor's step after the critics', against the critics just stepped.
@@ -243,7 +221,7 @@ Td3Stats Td3::update(const SampledBatch& sampled) {
     const auto q = c51_expected_value(torch::softmax(s.critic->forward(obs, s.actor->forward(obs)), -1), s.support);
     const auto value = c.clipped_double_q() ? torch::min(q[0], q[1]) : q.mean(0);
     const auto actor_loss = -value.mean();
-    step(*s.actor_opt, s.actor_p, actor_loss, c.max_grad_norm());
+    step_flat(*s.actor_opt, s.actor_p, actor_loss, c.max_grad_norm());
     s.last_actor_loss = actor_loss.detach();
   }
   {
@@ -315,15 +293,44 @@ std::vector<torch::Tensor> Td3::critic_parameters() const { return impl_->critic
 std::vector<torch::Tensor> Td3::target_critic_parameters() const { return impl_->target_p.params; }
 
 namespace {
-// What a file must match: observation and action sizes, atoms, the hidden sizes of actor and
-// critics (-1 between them).
-std::vector<int64_t> shape_meta(int obs, int act, int atoms, const std::vector<int>& hidden,
-                                const std::vector<int>& critic_hidden) {
-  std::vector<int64_t> m{obs, act, atoms};
-  m.insert(m.end(), hidden.begin(), hidden.end());
+std::vector<int64_t> c51_meta(const C51Record& r) {
+  std::vector<int64_t> m{r.obs_dim, r.act_dim, r.num_atoms};
+  m.insert(m.end(), r.hidden.begin(), r.hidden.end());
   m.push_back(-1);
-  m.insert(m.end(), critic_hidden.begin(), critic_hidden.end());
+  m.insert(m.end(), r.critic_hidden.begin(), r.critic_hidden.end());
   return m;
+}
+}  // namespace
+
+void write_c51_record(torch::serialize::OutputArchive& root, const C51Record& r) {
+  root.write("meta", torch::tensor(c51_meta(r), torch::kInt64));
+  root.write("support", doubles({r.v_min, r.v_max}));
+}
+
+void check_c51_record(torch::serialize::InputArchive& root, const C51Record& r, const std::string& section,
+                      const std::string& file) {
+  auto fail = [&](const std::string& what) {
+    return std::runtime_error(section + " checkpoint " + file + ": " + what);
+  };
+  const std::vector<int64_t> want = c51_meta(r);
+  torch::Tensor meta, support;
+  if (!root.try_read("meta", meta)) throw fail("no 'meta'");
+  meta = meta.to(torch::kCPU).contiguous();
+  const std::vector<int64_t> got(meta.data_ptr<int64_t>(), meta.data_ptr<int64_t>() + meta.numel());
+  if (got != want)
+    throw fail("networks are obs,act,atoms,actor hidden,-1,critic hidden = " + sizes_str(got) + ", expected " +
+               sizes_str(want));
+  if (!root.try_read("support", support) || support.numel() != 2) throw fail("missing or misshapen 'support'");
+  const auto vs = to_doubles(support);
+  if (vs[0] != r.v_min || vs[1] != r.v_max)
+    throw fail("its critics' support is [" + std::to_string(vs[0]) + ", " + std::to_string(vs[1]) +
+               "], this config's " + section + ".v_min, " + section + ".v_max [" + std::to_string(r.v_min) + ", " +
+               std::to_string(r.v_max) + "]");
+}
+
+namespace {
+C51Record record_of(const Td3& t, const config::Td3Config& c) {
+  return {t.obs_dim(), t.act_dim(), c.num_atoms(), t.hidden(), t.critic_hidden(), c.v_min(), c.v_max()};
 }
 }  // namespace
 
@@ -333,9 +340,7 @@ void Td3::save(const std::string& dir) const {
   const std::string file = dir + "/td3.pt", tmp = file + ".tmp";
   try {
     torch::serialize::OutputArchive root;
-    root.write("meta", torch::tensor(shape_meta(s.obs_dim, s.act_dim, s.cfg.num_atoms(), s.hidden, s.critic_hidden),
-                                     torch::kInt64));
-    root.write("support", doubles({s.cfg.v_min(), s.cfg.v_max()}));
+    write_c51_record(root, record_of(*this, s.cfg));
     write_params(root, "actor", *s.actor);
     write_params(root, "critic", *s.critic);
     write_params(root, "critic_target", *s.critic_target);
@@ -345,9 +350,7 @@ void Td3::save(const std::string& dir) const {
       opt->save(a);
       root.write(key, a);
     }
-    root.write("obs_count", doubles({s.normalizer.count()}));
-    root.write("obs_mean", doubles(s.normalizer.raw_mean()));
-    root.write("obs_m2", doubles(s.normalizer.raw_m2()));
+    write_moments(root, s.normalizer);
     root.write("last_actor_loss", s.last_actor_loss.detach().to(torch::kCPU));
     root.write("updates", torch::full({1}, s.updates, torch::kInt64));
     save_archive(root, tmp);
@@ -365,27 +368,13 @@ void Td3::load(const std::string& dir) {
   try {
     torch::serialize::InputArchive root;
     root.load_from(file, s.device);
-    torch::Tensor meta, support;
-    if (!root.try_read("meta", meta)) throw fail("no 'meta'");
-    const auto want = shape_meta(s.obs_dim, s.act_dim, s.cfg.num_atoms(), s.hidden, s.critic_hidden);
-    meta = meta.to(torch::kCPU).contiguous();
-    const std::vector<int64_t> got(meta.data_ptr<int64_t>(), meta.data_ptr<int64_t>() + meta.numel());
-    if (got != want)
-      throw fail("networks are obs,act,atoms,actor hidden,-1,critic hidden = " + sizes_str(got) + ", expected " +
-                 sizes_str(want));
-    if (!root.try_read("support", support) || support.numel() != 2) throw fail("missing or misshapen 'support'");
-    const auto vs = to_doubles(support);
-    if (vs[0] != s.cfg.v_min() || vs[1] != s.cfg.v_max())
-      throw fail("its critics' support is [" + std::to_string(vs[0]) + ", " + std::to_string(vs[1]) +
-                 "], this config's td3.v_min, td3.v_max [" + std::to_string(s.cfg.v_min()) + ", " +
-                 std::to_string(s.cfg.v_max()) + "]");
+    check_c51_record(root, record_of(*this, s.cfg), "td3", file);
     const auto actor = read_params(root, "actor", *s.actor, "td3 checkpoint", file);
     const auto critic = read_params(root, "critic", *s.critic, "td3 checkpoint", file);
     const auto target = read_params(root, "critic_target", *s.critic_target, "td3 checkpoint", file);
-    torch::Tensor count, mean, m2, actor_loss, updates;
-    if (!root.try_read("obs_count", count) || !root.try_read("obs_mean", mean) || !root.try_read("obs_m2", m2) ||
-        count.numel() != 1 || mean.numel() != s.obs_dim || m2.numel() != s.obs_dim)
-      throw fail("missing or misshapen observation moments");
+    torch::Tensor actor_loss, updates;
+    ObsNormalizer moments(s.obs_dim);  // read aside: nothing changes before every entry fits
+    if (!read_moments(root, moments)) throw fail("missing or misshapen observation moments");
     if (!root.try_read("last_actor_loss", actor_loss) || actor_loss.numel() != 1)
       throw fail("missing or misshapen 'last_actor_loss'");
     if (!root.try_read("updates", updates) || updates.numel() != 1) throw fail("missing or misshapen 'updates'");
@@ -398,7 +387,7 @@ void Td3::load(const std::string& dir) {
     copy_into(s.target_p.params, target);
     s.actor_opt->load(actor_opt);
     s.critic_opt->load(critic_opt);
-    s.normalizer.set_state(to_doubles(count)[0], to_doubles(mean), to_doubles(m2));
+    s.normalizer = moments;
     s.last_actor_loss = actor_loss.reshape({}).to(s.device, torch::kFloat);
     s.updates = updates.to(torch::kCPU).item<int64_t>();
     // The saved optimizers carry the rates they ran with; this run's are its config's.

@@ -53,6 +53,19 @@ torch::Tensor td3_critic_target(const torch::Tensor& next_probs1, const torch::T
 // -mean_b sum_k target * log_softmax(logits).
 torch::Tensor c51_cross_entropy(const torch::Tensor& target, const torch::Tensor& logits);
 
+// What a checkpoint of an actor and twin C51 critics records of them, and a file must match to be
+// loaded: "meta" (observation and action sizes, atoms, the actor's hidden sizes, -1, the
+// critics') and "support" (v_min, v_max). check_c51_record throws std::runtime_error
+// "<section> checkpoint FILE: ..." naming what differs; `section` is the config section ("td3").
+struct C51Record {
+  int obs_dim = 0, act_dim = 0, num_atoms = 0;
+  std::vector<int> hidden, critic_hidden;
+  double v_min = 0, v_max = 0;
+};
+void write_c51_record(torch::serialize::OutputArchive& root, const C51Record& r);
+void check_c51_record(torch::serialize::InputArchive& root, const C51Record& r, const std::string& section,
+                      const std::string& file);
+
 class Td3 {
  public:
   // Seeds torch's global generator with `seed` (initial weights and target smoothing noise).
