@@ -7,6 +7,10 @@
 # The model's folder is deleted once the learner has read it, so the worker can only have the model
 # from the ExperimentSpec. The run must take the worker's batches with nothing lost and answer its
 # evaluations, and the worker must have joined the experiment of the task of terms.
+# Limits: the shipped config is edited to stop at max_seconds 20 (or earlier at its own goal), to
+# start updates after 1,000 steps and to evaluate every 6 s; each edit must match the shipped text
+# (the test fails when one matches nothing, as it would when the config changes). The learner must
+# have exited 60 s after it started, its final evaluation included; the test takes about 30 s.
 #   tests/integration/test_terms_netns.sh LEARNER_BIN WORKER_BIN SOURCE_DIR
 # Needs root (ip netns); exits 77 (skipped) without it.
 set -uo pipefail
@@ -40,18 +44,32 @@ profiles=$src/deploy/discovery/peers_udp.xml
 # The user's folder: the shipped hexapod's config and model, renamed as a robot of their own.
 mkdir -p "$dir/user/my_robot" "$dir/empty"
 cp -r "$src/deploy/configs/models/hexapod" "$dir/user/my_robot/model"
-sed -e 's|experiment_id: "hexapod_sac"|experiment_id: "my_robot"|' \
-    -e 's|model: "models/hexapod/hexapod.xml"|model: "model/hexapod.xml"|' \
-    -e 's|max_seconds: 1800|max_seconds: 25|' -e 's|learning_starts: 5000|learning_starts: 1000|' \
-    -e 's|every_seconds: 30|every_seconds: 8|' "$src/deploy/configs/hexapod_sac.txtpb" >"$dir/user/my_robot/my_robot.txtpb"
-grep -q 'model: "model/hexapod.xml"' "$dir/user/my_robot/my_robot.txtpb" || fail "test set-up: the model line was not rewritten"
+config=$(cat "$src/deploy/configs/hexapod_sac.txtpb")
+# Replaces the one occurrence of FROM (a whole line's text, exact) by TO; fails when FROM is not there once.
+edit() {
+  local n; n=$(grep -cxF -- "$1" <<<"$(sed 's/^ *//' <<<"$config")")
+  [ "$n" = 1 ] || { fail "test set-up: '$1' is in deploy/configs/hexapod_sac.txtpb $n times, not once"; return; }
+  config=$(sed "s|^\\( *\\)$1\$|\\1$2|" <<<"$config")
+}
+edit 'experiment_id: "hexapod_sac"' 'experiment_id: "my_robot"'
+edit 'model: "models/hexapod/hexapod.xml"' 'model: "model/hexapod.xml"'
+edit 'max_seconds: 600' 'max_seconds: 20'
+edit 'learning_starts: 5000' 'learning_starts: 1000'
+edit 'every_seconds: 10' 'every_seconds: 6'
+printf '%s\n' "$config" >"$dir/user/my_robot/my_robot.txtpb"
+for line in 'experiment_id: "my_robot"' 'model: "model/hexapod.xml"' 'max_seconds: 20' 'learning_starts: 1000' 'every_seconds: 6'; do
+  grep -qE "^ *$line\$" "$dir/user/my_robot/my_robot.txtpb" || fail "test set-up: '$line' is not in the edited config"
+done
+[ $failed = 0 ] || exit 1
 
 (cd "$dir/user" && exec ip netns exec $A "$learner" --config my_robot/my_robot.txtpb --run-dir "$dir/run" \
   --domain $domain --dds-profiles "$profiles") >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-wait_text "$dir/learner.log" "waiting for workers" 30 || fail "the learner did not start: $(tail -5 "$dir/learner.log")"
+wait_text "$dir/learner.log" "waiting for workers" 30 || { fail "the learner did not start: $(tail -5 "$dir/learner.log")"; exit 1; }
 rm -rf "$dir/user/my_robot/model"
 (cd "$dir/empty" && exec ip netns exec $B "$worker" --domain $domain --dds-profiles "$profiles" --id host-b \
   --envs 8 --threads 1 --log-every 5) >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+for _ in $(seq 300); do kill -0 $lp 2>/dev/null || break; sleep 0.2; done
+kill -0 $lp 2>/dev/null && fail "the learner runs past 60 s with max_seconds 20: $(tail -3 "$dir/learner.log")"
 wait $lp; rc=$?
 [ $rc = 0 ] || fail "farm-learner exited $rc: $(tail -5 "$dir/learner.log")"
 for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
