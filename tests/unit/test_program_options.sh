@@ -31,6 +31,7 @@ bench_dqn|tests/bench_dqn|--batch|abc|2
 bench_ingest|tests/bench_ingest|--senders|abc|2
 bench_mclari|tests/bench_mclari|seconds|abc|2
 bench_mobile|tests/bench_mobile|--seconds|abc|2
+bench_offpolicy|tests/bench_offpolicy|--seconds|abc|2
 bench_ppo|tests/bench_ppo|--threads|abc|2
 bench_quadruped|tests/bench_quadruped|--seconds|abc|2
 bench_sac|tests/bench_sac|--batch|abc|2
@@ -87,6 +88,54 @@ while IFS='|' read -r path arg others code; do
   [ $rc = "$code" ] || fail "$path $arg: exit $rc, expected $code: '$err'"
   grep -qF -- "$opt: Value $value not in range" <<<"$err" || fail "$path $arg: not refused as out of range: '$err'"
 done <<<"$ranges"
+
+# farm-learner --check FILE: a shipped config of a task in code, of a task of terms (its model
+# files read) and of discrete actions loads and checks (exit 0, one line naming its experiment,
+# task and algorithm; every shipped config loads in unit.test_config), writing nothing where it
+# ran (no run folder: it stops before the farm starts); a config the loader refuses exits 2 with the error naming the file and the field, or
+# the model file a task of terms misses. --config and --check go one at a time.
+learner=$build/learner/farm-learner
+if [ -x "$learner" ]; then
+  work=$(mktemp -d)
+  trap 'rm -rf "$work"' EXIT
+  mkdir "$work/cwd"
+  for name in pendulum_sac hexapod_sac jetbot_dqn; do
+    f=$src/deploy/configs/$name.txtpb
+    id=$(sed -n 's/^experiment_id: "\(.*\)"$/\1/p' "$f")
+    algo=$(sed -n 's/^algorithm: "\(.*\)"$/\1/p' "$f")
+    out=$(cd "$work/cwd" && timeout 20 "$learner" --check "$f" 2>&1)
+    rc=$?
+    [ $rc = 0 ] || fail "farm-learner --check $f: exit $rc: '$out'"
+    [[ "$out" =~ ^ok\ config=$f\ experiment=$id\ task=[a-z_0-9]+\ obs=[1-9][0-9]*\ act=[1-9][0-9]*\ actions=[0-9]+\ algorithm=$algo$ ]] ||
+      fail "farm-learner --check $f: '$out'"
+  done
+  [ -z "$(ls -A "$work/cwd")" ] || fail "farm-learner --check wrote into its folder: $(ls -A "$work/cwd")"
+  # name|what to do to a copy of a shipped config (in $work/bad)|what stderr must name
+  bad="
+pendulum_sac|echo 'no_such_field: 1' >>\$c|no_such_field
+pendulum_sac|sed -i 's/^algorithm: .*/algorithm: \"no_such_algorithm\"/' \$c|no_such_algorithm
+hexapod_sac|sed -i 's#models/hexapod/hexapod.xml#models/hexapod/missing.xml#' \$c|missing.xml
+"
+  while IFS='|' read -r name change what; do
+    [ -n "$name" ] || continue
+    rm -rf "$work/bad" && mkdir "$work/bad" && cp -r "$src/deploy/configs/models" "$work/bad/"
+    c=$work/bad/$name.txtpb
+    cp "$src/deploy/configs/$name.txtpb" "$c"
+    eval "$change"
+    err=$(timeout 20 "$learner" --check "$c" 2>&1 >/dev/null)
+    rc=$?
+    [ $rc = 2 ] || fail "farm-learner --check ($name: $change): exit $rc, expected 2: '$err'"
+    grep -qF -- "$c" <<<"$err" && grep -qF -- "$what" <<<"$err" ||
+      fail "farm-learner --check ($name: $change): stderr names not $c and $what: '$err'"
+  done <<<"$bad"
+  for args in "" "--config $c --check $c"; do
+    err=$(timeout 20 "$learner" $args 2>&1 >/dev/null)
+    rc=$?
+    [ $rc = 2 ] || fail "farm-learner $args: exit $rc, expected 2: '$err'"
+    grep -qF -- "--check" <<<"$err" && grep -qF -- "--config" <<<"$err" ||
+      fail "farm-learner $args: stderr names not --config and --check: '$err'"
+  done
+fi
 
 # Every executable of ours in the build folder is listed: ELF files outside CMake's own folders
 # and the fuzz build; the gtest programs (test_*) take gtest's options, not ours.
