@@ -72,7 +72,8 @@ int WorkerApp::run() {
       if (now_seconds() - last_wait_note > 5.0) {
         log("waiting for a learner: no ExperimentSpec" +
             (experiment_.empty() ? std::string() : " of experiment '" + experiment_ + "'") + " on DDS domain " +
-            std::to_string(bus_.domain()) + " yet");
+            std::to_string(bus_.domain()) + " yet (discovery profile " + bus_.profiles_file() +
+            ": a learner started with another one is not found)");
         last_wait_note = now_seconds();
       }
       heartbeat();
