@@ -44,6 +44,7 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             in.set_max_episode_steps(task_spec_.max_episode_steps);
             // Called on the ingest thread; roster_ is made before any batch is taken (start()).
             in.set_announcer([this](const std::string& id, uint64_t session) {
+              roster_.take_pending();
               const auto w = roster_.find(id + "#" + std::to_string(session));
               return w ? w->view.writer : std::string();
             });

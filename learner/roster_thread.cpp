@@ -1,6 +1,9 @@
 // The roster on its own thread (roster_thread.h).
 #include "roster_thread.h"
 
+#include <algorithm>
+#include <chrono>
+
 #include "meter.h"
 #include "printable.h"
 
@@ -28,6 +31,7 @@ void RosterThread::loop() {
   while (!stop_) {
     reader_.wait(0.05);
     take_all();
+    std::this_thread::sleep_for(std::chrono::duration<double>(kTakeEveryS));
     const double now = now_seconds();
     if (now - last_check >= kCheckEveryS) {
       last_check = now;
@@ -37,14 +41,29 @@ void RosterThread::loop() {
     const uint64_t refused = refused_for_name_.load();
     if (refused > refused_noted_ && refusal_notes_ < kMaxRefusalNotes) {
       ++refusal_notes_;
+      std::string last;
+      {
+        std::lock_guard<std::mutex> taking(take_mu_);  // take_pending() may write it
+        last = refused_last_;
+      }
       log_("ignored " + std::to_string(refused - refused_noted_) +
            " heartbeat(s) whose worker id is not the certificate name of the participant that wrote them (last: " +
-           refused_last_ + ")");
+           last + ")");
       events_.write("refusal", {{"what", "heartbeat"},
                                 {"count", refused - refused_noted_},
                                 {"reason", "worker id is not the certificate name of the participant that wrote it"},
-                                {"last", refused_last_}});
+                                {"last", last}});
       refused_noted_ = refused;
+    }
+    const uint64_t over_rate = refused_for_rate_.load();
+    // At most one line a second: a flood's refusals are told as sums, over its first 20 s.
+    if (over_rate > rate_noted_ && rate_notes_ < kMaxRefusalNotes && now - rate_noted_at_ >= 1.0) {
+      ++rate_notes_;
+      rate_noted_at_ = now;
+      const std::string why = "past " + std::to_string(int(kMaxBeatsPerSecond)) + " a second from one participant";
+      log_("ignored " + std::to_string(over_rate - rate_noted_) + " heartbeat(s) " + why);
+      events_.write("refusal", {{"what", "heartbeat"}, {"count", over_rate - rate_noted_}, {"reason", why}});
+      rate_noted_ = over_rate;
     }
     const uint64_t oversized = reader_.refused();
     if (oversized > oversized_noted_ && refusal_notes_ < kMaxRefusalNotes) {
@@ -58,11 +77,19 @@ void RosterThread::loop() {
   }
 }
 
+void RosterThread::take_pending() { take_all(); }
+
 void RosterThread::take_all() {
+  std::lock_guard<std::mutex> taking(take_mu_);
   farm::msg::WorkerStatus s;
   eprosima::fastdds::dds::SampleInfo info;
   while (reader_.take(s, info)) {
     const double now = now_seconds();
+    const std::string participant = farm::dds::participant_key(info.sample_identity.writer_guid());
+    if (!within_share(participant, now)) {
+      refused_for_rate_.fetch_add(1);
+      continue;
+    }
     // Under DDS Security, as for batches: only from the participant whose certificate bears the
     // worker id (no invented workers in the roster).
     if (!bus_.security_dir().empty()) {
@@ -76,10 +103,30 @@ void RosterThread::take_all() {
       }
     }
     std::lock_guard<std::mutex> lk(mu_);
-    if (roster_.heard(s, now, farm::dds::participant_key(info.sample_identity.writer_guid())) &&
-        first_heard_.load() == 0)
-      first_heard_.store(now);
+    if (roster_.heard(s, now, participant) && first_heard_.load() == 0) first_heard_.store(now);
   }
+}
+
+bool RosterThread::within_share(const std::string& participant, double now) {
+  auto it = buckets_.find(participant);
+  if (it == buckets_.end()) {
+    if (buckets_.size() >= kMaxRatedParticipants) {
+      // Full: those whose share has filled up again (silent for a while) go first; else the fullest.
+      auto out = buckets_.begin();
+      for (auto j = buckets_.begin(); j != buckets_.end(); ++j)
+        if (j->second.tokens + (now - j->second.at) * kMaxBeatsPerSecond >
+            out->second.tokens + (now - out->second.at) * kMaxBeatsPerSecond)
+          out = j;
+      buckets_.erase(out);
+    }
+    it = buckets_.emplace(participant, Bucket{kBeatBurst, now}).first;
+  }
+  Bucket& b = it->second;
+  b.tokens = std::min(kBeatBurst, b.tokens + (now - b.at) * kMaxBeatsPerSecond);
+  b.at = now;
+  if (b.tokens < 1) return false;
+  b.tokens -= 1;
+  return true;
 }
 
 std::vector<RosterThread::Worker> RosterThread::workers() const {

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -39,13 +40,26 @@ class RosterThread {
   std::vector<Worker> workers() const;
   std::optional<Worker> find(const std::string& key) const;
   int live_count() const;
+  // Takes the heartbeats that have arrived but that the roster's thread has not taken yet, from the
+  // calling thread: the ingest asks before it opens a stream, so that the heartbeat that announced a
+  // session is in the roster even when a copier's batch comes right behind it.
+  void take_pending();
   // When the first heartbeat of this experiment was taken (now_seconds() clock); 0 before.
   double first_heard() const { return first_heard_.load(); }
   // Heartbeats whose worker id is not their writer's certificate name (security): not heard.
   uint64_t refused_for_name() const { return refused_for_name_.load(); }
+  // Heartbeats over a participant's share (kMaxBeatsPerSecond): taken off the bus and not heard.
+  uint64_t refused_for_rate() const { return refused_for_rate_.load(); }
 
   static constexpr double kCheckEveryS = 0.2;  // how often the silent are looked for
   static constexpr int kMaxRefusalNotes = 20;  // log lines and events of heartbeats refused by name
+  // A participant's share of the roster's work: a worker beats once a second (its beat thread adds
+  // one at most every 1.5 s); past kMaxBeatsPerSecond on average, with a burst of kBeatBurst, what a
+  // participant sends is dropped before the roster looks at it, so a flood from one participant
+  // (a leaked certificate under security) cannot crowd out the workers' heartbeats or the roster's
+  // time. The loop takes heartbeats at most every kTakeEveryS, not once per sample.
+  static constexpr double kMaxBeatsPerSecond = 20, kBeatBurst = 40, kTakeEveryS = 0.01;
+  static constexpr size_t kMaxRatedParticipants = 4096;
 
  private:
   void loop();
@@ -57,13 +71,21 @@ class RosterThread {
   EventLog& events_;
   mutable std::mutex mu_;
   WorkerRoster roster_;  // guarded by mu_
+  std::mutex take_mu_;   // one taker at a time: the roster's thread or take_pending()
   std::atomic<double> first_heard_{0};
   std::atomic<uint64_t> refused_for_name_{0};
+  std::atomic<uint64_t> refused_for_rate_{0};
   std::atomic<bool> stop_{false};
   std::thread thread_;
   // The thread's own:
-  uint64_t refused_noted_ = 0, oversized_noted_ = 0;  // refusals by name and by size already told
-  int refusal_notes_ = 0;
+  uint64_t refused_noted_ = 0, oversized_noted_ = 0, rate_noted_ = 0;  // refusals already told
+  struct Bucket {
+    double tokens = kBeatBurst, at = 0;
+  };
+  std::map<std::string, Bucket> buckets_;  // per participant (dds::participant_key)
+  bool within_share(const std::string& participant, double now);
+  double rate_noted_at_ = -1e9;
+  int refusal_notes_ = 0, rate_notes_ = 0;  // the lines told so far: by name or size, by rate
   std::string refused_last_;
 };
 

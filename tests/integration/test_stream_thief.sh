@@ -17,11 +17,13 @@ pendulum_config "$src" it_thief "max_seconds: 16" "$dir/thief.txtpb"
 "$learner" --config "$dir/thief.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$intruder" --domain $domain --experiment it_thief --id thief --seconds 45 --steal-streams 1 >"$dir/thief.log" 2>&1 &
 tp=$!; pids+=($tp)
+wait_text "$dir/thief.log" "joined domain" 15 || fail "the thief did not start: $(cat "$dir/thief.log")"
 sleep 1
 "$worker" --domain $domain --id tw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
 for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 20 ] && break; sleep 0.2; done
 [ "$(batches_ok "$dir/run")" -gt 20 ] || fail "the worker's batches were not taken: batches_ok $(batches_ok "$dir/run")"
-grep -q "stealing the stream of tw session" "$dir/thief.log" || fail "the thief heard no session of tw: $(cat "$dir/thief.log")"
+wait_text "$dir/thief.log" "stealing the stream of tw session" 15 ||
+  fail "the thief heard no session of tw: $(cat "$dir/thief.log")"
 kill -INT $lp
 wait $lp; rc=$?
 [ $rc = 130 ] || fail "the learner stopped with SIGINT exited with $rc, not 130: $(tail -3 "$dir/learner.log")"
@@ -39,4 +41,5 @@ echo "$line" | grep -Eq "received $sent of sequence 0\.\.$((sent - 1)), lost 0, 
   fail "the worker sent $sent batches; the learner's account: $line"
 invalid=$(sed -n 's/^batches .*invalid \([0-9]*\).*/\1/p' "$dir/run/summary.txt")
 [ "${invalid:-0}" -gt 0 ] || fail "no batch of the thief was refused, the test shows nothing: $(grep '^batches' "$dir/run/summary.txt")"
-farm_test_end "tw's $sent batches all taken across the resume, $invalid of the thief's refused"
+first=$(events "$dir/run" refusal | grep -c "whose heartbeats announced it")
+farm_test_end "tw's $sent batches all taken across the resume, $invalid of the thief's refused ($first refusal event(s) of a thief's first batch)"
