@@ -197,6 +197,8 @@ void check_terms(const Section& s, const config::TermsConfig& c) {
     const TermInfo& info = check_term(ts, t, t.term(), termination_terms(), {});
     check_items(ts, info.names, t, m, root);
     ts.check(!(t.min() > t.max()), "min", "expected <= max (" + num(t.max()) + "), got " + num(t.min()));
+    ts.check(t.skip() >= 0 && t.skip() <= m.nq() + m.nv(), "skip",
+             "expected 0.." + num(m.nq() + m.nv()) + " (the model's nq + nv), got " + num(t.skip()));
   }
   const Section rs = s.nest("reset", c.reset());
   const auto& r = c.reset();

@@ -395,6 +395,16 @@ bool end_joint_pos(const Ctx& c, const TerminationBinding& b) {
   }
   return false;
 }
+// Gymnasium's state_vector() (qpos, then qvel) from entry `skip` on: any entry outside [min, max]
+// (Hopper's healthy_state_range over state[2:]).
+bool end_state(const Ctx& c, const TerminationBinding& b) {
+  const int nq = c.m->nq;
+  for (int i = b.cfg->skip(); i < nq + c.m->nv; ++i) {
+    const double v = i < nq ? c.d->qpos[i] : c.d->qvel[i - nq];
+    if (!(v >= b.cfg->min() && v <= b.cfg->max())) return true;
+  }
+  return false;
+}
 bool end_non_finite(const Ctx& c, const TerminationBinding& b) {
   for (int i = 0; i < c.m->nv; ++i)
     if (!std::isfinite(c.d->qvel[i]) || std::abs(c.d->qvel[i]) > b.cfg->max()) return true;
