@@ -101,7 +101,10 @@ int FarmService::run() {
       std::to_string(task_spec_.obs_dim) + ", act " + std::to_string(task_spec_.act_dim) + "), " + algo_->describe() +
       ", DDS domain " + std::to_string(bus_.domain()) + " (" + bus_.participant_label() + "), run dir " + run_dir_ +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
-  log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) + "`");
+  // The profile as well as the domain: a worker with other discovery (local.xml is shared memory
+  // only) never meets this learner.
+  log("waiting for workers: start them with `farm-worker --domain " + std::to_string(bus_.domain()) +
+      " --dds-profiles " + fs::absolute(bus_.profiles_file()).string() + "`");
 
   const double t0 = t0_;
   double last_log = now_seconds(), last_ckpt = now_seconds();
