@@ -14,11 +14,14 @@
 #include <string>
 #include <vector>
 
+#include "c51_test_util.h"
 #include "mlp.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 
 namespace farm {
 namespace {
+
+using namespace c51_test;
 
 config::Td3Config small_config() {
   config::Td3Config cfg;
@@ -31,44 +34,6 @@ config::Td3Config small_config() {
   cfg.set_buffer_size(1000);
   cfg.set_learning_starts(0);
   return cfg;
-}
-
-SampledBatch random_batch(int rows, int obs_dim, int act_dim, uint64_t seed) {
-  torch::manual_seed(seed);
-  SampledBatch b;
-  b.obs = torch::randn({rows, obs_dim}) * 2 + 1;
-  b.actions = torch::rand({rows, act_dim}) * 2 - 1;
-  b.rewards = torch::randn({rows});
-  b.terminated = (torch::rand({rows}) < 0.1).to(torch::kFloat32);
-  b.next_obs = torch::randn({rows, obs_dim}) * 2 + 1;
-  return b;
-}
-
-std::vector<torch::Tensor> copies(const std::vector<torch::Tensor>& ts) {
-  std::vector<torch::Tensor> out;
-  for (const auto& t : ts) out.push_back(t.detach().clone());
-  return out;
-}
-
-bool all_equal(const std::vector<torch::Tensor>& a, const std::vector<torch::Tensor>& b) {
-  if (a.size() != b.size()) return false;
-  for (size_t i = 0; i < a.size(); ++i)
-    if (!torch::equal(a[i], b[i])) return false;
-  return true;
-}
-
-std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
-  remove_tree(d.string());
-  return d.string();
-}
-
-void expect_rows(const torch::Tensor& got, const std::vector<std::vector<double>>& want, double tol = 1e-6) {
-  ASSERT_EQ(got.size(0), int64_t(want.size()));
-  const auto g = got.to(torch::kDouble).contiguous();
-  for (size_t r = 0; r < want.size(); ++r)
-    for (size_t k = 0; k < want[r].size(); ++k)
-      EXPECT_NEAR(g[r][k].item<double>(), want[r][k], tol) << "row " << r << ", atom " << k;
 }
 
 // Five atoms at -2, -1, 0, 1, 2 (spacing 1).
