@@ -281,6 +281,8 @@ const Layout kWorkerStatus{"farm::msg::WorkerStatus",
                             {"state", K::String},
                             {"last_error", K::String}}};
 
+const Layout kLearnerStat{"farm::msg::LearnerStat", {{"name", K::String}, {"unit", K::String}, {"value", K::F64}}};
+
 const Layout kLearnerStats{"farm::msg::LearnerStats",
                            {{"experiment_id", K::String},
                             {"elapsed_seconds", K::F64},
@@ -298,7 +300,8 @@ const Layout kLearnerStats{"farm::msg::LearnerStats",
                             {"batches_lost", K::U64},
                             {"batches_duplicate", K::U64},
                             {"batches_invalid", K::U64},
-                            {"workers", K::U32}}};
+                            {"workers", K::U32},
+                            {"stats", K::SeqStruct, &kLearnerStat}}};
 
 }  // namespace
 

@@ -1,25 +1,11 @@
 #include "events.h"
 
 #include <cmath>
-#include <cstdlib>
-#include <sstream>
 #include <stdexcept>
-#include <vector>
 
 #include "meter.h"
 
 namespace farm {
-
-namespace {
-std::vector<std::string> split_commas(const std::string& s) {
-  std::vector<std::string> out;
-  std::string cell;
-  std::istringstream in(s);
-  while (std::getline(in, cell, ',')) out.push_back(cell);
-  if (!s.empty() && s.back() == ',') out.emplace_back();
-  return out;
-}
-}  // namespace
 
 void EventLog::open(const std::string& path) {
   std::lock_guard<std::mutex> lk(mu_);
@@ -42,24 +28,6 @@ void EventLog::write(const std::string& event, nlohmann::json fields) {
     failures_.fetch_add(1);
     out_.clear();
   }
-}
-
-nlohmann::json EventLog::from_csv(const std::string& header, const std::string& row) {
-  const std::vector<std::string> names = split_commas(header), cells = split_commas(row);
-  nlohmann::json o = nlohmann::json::object();
-  for (size_t i = 0; i < names.size(); ++i) {
-    const std::string c = i < cells.size() ? cells[i] : "";
-    char* end = nullptr;
-    const double v = c.empty() ? NAN : std::strtod(c.c_str(), &end);
-    if (c.empty() || std::isnan(v))
-      o[names[i]] = nullptr;
-    else if (end && *end == '\0' && std::isfinite(v))
-      o[names[i]] = (c.find_first_of(".eE") == std::string::npos && std::abs(v) < 9e15) ? nlohmann::json(int64_t(v))
-                                                                                        : nlohmann::json(v);
-    else
-      o[names[i]] = c;
-  }
-  return o;
 }
 
 }  // namespace farm

@@ -1,8 +1,9 @@
 // The learner's record for programs: RUN/events.jsonl, one JSON object a line, each with "event"
 // (its kind) and "elapsed_s" (seconds of the run, as learner.csv counts them). Kinds:
 //   start       the run's experiment, task, algorithm and domain
-//   progress    one per learner.csv row, the row's fields under the CSV's column names, and the
-//               live workers throttled or in backpressure (workers_throttled, workers_backpressure)
+//   progress    one per learner.csv row: the fields of its statistics record (stats_record.h)
+//               under the CSV's column names, the live workers throttled or in backpressure
+//               (workers_throttled, workers_backpressure) among them
 //   ingest      from the ingest thread, at most once a second while batches arrive: its counters
 //               (batches_ok, batches_lost, batches_duplicate, batches_invalid, env_steps, queued)
 //   refusal     a batch, batch sample or heartbeat refused (the first ones; the ingest counters
@@ -43,9 +44,6 @@ class EventLog {
   // full disk must not stop training.
   void write(const std::string& event, nlohmann::json fields = nlohmann::json::object());
   uint64_t failures() const { return failures_.load(); }
-  // One CSV row as a JSON object under its header's column names: numbers as numbers, "nan" and
-  // empty cells as null, anything else as text.
-  static nlohmann::json from_csv(const std::string& header, const std::string& row);
 
  private:
   std::mutex mu_;

@@ -69,7 +69,10 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
           bus_, cfg_, task_spec_, roster_, events_, [this](const std::string& m) { log(m); },
           (fs::path(run_dir_of(o, cfg_)) / "evaluating").string()),
       checkpointer_(cfg_, task_spec_, run_dir_of(o, cfg_), events_, [this](const std::string& m) { log(m); }),
-      algo_(make_pacing(cfg_, task_spec_)) {
+      algo_(make_pacing(cfg_, task_spec_)),
+      stats_(
+          cfg_.experiment_id(), events_, [this](const std::string& m) { log(m); },
+          [this](farm::msg::LearnerStats& st) { weights_.publish_stats(st); }) {
   run_dir_ = run_dir_of(opt_, cfg_);
   evaluator_.only_workers_that_delivered([this](const std::string& worker_id, const std::string& participant) {
     return intake_.delivered(worker_id, participant);
@@ -245,40 +248,16 @@ FarmFigures FarmService::figures() const {
   f.evals_answered = evaluator_.answered();
   f.evals_lost = evaluator_.lost();
   f.evals_invalid = evaluator_.invalid();
+  // Live workers that wait on the learner (for new weights, or for room in the batch queue): the
+  // learner is the bottleneck and the workers are held back instead of piling up data.
+  for (const auto& w : live_workers()) {
+    f.throttled += w.state == "throttled";
+    f.backpressure += w.state == "backpressure";
+  }
   return f;
 }
 
 double FarmService::elapsed() const { return now_seconds() - t0_; }
-
-void FarmService::csv_row(const std::string& row) {
-  csv_.out << row << '\n';
-  csv_.out.flush();
-  // The row's fields, and the live workers that wait on the learner (the log line's waiting note).
-  nlohmann::json e = EventLog::from_csv(csv_.header, row);
-  const Waiting w = waiting();
-  e["workers_throttled"] = w.throttled;
-  e["workers_backpressure"] = w.backpressure;
-  events_.write("progress", std::move(e));
-}
-
-// Live workers that wait on the learner (for new weights, or for room in the batch queue): the
-// learner is the bottleneck and the workers are held back instead of piling up data.
-FarmService::Waiting FarmService::waiting() const {
-  Waiting n;
-  for (const auto& w : live_workers()) {
-    n.throttled += w.state == "throttled";
-    n.backpressure += w.state == "backpressure";
-  }
-  return n;
-}
-
-std::string FarmService::waiting_note() const {
-  const Waiting w = waiting();
-  std::string note;
-  if (w.throttled) note += ", " + std::to_string(w.throttled) + " throttled";
-  if (w.backpressure) note += ", " + std::to_string(w.backpressure) + " in backpressure";
-  return note.empty() ? "" : " (" + note.substr(2) + ")";
-}
 
 bool FarmService::try_checkpoint(double elapsed) {
   return checkpointer_.save(
@@ -330,11 +309,7 @@ void FarmService::prepare_run_dir() {
     log("previous run moved to " + aside + " (use --resume to continue a run instead)");
   }
   fs::create_directories(run_dir_);
-  const bool new_csv = !fs::exists(fs::path(run_dir_) / "learner.csv");
-  csv_.out.open(fs::path(run_dir_) / "learner.csv", std::ios::app);
-  if (!csv_.out) throw std::runtime_error("cannot write " + run_dir_ + "/learner.csv");
-  csv_.header = algo_->csv_header();
-  if (new_csv) csv_.out << csv_.header << '\n';
+  stats_.open_csv((fs::path(run_dir_) / "learner.csv").string(), algo_->row_schema());
   events_.open((fs::path(run_dir_) / "events.jsonl").string());
 }
 
@@ -394,29 +369,8 @@ void FarmService::progress(double elapsed, double window) {
   const IngestCounters& l = last_counters_;
   f.in_rate = double(c.env_steps - l.env_steps) / window;
   f.lag = c.ok > l.ok ? (c.lag_sum - l.lag_sum) / double(c.ok - l.ok) : 0.0;
-  f.waiting_note = waiting_note();
   last_counters_ = c;
-  AlgorithmStats a;
-  algo_->progress(*this, f, elapsed, &a);
-  farm::msg::LearnerStats st;
-  st.experiment_id(cfg_.experiment_id());
-  st.elapsed_seconds(elapsed);
-  st.env_steps(c.env_steps);
-  st.env_steps_per_second(f.in_rate);
-  st.policy_lag(f.lag);
-  st.mean_return(f.mean_return);
-  st.batches_ok(c.ok);
-  st.batches_lost(c.lost);
-  st.batches_duplicate(c.duplicate);
-  st.batches_invalid(c.invalid);
-  st.workers(f.workers);
-  st.updates(a.updates);
-  st.updates_per_second(a.updates_per_second);
-  st.buffer_fill(a.buffer_fill);
-  st.critic_loss(a.critic_loss);
-  st.actor_loss(a.actor_loss);
-  st.eval_return(a.eval_return);
-  weights_.publish_stats(st);
+  stats_.period(algo_->progress(*this, f, elapsed));
 }
 
 std::string FarmService::should_stop(double elapsed) const {

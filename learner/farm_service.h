@@ -32,6 +32,7 @@
 #include "pacing.h"
 #include "roster_thread.h"
 #include "spec_publisher.h"
+#include "stats_reporter.h"
 #include "task_spec.h"
 #include "weight_publisher.h"
 #include "worker_roster.h"
@@ -60,7 +61,7 @@ class FarmService final : public Farm {
   bool ask_evaluation(const PolicyParams& policy, const EvalAsk& ask) override;
   void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) override;
   void log(const std::string& s) const override;
-  void csv_row(const std::string& row) override;
+  void row(const StatsRecord& r) override { stats_.row(r); }
 
  private:
   void prepare_run_dir();
@@ -85,13 +86,6 @@ class FarmService final : public Farm {
   bool try_checkpoint(double elapsed);
   // The manifest fields every checkpoint carries, but the accounts (accounts_to_manifest).
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
-  // Live workers that wait on the learner: for new weights (throttled), or for room in the batch
-  // queue (backpressure); and as the progress line says it.
-  struct Waiting {
-    int throttled = 0, backpressure = 0;
-  };
-  Waiting waiting() const;
-  std::string waiting_note() const;
 
   // --- The end of a run (farm_run_end.cpp) ---
   // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
@@ -132,11 +126,8 @@ class FarmService final : public Farm {
   Evaluator evaluator_;
   Checkpointer checkpointer_;
   std::unique_ptr<Pacing> algo_;  // the algorithm, in its pacing
+  StatsReporter stats_;           // the pacing's records to learner.csv, events, the log, LearnerStats
   std::string run_dir_;
-  struct Csv {
-    std::ofstream out;   // RUN/learner.csv
-    std::string header;  // its columns, which name the progress events' fields
-  } csv_;
   // Finished training episodes: how many, and the returns of the last 100.
   struct Returns {
     uint64_t total = 0;

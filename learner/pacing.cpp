@@ -15,11 +15,6 @@ std::string fmt(const char* f, double v) {
   return buf;
 }
 
-std::string eval_counts(const FarmFigures& f) {
-  return " | evals asked " + std::to_string(f.evals_asked) + " answered " + std::to_string(f.evals_answered) +
-         " lost " + std::to_string(f.evals_lost) + " invalid " + std::to_string(f.evals_invalid);
-}
-
 std::string best_eval_line(const FarmFigures& f) {
   std::string label = "best eval " + f.best_measure;
   label.resize(std::max<size_t>(label.size() + 1, 18), ' ');  // the summary's value column

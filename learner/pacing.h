@@ -1,7 +1,8 @@
 // The pace of an algorithm against its workers: when it updates, when its weights go out and with
-// what quota of batches per worker, when it is evaluated, and what each step reports (the
-// progress line, the CSV row, LearnerStats, the summary). The only part of the learner that reads
-// worker state. Two kinds, by the registration's on_policy:
+// what quota of batches per worker, when it is evaluated, and what each step reports: statistics
+// records (pacing_stats.h) that the runner renders as the progress line, learner.csv, events.jsonl
+// and LearnerStats, and the summary. The only part of the learner that reads worker state. Two
+// kinds, by the registration's on_policy:
 // - replay pacing (replay_pacing.cpp): updates as a samples-per-insert limiter allows
 //   (samples_per_insert.h), weights every few updates, evaluations on a timer;
 // - round pacing (round_pacing.cpp): a quota of batches per worker for each version, batches older
@@ -20,6 +21,7 @@
 #include "batch.h"
 #include "farm_config.pb.h"
 #include "mlp.h"
+#include "stats_record.h"
 #include "task_spec.h"
 
 namespace farm {
@@ -60,21 +62,14 @@ struct FarmFigures {
   // Evaluations asked of workers (retries included), answered, lost (unanswered in time, or the
   // worker died) and answers refused as invalid.
   uint64_t evals_asked = 0, evals_answered = 0, evals_lost = 0, evals_invalid = 0;
-  // At a progress line only: env steps/s and mean policy lag since the last line, and the live
-  // workers that wait on the learner (" (2 throttled)"; "" when none).
+  // Live workers that wait on the learner: for new weights (throttled), or for room in the batch
+  // queue (backpressure).
+  int throttled = 0, backpressure = 0;
+  // At a progress line only: env steps/s and mean policy lag since the last line.
   double in_rate = 0, lag = 0;
-  std::string waiting_note;
 };
-// " | evals asked N answered M lost K invalid I" for a progress line.
-std::string eval_counts(const FarmFigures& f);
 // The summary's "best eval return  141.5" line ("best eval share (min) 0.8712" by eval.best_metric).
 std::string best_eval_line(const FarmFigures& f);
-
-// The algorithm's figures in the LearnerStats a progress line publishes.
-struct AlgorithmStats {
-  int64_t updates = 0;
-  double updates_per_second = 0, buffer_fill = 0, critic_loss = 0, actor_loss = 0, eval_return = NAN;
-};
 
 // What the runner offers a pacing.
 class Farm {
@@ -108,8 +103,8 @@ class Farm {
   // version was asked.
   virtual void record_evaluation(const EvalReport& report, uint64_t version, int64_t updates, double elapsed) = 0;
   virtual void log(const std::string& line) const = 0;
-  // One row of <run dir>/learner.csv, without the newline (columns: Pacing::csv_header).
-  virtual void csv_row(const std::string& row) = 0;
+  // A record of the pacing's row_schema(): one row of <run dir>/learner.csv and its progress event.
+  virtual void row(const StatsRecord& r) = 0;
 };
 
 class Pacing {
@@ -118,7 +113,9 @@ class Pacing {
   virtual ~Pacing() = default;
 
   std::string describe() const { return algo_->describe(); }
-  virtual std::string csv_header() const = 0;  // without the trailing newline
+  // The fields of learner.csv's rows and their progress events (Farm::row).
+  virtual const StatsSchema& row_schema() const = 0;
+  std::string csv_header() const { return row_schema().csv_header(); }
   // The policy version batches are checked against, and the one a checkpoint records.
   virtual uint64_t version() const = 0;
   int64_t updates() const { return algo_->updates(); }
@@ -138,8 +135,9 @@ class Pacing {
   // Re-sends the current version with a quota of one batch, so every worker that already sent on
   // it waits: at an interrupted stop and at a stop rule.
   virtual void hold_workers(Farm& farm) = 0;
-  // The periodic progress: a log line, and where rows are written per period, a CSV row.
-  virtual void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) = 0;
+  // The periodic progress: the record the runner logs as the progress line and publishes as
+  // LearnerStats; where rows are written per period, the same record is a row (Farm::row).
+  virtual StatsRecord progress(Farm& farm, const FarmFigures& f, double elapsed) = 0;
   // The algorithm's own end (PPO's run length); "" while it goes on.
   virtual std::string stop_reason() const { return ""; }
   // Asks the final evaluation (Farm::ask_evaluation, label "final").

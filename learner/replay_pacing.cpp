@@ -15,6 +15,7 @@
 
 #include "meter.h"
 #include "pacing.h"
+#include "pacing_stats.h"
 #include "samples_per_insert.h"
 
 namespace farm {
@@ -78,11 +79,7 @@ class ReplayPacing final : public Pacing {
         publish_every_(int(section_number(cfg_, "publish_every_updates"))),
         limiter_(int64_t(section_number(cfg_, "learning_starts")), per_step_, cfg_.stop().max_updates()) {}
 
-  std::string csv_header() const override {
-    return "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,samples_per_insert,buffer_fill,"
-           "policy_version,policy_lag,critic_loss,actor_loss,alpha,mean_return,eval_return,"
-           "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers";
-  }
+  const StatsSchema& row_schema() const override { return schema_; }
   uint64_t version() const override { return version_ > 0 ? version_ - 1 : 0; }
   double last_eval() const override { return last_eval_; }
 
@@ -127,36 +124,24 @@ class ReplayPacing final : public Pacing {
 
   void hold_workers(Farm& farm) override { farm.publish(policy(), 1); }
 
-  void progress(Farm& farm, const FarmFigures& f, double elapsed, AlgorithmStats* stats) override {
-    const double upd_rate = updates_meter_.rate();
+  StatsRecord progress(Farm& farm, const FarmFigures& f, double elapsed) override {
+    StatsRecord r(schema_);
+    put_figures(r, f, elapsed);
     const int64_t updates = algo_->updates();
-    const double utd = f.env_steps > 0 ? double(updates) / double(f.env_steps) : 0.0;
-    const double spi = f.env_steps > 0 ? samples_ / double(f.env_steps) : 0.0;  // samples per transition
     const Holding h = algo_->holding();
-    const double fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
-    const double critic = latest("critic loss"), actor = latest("actor loss");
-    const double alpha = std::isnan(last_.get("alpha")) ? latest("epsilon") : latest("alpha");
-    std::ostringstream o;
-    o << fmt("%7.1fs", elapsed) << " | in " << fmt("%.0f", f.in_rate) << " steps/s (" << f.env_steps << ") | "
-      << fmt("%.0f", upd_rate) << " upd/s (" << updates << ", utd " << fmt("%.3f", utd) << ", spi " << fmt("%.2f", spi)
-      << ") | buffer " << fmt("%.1f", 100 * fill) << "% | v" << version() << " lag " << fmt("%.1f", f.lag)
-      << " | return " << fmt("%.1f", f.mean_return) << " eval " << fmt("%.1f", last_eval_) << " | batches ok " << f.ok
-      << " lost " << f.lost << " dup " << f.duplicate << " invalid " << f.invalid << eval_counts(f) << " | workers "
-      << f.workers << (algo_->max_step_scale() > 1 ? " | step x" + std::to_string(step_scale_) : "") << f.waiting_note;
-    farm.log(o.str());
-    std::ostringstream row;
-    row << fmt("%.2f", elapsed) << ',' << f.env_steps << ',' << fmt("%.1f", f.in_rate) << ',' << updates << ','
-        << fmt("%.1f", upd_rate) << ',' << fmt("%.4f", utd) << ',' << fmt("%.3f", spi) << ',' << fmt("%.4f", fill)
-        << ',' << version() << ',' << fmt("%.2f", f.lag) << ',' << fmt("%.5g", critic) << ',' << fmt("%.5g", actor)
-        << ',' << fmt("%.5g", alpha) << ',' << fmt("%.2f", f.mean_return) << ',' << fmt("%.2f", last_eval_) << ','
-        << f.ok << ',' << f.lost << ',' << f.duplicate << ',' << f.invalid << ',' << f.workers;
-    farm.csv_row(row.str());
-    stats->updates = updates;
-    stats->updates_per_second = upd_rate;
-    stats->buffer_fill = fill;
-    stats->critic_loss = critic;
-    stats->actor_loss = actor;
-    stats->eval_return = last_eval_;
+    r.set(stats::kUpdates, double(updates));
+    r.set(stats::kUpdatesPerS, updates_meter_.rate());
+    r.set(stats::kUpdateToData, f.env_steps > 0 ? double(updates) / double(f.env_steps) : 0.0);
+    r.set(stats::kSamplesPerInsert, f.env_steps > 0 ? samples_ / double(f.env_steps) : 0.0);
+    r.set(stats::kBufferFill, h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0);
+    r.set(stats::kPolicyVersion, double(version()));
+    r.set(stats::kCriticLoss, latest("critic loss"));
+    r.set(stats::kActorLoss, latest("actor loss"));
+    r.set(stats::kAlpha, std::isnan(last_.get("alpha")) ? latest("epsilon") : latest("alpha"));
+    r.set(stats::kEvalReturn, last_eval_);
+    r.set(stats::kStepScale, step_scale_);
+    farm.row(r);
+    return r;
   }
 
   void final_evaluation(Farm& farm, double elapsed) override {
@@ -241,6 +226,7 @@ class ReplayPacing final : public Pacing {
     farm.ask_evaluation(policy_of(ask.version), ask);
   }
 
+  const StatsSchema schema_ = stats::replay_schema();
   const int batch_size_;  // the config's; the step scale multiplies it
   const double per_step_;
   const int publish_every_;

@@ -13,6 +13,7 @@
 
 #include "meter.h"
 #include "pacing.h"
+#include "pacing_stats.h"
 
 namespace farm {
 
@@ -21,23 +22,16 @@ namespace {
 class RoundPacing final : public Pacing {
  public:
   RoundPacing(std::unique_ptr<Algorithm> algo, const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
-      : Pacing(std::move(algo), cfg, spec), pc_(cfg.ppo()), async_(pc_.mode() == "async") {}
+      : Pacing(std::move(algo), cfg, spec),
+        pc_(cfg.ppo()),
+        async_(pc_.mode() == "async"),
+        fit_schema_(stats::fit_schema(spec_.metric_names)),
+        rows_(spec_.metric_names) {}
 
   uint64_t version() const override { return version_; }
   double last_eval() const override { return last_eval_.mean; }
 
-  std::string csv_header() const override {
-    std::string h =
-        "elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,lag_mean,lag_max,fit_seconds,"
-        "kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,mean_return,eval_return,"
-        "eval_min,eval_max,eval_length,batches_ok,batches_lost,batches_duplicate,batches_invalid,"
-        "batches_stale,workers,episodes";
-    // The task's own per-episode metrics: means over the episodes finished since the last fit
-    // (train_*) and over the evaluation episodes (eval_*).
-    for (const auto& m : spec_.metric_names) h += ",train_" + m;
-    for (const auto& m : spec_.metric_names) h += ",eval_" + m;
-    return h;
-  }
+  const StatsSchema& row_schema() const override { return fit_schema_; }
 
   void start(Farm&) override { arrivals_.last_data = now_seconds(); }
 
@@ -92,20 +86,20 @@ class RoundPacing final : public Pacing {
     farm.publish(policy_, quota_);
   }
 
-  void progress(Farm& farm, const FarmFigures& c, double elapsed, AlgorithmStats* stats) override {
+  StatsRecord progress(Farm&, const FarmFigures& c, double elapsed) override {
     const Holding h = algo_->holding();
-    stats->updates = algo_->updates();
-    stats->updates_per_second = 0;
-    stats->buffer_fill = h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0;
-    stats->critic_loss = latest("value loss");
-    stats->actor_loss = latest("policy loss");
-    stats->eval_return = last_eval_.mean;
-    farm.log(fmt("%7.1fs", elapsed) + " | in " + fmt("%.0f", c.in_rate) + " steps/s (" + std::to_string(c.env_steps) +
-             ") | v" + std::to_string(version_) + " collecting " + std::to_string(h.rows) + " steps, quota " +
-             std::to_string(quota_) + " batches/worker | batches ok " + std::to_string(c.ok) + " lost " +
-             std::to_string(c.lost) + " dup " + std::to_string(c.duplicate) + " invalid " + std::to_string(c.invalid) +
-             " stale " + std::to_string(counts_.stale_batches) + eval_counts(c) + " | workers " +
-             std::to_string(c.workers));
+    StatsRecord r(period_schema_);
+    put_figures(r, c, elapsed);
+    r.set(stats::kPolicyVersion, double(version_));
+    r.set(stats::kStepsCollecting, double(h.rows));
+    r.set(stats::kQuota, quota_);
+    r.set(stats::kUpdates, double(algo_->updates()));
+    r.set(stats::kBufferFill, h.capacity > 0 ? double(h.rows) / double(h.capacity) : 0.0);
+    r.set(stats::kValueLoss, latest("value loss"));
+    r.set(stats::kPolicyLoss, latest("policy loss"));
+    r.set(stats::kEvalReturn, last_eval_.mean);
+    r.set(stats::kBatchesStale, double(counts_.stale_batches));
+    return r;
   }
 
   std::string stop_reason() const override { return algo_->ready() > 0 ? "" : algo_->holding().run_done; }
@@ -126,11 +120,11 @@ class RoundPacing final : public Pacing {
              fmt("%.1f", r.mean_length) + metrics + " (policy v" + std::to_string(ask.version) + ", " + ask.progress +
              ", " + fmt("%.1f", ask.elapsed) + " s)");
     farm.record_evaluation(r, ask.version, ask.updates, ask.elapsed);
-    if (ask.label == "eval") rows_.settle(farm, ask.version, &r, spec_.metric_names.size());
+    if (ask.label == "eval") rows_.settle(farm, ask.version, &r);
   }
 
   void not_evaluated(Farm& farm, const EvalAsk& ask) override {
-    if (ask.label == "eval") rows_.settle(farm, ask.version, nullptr, spec_.metric_names.size());
+    if (ask.label == "eval") rows_.settle(farm, ask.version, nullptr);
   }
 
   std::string summary(const FarmFigures& c, double) const override {
@@ -207,50 +201,47 @@ class RoundPacing final : public Pacing {
       for (size_t i = 0; i < n && i < metrics.size(); ++i) sums[i] += metrics[i];
     }
   };
-  // Fits' CSV rows: a row's evaluation columns (between head and tail, and the eval_* metrics at
-  // the end) are filled when the evaluation asked at that fit is answered. Rows are written in fit
-  // order, so one that waits holds back the rows after it, up to kMaxHeld rows.
+  // Fits' rows: a row's evaluation fields are filled when the evaluation asked at that fit is
+  // answered. Rows are written in fit order, so one that waits holds back the rows after it, up to
+  // kMaxHeld rows.
   class FitRows {
    public:
-    void add(Farm& farm, std::string head, std::string tail, bool waits, uint64_t version, size_t metrics) {
-      rows_.push_back({std::move(head), std::move(tail), waits, version, false, {}});
-      write(farm, metrics);
+    explicit FitRows(const std::vector<std::string>& metrics) : metrics_(metrics) {}
+    void add(Farm& farm, StatsRecord r, bool waits, uint64_t version) {
+      rows_.push_back({std::move(r), waits, version});
+      write(farm);
     }
-    void settle(Farm& farm, uint64_t version, const EvalReport* r, size_t metrics) {
+    void settle(Farm& farm, uint64_t version, const EvalReport* e) {
       for (auto& row : rows_) {
         if (!row.waits || row.version != version) continue;
         row.waits = false;
-        if (r) {
-          row.has_eval = true;
-          row.eval = *r;
+        if (e) {
+          row.record.set(stats::kEvalReturn, e->mean);
+          row.record.set(stats::kEvalMin, e->min);
+          row.record.set(stats::kEvalMax, e->max);
+          row.record.set(stats::kEvalLength, e->mean_length);
+          for (size_t i = 0; i < e->metrics.size() && i < metrics_.size(); ++i)
+            row.record.set("eval_" + metrics_[i], e->metrics[i]);
         }
         break;
       }
-      write(farm, metrics);
+      write(farm);
     }
 
    private:
     struct Row {
-      std::string head, tail;
+      StatsRecord record;
       bool waits = false;
       uint64_t version = 0;
-      bool has_eval = false;
-      EvalReport eval;
     };
-    void write(Farm& farm, size_t metrics) {
+    void write(Farm& farm) {
       while (!rows_.empty() && (!rows_.front().waits || rows_.size() > kMaxHeld)) {
-        const Row& row = rows_.front();
-        const bool e = row.has_eval;
-        std::ostringstream csv;
-        csv << row.head << (e ? fmt("%.3f", row.eval.mean) : "") << ',' << (e ? fmt("%.3f", row.eval.min) : "") << ','
-            << (e ? fmt("%.3f", row.eval.max) : "") << ',' << (e ? fmt("%.1f", row.eval.mean_length) : "") << row.tail;
-        for (size_t i = 0; i < metrics; ++i)
-          csv << ',' << (e && i < row.eval.metrics.size() ? fmt("%.5g", row.eval.metrics[i]) : "");
-        farm.csv_row(csv.str());
+        farm.row(rows_.front().record);
         rows_.pop_front();
       }
     }
     static constexpr size_t kMaxHeld = 256;
+    const std::vector<std::string> metrics_;  // the task's, TaskSpec::metric_names
     std::deque<Row> rows_;
   };
 
@@ -355,14 +346,11 @@ class RoundPacing final : public Pacing {
     // The lag of what this fit uses: versions behind the one being fitted, by steps.
     double lag_sum = 0;
     uint64_t lag_max = 0;
-    std::string lags;
     for (auto it = u.steps_by_version.rbegin(); it != u.steps_by_version.rend(); ++it) {
       const uint64_t lag = version_ - it->first;
       lag_sum += double(lag) * double(it->second);
       lag_max = std::max(lag_max, lag);
       counts_.lag_steps[lag] += uint64_t(it->second);
-      lags += (lags.empty() ? "" : " ") + std::to_string(lag) + ":" +
-              fmt("%.0f%%", 100.0 * double(it->second) / double(std::max<int64_t>(1, used)));
     }
     const double lag_mean = lag_sum / double(std::max<int64_t>(1, used));
     counts_.used_steps += uint64_t(used);
@@ -382,32 +370,28 @@ class RoundPacing final : public Pacing {
     // The evaluation is asked now and answered later (evaluated()); this fit's CSV row waits for it.
     const bool eval_now = !stopping_ && pc_.eval_every_fits() > 0 && fits_ % pc_.eval_every_fits() == 0 &&
                           ask_evaluation(farm, cfg_.eval().episodes(), elapsed, "eval");
-    const FarmFigures c = farm.figures();
-    std::ostringstream o;
-    o << "fit " << fits_ << " | v" << fitted << " -> v" << version_ << " | steps used " << used << " carried "
-      << int64_t(u.get("steps carried")) << " | stale dropped " << counts_.stale_fit << " | lag " << lags << " | kl "
-      << fmt("%.4f", u.get("kl")) << " lr " << fmt("%.3g", u.get("learning rate")) << " clip "
-      << fmt("%.3f", u.get("clip fraction")) << " | value loss " << fmt("%.4g", u.get("value loss")) << " entropy "
-      << fmt("%.3f", u.get("entropy")) << " | return " << fmt("%.1f", c.mean_return) << " eval "
-      << fmt("%.1f", last_eval_.mean) << " | " << fmt("%.2f", fit_s) << " s fit, " << c.env_steps << " env steps, "
-      << fmt("%.1f", elapsed) << " s";
-    farm.log(o.str());
-    std::ostringstream head, tail;
-    head << fmt("%.2f", elapsed) << ',' << fits_ << ',' << fitted << ',' << c.env_steps << ',' << used << ','
-         << int64_t(u.get("steps carried")) << ',' << counts_.stale_fit << ',' << fmt("%.3f", lag_mean) << ','
-         << lag_max << ',' << fmt("%.3f", fit_s) << ',' << fmt("%.6g", u.get("kl")) << ','
-         << fmt("%.6g", u.get("learning rate")) << ',' << fmt("%.4f", u.get("clip fraction")) << ','
-         << fmt("%.6g", u.get("value loss")) << ',' << fmt("%.6g", u.get("policy loss")) << ','
-         << fmt("%.5g", u.get("entropy")) << ',' << fmt("%.3f", c.mean_return) << ',';
-    tail << ',' << c.ok << ',' << c.lost << ',' << c.duplicate << ',' << c.invalid << ',' << counts_.stale_batches
-         << ',' << c.workers << ',' << fit_episodes_.count;
-    const size_t nm = spec_.metric_names.size();
-    for (size_t i = 0; i < nm; ++i)
-      tail << ','
-           << (fit_episodes_.count > 0 && i < fit_episodes_.sums.size()
-                   ? fmt("%.5g", fit_episodes_.sums[i] / double(fit_episodes_.count))
-                   : "");
-    rows_.add(farm, head.str(), tail.str(), eval_now, policy_.version, nm);
+    StatsRecord r(fit_schema_);
+    put_figures(r, farm.figures(), elapsed);
+    r.set(stats::kFit, double(fits_));
+    r.set(stats::kPolicyVersion, double(fitted));
+    r.set(stats::kStepsUsed, double(used));
+    r.set(stats::kStepsCarried, u.get("steps carried"));
+    r.set(stats::kStaleDropped, double(counts_.stale_fit));
+    r.set(stats::kLagMean, lag_mean);
+    r.set(stats::kLagMax, double(lag_max));
+    r.set(stats::kFitSeconds, fit_s);
+    r.set(stats::kKl, u.get("kl"));
+    r.set(stats::kLearningRate, u.get("learning rate"));
+    r.set(stats::kClipFraction, u.get("clip fraction"));
+    r.set(stats::kValueLoss, u.get("value loss"));
+    r.set(stats::kPolicyLoss, u.get("policy loss"));
+    r.set(stats::kEntropy, u.get("entropy"));
+    r.set(stats::kBatchesStale, double(counts_.stale_batches));
+    r.set(stats::kEpisodes, double(fit_episodes_.count));
+    for (size_t i = 0; i < spec_.metric_names.size() && i < fit_episodes_.sums.size() && fit_episodes_.count > 0; ++i)
+      r.set("train_" + spec_.metric_names[i], fit_episodes_.sums[i] / double(fit_episodes_.count));
+    farm.log(r.line());
+    rows_.add(farm, std::move(r), eval_now, policy_.version);
     fit_episodes_ = FitEpisodes{};
     counts_.stale_fit = 0;
   }
@@ -463,6 +447,7 @@ class RoundPacing final : public Pacing {
   Counts counts_;
   Arrivals arrivals_;
   FitEpisodes fit_episodes_;
+  const StatsSchema fit_schema_, period_schema_ = stats::period_schema();
   FitRows rows_;
   static constexpr double kJoinGraceSeconds = 1.0;
 };

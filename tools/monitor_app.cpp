@@ -246,6 +246,10 @@ MonitorSnapshot MonitorApp::snapshot(double now) const {
     l.batches_duplicate = m.batches_duplicate();
     l.batches_invalid = m.batches_invalid();
     l.workers = m.workers();
+    for (const auto& st : m.stats()) {
+      if (l.stats.size() >= kMaxStats) break;
+      l.stats.push_back({st.name().substr(0, kMaxTextBytes), st.unit().substr(0, kMaxTextBytes), st.value()});
+    }
     s.learners.push_back(std::move(l));
   }
   return s;

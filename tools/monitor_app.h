@@ -90,6 +90,7 @@ class MonitorApp {
   std::set<std::string> stats_heard_;  // every learner (experiment id) heard from, filter or not
   // Each table above holds at most kMaxEntries; each text from a heartbeat at most kMaxTextBytes.
   static constexpr size_t kMaxEntries = 4096, kMaxTextBytes = 256;
+  static constexpr size_t kMaxStats = 256;  // fields of one learner's statistics record kept
   // Heartbeats refused under security because their worker id is not their writer's certificate name.
   uint64_t refused_for_name_ = 0;
   static constexpr uint64_t kMaxRefusalNotes = 10;

@@ -36,6 +36,12 @@ struct LearnerRow {
   double critic_loss = 0, actor_loss = 0, mean_return = 0, eval_return = 0;  // NaN: none yet
   uint64_t batches_ok = 0, batches_lost = 0, batches_duplicate = 0, batches_invalid = 0;
   uint32_t workers = 0;
+  // Every field of the learner's statistics record (LearnerStats' `stats`): name, unit, value.
+  struct Stat {
+    std::string name, unit;
+    double value = 0;  // NaN: none yet
+  };
+  std::vector<Stat> stats;
 };
 
 struct MonitorSnapshot {

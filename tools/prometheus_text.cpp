@@ -282,6 +282,21 @@ void PrometheusMetrics::update(const MonitorSnapshot& s) {
               batches);
   set_gauge("farm_learner_workers", "Workers the learner counts live.",
             per_learner([](const LearnerRow& r) { return double(r.workers); }));
+  // Every field of the learner's statistics record, as it declares it (name and unit): a field the
+  // learner adds has a series here without a change to the monitor.
+  Values stats;
+  for (const auto& [r, l] : learners) {
+    for (const LearnerRow::Stat& st : r->stats) {
+      prometheus::Labels with_name = l;
+      with_name["name"] = label(st.name);
+      with_name["unit"] = label(st.unit);
+      stats.emplace(std::move(with_name), st.value);  // a name repeated after bounding: its first
+    }
+  }
+  set_gauge("farm_learner_stat",
+            "Each field of the learner's statistics record (learner.csv's columns) by name and unit; absent: none "
+            "yet.",
+            stats);
 }
 
 std::string PrometheusMetrics::page() const {

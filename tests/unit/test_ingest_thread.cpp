@@ -170,7 +170,7 @@ TEST(IngestThread, OneParticipantsRefusalsDoNotSilenceAnothers) {
   EXPECT_EQ(lines.size(), size_t(farm::IngestThread::kMaxRefusalLines) + 1);
 }
 
-TEST(EventLog, OneObjectALineWithCsvColumnsAsFields) {
+TEST(EventLog, OneObjectALineWithItsOwnElapsedKept) {
   const std::string path =
       (std::filesystem::temp_directory_path() / ("events_" + std::to_string(getpid()) + ".jsonl")).string();
   std::filesystem::remove(path);
@@ -178,8 +178,9 @@ TEST(EventLog, OneObjectALineWithCsvColumnsAsFields) {
     farm::EventLog e;
     e.open(path);
     e.set_start(farm::now_seconds() - 5.0);
-    e.write("progress",
-            farm::EventLog::from_csv("elapsed_s,env_steps,updates_per_s,mean_return,note", "12.50,4096,87.5,nan,abc"));
+    e.write(
+        "progress",
+        {{"elapsed_s", 12.5}, {"env_steps", 4096}, {"updates_per_s", 87.5}, {"mean_return", nullptr}, {"note", "abc"}});
     e.write("worker", {{"worker_id", std::string("w\x1b\xff")}});
   }
   std::ifstream in(path);

@@ -63,7 +63,7 @@ class StepScaleFarm final : public Farm {
   bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
   void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
   void log(const std::string& line) const override { lines_.push_back(line); }
-  void csv_row(const std::string&) override {}
+  void row(const StatsRecord&) override {}
   uint64_t env_steps_ = 0;
   int published_ = 0;
   mutable std::vector<std::string> lines_;
@@ -284,7 +284,7 @@ TEST(ReplayPacing, SamplesPerInsertMeansTheSameAtAnyBatch) {
     bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
     void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
     void log(const std::string&) const override {}
-    void csv_row(const std::string& row) override { last = row; }
+    void row(const StatsRecord& r) override { last = r.csv_row(); }
     std::string last;
   };
   const auto spec = step_scale_spec();
@@ -303,13 +303,20 @@ TEST(ReplayPacing, SamplesPerInsertMeansTheSameAtAnyBatch) {
     EXPECT_EQ(pacing->updates(), 32 * 400 / batch + 1);
     FarmFigures f;
     f.env_steps = 400;
-    AlgorithmStats stats;
-    pacing->progress(farm, f, 1.0, &stats);
+    pacing->progress(farm, f, 1.0);
     const auto header = split(pacing->csv_header(), ','), row = split(farm.last, ',');
     ASSERT_EQ(header.size(), row.size()) << farm.last;
     const auto at = std::find(header.begin(), header.end(), "samples_per_insert") - header.begin();
     ASSERT_LT(size_t(at), header.size()) << pacing->csv_header();
     EXPECT_NEAR(std::stod(row[at]), double(pacing->updates()) * batch / 400, 1e-3) << farm.last;
+    // The columns readers know keep their names and order; those added since follow them.
+    EXPECT_EQ(pacing->csv_header().rfind(
+                  "elapsed_s,env_steps,env_steps_per_s,updates,updates_per_s,update_to_data,samples_per_insert,"
+                  "buffer_fill,policy_version,policy_lag,critic_loss,actor_loss,alpha,mean_return,eval_return,"
+                  "batches_ok,batches_lost,batches_duplicate,batches_invalid,workers,",
+                  0),
+              0u)
+        << pacing->csv_header();
   }
   auto both = step_scale_config();  // max_step_scale 4
   both.mutable_sac()->set_samples_per_insert(32);
@@ -404,11 +411,16 @@ class RoundFarm final : public Farm {
   FarmFigures figures() const override { return {}; }
   uint64_t env_steps() const override { return 0; }
   double elapsed() const override { return 0; }
-  bool ask_evaluation(const PolicyParams&, const EvalAsk&) override { return true; }
+  bool ask_evaluation(const PolicyParams&, const EvalAsk& a) override {
+    asked.push_back(a);
+    return true;
+  }
   void record_evaluation(const EvalReport&, uint64_t, int64_t, double) override {}
   void log(const std::string&) const override {}
-  void csv_row(const std::string&) override {}
+  void row(const StatsRecord& r) override { rows.push_back(r.csv_row()); }
+  std::vector<EvalAsk> asked;
   std::vector<LiveWorker> live;
+  std::vector<std::string> rows;  // learner.csv's
   double heard = 0;
   std::vector<std::pair<uint64_t, uint32_t>> published;  // (version, quota)
 };
@@ -430,6 +442,51 @@ std::unique_ptr<Pacing> started_round_pacing(RoundFarm& farm, std::vector<Farm::
   pacing->start(farm);
   pacing->train(farm, false);
   return pacing;
+}
+
+// A fit's row waits for the evaluation asked at that fit and is written with its report in the
+// evaluation columns; learner.csv's columns keep the names and order its readers know.
+TEST(RoundPacing, AFitsRowIsWrittenWithTheEvaluationAskedAtIt) {
+  RoundFarm farm;
+  const auto pacing = started_round_pacing(farm, {{"w1", "running", 0, 8}}, "eval_every_fits: 1");
+  const uint64_t v = farm.published.back().first;
+  for (int sent = 0; sent < 100 && farm.asked.empty(); ++sent) {
+    PpoStep b(32, v);
+    b.batch.worker_id = "w1";
+    ASSERT_TRUE(pacing->take(b.batch));
+    pacing->train(farm, true);
+  }
+  ASSERT_GT(pacing->updates(), 0);
+  ASSERT_EQ(farm.asked.size(), 1u);  // at the first fit
+  EXPECT_TRUE(farm.rows.empty()) << farm.rows.front();
+  EvalReport r;
+  r.episodes = 4;
+  r.mean = -100.5;
+  r.min = -120;
+  r.max = -81.25;
+  r.mean_length = 200;
+  pacing->evaluated(farm, farm.asked[0], r);
+  ASSERT_EQ(farm.rows.size(), 1u);
+  const std::string header = pacing->csv_header();
+  EXPECT_EQ(header.rfind("elapsed_s,fit,policy_version,env_steps,steps_used,steps_carried,stale_dropped,lag_mean,"
+                         "lag_max,fit_seconds,kl,learning_rate,clip_fraction,value_loss,policy_loss,entropy,"
+                         "mean_return,eval_return,eval_min,eval_max,eval_length,batches_ok,batches_lost,"
+                         "batches_duplicate,batches_invalid,batches_stale,workers,episodes",
+                         0),
+            0u)
+      << header;
+  const auto names = split(header, ','), cells = split(farm.rows[0], ',');
+  ASSERT_EQ(names.size(), cells.size()) << farm.rows[0];
+  const auto cell = [&](const std::string& n) {
+    return cells[std::find(names.begin(), names.end(), n) - names.begin()];
+  };
+  EXPECT_EQ(cell("fit"), "1");
+  EXPECT_EQ(cell("policy_version"), std::to_string(v));
+  EXPECT_EQ(cell("steps_used"), "256");
+  EXPECT_EQ(cell("eval_return"), "-100.500");
+  EXPECT_EQ(cell("eval_min"), "-120.000");
+  EXPECT_EQ(cell("eval_max"), "-81.250");
+  EXPECT_EQ(cell("eval_length"), "200.0");
 }
 
 // A participant that beats as a worker of 4,096 environments and never sends a batch (a stuck

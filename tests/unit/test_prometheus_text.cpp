@@ -63,6 +63,7 @@ farm::MonitorSnapshot sample_snapshot() {
   l.batches_duplicate = 1;
   l.batches_invalid = 4;
   l.workers = 2;
+  l.stats = {{"update_to_data", "updates/step", 0.25}, {"env_steps", "steps", 816600}, {"eval_return", "", NAN}};
   s.learners = {l};
   s.latest_learner = 0;
   return s;
@@ -230,6 +231,14 @@ TEST(PrometheusText, ValuesAreTheSnapshots) {
   EXPECT_EQ(at(p, "farm_learner_batches_total", with(kLearner, "result", "invalid")), "4");
   EXPECT_EQ(at(p, "farm_learner_workers", kLearner), "2");
   EXPECT_EQ(at(p, "farm_monitor_workers_not_exported"), "0");
+  // Every field of the learner's statistics record, by its name and unit; one without a value has
+  // no sample.
+  const auto stat = [&](const std::string& name, const std::string& unit) {
+    return at(p, "farm_learner_stat", with(with(kLearner, "name", name), "unit", unit));
+  };
+  EXPECT_EQ(stat("update_to_data", "updates/step"), "0.25");
+  EXPECT_EQ(stat("env_steps", "steps"), "816600");
+  EXPECT_EQ(stat("eval_return", ""), "(absent)");
 }
 
 TEST(PrometheusText, AStateItDoesNotKnowIsOther) {

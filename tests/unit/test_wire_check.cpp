@@ -131,7 +131,12 @@ TEST(WireCheck, EveryTypeWalksToItsEnd) {
   farm::msg::LearnerStats ls;
   ls.experiment_id("e");
   ls.workers(3);
-  expect_walks<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>(ls, farm::wire::learner_stats(), 17);
+  farm::msg::LearnerStat stat;
+  stat.name("update_to_data");
+  stat.unit("");
+  stat.value(0.25);
+  ls.stats({stat, stat});
+  expect_walks<farm::msg::LearnerStats, farm::msg::LearnerStatsPubSubType>(ls, farm::wire::learner_stats(), 17 + 2 * 3);
 }
 
 // The offset of a field reached by the walk.
