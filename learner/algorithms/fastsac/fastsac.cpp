@@ -10,6 +10,7 @@
 #include "archive_io.h"
 #include "compute.h"
 #include "config.h"
+#include "device_minibatch.h"
 #include "flat_params.h"
 #include "obs_normalizer.h"
 #include "policy_shape.h"
@@ -161,11 +162,8 @@ struct FastSac::Impl {
   }
 
   // Raw observations [B, obs_dim] on the device, normalized as the workers normalize them.
-  torch::Tensor normalized(const torch::Tensor& obs) const {
-    if (!cfg.normalize_observations()) return obs;
-    const auto mean = torch::tensor(normalizer.mean()).to(device), std = torch::tensor(normalizer.std()).to(device);
-    return (obs - mean) / std;
-  }
+  torch::Tensor normalized(const torch::Tensor& obs) const { return normalized_obs(obs, moments(), device); }
+  const ObsNormalizer* moments() const { return cfg.normalize_observations() ? &normalizer : nullptr; }
 
   // A reparameterized sample of the actor at normalized obs, as the workers draw it: tanh(mean +
   // exp(log_std) * eps), log_std clamped to its bounds; and its log-probability [B].
@@ -213,13 +211,8 @@ void FastSac::observe(const float* obs, int64_t rows) {
 FastSacStats FastSac::update(const SampledBatch& sampled) {
   Impl& s = *impl_;
   const config::FastSacConfig& c = s.cfg;
-  // Multi-step rows (fastsac.n_step): gamma * (1 - terminated) of the folded batch is gamma^h *
-  // (1 - terminated) of the row.
-  const SampledBatch host = fold_horizon(sampled, c.gamma());
-  const auto on = [&](const torch::Tensor& t) { return s.device.is_cpu() ? t : t.to(s.device); };
-  const auto obs = s.normalized(on(host.obs)), next_obs = s.normalized(on(host.next_obs));
-  const auto actions = on(host.actions), rewards = on(host.rewards);
-  const auto discount = (1.0 - on(host.terminated)) * c.gamma();
+  // Multi-step rows (fastsac.n_step) bootstrap with gamma^h.
+  const auto& [obs, next_obs, actions, rewards, discount] = device_minibatch(sampled, c.gamma(), s.device, s.moments());
   const auto alpha = s.log_alpha.detach().exp();  // the temperature of this update's target
 
   torch::Tensor target, next_log_prob;

@@ -9,6 +9,7 @@
 #include "archive_io.h"
 #include "compute.h"
 #include "config.h"
+#include "device_minibatch.h"
 #include "flat_params.h"
 #include "obs_normalizer.h"
 #include "policy_shape.h"
@@ -153,11 +154,8 @@ struct Td3::Impl {
   }
 
   // Raw observations [B, obs_dim] on the device, normalized as the workers normalize them.
-  torch::Tensor normalized(const torch::Tensor& obs) const {
-    if (!cfg.normalize_observations()) return obs;
-    const auto mean = torch::tensor(normalizer.mean()).to(device), std = torch::tensor(normalizer.std()).to(device);
-    return (obs - mean) / std;
-  }
+  torch::Tensor normalized(const torch::Tensor& obs) const { return normalized_obs(obs, moments(), device); }
+  const ObsNormalizer* moments() const { return cfg.normalize_observations() ? &normalizer : nullptr; }
 
   void apply_learning_rates() {
     for (auto [opt, lr] : {std::pair{actor_opt.get(), cfg.actor_lr()}, std::pair{critic_opt.get(), cfg.critic_lr()}})
@@ -192,13 +190,8 @@ void Td3::observe(const float* obs, int64_t rows) {
 Td3Stats Td3::update(const SampledBatch& sampled) {
   Impl& s = *impl_;
   const config::Td3Config& c = s.cfg;
-  // Multi-step rows (td3.n_step): gamma * (1 - terminated) of the folded batch is gamma^h * (1 -
-  // terminated) of the row.
-  const SampledBatch host = fold_horizon(sampled, c.gamma());
-  const auto on = [&](const torch::Tensor& t) { return s.device.is_cpu() ? t : t.to(s.device); };
-  const auto obs = s.normalized(on(host.obs)), next_obs = s.normalized(on(host.next_obs));
-  const auto actions = on(host.actions), rewards = on(host.rewards);
-  const auto discount = (1.0 - on(host.terminated)) * c.gamma();
+  // Multi-step rows (td3.n_step) bootstrap with gamma^h.
+  const auto& [obs, next_obs, actions, rewards, discount] = device_minibatch(sampled, c.gamma(), s.device, s.moments());
 
   torch::Tensor target;
   {
