@@ -177,10 +177,13 @@ struct RemovalFilterDescriptor : eprosima::fastdds::rtps::ChainingTransportDescr
 // Every UDP transport of the participant behind the filter. Only with Fast DDS's simple discovery,
 // where each process checks every remote participant's lease: a Discovery Server's clients learn
 // of a departure only from the server's relayed removal (that setting is for a trusted network).
+// ROS_DISCOVERY_SERVER makes Fast DDS turn a participant of simple discovery into such a client
+// when it is created, after these QoS are read, so a set variable counts as a Discovery Server.
 void filter_participant_removals(fdds::DomainParticipantQos& q) {
   using eprosima::fastdds::rtps::UDPTransportDescriptor;
   using eprosima::fastrtps::rtps::DiscoveryProtocol;
   if (q.wire_protocol().builtin.discovery_config.discoveryProtocol != DiscoveryProtocol::SIMPLE) return;
+  if (const char* servers = std::getenv("ROS_DISCOVERY_SERVER"); servers && *servers) return;
   auto& t = q.transport();
   if (t.use_builtin_transports) {
     // Fast DDS's builtin set: shared memory and UDPv4, made explicit so that UDP can be wrapped.
