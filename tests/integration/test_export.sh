@@ -127,7 +127,7 @@ expect_error "best of a run without one" "leave out --best" --run-dir "$dir/sac"
 # An algorithm no learner knows, in the manifest's experiment config.
 mkdir -p "$dir/unknown" && cp -r "$data/sac/checkpoint" "$dir/unknown/checkpoint"
 sed -i 's/^config_text: "/config_text: "algorithm: \\"a2c\\"\\n/' "$dir/unknown/checkpoint/manifest.txtpb"
-expect_error "unknown algorithm" 'expected one of: sac, dqn, ppo, td3; got "a2c"' --run-dir "$dir/unknown" --out "$dir/x.onnx"
+expect_error "unknown algorithm" 'expected one of: sac, dqn, ppo, td3, fastsac; got "a2c"' --run-dir "$dir/unknown" --out "$dir/x.onnx"
 # A checkpoint of a learner that wrote no policy file: the error says how to write it.
 mkdir -p "$dir/old" && cp -r "$data/sac/checkpoint" "$dir/old/checkpoint"
 expect_error "no policy file" "$dir/old/checkpoint/policy.bin does not exist" --run-dir "$dir/old" --out "$dir/x.onnx"

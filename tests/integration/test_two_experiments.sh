@@ -85,9 +85,11 @@ check_learner() {
     fail "$name: batches lost, duplicate or invalid: $(grep '^batches' "$summary")"
   grep -q '^other experiments [1-9][0-9]* batches of other experiments on the domain, not used' "$summary" ||
     fail "$name: the other experiment's batches are not counted apart"
-  # The live workers of every progress line (what PPO divides its quota by) are its own only.
-  grep -o '| workers [0-9]*$' "$dir/$name.log" | awk -v n=$# '$3 > n {bad = 1} END {exit bad}' ||
-    fail "$name: counted more than its $# workers live: $(grep -o '| workers [0-9]*$' "$dir/$name.log" | sort -u | tr '\n' ' ')"
+  # The live workers of every progress event (what PPO divides its quota by) are its own only.
+  live=$(grep '"event":"progress"' "$dir/$name/events.jsonl" | grep -o '"workers":[0-9]*' | cut -d: -f2 | sort -un |
+    tr '\n' ' ')
+  [ -n "$live" ] || fail "$name: no progress event gives its live workers"
+  for n in $live; do [ "$n" -le $# ] || fail "$name: counted more than its $# workers live: $live"; done
   for w in free sw pw; do
     printf '%s\n' "$@" | grep -qx "$w" && continue
     grep -q "worker $w on [^ ]* \(joined\|runs\|is back\|silent\)" "$dir/$name.log" &&
