@@ -2,22 +2,34 @@
 
 #include <cmath>
 #include <filesystem>
-#include <initializer_list>
+#include <map>
 #include <stdexcept>
+#include <type_traits>
 #include <utility>
 #include <vector>
+
+#include "learner_stats_fields.h"
 
 namespace farm {
 
 namespace {
-// Whether the record has a field of one of `names` (the first it has): its value in *v.
-bool has(const StatsRecord& r, std::initializer_list<const char*> names, double* v) {
-  for (const char* n : names)
+// The record's value of the field `name`, or of the round pacing's name for the same quantity
+// (value_loss for critic_loss, policy_loss for actor_loss); false where it has neither.
+bool value_of(const StatsRecord& r, const std::string& name, double* v) {
+  static const std::map<std::string, std::string> kAlso{{"critic_loss", "value_loss"}, {"actor_loss", "policy_loss"}};
+  const auto also = kAlso.find(name);
+  for (const std::string& n : {name, also == kAlso.end() ? name : also->second})
     if (r.schema().find(n) < r.schema().size()) {
       *v = r.get(n);
       return true;
     }
   return false;
+}
+
+// A count field takes a value that is not negative (NaN is neither).
+template <class T>
+bool fits(double v) {
+  return std::is_floating_point_v<T> || v >= 0;
 }
 }  // namespace
 
@@ -25,23 +37,10 @@ farm::msg::LearnerStats learner_stats(const std::string& experiment_id, const St
   farm::msg::LearnerStats st;
   st.experiment_id(experiment_id);
   double v = 0;
-  const auto count = [&](std::initializer_list<const char*> names) { return has(r, names, &v) && v >= 0; };
-  if (has(r, {"elapsed_s"}, &v)) st.elapsed_seconds(v);
-  if (count({"env_steps"})) st.env_steps(uint64_t(v));
-  if (has(r, {"env_steps_per_s"}, &v)) st.env_steps_per_second(v);
-  if (count({"updates"})) st.updates(uint64_t(v));
-  if (has(r, {"updates_per_s"}, &v)) st.updates_per_second(v);
-  if (has(r, {"buffer_fill"}, &v)) st.buffer_fill(v);
-  if (has(r, {"policy_lag"}, &v)) st.policy_lag(v);
-  if (has(r, {"critic_loss", "value_loss"}, &v)) st.critic_loss(v);
-  if (has(r, {"actor_loss", "policy_loss"}, &v)) st.actor_loss(v);
-  if (has(r, {"mean_return"}, &v)) st.mean_return(v);
-  if (has(r, {"eval_return"}, &v)) st.eval_return(v);
-  if (count({"batches_ok"})) st.batches_ok(uint64_t(v));
-  if (count({"batches_lost"})) st.batches_lost(uint64_t(v));
-  if (count({"batches_duplicate"})) st.batches_duplicate(uint64_t(v));
-  if (count({"batches_invalid"})) st.batches_invalid(uint64_t(v));
-  if (count({"workers"})) st.workers(uint32_t(v));
+#define FARM_FILL(name, member, type) \
+  if (value_of(r, #name, &v) && fits<type>(v)) st.member(type(v));
+  FARM_LEARNER_STATS_FIELDS(FARM_FILL)
+#undef FARM_FILL
   std::vector<farm::msg::LearnerStat> all;
   all.reserve(r.schema().size());
   for (size_t i = 0; i < r.schema().size(); ++i) {

@@ -230,22 +230,9 @@ MonitorSnapshot MonitorApp::snapshot(double now) const {
     LearnerRow l;
     l.experiment = m.experiment_id();
     l.age_s = now - v.seen;
-    l.elapsed_s = m.elapsed_seconds();
-    l.env_steps = m.env_steps();
-    l.updates = m.updates();
-    l.env_steps_per_second = m.env_steps_per_second();
-    l.updates_per_second = m.updates_per_second();
-    l.buffer_fill = m.buffer_fill();
-    l.policy_lag = m.policy_lag();
-    l.critic_loss = m.critic_loss();
-    l.actor_loss = m.actor_loss();
-    l.mean_return = m.mean_return();
-    l.eval_return = m.eval_return();
-    l.batches_ok = m.batches_ok();
-    l.batches_lost = m.batches_lost();
-    l.batches_duplicate = m.batches_duplicate();
-    l.batches_invalid = m.batches_invalid();
-    l.workers = m.workers();
+#define FARM_COPY(name, member, type) l.member = m.member();
+    FARM_LEARNER_STATS_FIELDS(FARM_COPY)
+#undef FARM_COPY
     for (const auto& st : m.stats()) {
       if (l.stats.size() >= kMaxStats) break;
       l.stats.push_back({st.name().substr(0, kMaxTextBytes), st.unit().substr(0, kMaxTextBytes), st.value()});

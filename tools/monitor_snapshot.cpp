@@ -47,6 +47,10 @@ std::string json_num(double v) {
   std::snprintf(buf, sizeof(buf), "%.6g", v);
   return buf;
 }
+// A typed field's JSON value: a count as a whole number, a real as json_num.
+std::string json_value(double v) { return json_num(v); }
+std::string json_value(uint64_t v) { return std::to_string(v); }
+std::string json_value(uint32_t v) { return std::to_string(v); }
 
 // 2026-11-23T09:53:45.737Z
 std::string iso_time(int64_t unix_ms) {
@@ -101,8 +105,8 @@ std::string render_table(const MonitorSnapshot& s) {
     o << "learner: no LearnerStats yet\n";
   } else {
     const LearnerRow& l = s.learners[s.latest_learner];
-    o << "learner  experiment " << printable(l.experiment, 64) << ", " << fmt("%.0f", l.elapsed_s) << " s, last stats "
-      << fmt("%.1f", l.age_s) << " s ago, " << l.workers << " live workers\n"
+    o << "learner  experiment " << printable(l.experiment, 64) << ", " << fmt("%.0f", l.elapsed_seconds)
+      << " s, last stats " << fmt("%.1f", l.age_s) << " s ago, " << l.workers << " live workers\n"
       << "  ingest   " << fmt("%.0f", l.env_steps_per_second) << " steps/s (" << l.env_steps << " env steps)\n"
       << "  updates  " << fmt("%.0f", l.updates_per_second) << " upd/s (" << l.updates << ")\n"
       << "  buffer   " << fmt("%.1f", 100.0 * l.buffer_fill) << "%   policy lag " << fmt("%.1f", l.policy_lag) << "\n"
@@ -132,15 +136,11 @@ std::string render_json_line(const MonitorSnapshot& s) {
   o << "],\"learner\":";
   if (s.latest_learner >= 0) {
     const LearnerRow& l = s.learners[s.latest_learner];
-    o << "{\"experiment\":" << json_str(l.experiment) << ",\"age_s\":" << json_num(l.age_s)
-      << ",\"elapsed_s\":" << json_num(l.elapsed_s) << ",\"env_steps\":" << l.env_steps
-      << ",\"env_steps_per_s\":" << json_num(l.env_steps_per_second) << ",\"updates\":" << l.updates
-      << ",\"updates_per_s\":" << json_num(l.updates_per_second) << ",\"buffer_fill\":" << json_num(l.buffer_fill)
-      << ",\"policy_lag\":" << json_num(l.policy_lag) << ",\"critic_loss\":" << json_num(l.critic_loss)
-      << ",\"actor_loss\":" << json_num(l.actor_loss) << ",\"mean_return\":" << json_num(l.mean_return)
-      << ",\"eval_return\":" << json_num(l.eval_return) << ",\"batches_ok\":" << l.batches_ok
-      << ",\"batches_lost\":" << l.batches_lost << ",\"batches_duplicate\":" << l.batches_duplicate
-      << ",\"batches_invalid\":" << l.batches_invalid << ",\"workers\":" << l.workers << "}";
+    o << "{\"experiment\":" << json_str(l.experiment) << ",\"age_s\":" << json_num(l.age_s);
+#define FARM_JSON(name, member, type) o << ",\"" #name "\":" << json_value(l.member);
+    FARM_LEARNER_STATS_FIELDS(FARM_JSON)
+#undef FARM_JSON
+    o << "}";
   } else {
     o << "null";
   }

@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "learner_stats_fields.h"
+
 namespace farm {
 
 struct WorkerRow {
@@ -30,12 +32,12 @@ struct WorkerTotals {
 // One learner's latest LearnerStats (field for field) and how long ago it arrived.
 struct LearnerRow {
   std::string experiment;
-  double age_s = 0, elapsed_s = 0;
-  uint64_t env_steps = 0, updates = 0;
-  double env_steps_per_second = 0, updates_per_second = 0, buffer_fill = 0, policy_lag = 0;
-  double critic_loss = 0, actor_loss = 0, mean_return = 0, eval_return = 0;  // NaN: none yet
-  uint64_t batches_ok = 0, batches_lost = 0, batches_duplicate = 0, batches_invalid = 0;
-  uint32_t workers = 0;
+  double age_s = 0;
+  // LearnerStats' typed fields under their members' names (elapsed_seconds, env_steps, ...,
+  // workers); a loss or return is NaN until the learner has one.
+#define FARM_ROW_MEMBER(name, member, type) type member = 0;
+  FARM_LEARNER_STATS_FIELDS(FARM_ROW_MEMBER)
+#undef FARM_ROW_MEMBER
   // Every field of the learner's statistics record (LearnerStats' `stats`): name, unit, value.
   struct Stat {
     std::string name, unit;

@@ -242,7 +242,7 @@ void PrometheusMetrics::update(const MonitorSnapshot& s) {
   set_gauge("farm_learner_last_stats_age_seconds", "Seconds since the learner's last statistics arrived.",
             per_learner([](const LearnerRow& r) { return r.age_s; }));
   set_gauge("farm_learner_elapsed_seconds", "Seconds the run has trained (resumed runs included).",
-            per_learner([](const LearnerRow& r) { return r.elapsed_s; }));
+            per_learner([](const LearnerRow& r) { return r.elapsed_seconds; }));
   set_counter("farm_learner_env_steps_total", "Environment steps the learner has ingested.",
               per_learner([](const LearnerRow& r) { return double(r.env_steps); }));
   set_gauge("farm_learner_env_steps_per_second", "Environment steps per second the learner ingests.",

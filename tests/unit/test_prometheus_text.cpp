@@ -14,7 +14,11 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <vector>
 
+#include <nlohmann/json.hpp>
+
+#include "learner_stats_fields.h"
 #include "monitor_snapshot.h"
 #include "prometheus_text.h"
 
@@ -383,3 +387,26 @@ TEST(MonitorTable, HeartbeatTextIsEscapedAndCut) {
 }
 
 }  // namespace
+
+// The --log line's learner object has LearnerStats' typed fields under the names the learner's
+// record gives them (common/learner_stats_fields.h), a count as a whole number, a NaN as null.
+TEST(MonitorJson, LearnerFieldsHaveTheRecordsNames) {
+  farm::MonitorSnapshot s = sample_snapshot();
+  s.learners[0].elapsed_seconds = 12.5;
+  const nlohmann::json line = nlohmann::json::parse(farm::render_json_line(s));
+  const nlohmann::json& l = line.at("learner");
+  EXPECT_EQ(l.at("experiment"), "pendulum_sac");
+  EXPECT_DOUBLE_EQ(l.at("elapsed_s").get<double>(), 12.5);
+  EXPECT_TRUE(l.at("env_steps").is_number_integer());
+  EXPECT_EQ(l.at("env_steps").get<uint64_t>(), 816600u);
+  EXPECT_DOUBLE_EQ(l.at("buffer_fill").get<double>(), 0.817);
+  EXPECT_TRUE(l.at("eval_return").is_null());
+  EXPECT_EQ(l.at("batches_duplicate").get<uint64_t>(), 1u);
+  EXPECT_EQ(l.at("workers").get<uint32_t>(), 2u);
+  std::vector<std::string> keys;
+#define FARM_KEY(name, member, type) keys.push_back(#name);
+  FARM_LEARNER_STATS_FIELDS(FARM_KEY)
+#undef FARM_KEY
+  EXPECT_EQ(l.size(), keys.size() + 2);  // and experiment, age_s
+  for (const std::string& k : keys) EXPECT_TRUE(l.contains(k)) << k;
+}

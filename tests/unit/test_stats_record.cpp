@@ -15,6 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "learner_stats_fields.h"
 #include "pacing.h"
 #include "pacing_stats.h"
 #include "stats_record.h"
@@ -186,6 +187,31 @@ TEST(StatsRecord, LearnerStatsTakesTheRoundPacingsLossNames) {
   EXPECT_DOUBLE_EQ(st.critic_loss(), 0.5);
   EXPECT_DOUBLE_EQ(st.actor_loss(), -0.25);
   EXPECT_EQ(st.stats().size(), 2u);
+}
+
+// Every typed field of LearnerStats is filled from the record's field of the name declared with it
+// (common/learner_stats_fields.h); a count that is negative or unset keeps its default.
+TEST(StatsRecord, EveryTypedFieldComesFromItsDeclaredName) {
+  StatsSchema s;
+  std::vector<std::string> names;
+#define FARM_NAME(name, member, type) names.push_back(#name);
+  FARM_LEARNER_STATS_FIELDS(FARM_NAME)
+#undef FARM_NAME
+  ASSERT_EQ(names.size(), 16u);
+  for (const std::string& n : names) s.real(n, "", "%.3f");
+  StatsRecord r(s);
+  for (size_t i = 0; i < names.size(); ++i) r.set(names[i], double(i + 1));
+  const farm::msg::LearnerStats st = learner_stats("e", r);
+  size_t i = 0;
+#define FARM_CHECK(name, member, type) EXPECT_EQ(st.member(), type(++i)) << #name;
+  FARM_LEARNER_STATS_FIELDS(FARM_CHECK)
+#undef FARM_CHECK
+
+  r.set("env_steps", -1);
+  r.set("workers", NAN);
+  const farm::msg::LearnerStats unset = learner_stats("e", r);
+  EXPECT_EQ(unset.env_steps(), 0u);
+  EXPECT_EQ(unset.workers(), 0u);
 }
 
 }  // namespace
