@@ -204,7 +204,7 @@ void Rollout::merge_ends(RolloutBatch& out) {
 
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
                                            int episodes, uint64_t seed, const std::atomic<bool>* cancel,
-                                           uint32_t first_episode) {
+                                           uint32_t first_episode, const EvaluationStep& on_step) {
   if (episodes <= 0) return {};
   Policy policy(params);
   VecEnv env(std::move(task), episodes, seed, first_episode);
@@ -232,6 +232,7 @@ std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> t
   for (int step = 0; step < max_steps && remaining > 0; ++step) {
     if (cancel && *cancel) return {};
     policy.act(env.obs(), N, unused_rng, true, actions.data(), nullptr);
+    if (on_step) on_step(env.obs(), actions.data(), N);
     ends.clear();
     env.step_range(0, N, actions.data(), rewards.data(), terminated.data(), truncated.data(), ends);
     for (int i = 0; i < ends.size(); ++i) {

@@ -10,6 +10,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <exception>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -105,8 +106,11 @@ class Rollout {
 // first_episode + k), so an evaluation split into parts runs the episodes it would run whole,
 // however many parts answer it; where the task has evaluation conditions
 // (robots::Task::eval_conditions), it starts in condition (first_episode + k) mod their number.
+// on_step, where given, sees every step's observations and the actions computed for them, before
+// the envs step ([episodes x obs_dim] and [episodes x act_dim] floats; an action index as a float).
+using EvaluationStep = std::function<void(const float* obs, const float* actions, int rows)>;
 std::vector<EpisodeRecord> evaluate_policy(std::shared_ptr<const robots::Task> task, const PolicyParams& params,
                                            int episodes, uint64_t seed, const std::atomic<bool>* cancel = nullptr,
-                                           uint32_t first_episode = 0);
+                                           uint32_t first_episode = 0, const EvaluationStep& on_step = nullptr);
 
 }  // namespace farm

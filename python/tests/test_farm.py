@@ -1,7 +1,9 @@
 """The farm package: vector envs (Gymnasium's API: test_vector_api.py), policies as the workers compute them,
 run folders. Run by ctest (python.pytest) with PYTHONPATH at build/python; FARM_POLICY_FILE names
-the farm-policy-file program, FARM_SOURCE_DIR the source tree."""
+the farm-policy-file program, FARM_EVAL_ACTIONS the farm_eval_actions program, FARM_SOURCE_DIR the
+source tree."""
 import os
+import subprocess
 import threading
 import time
 
@@ -241,6 +243,34 @@ def test_policy_matches_the_workers_computation(checkpoints, algo):
     with pytest.raises(ValueError, match="observation: entry 1, 0 is inf, not a finite number"):
         policy(bad)
     assert "epsilon" in policy.params()
+
+
+@pytest.mark.parametrize("algo", ["sac", "ppo"])
+def test_policy_gives_the_actions_a_workers_evaluation_computed(checkpoints, algo, tmp_path):
+    # farm_eval_actions runs the workers' evaluation (evaluate_policy) on the policy the learner
+    # publishes for the checkpoint, through the wire message a worker receives, and writes each
+    # step's observations and the actions it computed: the callable gives them row by row.
+    prog = os.environ.get("FARM_EVAL_ACTIONS")
+    if not prog:
+        pytest.skip("FARM_EVAL_ACTIONS not set (ctest's python.pytest sets it where DDS is built)")
+    out = tmp_path / "actions.txt"
+    subprocess.run([prog, str(checkpoints[algo]), str(out), "--episodes", "4"], check=True, capture_output=True)
+    with open(out) as f:
+        head = f.readline().split()
+    obs_dim, act_dim = int(head[2]), int(head[4])
+    rows = np.loadtxt(out, dtype=np.float32, ndmin=2)
+    policy = farm.load_policy(checkpoints[algo])
+    assert (obs_dim, rows.shape[1]) == (policy.obs_dim, obs_dim + act_dim)
+    assert len(rows) >= 4 * 100  # 4 episodes of at least 100 steps (pendulum 200, cart-pole up to 500)
+    obs, worker = rows[:, :obs_dim], rows[:, obs_dim:]
+    ours = policy(obs)
+    if policy.num_actions:
+        assert np.array_equal(ours, worker[:, 0].astype(np.int64))
+        assert len(np.unique(ours)) == policy.num_actions  # every action taken: not one constant answer
+    else:
+        diff = np.abs(ours - worker).max(axis=1)
+        assert np.all(diff < 1e-6), "rows %s differ by up to %g" % (np.nonzero(diff >= 1e-6)[0][:5], diff.max())
+        assert np.std(worker) > 0.1  # actions that vary, so equal rows say something
 
 
 def test_run_folder(run_folder, tmp_path):
