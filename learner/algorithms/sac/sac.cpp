@@ -76,10 +76,7 @@ std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& 
 }
 
 std::vector<SacStats> Sac::update_n_from(int n, int64_t batch, const DeviceReplay& replay) {
-  const torch::Device &from = replay.device(), &to = impl_->device;
-  if (from.type() != to.type() || (from.has_index() && to.has_index() && from.index() != to.index()))
-    throw std::invalid_argument("sac: minibatches drawn on " + replay.device().str() + " for networks on " +
-                                impl_->device.str());
+  require_same_device(replay, impl_->device, "sac");
   if (impl_->use_graph()) return impl_->graph_update_n_from(n, batch, replay);
   return update_n(n, [&] { return replay.sample(batch); });
 }

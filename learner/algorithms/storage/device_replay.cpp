@@ -19,7 +19,7 @@ DeviceReplay::DeviceReplay(int64_t capacity, int obs_dim, int act_dim, torch::De
     throw std::runtime_error("replay buffer on " + device.str() + ": cannot allocate " +
                              std::to_string(capacity * width() * int64_t(sizeof(float)) >> 20) + " MiB for " +
                              std::to_string(capacity) +
-                             " rows (sac.buffer_size; sac.replay_on_device: false keeps "
+                             " rows (the section's buffer_size; its replay_on_device: false keeps "
                              "the buffer in host memory only): " +
                              e.what_without_backtrace());
   }
@@ -88,6 +88,13 @@ SampledBatch DeviceReplay::draw(const torch::Tensor& u) const {
   b.terminated = picked.select(1, o + a + 1);
   b.next_obs = picked.narrow(1, o + a + 2, o);
   return b;
+}
+
+void require_same_device(const DeviceReplay& replay, torch::Device networks, const std::string& section) {
+  const torch::Device& from = replay.device();
+  if (from.type() != networks.type() || (from.has_index() && networks.has_index() && from.index() != networks.index()))
+    throw std::invalid_argument(section + ": minibatches drawn on " + from.str() + " for networks on " +
+                                networks.str());
 }
 
 }  // namespace farm

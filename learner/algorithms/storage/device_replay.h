@@ -8,6 +8,7 @@
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <string>
 
 #include "replay_buffer.h"
 
@@ -61,5 +62,9 @@ class DeviceReplay {
   int64_t size_ = 0, next_ = 0;
   torch::Tensor rows_, fill_;
 };
+
+// Throws std::invalid_argument, naming `section` ("sac"), where `replay` is not on `networks`: an
+// update draws its minibatch where its networks are.
+void require_same_device(const DeviceReplay& replay, torch::Device networks, const std::string& section);
 
 }  // namespace farm
