@@ -38,6 +38,12 @@ void check_samples_per_insert(const Section& s, double samples_per_insert, int m
           "samples_per_insert and max_step_scale > 1 both set the update-to-data ratio: set one of them");
 }
 
+// sac/dqn.matmul_dtype: the products' type.
+void check_matmul_dtype(const Section& s, const std::string& dtype) {
+  s.check(dtype == "float32" || dtype == "bfloat16", "matmul_dtype",
+          "expected \"float32\" or \"bfloat16\", got \"" + dtype + "\"");
+}
+
 void check_sac(const Section& s, const config::SacConfig& c) {
   s.positive("actor_lr", c.actor_lr());
   s.positive("critic_lr", c.critic_lr());
@@ -66,8 +72,7 @@ void check_sac(const Section& s, const config::SacConfig& c) {
   s.check(c.activation() == "relu" || c.activation() == "tanh", "activation",
           "expected \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
   check_samples_per_insert(s, c.samples_per_insert(), c.max_step_scale());
-  s.check(c.matmul_dtype() == "float32" || c.matmul_dtype() == "bfloat16", "matmul_dtype",
-          "expected \"float32\" or \"bfloat16\", got \"" + c.matmul_dtype() + "\"");
+  check_matmul_dtype(s, c.matmul_dtype());
 }
 
 void check_dqn(const Section& s, const config::DqnConfig& c) {
@@ -96,6 +101,8 @@ void check_dqn(const Section& s, const config::DqnConfig& c) {
   s.check(c.max_step_scale() >= 1 && c.max_step_scale() <= kMaxStepScale, "max_step_scale",
           "expected 1 to " + num(kMaxStepScale) + ", got " + num(c.max_step_scale()));
   check_lr_decay(s, c.lr_decay_updates(), c.lr_decay_to());
+  check_matmul_dtype(s, c.matmul_dtype());
+  s.non_negative("lr_reference_batch", c.lr_reference_batch());
 }
 
 void check_td3(const Section& s, const config::Td3Config& c) {

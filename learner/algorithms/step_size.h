@@ -23,6 +23,23 @@ inline double lr_decay_factor(int64_t decay_updates, double decay_to, int64_t up
   return 1.0 - (1.0 - decay_to) * std::floor(progress * kSteps) / kSteps;
 }
 
+// The factor on the configured rate of an update on batch * step_scale samples: sqrt(step_scale)
+// (max_step_scale's rule), or where reference_batch > 0 sqrt(batch * step_scale / reference_batch),
+// the square-root rule for Adam (dqn.lr_reference_batch) for any batch against the one the rate
+// was tuned at.
+inline double batch_lr_factor(int64_t batch, int step_scale, int64_t reference_batch) {
+  if (reference_batch <= 0) return std::sqrt(double(step_scale));
+  return std::sqrt(double(batch) * double(step_scale) / double(reference_batch));
+}
+
+// The start line's words for dqn.lr_reference_batch: ", learning rate x11.3 for its batch of 4096
+// (rate tuned at 32)", or nothing where it is off or the factor is 1.
+inline std::string batch_lr_phrase(int64_t batch, int64_t reference_batch) {
+  if (reference_batch <= 0 || batch == reference_batch) return "";
+  return ", learning rate x" + config_checks::num(batch_lr_factor(batch, 1, reference_batch)) + " for its batch of " +
+         std::to_string(batch) + " (rate tuned at " + std::to_string(reference_batch) + ")";
+}
+
 // The start line's words for a schedule: ", learning rates to x0.1 over 400000 updates", or
 // nothing where the rates stay.
 inline std::string lr_decay_phrase(int64_t decay_updates, double decay_to) {

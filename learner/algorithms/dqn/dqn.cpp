@@ -11,35 +11,19 @@
 
 #include "compute.h"
 #include "config.h"
+#include "device_replay.h"
+#include "linear_mlp.h"
 #include "policy_shape.h"
 
+#include <ATen/Context.h>
+
 #ifdef FARM_CUDA_GRAPHS
+#include <ATen/cuda/CUDAEvent.h>
+
 #include "cuda_graph_update.h"
 #endif
 
 namespace farm {
-
-namespace {
-
-// Plain MLP of torch::nn::Linear layers: weight.flatten() then bias per layer is the flat layout
-// the workers' EigenMlp reads.
-struct QNetImpl : torch::nn::Module {
-  explicit QNetImpl(const std::vector<int64_t>& sizes) {
-    for (size_t i = 0; i + 1 < sizes.size(); ++i)
-      layers.push_back(register_module("l" + std::to_string(i), torch::nn::Linear(sizes[i], sizes[i + 1])));
-  }
-  torch::Tensor forward(torch::Tensor x) {
-    for (size_t i = 0; i < layers.size(); ++i) {
-      x = layers[i]->forward(x);
-      if (i + 1 < layers.size()) x = torch::relu(x);
-    }
-    return x;
-  }
-  std::vector<torch::nn::Linear> layers;
-};
-TORCH_MODULE(QNet);
-
-}  // namespace
 
 torch::Tensor dqn_target(const torch::Tensor& reward, const torch::Tensor& terminated,
                          const torch::Tensor& next_q_online, const torch::Tensor& next_q_target, double gamma,
@@ -69,7 +53,7 @@ namespace {
 // a CUDA graph can hold it), then `step` with the clipped gradients. Returns [loss, q mean, target
 // mean] as one device tensor.
 template <class Step>
-torch::Tensor dqn_step(QNet& online, QNet& target_net, const config::DqnConfig& cfg, const SampledBatch& b,
+torch::Tensor dqn_step(LinearMlp& online, LinearMlp& target_net, const config::DqnConfig& cfg, const SampledBatch& b,
                        const std::vector<torch::Tensor>& params, Step&& step) {
   const auto actions = b.actions.reshape({-1, 1}).round().to(torch::kLong);
   torch::Tensor target;
@@ -102,15 +86,18 @@ struct Dqn::Impl {
         num_actions(actions),
         hidden(dqn_hidden(c)),
         device(learner_device(c.device(), "dqn.device")),
-        online(sizes()),
-        target(sizes()) {
+        online(sizes(), /*tanh_hidden=*/false),
+        target(sizes(), /*tanh_hidden=*/false) {
     check_config(c);  // the loader's checks, for a config built in code
     if (obs < 1 || actions < 2) {
       throw std::invalid_argument("dqn: needs obs_dim >= 1 and >= 2 discrete actions, got " + std::to_string(obs) +
                                   " and " + std::to_string(actions));
     }
-    online->to(device);
-    target->to(device);
+    for (LinearMlp* net : {&online, &target}) {
+      (*net)->to(device);
+      (*net)->compute = matmul_dtype_named(c.matmul_dtype(), "dqn");
+      (*net)->pad_on_cuda = device.is_cuda();
+    }
     copy_target();
     for (auto& p : target->parameters()) p.requires_grad_(false);
     opt = std::make_unique<torch::optim::Adam>(online->parameters(), torch::optim::AdamOptions(cfg.learning_rate()));
@@ -148,13 +135,25 @@ struct Dqn::Impl {
   int obs_dim, num_actions;
   std::vector<int> hidden;
   torch::Device device;
-  QNet online, target;
+  LinearMlp online, target;
   std::unique_ptr<torch::optim::Adam> opt;
   double lr_scale = 1;
   int64_t updates = 0;
 
+  // One update's input: a sampled batch (on the host or the networks' device), or, where `replay`
+  // is set, `batch` rows drawn from it on the device.
+  struct Input {
+    SampledBatch sampled;
+    const DeviceReplay* replay = nullptr;
+    int64_t batch = 0;
+  };
+  // n updates on the inputs next() gives; each update's figures [loss, q mean, target mean] stay
+  // on the device until all n are queued, then come back in one copy.
+  std::vector<DqnStats> run(int n, const std::function<Input()>& next);
+  torch::Tensor eager_step(const Input& in);
+  torch::Tensor graph_step(const Input& in);
+
   bool use_graph() const;
-  DqnStats graph_update(const SampledBatch& host_batch);
   void drop_graph();  // after load(): the optimizer state it was captured with is replaced
 #ifdef FARM_CUDA_GRAPHS
   struct Graph;
@@ -171,54 +170,89 @@ static const config::DqnConfig& seeded(const config::DqnConfig& cfg, uint64_t se
 }
 
 Dqn::Dqn(const config::DqnConfig& cfg, int obs_dim, int num_actions, uint64_t seed)
-    : impl_(std::make_unique<Impl>(seeded(cfg, seed), obs_dim, num_actions)) {}
+    : impl_(std::make_unique<Impl>(seeded(cfg, seed), obs_dim, num_actions)) {
+  // A process-wide switch in LibTorch, as SAC sets it (sac.cuda_tf32): before the first update.
+  if (impl_->device.is_cuda()) at::globalContext().setAllowTF32CuBLAS(cfg.cuda_tf32());
+}
 Dqn::~Dqn() = default;
 Dqn::Dqn(Dqn&&) noexcept = default;
 Dqn& Dqn::operator=(Dqn&&) noexcept = default;
 
-DqnStats Dqn::update(const SampledBatch& host_batch) {
-  Impl& s = *impl_;
-  if (s.use_graph()) return s.graph_update(host_batch);
-  const auto params = s.online->parameters();
-  const auto figures = dqn_step(s.online, s.target, s.cfg, s.on_device(host_batch), params,
-                                [&](const std::vector<torch::Tensor>& grads) {
-                                  for (size_t i = 0; i < params.size(); ++i) params[i].mutable_grad() = grads[i];
-                                  s.opt->step();
-                                })
-                           .to(torch::kCPU, torch::kDouble);  // one copy back on a GPU
-  s.count_update();
-  const double* f = figures.data_ptr<double>();
-  DqnStats st;
-  st.loss = f[0];
-  st.q_mean = f[1];
-  st.target_mean = f[2];
-  return st;
+DqnStats Dqn::update(const SampledBatch& batch) {
+  return impl_->run(1, [&] { return Impl::Input{batch}; }).front();
+}
+
+std::vector<DqnStats> Dqn::update_n(int n, const std::function<SampledBatch()>& next_batch) {
+  return impl_->run(n, [&] { return Impl::Input{next_batch()}; });
+}
+
+std::vector<DqnStats> Dqn::update_n_from(int n, int64_t batch, const DeviceReplay& replay) {
+  require_same_device(replay, impl_->device, "dqn");
+  if (n > 0 && replay.size() == 0)
+    throw std::logic_error("dqn: no rows to draw minibatches from (the replay is empty)");
+  return impl_->run(n, [&] { return Impl::Input{{}, &replay, batch}; });
+}
+
+std::vector<DqnStats> Dqn::Impl::run(int n, const std::function<Input()>& next) {
+  std::vector<torch::Tensor> figures;
+  figures.reserve(size_t(std::max(n, 0)));
+  for (int i = 0; i < n; ++i) {
+    const Input in = next();
+    figures.push_back(use_graph() ? graph_step(in) : eager_step(in));
+  }
+  std::vector<DqnStats> out(figures.size());
+  if (figures.empty()) return out;
+  const auto all = torch::stack(figures).to(torch::kCPU, torch::kDouble).contiguous();  // the one wait on a GPU
+  const double* f = all.data_ptr<double>();
+  for (auto& st : out) {
+    st.loss = f[0];
+    st.q_mean = f[1];
+    st.target_mean = f[2];
+    f += 3;
+  }
+  return out;
+}
+
+torch::Tensor Dqn::Impl::eager_step(const Input& in) {
+  const SampledBatch b = in.replay ? in.replay->sample(in.batch) : on_device(in.sampled);
+  const auto params = online->parameters();
+  const auto figures = dqn_step(online, target, cfg, b, params, [&](const std::vector<torch::Tensor>& grads) {
+    for (size_t i = 0; i < params.size(); ++i) params[i].mutable_grad() = grads[i];
+    opt->step();
+  });
+  count_update();
+  return figures;
 }
 
 bool Dqn::uses_cuda_graph() const { return impl_->use_graph(); }
 bool Dqn::on_gpu() const { return impl_->device.is_cuda(); }
+torch::Device Dqn::device() const { return impl_->device; }
 
 #ifdef FARM_CUDA_GRAPHS
-// One update captured as a CUDA graph, as SAC's (sac_cuda_graph.cpp, which says more): static
-// device inputs that each update overwrites from one pinned host buffer, the figures read back
-// with one copy, Adam as GraphAdam, warm-ups and capture as run_graph_update does them. The
-// target copy stays outside the graph, queued after the replay every target_update_updates
-// updates.
+// One update captured as a CUDA graph, as SAC's (sac_cuda_graph.cpp, which says more), for one
+// batch size and one source: static device inputs that each update overwrites from a pinned host
+// buffer, or (drawn_from set) rows drawn from a DeviceReplay inside the graph, from the default
+// CUDA generator, whose philox offset each replay advances; Adam as GraphAdam; warm-ups and
+// capture as run_graph_update does them. The target copy stays outside the graph, queued after the
+// replay every target_update_updates updates. Replays are queued without waiting: each one's
+// figures are copied on the device behind it, and Impl::run reads them all back at the end.
 struct Dqn::Impl::Graph {
   static constexpr int kWarmupUpdates = 3;  // before the capture (run_graph_update)
 
-  Graph(Impl& s, int64_t batch)
+  Graph(Impl& s, int64_t batch, const DeviceReplay* replay)
       : batch(batch),
+        drawn_from(replay),
         device_index(s.device.has_index() ? s.device.index() : c10::cuda::current_device()),
         params(s.online->parameters()),
         adam(*s.opt, params),
         capture_stream(c10::cuda::getStreamFromPool(false, device_index)) {
+    if (replay) return;
     const int64_t o = s.obs_dim;
     widths = {o, 1, 1, 1, o, 1};
     const auto f32 = torch::TensorOptions().dtype(torch::kFloat);
     int64_t n = 0;
     for (int64_t w : widths) n += batch * w;
-    host_in = torch::empty({n}, f32.pinned_memory(true));
+    for (auto& h : host_in) h = torch::empty({n}, f32.pinned_memory(true));
     dev_in = torch::empty({n}, f32.device(s.device));
     std::array<torch::Tensor*, 6> views{&in.obs, &in.actions, &in.rewards, &in.terminated, &in.next_obs, &in.horizon};
     int64_t offset = 0;
@@ -227,15 +261,18 @@ struct Dqn::Impl::Graph {
       *views[i] = widths[i] == 1 ? dev_in.narrow(0, offset, k) : dev_in.narrow(0, offset, k).view({batch, widths[i]});
       offset += k;
     }
-    host_out = torch::empty({3}, f32.pinned_memory(true));
   }
 
-  // The sampled batch into the pinned buffer, then one copy to the static inputs on the current
-  // stream. A batch without a horizon spans one step a row.
+  // The sampled batch into the next pinned buffer (once the copy from its previous batch is done),
+  // then one copy to the static inputs on the current stream, behind the replays queued before it.
+  // A batch without a horizon spans one step a row.
   void stage(const SampledBatch& b) {
+    const int slot = next_host;
+    next_host = (slot + 1) % int(host_in.size());
+    staged[slot].synchronize();
     const std::array<const torch::Tensor*, 6> fields{&b.obs,        &b.actions,  &b.rewards,
                                                      &b.terminated, &b.next_obs, &b.horizon};
-    float* dst = host_in.data_ptr<float>();
+    float* dst = host_in[slot].data_ptr<float>();
     for (size_t i = 0; i < fields.size(); ++i) {
       const int64_t n = batch * widths[i];
       if (!fields[i]->defined() && i == 5) {
@@ -249,22 +286,31 @@ struct Dqn::Impl::Graph {
       }
       dst += n;
     }
-    dev_in.copy_(host_in, /*non_blocking=*/true);
+    dev_in.copy_(host_in[slot], /*non_blocking=*/true);
+    staged[slot].record(c10::cuda::getCurrentCUDAStream(device_index));
   }
 
   void body(Impl& s) {
     adam.advance_device_steps();
-    out = dqn_step(s.online, s.target, s.cfg, in, params,
+    SampledBatch b = in;
+    if (drawn_from)
+      b = drawn_from->draw(torch::rand({batch}, torch::TensorOptions().dtype(torch::kDouble).device(s.device)));
+    out = dqn_step(s.online, s.target, s.cfg, b, params,
                    [&](const std::vector<torch::Tensor>& grads) { adam.step(grads); });
   }
 
   int64_t batch;
+  const DeviceReplay* drawn_from;  // where the graph draws its batch; null: staged from the host
   c10::DeviceIndex device_index;
-  std::array<int64_t, 6> widths;
+  std::array<int64_t, 6> widths{};
   std::vector<torch::Tensor> params;
   GraphAdam adam;
   c10::cuda::CUDAStream capture_stream;
-  torch::Tensor host_in, dev_in, host_out, out;
+  // Two pinned buffers: the host fills one while the copy from the other may still be queued.
+  std::array<torch::Tensor, 2> host_in;
+  std::array<at::cuda::CUDAEvent, 2> staged;
+  int next_host = 0;
+  torch::Tensor dev_in, out;
   SampledBatch in;
   std::unique_ptr<at::cuda::CUDAGraph> graph;
   int warmups_left = kWarmupUpdates;
@@ -281,29 +327,26 @@ bool Dqn::Impl::use_graph() const {
 #endif
 }
 
-DqnStats Dqn::Impl::graph_update(const SampledBatch& host_batch) {
+torch::Tensor Dqn::Impl::graph_step(const Input& in) {
 #ifdef FARM_CUDA_GRAPHS
-  const int64_t b = host_batch.obs.size(0);
-  if (!graph || graph->batch != b) {
-    graph.reset();  // its private memory pool goes before the next graph's
-    graph.reset(new Graph(*this, b));
+  const int64_t b = in.replay ? in.batch : in.sampled.obs.size(0);
+  if (!graph || graph->batch != b || graph->drawn_from != in.replay) {
+    // Replays queued on the old graph use its memory: they finish before it goes, and its private
+    // memory pool goes before the next graph's.
+    if (graph) c10::cuda::getCurrentCUDAStream(graph->device_index).synchronize();
+    graph.reset();
+    graph.reset(new Graph(*this, b, in.replay));
   }
   Graph& g = *graph;
   c10::cuda::CUDAGuard device_guard(g.device_index);
-  g.stage(host_batch);
+  if (!in.replay) g.stage(in.sampled);
   run_graph_update(g.graph, g.warmups_left, g.device_index, g.capture_stream, [&] { g.body(*this); });
-  g.host_out.copy_(g.out, /*non_blocking=*/true);
+  auto figures = g.out.clone();  // behind the replay, before the next one overwrites `out`
   g.adam.advance_host_steps();
   count_update();  // the target copy, where due, queued after the replay
-  c10::cuda::getCurrentCUDAStream(g.device_index).synchronize();
-  const float* f = g.host_out.data_ptr<float>();
-  DqnStats st;
-  st.loss = f[0];
-  st.q_mean = f[1];
-  st.target_mean = f[2];
-  return st;
+  return figures;
 #else
-  (void)host_batch;
+  (void)in;
   throw std::logic_error("dqn: CUDA graph update in a build without CUDA");
 #endif
 }
@@ -399,7 +442,7 @@ void Dqn::load(const std::string& dir) {
                                ": network sizes (obs, actions, hidden...) differ from this config");
     }
     // Into fresh networks first, so a failed read leaves this instance as it was.
-    QNet online(s.sizes()), target(s.sizes());
+    LinearMlp online(s.sizes(), false), target(s.sizes(), false);
     online->to(s.device);
     target->to(s.device);
     torch::serialize::InputArchive a, b, o;
@@ -409,7 +452,7 @@ void Dqn::load(const std::string& dir) {
     target->load(b);
     s.drop_graph();  // captured with the optimizer state that the load replaces
     torch::NoGradGuard no_grad;
-    auto copy = [](QNet& from, QNet& to) {
+    auto copy = [](LinearMlp& from, LinearMlp& to) {
       auto src = from->parameters(), dst = to->parameters();
       for (size_t i = 0; i < src.size(); ++i) dst[i].copy_(src[i]);
     };

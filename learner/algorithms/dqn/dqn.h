@@ -2,12 +2,15 @@
 // actions. Losses and update order follow stable-baselines3's DQN (Huber loss, gradient-norm
 // clipping, hard target copies), which the mobile-robots paper trains its Jetbot with, so its hyperparameters
 // (mobile-robots paper table 3) apply; the target is the double-Q one unless dqn.double_q is off.
-// Actions in a batch are the action index stored as one float.
+// Actions in a batch are the action index stored as one float. For large batches on a GPU
+// (dqn.replay_on_device, dqn.matmul_dtype, dqn.lr_reference_batch): minibatches drawn where the
+// networks train, several updates queued per call with their figures read back once.
 #pragma once
 
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -17,6 +20,8 @@
 #include "replay_buffer.h"
 
 namespace farm {
+
+class DeviceReplay;
 
 struct DqnStats {
   double loss = 0;    // Huber loss of the update
@@ -48,6 +53,15 @@ class Dqn {
   // One gradient step on the batch; copies the online network into the target network every
   // target_update_updates updates.
   DqnStats update(const SampledBatch& batch);
+  // n updates in a row, each on the batch next_batch() returns: the same as n calls of
+  // update(next_batch()), except that the figures of all n are read back once, after the last (on
+  // a GPU one synchronization per call instead of one per update). Returns them oldest first.
+  std::vector<DqnStats> update_n(int n, const std::function<SampledBatch()>& next_batch);
+  // n updates as update_n's, each on `batch` rows drawn from `replay` as DeviceReplay::sample draws
+  // them (torch's generator of the replay's device). In a CUDA graph the draw is inside the graph,
+  // so the host only queues replays. Throws std::invalid_argument where `replay` is not on this
+  // Dqn's device, std::logic_error where it is empty.
+  std::vector<DqnStats> update_n_from(int n, int64_t batch, const DeviceReplay& replay);
 
   // The learning rate as learning_rate * factor from the next update on (dqn.max_step_scale: a
   // batch s times as large takes sqrt(s)); a finite factor > 0, else std::invalid_argument. Kept
@@ -69,6 +83,7 @@ class Dqn {
   // learner built against a CUDA LibTorch.
   bool uses_cuda_graph() const;
   bool on_gpu() const;  // the Q networks train on a CUDA device
+  torch::Device device() const;
   int obs_dim() const;
   int num_actions() const;
   const std::vector<int>& hidden() const;

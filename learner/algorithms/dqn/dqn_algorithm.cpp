@@ -1,10 +1,11 @@
 // DQN as the learner runs it: the Q networks (dqn.h) over the shared replay storage
-// (replay_store.h). Exploration follows the env steps inserted; a policy version keeps the epsilon
-// it was first exported with, so that one version is one policy.
+// (replay_store.h), its rows also on the GPU where the networks train there (dqn.replay_on_device).
+// Exploration follows the env steps inserted; a policy version keeps the epsilon it was first
+// exported with, so that one version is one policy.
 #include <algorithm>
-#include <cmath>
 #include <filesystem>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 
 #include "algorithm.h"
@@ -22,18 +23,22 @@ class DqnAlgorithm final : public Algorithm {
   DqnAlgorithm(const config::ExperimentConfig& cfg, const robots::TaskSpec& spec)
       : cfg_(cfg.dqn()),
         dqn_(cfg.dqn(), spec.obs_dim, spec.num_actions, cfg.seed()),
-        replay_(cfg_.buffer_size(), spec.obs_dim, spec.act_dim, cfg_.gamma(), cfg_.n_step(), cfg.seed(), std::nullopt) {
-  }
+        replay_(cfg_.buffer_size(), spec.obs_dim, spec.act_dim, cfg_.gamma(), cfg_.n_step(), cfg.seed(),
+                draws_on_device() ? std::optional<torch::Device>(dqn_.device()) : std::nullopt) {}
 
   std::string name() const override { return "dqn"; }
   std::string describe() const override {
     std::string step = step_phrase("dqn", cfg_.n_step(), cfg_.max_step_scale(), dqn_.on_gpu());
+    step += batch_lr_phrase(cfg_.batch_size(), cfg_.lr_reference_batch());
     step += lr_decay_phrase(cfg_.lr_decay_updates(), cfg_.lr_decay_to());
+    if (dqn_.uses_cuda_graph())
+      step += ", CUDA graph";
+    else if (dqn_.on_gpu())
+      step += ", on the GPU";
+    if (replay_.on_device()) step += ", minibatches drawn on the GPU";
+    if (cfg_.matmul_dtype() != "float32") step += ", " + cfg_.matmul_dtype() + " products";
     return std::string(cfg_.double_q() ? "double DQN " : "DQN ") + dqn_.export_policy(0).layout.describe() +
-           " Q network" + step +
-           (dqn_.uses_cuda_graph() ? ", CUDA graph"
-            : dqn_.on_gpu()        ? ", on the GPU"
-                                   : "");
+           " Q network" + step;
   }
 
   void insert(const Batch& b) override {
@@ -42,13 +47,17 @@ class DqnAlgorithm final : public Algorithm {
   }
   Holding holding() const override { return {replay_.size(), replay_.capacity()}; }
   int64_t ready() const override { return replay_.size() >= batch_size() ? std::numeric_limits<int64_t>::max() : 0; }
+  // n updates queued at once, their figures read back after the last.
   std::vector<UpdateFigures> update(int n, uint64_t) override {
-    std::vector<UpdateFigures> out(size_t(std::max(n, 0)));
     apply_rate();
-    for (auto& f : out) {
-      const DqnStats s = dqn_.update(replay_.sample(batch_size()));
-      f.update = dqn_.updates();
-      f.values = {{"critic loss", s.loss}, {"epsilon", dqn_.epsilon()}};
+    const DeviceReplay* d = replay_.on_device();
+    const std::vector<DqnStats> stats =
+        d ? dqn_.update_n_from(n, batch_size(), *d) : dqn_.update_n(n, [this] { return replay_.sample(batch_size()); });
+    std::vector<UpdateFigures> out(stats.size());
+    const int64_t first = dqn_.updates() - int64_t(stats.size()) + 1;
+    for (size_t k = 0; k < stats.size(); ++k) {
+      out[k].update = first + int64_t(k);
+      out[k].values = {{"critic loss", stats[k].loss}, {"epsilon", dqn_.epsilon()}};
     }
     return out;
   }
@@ -93,12 +102,14 @@ class DqnAlgorithm final : public Algorithm {
   }
 
  private:
-  // The rate for the step scale and the schedule (dqn.lr_decay_updates) at the updates made; a
-  // factor that did not change costs nothing (Dqn::scale_learning_rate).
+  // The rate for the batch (dqn.lr_reference_batch), the step scale and the schedule
+  // (dqn.lr_decay_updates) at the updates made; a factor that did not change costs nothing
+  // (Dqn::scale_learning_rate).
   void apply_rate() {
-    dqn_.scale_learning_rate(std::sqrt(double(step_scale_)) *
+    dqn_.scale_learning_rate(batch_lr_factor(cfg_.batch_size(), step_scale_, cfg_.lr_reference_batch()) *
                              lr_decay_factor(cfg_.lr_decay_updates(), cfg_.lr_decay_to(), dqn_.updates()));
   }
+  bool draws_on_device() const { return cfg_.replay_on_device() && dqn_.on_gpu(); }
   int64_t batch_size() const { return int64_t(cfg_.batch_size()) * step_scale_; }
 
   config::DqnConfig cfg_;
