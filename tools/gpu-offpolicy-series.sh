@@ -3,7 +3,8 @@
 # series of issue "off-policy at the swarm's scale" in one call: each off-policy algorithm's
 # updates/s and samples/s (batch x updates/s) at batches 256, 4,096 and 32,768 for 256-256 and
 # 512-512-512 networks, through the interface the learner runs them by (tests/bench/bench_offpolicy.cpp);
-# SAC with its matrix products in float32 and in bfloat16.
+# SAC and DQN each with their matrix products in float32 and in bfloat16 (DQN with its minibatches
+# drawn on the GPU, dqn.replay_on_device, its default there).
 #   tools/gpu-offpolicy-series.sh [OUT_DIR]      (default: runs/gpu-series)
 # SERIES_SECONDS (default 2) is the time measured per figure; SERIES_ARGS are added to
 # bench_offpolicy's (e.g. --algorithms sac). Needs a kit from deploy/make-gpu-kit.sh in gpukit/
@@ -23,4 +24,5 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | 
 "$root/build-gpu/tests/bench_offpolicy" --device cuda --algorithms sac,td3,dqn \
   --batches 256,4096,32768 --hidden-sets "256,256;512,512,512" \
   --variant 'sac:matmul_dtype: "float32"' --variant 'sac:matmul_dtype: "bfloat16"' \
+  --variant 'dqn:matmul_dtype: "float32"' --variant 'dqn:matmul_dtype: "bfloat16"' \
   --seconds "${SERIES_SECONDS:-2}" ${SERIES_ARGS:-} 2>&1 | tee "$out/bench_offpolicy.txt"
