@@ -123,8 +123,10 @@ class VecEnvPy {
   }
 
   // Copies actions in (checked against the shape and dtype the task takes), then steps every env
-  // with the GIL released.
-  void step(py::array actions) {
+  // with the GIL released; envs where `skip` (bool, one per env) is true are not stepped: their
+  // observation stays, their reward and flags are 0 (Gymnasium's next-step autoreset, the step that
+  // hands out the first observation of the episode the env already started).
+  void step(py::array actions, std::optional<py::array_t<bool, py::array::c_style | py::array::forcecast>> skip) {
     const int n = env_.num_envs();
     const bool discrete = num_actions() > 0;
     const std::string want =
@@ -158,6 +160,12 @@ class VecEnvPy {
                                 std::to_string(i % act_dim()) + " is " + std::to_string(a.data()[i]) +
                                 ", not a finite number");
       std::copy(a.data(), a.data() + size_t(n) * act_dim(), actions_.begin());
+    }
+    skip_.assign(n, 0);
+    if (skip) {
+      if (skip->ndim() != 1 || skip->shape(0) != n)
+        throw py::value_error("skip: expected a bool array of shape (" + std::to_string(n) + ",)");
+      for (int i = 0; i < n; ++i) skip_[i] = skip->data()[i] ? 1 : 0;
     }
     py::gil_scoped_release nogil;
     run_all();
@@ -206,9 +214,21 @@ class VecEnvPy {
     return py::array(py::dtype::of<bool>(), {py::ssize_t(v.size())}, {py::ssize_t(1)}, v.data(), self);
   }
 
+  // Steps the chunk's envs, in runs of envs not skipped.
   void step_chunk(Chunk& c) {
     c.ends.clear();
-    env_.step_range(c.begin, c.end, actions_.data(), rewards_.data(), terminated_.data(), truncated_.data(), c.ends);
+    for (int i = c.begin; i < c.end;) {
+      if (skip_[i]) {
+        rewards_[i] = 0.f;
+        terminated_[i] = truncated_[i] = 0;
+        ++i;
+        continue;
+      }
+      int j = i;
+      while (j < c.end && !skip_[j]) ++j;
+      env_.step_range(i, j, actions_.data(), rewards_.data(), terminated_.data(), truncated_.data(), c.ends);
+      i = j;
+    }
   }
 
   // Spins for up to about half a millisecond until done() holds (the time a step's Python around it
@@ -275,7 +295,7 @@ class VecEnvPy {
   farm::VecEnv env_;
   int threads_;
   std::vector<float> actions_, rewards_;
-  std::vector<uint8_t> terminated_, truncated_;
+  std::vector<uint8_t> terminated_, truncated_, skip_;
   std::vector<Chunk> chunks_;
   std::vector<std::thread> pool_;
   std::mutex mu_;
@@ -416,7 +436,7 @@ PYBIND11_MODULE(_farm, m) {
       .def("truncated", [](py::object self) { return self.cast<VecEnvPy&>().truncated(self); })
       .def("reset", &VecEnvPy::reset, py::arg("seed") = py::none())
       .def("reset_envs", &VecEnvPy::reset_envs, py::arg("envs"), py::arg("seeds"), py::arg("streams"))
-      .def("step", &VecEnvPy::step, py::arg("actions"))
+      .def("step", &VecEnvPy::step, py::arg("actions"), py::arg("skip") = py::none())
       .def("ended", &VecEnvPy::ended);
 
   py::class_<PolicyPy>(m, "PolicyCore")

@@ -86,6 +86,10 @@ class SB3VecEnv(_Base):
     """SB3's ``VecEnv`` over ``venv``, a ``farm.VecEnv`` (see the module's documentation)."""
 
     def __init__(self, venv):
+        mode = getattr(venv, "metadata", {}).get("autoreset_mode")
+        if getattr(mode, "value", mode) != "SameStep":
+            raise ValueError("SB3VecEnv: SB3's VecEnv resets an env in the step that ends its episode; give it a "
+                             "farm.make_vec in the same-step mode (the default), got autoreset_mode %r" % (mode,))
         self.venv = venv
         self._actions = None
         self._started = np.full(venv.num_envs, time.monotonic())

@@ -14,8 +14,17 @@ Gymnasium 1.x's vector API (1.1 and later: ``AutoresetMode``, ``reset_mask``):
   sub-environment's info (each key with its ``_key`` mask). ``info_format="0.29"`` writes Gymnasium
   0.29's keys instead: ``final_observation`` and ``final_info``, object arrays of the last
   observation and of the last info dict.
+- ``autoreset_mode=AutoresetMode.NEXT_STEP`` (or ``"NextStep"``) gives Gymnasium's next-step mode
+  instead, the one its observation wrappers (``NormalizeObservation`` and the others derived from
+  ``VectorObservationWrapper``) accept: the step that ends an episode returns its last observation in
+  the env's row and the ended episode's ``episode_return``, ``episode_length`` and ``metrics`` in
+  ``infos`` (each with its ``_key`` mask, as ``farm.Env``'s info batched); the env's next step ignores
+  its action and returns the first observation of the next episode with reward 0, both flags False.
+  Gymnasium 0.29's info keys (``info_format="0.29"``) go with the same-step mode only.
 - Arrays returned are the caller's own (a copy per step). ``copy=False`` returns the observations as
-  a view of the C++ buffer that the next ``step`` or ``reset`` overwrites, as ``SyncVectorEnv`` does.
+  a view of the C++ buffer that the next ``step`` or ``reset`` overwrites, as ``SyncVectorEnv`` does
+  (in the next-step mode, a step that ends an episode returns a copy: its rows of last observations
+  are not in the buffer).
 - Rewards are float64, terminations and truncations bool, as ``SyncVectorEnv`` returns them.
 - Actions are converted as Gymnasium's envs take them: any real dtype, lists, objects with
   ``__array__`` and PyTorch tensors (on any device); ``(num_envs,)`` for a one-dimensional action.
@@ -185,10 +194,20 @@ class VecEnv(_Base):
     _np_random = None
     _np_random_seed = None
 
-    def __init__(self, config, num_envs, threads=1, seed=0, copy=True, info_format="1.x", render_mode=None):
+    def __init__(self, config, num_envs, threads=1, seed=0, copy=True, info_format="1.x", render_mode=None,
+                 autoreset_mode=AutoresetMode.SAME_STEP):
         self._core = None  # so that __del__ and close() work on a half-made env
         if info_format not in INFO_FORMATS:
             raise ValueError("info_format: expected one of %s, got %r" % (INFO_FORMATS, info_format))
+        modes = (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP)
+        value = getattr(autoreset_mode, "value", autoreset_mode)
+        mode = next((m for m in modes if m.value == value), None)
+        if mode is None:
+            raise ValueError("autoreset_mode: expected AutoresetMode.SAME_STEP or NEXT_STEP (or %r, %r), got %r"
+                             % (modes[0].value, modes[1].value, autoreset_mode))
+        if mode is AutoresetMode.NEXT_STEP and info_format != "1.x":
+            raise ValueError("autoreset_mode: Gymnasium 0.29's info keys (info_format=%r) go with the same-step "
+                             "mode only" % info_format)
         if render_mode is not None:
             raise ValueError("render_mode: the farm's envs render no frames in Python (None), got %r; "
                              "farm-play records videos of a trained policy" % (render_mode,))
@@ -201,6 +220,8 @@ class VecEnv(_Base):
         self.info_format = info_format
         self.render_mode = None
         self.metadata = dict(type(self).metadata)
+        self.metadata["autoreset_mode"] = mode
+        self._pending = np.zeros(self.num_envs, dtype=bool)  # next-step mode: envs whose next step resets
         self.metric_names = list(self._core.metric_names)
         self.single_observation_space = Box(-np.inf, np.inf, (self._core.obs_dim,), np.float32)
         if self._core.num_actions > 0:
@@ -260,10 +281,13 @@ class VecEnv(_Base):
                 raise ValueError("reset_mask: no env to reset (all False)")
             envs = [i for i in range(n) if mask[i]]
             core.reset_envs(envs, [seeds[i][0] for i in envs], [seeds[i][1] for i in envs])
+            self._pending[mask] = False
         elif isinstance(seed, (int, np.integer)) or seed is None:
             core.reset(None if seed is None else int(seed))
+            self._pending[:] = False
         else:
             core.reset_envs(list(range(n)), [s for s, _ in seeds], [k for _, k in seeds])
+            self._pending[:] = False
         if isinstance(seed, (int, np.integer)):  # np_random, as Gymnasium's base seeds it
             self._np_random, self._np_random_seed = np.random.default_rng(int(seed)), int(seed)
         obs = core.obs()
@@ -297,13 +321,33 @@ class VecEnv(_Base):
         them), or integers of shape ``(num_envs,)`` for a task of discrete actions; converted as the
         module's documentation says. Returns ``(obs, rewards, terminations, truncations, infos)``."""
         core = self._live_core("step")
-        core.step(to_actions(actions, self.single_action_space, self.num_envs))
+        batch = to_actions(actions, self.single_action_space, self.num_envs)
+        if self.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP:
+            return self._step_next(core, batch)
+        core.step(batch)
         obs = core.obs()
         return ((obs.copy() if self.copy else obs), core.rewards().astype(np.float64), core.terminated().copy(),
                 core.truncated().copy(), self._infos(core))
 
-    def _infos(self, core):
+    def _step_next(self, core, batch):
+        """A step in the next-step mode: envs whose episode ended in the last step are not stepped (the
+        C++ env already reset them: their row holds the first observation of the next episode)."""
+        core.step(batch, self._pending if self._pending.any() else None)
+        obs = core.obs()
+        terminated, truncated = core.terminated().copy(), core.truncated().copy()
+        self._pending = terminated | truncated
         ended = core.ended()
+        infos = {}
+        if ended is not None:
+            obs = obs.copy()
+            obs[ended["env"]] = ended["final_obs"]
+            infos = self._infos(core, ended)["final_info"]
+        elif self.copy:
+            obs = obs.copy()
+        return obs, core.rewards().astype(np.float64), terminated, truncated, infos
+
+    def _infos(self, core, ended=None):
+        ended = core.ended() if ended is None else ended
         if ended is None:
             return {}
         n, env = self.num_envs, ended["env"]
@@ -397,9 +441,12 @@ def _episode_info(ended, k, metric_names):
     return info
 
 
-def make_vec(config, num_envs, threads=1, seed=0, copy=True, info_format="1.x", render_mode=None):
+def make_vec(config, num_envs, threads=1, seed=0, copy=True, info_format="1.x", render_mode=None,
+             autoreset_mode=AutoresetMode.SAME_STEP):
     """A VecEnv of the task a config names: a config file's path (its ``task`` section; a task of
     terms reads its model from the config's folder), or a task name (``farm.task_names()``) with
     that task's defaults. ``copy=False``: observations as views (see the module's documentation);
-    ``info_format="0.29"``: Gymnasium 0.29's info keys."""
-    return VecEnv(config, num_envs, threads, seed, copy=copy, info_format=info_format, render_mode=render_mode)
+    ``info_format="0.29"``: Gymnasium 0.29's info keys; ``autoreset_mode=AutoresetMode.NEXT_STEP``:
+    Gymnasium's next-step autoreset, which its observation wrappers require."""
+    return VecEnv(config, num_envs, threads, seed, copy=copy, info_format=info_format, render_mode=render_mode,
+                  autoreset_mode=autoreset_mode)

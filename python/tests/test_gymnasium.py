@@ -28,8 +28,11 @@ def test_it_is_a_vector_env_with_gymnasium_spaces():
 
 
 def test_vector_wrappers_wrap_it():
+    # Gymnasium's observation wrappers (NormalizeObservation: a VectorObservationWrapper) take a
+    # next-step or disabled env only: farm.make_vec's next-step mode.
     raw = farm.make_vec("pendulum", 4, seed=1)
-    env = vw.RecordEpisodeStatistics(vw.NormalizeObservation(vw.ClipAction(farm.make_vec("pendulum", 4, seed=1))))
+    wrapped = farm.make_vec("pendulum", 4, seed=1, autoreset_mode=AutoresetMode.NEXT_STEP)
+    env = vw.RecordEpisodeStatistics(vw.NormalizeObservation(vw.ClipAction(wrapped)))
     raw_obs, _ = raw.reset(seed=1)
     obs, _ = env.reset(seed=1)
     assert obs.shape == raw_obs.shape and not np.allclose(obs, raw_obs)  # normalized
@@ -79,3 +82,23 @@ def test_sync_vector_env_of_single_envs_steps_as_make_vec():
         if ua.any():
             for i in range(2):
                 assert np.array_equal(ia["final_obs"][i], ib["final_obs"][i])
+
+
+def test_sync_vector_env_next_step_steps_as_make_vec_next_step():
+    sync = gymnasium.vector.SyncVectorEnv([lambda: farm.Env("pendulum") for _ in range(2)],
+                                          autoreset_mode=AutoresetMode.NEXT_STEP)
+    ours = farm.make_vec("pendulum", 2, autoreset_mode=AutoresetMode.NEXT_STEP)
+    a, _ = sync.reset(seed=7)
+    b, _ = ours.reset(seed=[7, 8])
+    assert np.array_equal(a, b)
+    rng = np.random.default_rng(7)
+    resets = 0
+    for _ in range(450):
+        act = rng.uniform(-1, 1, (2, 1)).astype(np.float32)
+        a, ra, ta, ua, ia = sync.step(act)
+        b, rb, tb, ub, ib = ours.step(act)
+        assert np.array_equal(a, b) and np.array_equal(ra, rb) and np.array_equal(ua, ub) and np.array_equal(ta, tb)
+        if ua.any():
+            assert np.array_equal(ia["episode_return"], ib["episode_return"])
+        resets += int(np.all(ra == 0))
+    assert resets >= 2  # two next-step resets compared

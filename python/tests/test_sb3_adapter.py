@@ -57,6 +57,9 @@ def test_the_vecenv_interface():
         assert not np.array_equal(info["terminal_observation"], new_obs[i])  # new_obs starts the next
     venv.close()
     venv.close()
+    # SB3 reads the reset observation in the step that ends an episode: a next-step env is refused.
+    with pytest.raises(ValueError, match="same-step mode"):
+        SB3VecEnv(farm.make_vec("pendulum", 3, autoreset_mode=farm.AutoresetMode.NEXT_STEP))
 
 
 def test_termination_is_not_a_time_limit():

@@ -1,5 +1,6 @@
 """farm.make_vec against Gymnasium 1.x's VectorEnv API, over every task the farm runs: attributes,
-batched spaces, dtypes, same-step autoreset and its info keys, seeding (int, list, partial resets),
+batched spaces, dtypes, same-step autoreset and its info keys, next-step autoreset against
+Gymnasium's algorithm over single envs, seeding (int, list, partial resets),
 action conversions, copies against views, close, pickling; farm.Env, the single env; and a
 CleanRL-style loop that stores distinct obs and next_obs. Runs with gymnasium absent (Debian has no
 package) and, where it imports, against its classes."""
@@ -146,6 +147,50 @@ def test_same_step_autoreset_and_its_info_keys(config):
     else:
         pytest.fail("no episode ended in 3000 steps")
     assert prev.shape == obs.shape
+
+
+@pytest.mark.parametrize("config", task_configs(), indirect=True)
+def test_next_step_autoreset_is_gymnasiums_over_single_envs(config):
+    # Gymnasium's next-step autoreset (SyncVectorEnv's step with AutoresetMode.NEXT_STEP) written out
+    # over N farm.Env, each reset with its own seed, against farm.make_vec in that mode reset with the
+    # list of those seeds: the same observations, rewards, flags and episode infos at every step.
+    seeds = [11 + i for i in range(N)]
+    env = farm.make_vec(config, N, autoreset_mode=farm.AutoresetMode.NEXT_STEP)
+    assert env.metadata["autoreset_mode"] == farm.AutoresetMode.NEXT_STEP
+    singles = [farm.Env(config) for _ in range(N)]
+    obs, _ = env.reset(seed=seeds)
+    assert np.array_equal(obs, np.stack([e.reset(seed=s)[0] for e, s in zip(singles, seeds)]))
+    autoreset = np.zeros(N, dtype=bool)
+    rng = np.random.default_rng(4)
+    ended = resets = 0
+    for _ in range(3000):
+        act = small_actions(env, rng)
+        obs, rewards, terms, truncs, infos = env.step(act)
+        assert rewards.dtype == np.float64 and terms.dtype == np.bool_
+        for i, single in enumerate(singles):
+            if autoreset[i]:  # Gymnasium resets the sub-env and ignores its action
+                o, _ = single.reset()
+                r, t, u, info = 0.0, False, False, {}
+                resets += 1
+            else:
+                o, r, t, u, info = single.step(act[i])
+            assert np.array_equal(obs[i], o) and (rewards[i], terms[i], truncs[i]) == (r, t, u)
+            if info:
+                assert infos["_episode_length"][i] and infos["episode_length"][i] == info["episode_length"]
+                assert infos["episode_return"][i] == info["episode_return"]
+                for name in env.metric_names:
+                    assert infos["metrics"][name][i] == info["metrics"][name]
+            else:
+                assert not infos or not infos["_episode_length"][i]
+        autoreset = terms | truncs
+        ended += int(autoreset.sum())
+        if resets >= 2:
+            break
+    assert ended >= 2 and resets >= 2, "%d episodes ended, %d next-step resets in 3000 steps" % (ended, resets)
+    with pytest.raises(ValueError, match="autoreset_mode: expected"):
+        farm.make_vec(config, N, autoreset_mode="Disabled")
+    with pytest.raises(ValueError, match="same-step mode only"):
+        farm.make_vec(config, N, info_format="0.29", autoreset_mode="NextStep")
 
 
 @pytest.mark.parametrize("config", task_configs(), indirect=True)
