@@ -58,18 +58,17 @@
 // worker's id and session, numbered from 0, every 50 ms: whoever writes first would own the stream.
 // --big-to-workers MB: instead of a stream, a spec, weights and an evaluation request (to a worker
 // id no worker has) of MB MiB each, well-formed otherwise, published once a worker reads them.
-#include <arpa/inet.h>
+// The floods (--flood-*, --hostile, --oversize, --big-to-workers) are in intruder_floods.cpp, the
+// forgeries (--forge-*, --eval-requests, --steal-streams) in intruder_forgeries.cpp, --malformed in
+// intruder_malformed.cpp; this file has the plain stream, the spec impostor and the options.
 #include <dlfcn.h>
-#include <netinet/in.h>
 #include <openssl/x509.h>
-#include <sys/socket.h>
-#include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
-#include <map>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -79,6 +78,8 @@
 #include "cli.h"
 #include "config.h"
 #include "dds.h"
+#include "intruder_floods.h"
+#include "intruder_forgeries.h"
 #include "intruder_malformed.h"
 #include "meter.h"
 
@@ -113,41 +114,6 @@ extern "C" char* X509_NAME_oneline(const X509_NAME* name, char* buf, int size) {
 
 namespace {
 
-// One round of --eval-requests: six requests to `worker`, each wrong in one way, and one a pendulum
-// worker could run; returns how many were written.
-int send_bad_eval_requests(farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType>& out,
-                           const std::string& experiment, const std::string& worker, uint64_t& next_id) {
-  const int big = 2147483647;
-  farm::msg::PolicyWeights good;
-  good.experiment_id(experiment);
-  good.version(5);
-  good.layer_sizes({3, 4, 2});
-  good.parameters(std::vector<float>(3 * 4 + 4 + 4 * 2 + 2, 0.f));
-  const auto request = [&](uint32_t episodes, uint32_t first, const farm::msg::PolicyWeights& policy) {
-    farm::msg::EvaluationRequest q;
-    q.experiment_id(experiment);
-    q.learner_session(77);
-    q.request_id(++next_id);
-    q.worker_id(worker);
-    q.policy_version(5);
-    q.episodes(episodes);
-    q.first_episode(first);
-    q.seed(1);
-    q.policy(policy);
-    const int written = int(out.write(q));
-    // Apart in time: a worker keeps the last few requests addressed to it until its loop checks them.
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    return written;
-  };
-  farm::msg::PolicyWeights other = good, versioned = good, wrapped = good;
-  other.experiment_id("another_experiment");
-  versioned.version(6);
-  wrapped.layer_sizes({3, big, big, big, big, big - 2, 1, 536870915, 2});
-  wrapped.parameters(std::vector<float>(8, 0.f));
-  return request(0, 0, good) + request(UINT32_MAX, 0, good) + request(1, UINT32_MAX, good) + request(1, 0, other) +
-         request(1, 0, versioned) + request(1, 0, wrapped) + request(1, 0, good);
-}
-
 // Tries one writer of type T on topic; true if Fast DDS created it.
 template <class T, class PubSubType>
 bool writer_created(farm::dds::Bus& bus, const char* topic, const char* profile) {
@@ -178,267 +144,6 @@ int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
     list += (list.empty() ? "" : " ") + std::string(topic);
   }
   std::printf("%s: writers created [%s], refused [%s]\n", id.c_str(), created.c_str(), refused.c_str());
-  return 0;
-}
-
-// --forge-answers: answers every request of `experiment` the moment it is seen (see the top).
-int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
-                  float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat, unsigned obs,
-                  unsigned act) {
-  using namespace farm::msg;
-  farm::dds::Reader<EvaluationRequest, EvaluationRequestPubSubType> requests(bus, farm::dds::kEvalRequestTopic,
-                                                                             "batch_reader");
-  // Another worker's session is read off its heartbeats; as a worker of its own (own_heartbeat,
-  // which a worker certificate allows: it may not read heartbeats) it beats as session 1.
-  std::unique_ptr<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>> status;
-  std::unique_ptr<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>> beats;
-  // As a worker of its own it also delivers well-formed batches, as a worker whose evaluations the
-  // learner asks must have.
-  std::unique_ptr<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>> batches;
-  TransitionBatch b = one_step_batch(experiment, id, obs, act);
-  if (own_heartbeat) {
-    beats = std::make_unique<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>>(
-        bus, farm::dds::kWorkerStatusTopic, "status_writer");
-    batches = std::make_unique<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>>(
-        bus, farm::dds::kBatchTopic, "batch_writer");
-  } else {
-    status = std::make_unique<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>>(
-        bus, farm::dds::kWorkerStatusTopic, "status_reader");
-  }
-  farm::dds::Writer<EvaluationAnswer, EvaluationAnswerPubSubType> answers(bus, farm::dds::kEvalAnswerTopic,
-                                                                          "batch_writer");
-  std::map<std::string, uint64_t> sessions;  // worker id -> its last heartbeat's session
-  sessions[id] = 1;
-  uint64_t answered = 0;
-  const double t0 = farm::now_seconds();
-  double beat_at = 0;
-  while (farm::now_seconds() - t0 < seconds) {
-    WorkerStatus st;
-    while (status && status->take(st)) sessions[st.worker_id()] = st.worker_session();
-    if (beats && farm::now_seconds() - beat_at >= 0.5) {
-      st.worker_id(id);
-      st.worker_session(1);
-      st.host(farm::dds::hostname());
-      st.experiment_id(experiment);
-      st.envs(4);
-      st.threads(1);
-      st.state("running");
-      beats->write(st);
-      if (batches->matched() > 0 && batches->write(b)) b.sequence_number(b.sequence_number() + 1);
-      beat_at = farm::now_seconds();
-    }
-    EvaluationRequest q;
-    while (requests.take(q)) {
-      if (q.experiment_id() != experiment || (own_heartbeat && q.worker_id() != id)) continue;
-      EvaluationAnswer a;
-      a.experiment_id(q.experiment_id());
-      a.learner_session(q.learner_session());
-      a.request_id(q.request_id());
-      a.worker_id(q.worker_id());
-      a.worker_session(sessions[q.worker_id()]);
-      a.policy_version(q.policy_version());
-      a.seconds(0.01);
-      std::vector<EvaluationEpisode> eps(q.episodes());
-      for (auto& e : eps) {
-        e.episode_return(forged_return);
-        e.length(length);
-        e.metrics(std::vector<float>(metrics, 1.f));
-      }
-      a.episodes(eps);
-      answered += answers.write(a);
-    }
-    requests.wait(0.005);
-  }
-  std::printf("%s: forged %llu evaluation answers\n", id.c_str(), (unsigned long long)answered);
-  return 0;
-}
-
-// --big-to-workers: one spec, weights and evaluation request of mib MiB each (see the top).
-int big_to_workers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, unsigned mib,
-                   double seconds) {
-  using namespace farm::msg;
-  farm::dds::Writer<ExperimentSpec, ExperimentSpecPubSubType> spec_out(bus, farm::dds::kSpecTopic, "latest_writer");
-  farm::dds::Writer<PolicyWeights, PolicyWeightsPubSubType> weights_out(bus, farm::dds::kWeightsTopic, "latest_writer");
-  farm::dds::Writer<EvaluationRequest, EvaluationRequestPubSubType> request_out(bus, farm::dds::kEvalRequestTopic,
-                                                                                "batch_writer");
-  const double t_match = farm::now_seconds();
-  while ((spec_out.matched() == 0 || weights_out.matched() == 0 || request_out.matched() == 0) &&
-         farm::now_seconds() - t_match < 15)
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  const size_t floats = size_t(mib) << 18;
-  PolicyWeights w;
-  w.experiment_id(experiment);
-  w.version(1);
-  w.layer_sizes({3, int32_t(floats / 4 - 1), 1});
-  w.parameters(std::vector<float>(floats, 0.f));
-  EvaluationRequest q;
-  q.experiment_id(experiment);
-  q.learner_session(77);
-  q.request_id(1);
-  q.worker_id("nobody-" + id);
-  q.policy_version(1);
-  q.episodes(1);
-  q.policy(w);
-  ExperimentSpec s;
-  s.experiment_id(experiment);
-  s.config_text(std::string(size_t(mib) << 20, '#'));
-  s.learner_session(77);
-  const int sent = int(spec_out.write(s)) + int(weights_out.write(w)) + int(request_out.write(q));
-  std::printf("%s: sent %d samples of %u MiB to the workers\n", id.c_str(), sent, mib);
-  std::fflush(stdout);
-  std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
-  return 0;
-}
-
-// The experiment's weights as its learner publishes them, each written again under a version a
-// million ahead: a worker that ran them would send batches of a version no learner published.
-// The SPDP message a participant sends as it leaves (Fast DDS 2.9's form), in the name of the
-// participant of `prefix`: a DATA(p[UD]) of the SPDP writer with the key hash and status disposed
-// and unregistered inline, and the participant's GUID as the key. Little-endian throughout.
-std::vector<uint8_t> participant_removal(const eprosima::fastrtps::rtps::GuidPrefix_t& prefix, uint32_t seq) {
-  std::vector<uint8_t> m = {'R', 'T', 'P', 'S', 2, 3, 0x01, 0x0f};
-  m.insert(m.end(), prefix.value, prefix.value + 12);
-  const auto put16 = [&m](uint16_t v) { m.insert(m.end(), {uint8_t(v), uint8_t(v >> 8)}); };
-  const auto put32 = [&m](uint32_t v) {
-    m.insert(m.end(), {uint8_t(v), uint8_t(v >> 8), uint8_t(v >> 16), uint8_t(v >> 24)});
-  };
-  const auto guid = [&] {
-    m.insert(m.end(), prefix.value, prefix.value + 12);
-    m.insert(m.end(), {0x00, 0x00, 0x01, 0xc1});
-  };
-  m.insert(m.end(), {0x15, 0x0b});  // DATA, flags E | Q | K
-  const size_t len_at = m.size();
-  put16(0);
-  put16(0);                                     // extra flags
-  put16(16);                                    // octets to inline QoS
-  m.insert(m.end(), {0x00, 0x01, 0x00, 0xc7});  // SPDP reader
-  m.insert(m.end(), {0x00, 0x01, 0x00, 0xc2});  // SPDP writer
-  put32(0);
-  put32(seq);
-  put16(0x0070);  // PID_KEY_HASH
-  put16(16);
-  guid();
-  put16(0x0071);  // PID_STATUS_INFO: disposed | unregistered
-  put16(4);
-  m.insert(m.end(), {0, 0, 0, 3});
-  put16(0x0001);  // PID_SENTINEL
-  put16(0);
-  m.insert(m.end(), {0x00, 0x03, 0x00, 0x00});  // PL_CDR_LE
-  put16(0x0050);                                // PID_PARTICIPANT_GUID
-  put16(16);
-  guid();
-  put16(0x0001);
-  put16(0);
-  const size_t len = m.size() - len_at - 2;
-  m[len_at] = uint8_t(len);
-  m[len_at + 1] = uint8_t(len >> 8);
-  return m;
-}
-
-int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
-                  double every_ms) {
-  farm::dds::Reader<farm::msg::ExperimentSpec, farm::msg::ExperimentSpecPubSubType> spec(bus, farm::dds::kSpecTopic,
-                                                                                         "latest_reader");
-  eprosima::fastrtps::rtps::GuidPrefix_t learner;
-  bool found = false;
-  for (const double t0 = farm::now_seconds(); !found && farm::now_seconds() - t0 < 15;) {
-    spec.wait(0.2);
-    farm::msg::ExperimentSpec s;
-    eprosima::fastdds::dds::SampleInfo info;
-    while (spec.take(s, info))
-      if (s.experiment_id() == experiment) {
-        learner = info.sample_identity.writer_guid().guidPrefix;
-        found = true;
-      }
-  }
-  if (!found) {
-    std::printf("%s: no spec of experiment '%s' in 15 s: no learner to name\n", id.c_str(), experiment.c_str());
-    return 4;
-  }
-  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
-  if (fd < 0) throw std::runtime_error("cannot open a UDP socket");
-  const unsigned char loop = 1;
-  ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_LOOP, &loop, sizeof loop);
-  const uint32_t base = 7400 + 250 * uint32_t(bus.domain());
-  std::vector<sockaddr_in> to;
-  const auto add = [&to](const char* ip, uint32_t port) {
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_port = htons(uint16_t(port));
-    ::inet_pton(AF_INET, ip, &a.sin_addr);
-    to.push_back(a);
-  };
-  add("239.255.0.1", base);                                                // discovery multicast
-  for (uint32_t p = 0; p < 120; ++p) add("127.0.0.1", base + 10 + 2 * p);  // metatraffic unicast
-  char hex[40] = "";
-  for (int k = 0; k < 12; ++k) std::snprintf(hex + 2 * k, 3, "%02x", learner.value[k]);
-  std::printf("%s: naming learner %s in participant removals\n", id.c_str(), hex);
-  std::fflush(stdout);
-  uint64_t sent = 0;
-  uint32_t seq = 1000;
-  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
-    const std::vector<uint8_t> m = participant_removal(learner, ++seq);
-    for (const sockaddr_in& a : to)
-      sent += ::sendto(fd, m.data(), m.size(), 0, reinterpret_cast<const sockaddr*>(&a), sizeof a) == ssize_t(m.size());
-    std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(every_ms));
-  }
-  ::close(fd);
-  std::printf("%s: sent %llu participant removals in the learner's name\n", id.c_str(), (unsigned long long)sent);
-  return 0;
-}
-
-// --steal-streams: batches under every worker session heard of, numbered from 0, every 50 ms.
-int steal_streams(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
-                  unsigned obs, unsigned act) {
-  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> beats(
-      bus, farm::dds::kWorkerStatusTopic, "status_reader");
-  farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
-                                                                                          "batch_writer");
-  std::map<std::pair<std::string, uint64_t>, uint64_t> next;  // (worker id, session) -> next sequence number
-  uint64_t sent = 0;
-  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
-    farm::msg::WorkerStatus st;
-    while (beats.take(st))
-      if (st.experiment_id() == experiment && st.worker_id() != id && next.size() < 16 &&
-          next.emplace(std::make_pair(st.worker_id(), st.worker_session()), 0).second) {
-        std::printf("%s: stealing the stream of %s session %llu\n", id.c_str(), st.worker_id().c_str(),
-                    (unsigned long long)st.worker_session());
-        std::fflush(stdout);
-      }
-    for (auto& [stream, seq] : next) {
-      farm::msg::TransitionBatch b = one_step_batch(experiment, stream.first, obs, act);
-      b.worker_session(stream.second);
-      b.sequence_number(seq);
-      if (out.write(b)) {
-        ++seq;
-        ++sent;
-      }
-    }
-    beats.wait(0.05);
-  }
-  std::printf("%s: sent %llu batches under %zu worker sessions not its own\n", id.c_str(), (unsigned long long)sent,
-              next.size());
-  return 0;
-}
-
-int forge_weights(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds) {
-  using farm::msg::PolicyWeights;
-  farm::dds::Reader<PolicyWeights, farm::msg::PolicyWeightsPubSubType> in(bus, farm::dds::kWeightsTopic,
-                                                                          "latest_reader");
-  farm::dds::Writer<PolicyWeights, farm::msg::PolicyWeightsPubSubType> out(bus, farm::dds::kWeightsTopic,
-                                                                           "latest_writer");
-  constexpr uint64_t kAhead = 1000000;
-  unsigned forged = 0;
-  for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
-    PolicyWeights w;
-    while (in.take(w)) {
-      if (w.experiment_id() != experiment || w.version() >= kAhead) continue;  // its own come back too
-      w.version(w.version() + kAhead);
-      forged += out.write(w);
-    }
-    in.wait(0.1);
-  }
-  std::printf("%s: forged %u weights, readers matched %d\n", id.c_str(), forged, out.matched());
   return 0;
 }
 
@@ -537,34 +242,7 @@ int main(int argc, char** argv) {
     if (forge_removal_on) return forge_removal(bus, id, experiment, seconds, removal_every_ms);
     if (steal) return steal_streams(bus, id, experiment, seconds, obs, act);
     if (host_bytes > 0) status_host = std::string(host_bytes, 'h');
-    if (!eval_worker.empty()) {
-      farm::dds::Writer<farm::msg::EvaluationRequest, farm::msg::EvaluationRequestPubSubType> requests(
-          bus, farm::dds::kEvalRequestTopic, "batch_writer");
-      // The answers to its requests (they name its learner session, 77), counted.
-      unsigned answers = 0;
-      farm::dds::Reader<farm::msg::EvaluationAnswer, farm::msg::EvaluationAnswerPubSubType> answers_in(
-          bus, farm::dds::kEvalAnswerTopic, "batch_reader");
-      const auto count_answers = [&] {
-        farm::msg::EvaluationAnswer a;
-        while (answers_in.take(a)) answers += a.learner_session() == 77;
-      };
-      const double t_match = farm::now_seconds();
-      while (requests.matched() == 0 && farm::now_seconds() - t_match < 15)
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-      const double t0 = farm::now_seconds();  // --seconds of requests once matched
-      uint64_t next_id = 0, sent = 0;
-      while (farm::now_seconds() - t0 < seconds) {
-        sent += send_bad_eval_requests(requests, experiment, eval_worker, next_id);
-        count_answers();
-      }
-      for (const double t1 = farm::now_seconds(); farm::now_seconds() - t1 < 2;) {  // the last ones' answers
-        answers_in.wait(0.1);
-        count_answers();
-      }
-      std::printf("%s: sent %llu evaluation requests to %s, readers matched %d, answers received %u\n", id.c_str(),
-                  (unsigned long long)sent, eval_worker.c_str(), requests.matched(), answers);
-      return 0;
-    }
+    if (!eval_worker.empty()) return bad_eval_requests(bus, id, experiment, eval_worker, seconds);
     farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType> out(bus, farm::dds::kBatchTopic,
                                                                                             "batch_writer");
     farm::dds::Reader<farm::msg::PolicyWeights, farm::msg::PolicyWeightsPubSubType> weights(
@@ -612,80 +290,12 @@ int main(int argc, char** argv) {
     // Hostile: wait to be matched, so that every batch counted as sent reaches the learner.
     while ((hostile || oversize) && out.matched() == 0 && farm::now_seconds() - t0 < 15)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    if (oversize) {
-      const unsigned OT = farm::kMaxStepsPerBatch / 16, ON = farm::kMaxEnvsPerWorker;
-      static_assert(farm::kMaxStepsPerBatch / 16 * farm::kMaxEnvsPerWorker <= farm::kMaxBatchTransitions);
-      const size_t TN = size_t(OT) * ON;
-      b.worker_session(rng());
-      b.num_steps(OT);
-      b.num_envs(ON);
-      b.observations(std::vector<float>(TN * obs, 0.5f));
-      b.actions(std::vector<float>(TN * act, 0.0f));
-      b.rewards(std::vector<float>(TN, 0.0f));
-      b.terminated(std::vector<uint8_t>(TN, 0));
-      b.truncated(std::vector<uint8_t>(TN, 0));
-      b.log_probs(std::vector<float>(TN, 0.0f));
-      b.next_observations(std::vector<float>(size_t(ON) * obs, 0.5f));
-      std::printf("%s: oversized batches of %ux%u transitions, %zu bytes serialized\n", id.c_str(), OT, ON,
-                  farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4);
-      std::fflush(stdout);
-    }
-    if (flood_streams > 0 || flood_heartbeats > 0) {
-      while (out.matched() == 0 && farm::now_seconds() - t0 < 15)
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-      uint64_t batches = 0, beats = 0;
-      for (unsigned k = 0; k < flood_streams; ++k) {
-        b.worker_id(id + "-" + std::to_string(k));
-        b.worker_session(rng());
-        b.sequence_number(0);
-        batches += out.write(b);
-      }
-      if (flood_heartbeats > 0) {
-        StatusWriter beat_out(bus, farm::dds::kWorkerStatusTopic, "status_writer");
-        while (beat_out.matched() == 0 && farm::now_seconds() - t0 < 15)
-          std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        farm::msg::WorkerStatus st;
-        st.worker_id(id);
-        st.host(status_host);
-        st.experiment_id(experiment);
-        st.envs(1);
-        st.threads(1);
-        st.state("running");
-        std::vector<uint64_t> sessions(flood_heartbeats);
-        for (auto& s : sessions) s = rng();
-        for (const double t_beat = farm::now_seconds();;) {
-          for (uint64_t s : sessions) {
-            st.worker_session(s);
-            beats += beat_out.write(st);
-          }
-          if (beat_every <= 0 || farm::now_seconds() - t_beat + beat_every > seconds) break;
-          std::this_thread::sleep_for(std::chrono::duration<double>(beat_every));
-        }
-      }
-      std::printf("%s: flooded %llu batches of invented streams, %llu heartbeats of invented sessions\n", id.c_str(),
-                  (unsigned long long)batches, (unsigned long long)beats);
-      std::fflush(stdout);
-      if (beat_every <= 0) std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
-      return 0;
-    }
-    while (oversize && farm::now_seconds() - t0 < seconds) {
-      b.sequence_number(sent);
-      if (out.write(b)) ++sent;
-      max_matched = std::max(max_matched, out.matched());
-      std::this_thread::sleep_for(std::chrono::milliseconds(500));
-    }
-    while (hostile && farm::now_seconds() - t0 < seconds) {
-      b.worker_session(1);
-      b.sequence_number(sent % 2 ? UINT64_MAX - sent : (uint64_t(1) << 63) + sent);
-      sent += out.write(b);
-      for (int k = 0; k < 50; ++k) {
-        b.worker_session(rng());
-        b.sequence_number(rng() | (uint64_t(1) << 40));
-        sent += out.write(b);
-      }
-      max_matched = std::max(max_matched, out.matched());
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
+    if (oversize) make_oversized(b, rng, id, obs, act);
+    if (flood_streams > 0 || flood_heartbeats > 0)
+      return flood(bus, out, b, rng, id, experiment, Flood{flood_streams, flood_heartbeats, beat_every, status_host},
+                   t0, seconds);
+    if (oversize) send_oversized(out, b, t0, seconds, sent, max_matched);
+    if (hostile) send_hostile(out, b, rng, t0, seconds, sent, max_matched);
     while (!hostile && !oversize && farm::now_seconds() - t0 < seconds) {
       b.sequence_number(sent);
       if (out.write(b)) ++sent;
