@@ -40,7 +40,9 @@
 // worker's last heartbeat, with each episode's return RETURN, length --forge-length (default 1)
 // and --forge-metrics metrics (default 1) of value 1. With --heartbeat 1 it is a worker of its own
 // instead: it beats as NAME (session 1, 4 envs, running), sends a well-formed one-step batch with
-// each beat, and answers only what is asked of it.
+// each beat, and answers only what is asked of it; with --deliver 0 it sends no batch: it beats
+// under the id NAME (a real worker's, from before that worker starts) and answers every request to
+// NAME, the binding pre-emption.
 // --flood-streams N: instead of a plain stream, N one-step batches once matched, each under an
 // invented worker id and session, all well-formed.
 // --flood-heartbeats N: instead of a plain stream, N heartbeats once matched, each of an invented
@@ -155,7 +157,7 @@ int main(int argc, char** argv) {
   unsigned obs = 3, act = 1;
   double seconds = 10;
   bool hostile = false, forge_weights_on = false, oversize = false, try_writers = false, heartbeat = false;
-  bool spec_finished = false, spec_only = false, forge_removal_on = false, steal = false;
+  bool spec_finished = false, spec_only = false, forge_removal_on = false, steal = false, deliver = true;
   double removal_every_ms = 50;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed, dump_dir;
   uint64_t fuzz_seed = 1;
@@ -197,6 +199,8 @@ int main(int argc, char** argv) {
   app.add_option("--forge-length", forge_length, "Episode length of the forged answers")->capture_default_str();
   app.add_option("--forge-metrics", forge_metrics, "Metrics (of value 1) of each forged episode")
       ->capture_default_str();
+  add_switch("--deliver", deliver,
+             "0: with --forge-answers and --heartbeat 1, send no batch: beat under the id and answer");
   app.add_option("--flood-streams", flood_streams,
                  "N: one-step batches under N invented worker ids and sessions instead of a plain stream");
   app.add_option("--flood-heartbeats", flood_heartbeats,
@@ -233,8 +237,8 @@ int main(int argc, char** argv) {
     std::fflush(stdout);
     if (try_writers) return try_every_writer(bus, id);
     if (!std::isnan(forge_return))
-      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat, obs,
-                           act);
+      return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat, obs, act,
+                           deliver);
     if (big_mib > 0) return big_to_workers(bus, id, experiment, big_mib, seconds);
     if (!malformed.empty())
       return send_malformed(bus, id, experiment, obs, act, malformed, seconds, fuzz_seed, dump_dir);

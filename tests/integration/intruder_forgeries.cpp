@@ -99,7 +99,7 @@ std::vector<uint8_t> participant_removal(const eprosima::fastrtps::rtps::GuidPre
 
 int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
                   float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat, unsigned obs,
-                  unsigned act) {
+                  unsigned act, bool deliver) {
   using namespace farm::msg;
   farm::dds::Reader<EvaluationRequest, EvaluationRequestPubSubType> requests(bus, farm::dds::kEvalRequestTopic,
                                                                              "batch_reader");
@@ -108,14 +108,15 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
   std::unique_ptr<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>> status;
   std::unique_ptr<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>> beats;
   // As a worker of its own it also delivers well-formed batches, as a worker whose evaluations the
-  // learner asks must have.
+  // learner asks must have (unless deliver is false: it only beats under the id and answers).
   std::unique_ptr<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>> batches;
   TransitionBatch b = one_step_batch(experiment, id, obs, act);
   if (own_heartbeat) {
     beats = std::make_unique<farm::dds::Writer<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_writer");
-    batches = std::make_unique<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>>(
-        bus, farm::dds::kBatchTopic, "batch_writer");
+    if (deliver)
+      batches = std::make_unique<farm::dds::Writer<TransitionBatch, TransitionBatchPubSubType>>(
+          bus, farm::dds::kBatchTopic, "batch_writer");
   } else {
     status = std::make_unique<farm::dds::Reader<WorkerStatus, WorkerStatusPubSubType>>(
         bus, farm::dds::kWorkerStatusTopic, "status_reader");
@@ -139,7 +140,7 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
       st.threads(1);
       st.state("running");
       beats->write(st);
-      if (batches->matched() > 0 && batches->write(b)) b.sequence_number(b.sequence_number() + 1);
+      if (batches && batches->matched() > 0 && batches->write(b)) b.sequence_number(b.sequence_number() + 1);
       beat_at = farm::now_seconds();
     }
     EvaluationRequest q;

@@ -9,10 +9,11 @@
 
 #include "dds.h"
 
-// --forge-answers RETURN [--heartbeat 1]: answers every request of `experiment` the moment it is seen.
+// --forge-answers RETURN [--heartbeat 1 [--deliver 0]]: answers every request of `experiment` the
+// moment it is seen.
 int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string& experiment, double seconds,
                   float forged_return, uint32_t length, uint32_t metrics, bool own_heartbeat, unsigned obs,
-                  unsigned act);
+                  unsigned act, bool deliver);
 // --eval-requests WORKER: rounds of requests to `worker`, each wrong in one way, for `seconds` once
 // matched; prints how many it sent and how many answers came back.
 int bad_eval_requests(farm::dds::Bus& bus, const std::string& id, const std::string& experiment,
