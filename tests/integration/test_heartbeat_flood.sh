@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# A heartbeat flood from a certified participant costs the learner at most a tenth of its updates.
+# A secured farm (deploy/make-pki.sh: a learner, a worker hw and a second worker certificate, w2,
+# the leaked one) trains on the pendulum; then a participant with w2's certificate floods heartbeats
+# under its own name, 2,000 invented sessions every 0.1 s for 6 s (farm_intruder --flood-heartbeats
+# 2000 --beat-every 0.1). From the learner's record: its updates/s during the flood (learner.csv)
+# are at least 0.9 of those over the 5 s just before it, the roster refused the flood past the
+# participant's share (`refusal` events counting at least 10,000), the real worker was never marked
+# dead (no `worker` event of change `dead`), and the run ends with nothing lost or invalid.
+#   tests/integration/test_heartbeat_flood.sh LEARNER WORKER INTRUDER SOURCE_DIR
+set -uo pipefail
+learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+farm_test_init heartbeat-flood 181
+
+pki="$dir/pki"
+bash "$src/deploy/make-pki.sh" "$pki" learner:learner worker:hw worker:w2 >"$dir/pki.log" 2>&1 ||
+  { fail "deploy/make-pki.sh failed: $(tail -3 "$dir/pki.log")"; farm_test_end; }
+# elapsed seconds and updates at the last row of the learner's CSV
+updates_row() {
+  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == "updates") u = i; if ($i == "elapsed_s") e = i }; next }
+           { le = $e; lu = $u } END { print le + 0, lu + 0 }' "$dir/run/learner.csv" 2>/dev/null
+}
+rate() { awk -v e1="$1" -v u1="$2" -v e2="$3" -v u2="$4" 'BEGIN { printf "%.0f", (e2 > e1 ? (u2 - u1) / (e2 - e1) : 0) }'; }
+
+pendulum_config "$src" it_beatflood "max_seconds: 40" "$dir/flood.txtpb"
+"$learner" --config "$dir/flood.txtpb" --run-dir "$dir/run" --domain $domain --security "$pki/learner" \
+  >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
+"$worker" --domain $domain --envs 4 --security "$pki/hw" >"$dir/worker.log" 2>&1 & pids+=($!)
+# Training for 3 s first: the rate before the flood is one of steady training, not of its start.
+for _ in $(seq 150); do read -r e u < <(updates_row); [ "${u:-0}" -gt 0 ] && break; sleep 0.2; done
+[ "${u:-0}" -gt 0 ] || { fail "the learner made no update in 30 s: $(tail -3 "$dir/worker.log")"; farm_test_end; }
+sleep 3
+read -r e0 u0 < <(updates_row)
+sleep 5
+read -r e1 u1 < <(updates_row)
+"$intruder" --domain $domain --experiment it_beatflood --id w2 --security "$pki/w2" --seconds 6 \
+  --flood-heartbeats 2000 --beat-every 0.1 >"$dir/intruder.log" 2>&1 || fail "the flood did not run: $(tail -3 "$dir/intruder.log")"
+read -r e2 u2 < <(updates_row)
+before=$(rate "$e0" "$u0" "$e1" "$u1") during=$(rate "$e1" "$u1" "$e2" "$u2")
+echo "updates/s before the flood $before, during it $during"
+awk -v b="$before" -v d="$during" 'BEGIN { exit !(b > 0 && d >= 0.9 * b) }' ||
+  fail "updates/s fell from $before to $during during the heartbeat flood"
+
+wait $lp || fail "the learner exited with $?: $(tail -5 "$dir/learner.log")"
+# From the learner's events: the flood's heartbeats refused past the share (the flood reached it),
+# no worker marked dead, the summary's batches.
+python3 - "$dir/run/events.jsonl" <<'PY' || failed=1
+import json, sys
+ev = [json.loads(l) for l in open(sys.argv[1])]
+over = sum(e["count"] for e in ev if e["event"] == "refusal" and e.get("reason", "").startswith("past 20 a second"))
+dead = [e["worker_id"] for e in ev if e["event"] == "worker" and e.get("change") == "dead"]
+s = [e for e in ev if e["event"] == "summary"]
+print("heartbeats refused past the share: %d; workers marked dead: %d" % (over, len(dead)))
+ok = True
+if over < 10000:
+    print("FAIL: %d heartbeats refused past the share: the flood did not reach the learner" % over); ok = False
+if dead:
+    print("FAIL: marked dead during the flood: %s" % ", ".join(dead[:3])); ok = False
+if not s or s[-1]["batches_ok"] < 1 or s[-1]["batches_lost"] + s[-1]["batches_duplicate"] + s[-1]["batches_invalid"]:
+    print("FAIL: batches lost or invalid, or none: %s" % (s[-1] if s else "no summary event")); ok = False
+sys.exit(0 if ok else 1)
+PY
+farm_test_end "updates/s $before before the flood, $during during it"
