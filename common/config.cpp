@@ -73,6 +73,8 @@ void check_sac(const Section& s, const config::SacConfig& c) {
           "expected \"relu\" or \"tanh\", got \"" + c.activation() + "\"");
   check_samples_per_insert(s, c.samples_per_insert(), c.max_step_scale());
   check_matmul_dtype(s, c.matmul_dtype());
+  s.check(c.policy_average_tau() >= 0 && c.policy_average_tau() <= 1, "policy_average_tau",
+          "expected 0 (off) to 1, got " + num(c.policy_average_tau()));
 }
 
 void check_dqn(const Section& s, const config::DqnConfig& c) {

@@ -117,6 +117,17 @@ TEST(Config, LearningRateScheduleIsChecked) {
   }
 }
 
+// sac.policy_average_tau: 0 (off) to 1, an error naming the field otherwise.
+TEST(Config, PolicyAverageTauIsChecked) {
+  const std::string head = "experiment_id: \"a\"\n";
+  EXPECT_EQ(error_of(head + "sac {\n  policy_average_tau: 0.01\n}\n"), "");
+  for (const char* bad : {"-0.1", "1.5"}) {
+    const std::string e = error_of(head + "sac {\n  policy_average_tau: " + bad + "\n}\n");
+    EXPECT_NE(e.find("sac.policy_average_tau"), std::string::npos) << e;
+    EXPECT_NE(e.find("expected 0 (off) to 1"), std::string::npos) << e;
+  }
+}
+
 // sac.max_step_scale and dqn.max_step_scale: 1 to 64, an error at the field's line otherwise.
 TEST(Config, StepScaleIsBounded) {
   for (const OffPolicySection& c : off_policy_sections()) {

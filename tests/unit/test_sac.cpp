@@ -392,6 +392,50 @@ TEST(Sac, ExportPolicyLayout) {
   EXPECT_EQ(p.params[3 * 32], params[1][0].item<float>());
 }
 
+// The actor's parameters in the workers' flat order (ExportPolicyLayout): per layer, weight then bias.
+std::vector<float> actor_flat(const Sac& sac) {
+  std::vector<torch::Tensor> parts;
+  for (const auto& t : sac.actor_parameters()) parts.push_back(t.detach().contiguous().reshape({-1}));
+  const auto flat = torch::cat(parts);
+  return {flat.data_ptr<float>(), flat.data_ptr<float>() + flat.numel()};
+}
+
+void expect_params_near(const std::vector<float>& got, const std::vector<float>& want, const char* what) {
+  ASSERT_EQ(got.size(), want.size()) << what;
+  for (size_t i = 0; i < got.size(); ++i) ASSERT_NEAR(got[i], want[i], 1e-6) << what << ", parameter " << i;
+}
+
+// sac.policy_average_tau: the published policy is the actor until the first update, the actor
+// after it, then average + tau * (actor - average) after each update; a checkpoint brings the
+// average back, and a config without the average publishes the actor again.
+TEST(Sac, PublishedPolicyIsAPolyakAverageOfTheActor) {
+  auto cfg = small_config();
+  cfg.set_policy_average_tau(0.25);
+  Sac a(cfg, 3, 2, 17);
+  expect_params_near(a.export_policy(0).params, actor_flat(a), "before any update");
+  a.update(random_batch(32, 3, 2, 501));
+  const auto first = actor_flat(a);
+  expect_params_near(a.export_policy(0).params, first, "after the first update");
+  a.update(random_batch(32, 3, 2, 502));
+  const auto second = actor_flat(a);
+  std::vector<float> want(first.size());
+  for (size_t i = 0; i < want.size(); ++i) want[i] = first[i] + 0.25f * (second[i] - first[i]);
+  expect_params_near(a.export_policy(0).params, want, "after the second update");
+  double moved = 0;
+  for (size_t i = 0; i < want.size(); ++i) moved += std::abs(second[i] - first[i]);
+  EXPECT_GT(moved, 0) << "the second update did not move the actor: the test shows nothing";
+
+  const std::string dir = temp_dir("sac_policy_average");
+  a.save(dir);
+  Sac b(cfg, 3, 2, 99);
+  b.load(dir);
+  expect_params_near(b.export_policy(0).params, want, "loaded");
+  Sac c(small_config(), 3, 2, 99);
+  c.load(dir);
+  expect_params_near(c.export_policy(0).params, second, "loaded without policy_average_tau");
+  farm::remove_tree(dir);
+}
+
 // The sizes of one update's steps on `batch`: the critics' (summed over their parameters) and the
 // temperature's (log alpha), with LibTorch's generator at a fixed state so two instances draw the
 // same policy noise.

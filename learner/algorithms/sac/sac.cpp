@@ -67,7 +67,9 @@ Sac& Sac::operator=(Sac&&) noexcept = default;
 std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& next_batch) {
   if (impl_->use_graph()) {
     const double gamma = impl_->cfg.gamma();
-    return impl_->graph_update_n(n, [&] { return fold_horizon(next_batch(), gamma); });
+    auto out = impl_->graph_update_n(n, [&] { return fold_horizon(next_batch(), gamma); });
+    impl_->average_policy(n);
+    return out;
   }
   std::vector<SacStats> out;
   out.reserve(n);
@@ -77,7 +79,11 @@ std::vector<SacStats> Sac::update_n(int n, const std::function<SampledBatch()>& 
 
 std::vector<SacStats> Sac::update_n_from(int n, int64_t batch, const DeviceReplay& replay) {
   require_same_device(replay, impl_->device, "sac");
-  if (impl_->use_graph()) return impl_->graph_update_n_from(n, batch, replay);
+  if (impl_->use_graph()) {
+    auto out = impl_->graph_update_n_from(n, batch, replay);
+    impl_->average_policy(n);
+    return out;
+  }
   return update_n(n, [&] { return replay.sample(batch); });
 }
 
@@ -99,7 +105,11 @@ SacStats Sac::update(const SampledBatch& sampled) {
   // Multi-step rows (sac.n_step): their horizon folded into `terminated`, so that the one target
   // r + gamma * (1 - terminated) * v below (and in the graph) bootstraps with gamma^h.
   const SampledBatch host_batch = fold_horizon(sampled, s.cfg.gamma());
-  if (s.use_graph()) return s.graph_update(host_batch);
+  if (s.use_graph()) {
+    const SacStats st = s.graph_update(host_batch);
+    s.average_policy(1);
+    return st;
+  }
   SacStats st;
   // On the CPU these are the same tensors; on a GPU, one copy of the minibatch per update.
   SampledBatch batch;
@@ -158,6 +168,7 @@ SacStats Sac::update(const SampledBatch& sampled) {
   }
   st.alpha = alpha;
   ++s.updates;
+  s.average_policy(1);
   return st;
 }
 
@@ -167,7 +178,8 @@ PolicyParams Sac::export_policy(uint64_t version) const {
   p.version = version;
   // The actor's flat buffer is already in the workers' order: per layer, weight [out x in]
   // row-major, then bias.
-  const torch::Tensor flat = s.actor_p.flat.detach().to(torch::kCPU);
+  const torch::Tensor flat =
+      (s.policy_average.defined() ? s.policy_average : s.actor_p.flat).detach().to(torch::kCPU).contiguous();
   const float* d = flat.data_ptr<float>();
   p.params.assign(d, d + flat.numel());
   return p;
@@ -216,6 +228,7 @@ void Sac::save(const std::string& dir) const {
     }
     root.write("log_alpha", s.log_alpha.detach());
     root.write("updates", torch::full({1}, s.updates, torch::kInt64));
+    if (s.policy_average.defined()) root.write("policy_average", s.policy_average.detach());
     save_archive(root, tmp);
   } catch (const c10::Error& e) {
     throw std::runtime_error("sac checkpoint " + tmp + ": " + e.what_without_backtrace());
@@ -257,6 +270,11 @@ void Sac::load(const std::string& dir) {
     if (!root.try_read("log_alpha", log_alpha) || log_alpha.sizes() != s.log_alpha.sizes())
       throw fail("missing or misshapen 'log_alpha'");
     if (!root.try_read("updates", updates) || updates.numel() != 1) throw fail("missing or misshapen 'updates'");
+    // Written where sac.policy_average_tau was on; without it the average starts again from the
+    // actor at the next update.
+    torch::Tensor average;
+    if (root.try_read("policy_average", average) && average.sizes() != s.actor_p.flat.sizes())
+      throw fail("misshapen 'policy_average'");
     torch::serialize::InputArchive actor_opt, critic_opt, alpha_opt;
     if (!root.try_read("actor_optim", actor_opt) || !root.try_read("critic_optim", critic_opt) ||
         !root.try_read("alpha_optim", alpha_opt))
@@ -270,6 +288,8 @@ void Sac::load(const std::string& dir) {
     s.critic_opt->load(critic_opt);
     s.alpha_opt->load(alpha_opt);
     s.updates = updates.item<int64_t>();
+    s.policy_average =
+        average.defined() && s.cfg.policy_average_tau() > 0 ? average.to(s.device).clone() : torch::Tensor();
     // The saved optimizers carry the learning rates they ran with; this run's are its own. Drops
     // the CUDA graph too: the optimizer state tensors it was captured with were replaced.
     s.apply_learning_rates();

@@ -29,6 +29,8 @@ class SacAlgorithm final : public Algorithm {
       step += sac_.uses_fused_kernels() ? ", CUDA graph with fused kernels" : ", CUDA graph of torch's ops";
     if (replay_.on_device()) step += ", minibatches drawn on the GPU";
     step += lr_decay_phrase(cfg_.lr_decay_updates(), cfg_.lr_decay_to());
+    if (cfg_.policy_average_tau() > 0)
+      step += ", publishing a Polyak average of the actor (tau " + std::to_string(cfg_.policy_average_tau()) + ")";
     return "SAC " + sac_.export_policy(0).layout.describe() + " actor" + step;
   }
 

@@ -190,6 +190,20 @@ struct Sac::Impl {
   std::unique_ptr<torch::optim::Adam> actor_opt, critic_opt, alpha_opt;
   int64_t updates = 0;
   double lr_scale = 1.0;  // Sac::scale_learning_rates
+  // sac.policy_average_tau > 0: the published actor's flat parameters, a Polyak average of
+  // actor_p.flat; undefined until the first update (the actor itself is published until then).
+  torch::Tensor policy_average;
+  // After n more updates: one step of 1 - (1 - tau)^n, as n steps of tau toward the last actor.
+  // Queued on the current stream, behind the updates it follows.
+  void average_policy(int n) {
+    const double tau = cfg.policy_average_tau();
+    if (tau <= 0 || n <= 0) return;
+    torch::NoGradGuard no_grad;
+    if (!policy_average.defined())
+      policy_average = actor_p.flat.detach().clone();
+    else
+      policy_average.lerp_(actor_p.flat.detach(), 1.0 - std::pow(1.0 - tau, n));
+  }
   // The actor's, critics' and temperature's Adam learning rates from cfg and lr_scale; a CUDA graph
   // captured with others is dropped (its fused Adam holds the learning rate as a constant).
   void apply_learning_rates() {
