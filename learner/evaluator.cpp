@@ -172,6 +172,13 @@ std::vector<Evaluator::Done> Evaluator::poll() {
     return done;
   }
   while (channel_->take(answer_, answer_writer_)) take_answer();
+  // The roster is copied only while a request is out: poll() runs on every pass of the training
+  // loop, and a copy there (up to WorkerRoster::kMaxViews workers, each with its last heartbeat's
+  // texts) costs every pass in proportion to a roster that anyone can fill with invented workers.
+  if (out_.empty()) {
+    done.swap(done_);
+    return done;
+  }
   const double now = now_seconds(), timeout = cfg_.eval().answer_timeout_seconds();
   const std::vector<RosterThread::Worker> roster = workers_();
   for (size_t i = 0; i < out_.size();) {
