@@ -88,11 +88,6 @@ void add_bus_options(CLI::App& app, BusOptions& opts);
 // The DDS Security folder these options select (--security, else FARM_SECURITY_DIR), "" for none.
 std::string security_dir_of(const BusOptions& opts);
 
-// Whether the RTPS message of n bytes at m carries a participant's removal (an SPDP DATA with a key
-// alone, or with a status of disposed or unregistered). Every farm participant drops such a
-// datagram from UDP unread (Bus): a participant is dropped only when its lease runs out.
-bool carries_participant_removal(const uint8_t* m, size_t n);
-
 // A participant's name under DDS Security is the common name (CN) of its certificate's subject:
 // deploy/make-pki.sh makes "CN=<name>,O=rollout-farm", and a worker's id is that name.
 // certificate_name reads DIR/cert.pem; it throws std::runtime_error naming the file when it is
