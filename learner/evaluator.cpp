@@ -103,6 +103,7 @@ bool Evaluator::ask(const PolicyParams& policy, const EvalAsk& ask,
   if (!sent && !waiting_noted_) {
     log_(ask.label + " evaluation of policy v" + std::to_string(ask.version) +
          " waits for a live worker (none now); training goes on");
+    events_.write("eval_waits", {{"label", ask.label}, {"policy_version", ask.version}});
     waiting_noted_ = true;
   }
   return true;
@@ -154,6 +155,17 @@ bool Evaluator::send(Request& r) {
   }
   ++n_.asked;
   waiting_noted_ = false;
+  events_.write("ask", {{"request_id", r.id},
+                        {"worker_id", r.worker_id},
+                        {"label", r.ask.label},
+                        {"policy_version", r.ask.version},
+                        {"episodes", r.episodes},
+                        {"part", r.part},
+                        {"parts", group.parts},
+                        {"total_episodes", r.ask.episodes},
+                        {"attempt", r.attempt},
+                        {"first_episode", r.first_episode},
+                        {"seed", r.seed}});
   log_("evaluation " + std::to_string(r.id) + " (" + r.ask.label + ", policy v" + std::to_string(r.ask.version) + ", " +
        std::to_string(r.episodes) + " episodes" +
        (group.parts > 1 ? ", part " + std::to_string(r.part) + " of " + std::to_string(group.parts) + ", " +
@@ -388,6 +400,10 @@ std::vector<Evaluator::Done> Evaluator::give_up_all(double waited_seconds) {
     log_(r.ask.label + " evaluation of policy v" + std::to_string(r.ask.version) + " not answered" +
          (r.worker_id.empty() ? " (no live worker took it)" : " (asked of " + r.worker_id + ")") + " after " +
          fmt("%.0f", waited_seconds) + " s: not reported");
+    events_.write("eval_not_answered", {{"label", r.ask.label},
+                                        {"policy_version", r.ask.version},
+                                        {"worker_id", r.worker_id},  // "": no live worker took it
+                                        {"waited_s", waited_seconds}});
     given_up(r.group);
   }
   std::vector<Done> done;

@@ -42,7 +42,7 @@ std::string FarmService::untrained_stop_note(const std::string& reason) const {
          "stop on time (stop.max_seconds) or on a target instead";
 }
 
-std::string FarmService::summary_workers() {
+std::string FarmService::summary_workers(nlohmann::json& event) {
   std::ostringstream o;
   // The accounts as they are now (the ingest thread goes on): streams, retired and foreign.
   std::map<Ingest::Key, WorkerAccount> workers;
@@ -56,7 +56,7 @@ std::string FarmService::summary_workers() {
   // One line per stream, the kMaxSummaryStreams with the most accepted batches (invented streams
   // may number thousands), then how many more.
   std::vector<const WorkerAccount*> shown;
-  for (auto& [k, w] : workers) shown.push_back(&w);
+  for (const auto& [k, w] : workers) shown.push_back(&w);
   std::stable_sort(shown.begin(), shown.end(),
                    [](const WorkerAccount* a, const WorkerAccount* b) { return a->received > b->received; });
   const size_t more = shown.size() > kMaxSummaryStreams ? shown.size() - kMaxSummaryStreams : 0;
@@ -66,41 +66,59 @@ std::string FarmService::summary_workers() {
   });
   o << "streams           " << workers.size() << " open, " << retired
     << " retired (idle for account_expiry_seconds, or to make room)\n";
+  nlohmann::json streams = nlohmann::json::array();
   for (const WorkerAccount* w : shown) {
+    const uint64_t last_sequence = w->next_sequence ? w->next_sequence - 1 : 0;
     o << "worker            " << printable(w->worker_id, 100) << " session " << w->session << ": received "
-      << w->received << " of sequence 0.." << (w->next_sequence ? w->next_sequence - 1 : 0) << ", lost " << w->lost
-      << ", duplicate " << w->duplicates << ", invalid " << w->invalid
-      << (w->ended ? ", stream closed" : ", stream open") << "\n";
+      << w->received << " of sequence 0.." << last_sequence << ", lost " << w->lost << ", duplicate " << w->duplicates
+      << ", invalid " << w->invalid << (w->ended ? ", stream closed" : ", stream open") << "\n";
+    streams.push_back({{"worker_id", printable(w->worker_id, 100)},
+                       {"session", w->session},
+                       {"received", w->received},
+                       {"last_sequence", last_sequence},
+                       {"lost", w->lost},
+                       {"duplicate", w->duplicates},
+                       {"invalid", w->invalid},
+                       {"closed", w->ended}});
   }
   if (more > 0) o << "streams           " << more << " more not listed\n";
+  event["batches_other_experiments"] = foreign;
+  event["streams_open"] = workers.size();
+  event["streams_retired"] = retired;
+  event["streams_not_listed"] = more;
+  event["streams"] = std::move(streams);
   return o.str();
 }
 
 void FarmService::write_summary(double elapsed, const std::string& reason) {
   FarmFigures f = figures();
+  const IngestCounters c = intake_.counters();
+  nlohmann::json event = {
+      {"reason", reason},
+      {"wall_s", elapsed},
+      {"env_steps", c.env_steps},
+      {"batches_ok", c.ok},
+      {"batches_lost", c.lost},
+      {"batches_duplicate", c.duplicate},
+      {"batches_invalid", c.invalid},
+      {"updates", algo_->updates()},
+      {"policy_version", algo_->version()},
+      {"evals_asked", evaluator_.asked()},
+      {"evals_answered", evaluator_.answered()},
+      {"evals_lost", evaluator_.lost()},
+      {"evals_invalid", evaluator_.invalid()},
+      {"checkpoints_failed", checkpointer_.failed()},
+      {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},
+      {"best_measure", f.best_measure},
+      {"note", untrained_stop_note(reason)}};
+  if (steps_at_stop_ > 0) event["env_steps_after_stop"] = c.env_steps - steps_at_stop_;
+  event.update(algo_->summary_fields());
   const std::string text =
-      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + evaluator_.summary() + summary_workers();
+      summary_head(elapsed, reason) + algo_->summary(f, elapsed) + evaluator_.summary() + summary_workers(event);
   std::printf("\n===== summary =====\n%s===================\n", text.c_str());
   std::ofstream(fs::path(run_dir_) / "summary.txt") << text;
-  const IngestCounters c = intake_.counters();
-  events_.write("summary",
-                {{"reason", reason},
-                 {"wall_s", elapsed},
-                 {"env_steps", c.env_steps},
-                 {"batches_ok", c.ok},
-                 {"batches_lost", c.lost},
-                 {"batches_duplicate", c.duplicate},
-                 {"batches_invalid", c.invalid},
-                 {"updates", algo_->updates()},
-                 {"policy_version", algo_->version()},
-                 {"evals_asked", evaluator_.asked()},
-                 {"evals_answered", evaluator_.answered()},
-                 {"evals_lost", evaluator_.lost()},
-                 {"evals_invalid", evaluator_.invalid()},
-                 {"checkpoints_failed", checkpointer_.failed()},
-                 {"events_unwritten", events_.failures()},
-                 {"best_eval", std::isnan(f.best_eval) ? nlohmann::json(nullptr) : nlohmann::json(f.best_eval)},
-                 {"best_measure", f.best_measure}});
+  event["events_unwritten"] = events_.failures();
+  events_.write("summary", event);
   log("summary written to " + run_dir_ + "/summary.txt");
 }
 

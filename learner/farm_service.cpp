@@ -97,6 +97,7 @@ int FarmService::run() {
                           {"obs_dim", task_spec_.obs_dim},
                           {"act_dim", task_spec_.act_dim},
                           {"domain", bus_.domain()},
+                          {"security_dir", bus_.security_dir()},  // "" without DDS Security
                           {"resumed", opt_.resume},
                           {"ingest_queue_mib", cfg_.ingest_queue_mib()}});
   algo_->start(*this);

@@ -88,9 +88,11 @@ class FarmService final : public Farm {
   config::CheckpointManifest base_manifest(uint64_t version, int64_t updates, double elapsed) const;
 
   // --- The end of a run (farm_run_end.cpp) ---
-  // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream.
+  // Summary lines: the head (experiment, reason, time, env steps) and one line per worker stream;
+  // the streams' figures also go into the summary event (streams_open, streams_retired,
+  // streams_not_listed, batches_other_experiments, and `streams`, one object a line).
   std::string summary_head(double elapsed, const std::string& reason) const;
-  std::string summary_workers();
+  std::string summary_workers(nlohmann::json& event);
   // A line for the log and summary when the run ended on an env step or update limit before its
   // first evaluation (a limit that more workers reach sooner); "" otherwise.
   std::string untrained_stop_note(const std::string& reason) const;

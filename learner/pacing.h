@@ -149,6 +149,9 @@ class Pacing {
   virtual void not_evaluated(Farm&, const EvalAsk&) {}
   // The summary's lines between the runner's head and its worker lines.
   virtual std::string summary(const FarmFigures& f, double elapsed) const = 0;
+  // The pacing's own figures of those lines for the summary event, as data (the round pacing's
+  // stale batches, unused steps and lags of what it fitted); none by default.
+  virtual nlohmann::json summary_fields() const { return nlohmann::json::object(); }
 
   // What leaves the learner, each after the updates still running are checked (settle()): the
   // networks (RUN/best's layout), the policy of version(), a checkpoint's parts.

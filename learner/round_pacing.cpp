@@ -158,6 +158,20 @@ class RoundPacing final : public Pacing {
     return o.str();
   }
 
+  nlohmann::json summary_fields() const override {
+    nlohmann::json by_lag = nlohmann::json::object();  // steps fitted, by versions behind the fitted one
+    for (const auto& [lag, n] : counts_.lag_steps) by_lag[std::to_string(lag)] = n;
+    return {{"fits", fits_},
+            {"batches_stale", counts_.stale_batches},
+            {"quota_top_ups", counts_.top_ups},
+            {"mode", async_ ? "async" : "sync"},
+            {"max_policy_lag", pc_.max_policy_lag()},
+            {"steps_fitted", counts_.used_steps},
+            {"steps_stale", counts_.stale_steps},
+            {"steps_held", uint64_t(algo_->holding().rows)},  // not fitted at the end
+            {"steps_fitted_by_lag", by_lag}};
+  }
+
   void counts_to_manifest(config::CheckpointManifest& m) const override {
     m.set_stale_batches(counts_.stale_batches);
     m.set_stale_steps(counts_.stale_steps);

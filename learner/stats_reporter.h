@@ -15,8 +15,8 @@
 namespace farm {
 
 // LearnerStats of a record: `stats` holds every field; a typed field (common/learner_stats_fields.h)
-// is filled from the record's field of its name (critic_loss and actor_loss also from value_loss and policy_loss, the round
-// pacing's names), and keeps its default where the record has none.
+// is filled from the record's field of its name (critic_loss and actor_loss also from value_loss
+// and policy_loss, the round pacing's names), and keeps its default where the record has none.
 farm::msg::LearnerStats learner_stats(const std::string& experiment_id, const StatsRecord& r);
 
 class StatsReporter {

@@ -7,9 +7,10 @@
 
 namespace farm {
 
-Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log log)
+Evaluations::Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log log, Event event)
     : worker_id_(worker_id),
       log_(std::move(log)),
+      event_(event ? std::move(event) : [](const std::string&, nlohmann::json) {}),
       // Requests are kept only when addressed to this worker; their contents are checked in poll().
       in_(bus, farm::dds::kEvalRequestTopic, "batch_reader", farm::dds::kMaxEvalRequestBytes,
           [this](eprosima::fastdds::dds::DataReader* r) {
@@ -70,6 +71,8 @@ void Evaluations::poll(const Joined& joined) {
     }
     log_("evaluation request " + std::to_string(q.request_id()) + ": " + std::to_string(q.episodes()) +
          " episodes of policy v" + std::to_string(q.policy_version()));
+    event_("eval_request",
+           {{"request_id", q.request_id()}, {"episodes", q.episodes()}, {"policy_version", q.policy_version()}});
     const int most = joined.max_episodes;
     if (q.episodes() < 1 || q.episodes() > uint32_t(most)) {
       answer_error(q, joined.session,
@@ -125,6 +128,7 @@ farm::msg::EvaluationAnswer Evaluations::answer_to(const farm::msg::EvaluationRe
 
 void Evaluations::answer_error(const farm::msg::EvaluationRequest& q, uint64_t session, const std::string& why) {
   log_("evaluation request " + std::to_string(q.request_id()) + " refused: " + why);
+  event_("eval_refused", {{"request_id", q.request_id()}, {"why", why}});
   farm::msg::EvaluationAnswer a = answer_to(q, session);
   a.error(why.substr(0, farm::dds::kMaxEvalTextBytes));
   out_.write(a);
@@ -171,6 +175,12 @@ void Evaluations::main() {
                   a.episodes().empty() ? 0.0 : sum / double(a.episodes().size()), a.episodes().size(), a.seconds());
     log_("evaluation " + std::to_string(q.request_id()) + " answered" +
          (a.error().empty() ? std::string(figures) : " with an error: " + a.error()));
+    event_("eval_answered", {{"request_id", q.request_id()},
+                             {"episodes", a.episodes().size()},
+                             {"mean_return", a.episodes().empty() ? nlohmann::json(nullptr)
+                                                                  : nlohmann::json(sum / double(a.episodes().size()))},
+                             {"seconds", a.seconds()},
+                             {"error", a.error()}});
   }
 }
 

@@ -17,6 +17,8 @@
 #include <string>
 #include <thread>
 
+#include <nlohmann/json.hpp>
+
 #include "dds.h"
 #include "farm.h"
 #include "farmPubSubTypes.h"
@@ -28,7 +30,9 @@ namespace farm {
 class Evaluations {
  public:
   using Log = std::function<void(const std::string&)>;
-  Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log log);
+  // An event of the worker's record (worker_app.h): its kind and fields.
+  using Event = std::function<void(const std::string&, nlohmann::json)>;
+  Evaluations(farm::dds::Bus& bus, const std::string& worker_id, Log log, Event event = nullptr);
   ~Evaluations() { stop(); }
 
   // What a request is checked against: the joined experiment, its task, the most episodes it asks
@@ -63,6 +67,7 @@ class Evaluations {
   static constexpr size_t kMaxQueue = 4;
   const std::string worker_id_;
   Log log_;
+  Event event_;
   std::mutex in_mu_;
   struct In {
     farm::msg::EvaluationRequest request;

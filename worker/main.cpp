@@ -40,6 +40,10 @@ void add_options(CLI::App& app, WorkerOptions& o) {
                  "experiment it joins on the domain")
       ->check(farm::cli::non_empty("an experiment id"));
   app.add_option("--log-every", o.log_every, "Seconds between log lines")->check(CLI::Range(1, 3600));
+  app.add_option("--events", o.events,
+                 "Write the worker's events to FILE, one JSON object a line (appended; worker_app.h lists "
+                 "the kinds)")
+      ->check(farm::cli::non_empty("a file name"));
   app.add_option("--inject-nan-batch", o.inject_nan_batch, "Fault injection for tests: a NaN in batch SEQ")
       ->check(CLI::Range(0, 1 << 30));
   app.add_option("--inject-publish-delay", o.inject_publish_delay_ms,

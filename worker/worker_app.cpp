@@ -48,16 +48,26 @@ WorkerApp::WorkerApp(const WorkerOptions& o, const std::atomic<bool>& stop)
       intake_(bus_, o.experiment),
       sender_(bus_, o.id, {o.inject_nan_batch, o.inject_publish_delay_ms}, stop,
               [this](const std::string& m) { log(m); }),
-      evals_(bus_, o.id, [this](const std::string& m) { log(m); }),
+      evals_(
+          bus_, o.id, [this](const std::string& m) { log(m); },
+          [this](const std::string& kind, nlohmann::json fields) { events_.write(kind, std::move(fields)); }),
       beat_(bus_),
       session_(farm::dds::random_session_id()),
-      experiment_(o.experiment) {}
+      experiment_(o.experiment) {
+  events_.set_start(now_seconds());
+  if (!o.events.empty()) events_.open(o.events);
+}
 
 int WorkerApp::run() {
   log("started: session " + std::to_string(session_) + ", domain " + std::to_string(bus_.domain()) + " (" +
       bus_.participant_label() + ")" + (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
       ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
+  events_.write("start", {{"worker_id", opt_.id},
+                          {"session", session_},
+                          {"domain", bus_.domain()},
+                          {"experiment", experiment_},
+                          {"security_dir", bus_.security_dir()}});
   sender_.start();
   beat_.start();
   double last_wait_note = -1e9;
@@ -74,6 +84,7 @@ int WorkerApp::run() {
             (experiment_.empty() ? std::string() : " of experiment '" + experiment_ + "'") + " on DDS domain " +
             std::to_string(bus_.domain()) + " yet (discovery profile " + bus_.profiles_file() +
             ": a learner started with another one is not found)");
+        events_.write("waiting", {{"for", "learner"}});
         last_wait_note = now_seconds();
       }
       heartbeat();
@@ -138,7 +149,7 @@ void WorkerApp::poll_spec() {
     joined_.pending.reset();
     const std::string why = check_spec_update(next.spec);
     if (!why.empty()) return refuse_spec(why);
-    if (next.spec.learner_session() != joined_.spec.learner_session()) log("learner restarted; carrying on");
+    if (next.spec.learner_session() != joined_.spec.learner_session()) learner_restarted(next.spec);
     joined_.learner_writer = next.writer;
     intake_.bind_learner(next.writer);
     joined_.spec = next.spec;
@@ -150,6 +161,12 @@ void WorkerApp::refuse_spec(const std::string& why) {
   // What a participant sends is not for it to fill this worker's log: one line per 10 s at most.
   if (!refusals_.spec_note.due()) return;
   log("refused a spec of experiment '" + experiment_ + "' (" + std::to_string(refusals_.specs) + " so far): " + why);
+  events_.write("spec_refused", {{"experiment_id", experiment_}, {"count", refusals_.specs}, {"reason", why}});
+}
+
+void WorkerApp::learner_restarted(const farm::msg::ExperimentSpec& s) {
+  log("learner restarted; carrying on");
+  events_.write("learner_restarted", {{"learner_session", s.learner_session()}});
 }
 
 std::string WorkerApp::check_spec_update(const farm::msg::ExperimentSpec& s) const {
@@ -209,6 +226,7 @@ void WorkerApp::on_spec(const SpecIn& in) {
   }
   if (s.finished()) {
     log("learner finished experiment '" + s.experiment_id() + "'");
+    events_.write("learner_finished", {{"experiment_id", printable(s.experiment_id(), 100)}});
     finished_ = true;
     return;
   }
@@ -216,7 +234,7 @@ void WorkerApp::on_spec(const SpecIn& in) {
   // worker or change its task is refused, and the worker runs on with the spec it has.
   const std::string why = check_spec_update(s);
   if (!why.empty()) return refuse_spec(why);
-  if (s.learner_session() != joined_.spec.learner_session()) log("learner restarted; carrying on");
+  if (s.learner_session() != joined_.spec.learner_session()) learner_restarted(s);
   joined_.spec = s;
 }
 
@@ -308,6 +326,13 @@ void WorkerApp::join(const SpecIn& in) {
     log("joined experiment '" + s.experiment_id() + "': task " + cfg.task().name() + ", " + std::to_string(envs) +
         " envs on " + std::to_string(opt_.threads) + " threads, " + std::to_string(s.steps_per_batch()) +
         " steps per batch" + nice_note + scales_note(cfg.worker()));
+    events_.write("joined", {{"experiment_id", s.experiment_id()},
+                             {"task", cfg.task().name()},
+                             {"envs", envs},
+                             {"threads", opt_.threads},
+                             {"steps_per_batch", s.steps_per_batch()},
+                             {"nice", cfg.worker().nice()},
+                             {"session", session_}});
     // Said now, not after the first collect: the beat thread re-sends the last status the loop
     // built, which was the one of a worker waiting for a spec, so a long first collect (mCLARI's:
     // 6-8 s) kept the learner from counting this worker until it ended.
@@ -317,6 +342,7 @@ void WorkerApp::join(const SpecIn& in) {
     last_error_ = "cannot run experiment '" + s.experiment_id() + "': " + e.what();
     state_ = "error";
     log(last_error_);
+    events_.write("join_failed", {{"experiment_id", printable(s.experiment_id(), 100)}, {"error", e.what()}});
     rollout_.reset();
     heartbeat(true);
   }
@@ -326,6 +352,7 @@ void WorkerApp::note_foreign(const std::string& experiment_id) {
   if (refusals_.foreign.size() >= kMaxForeignNoted || !refusals_.foreign.insert(experiment_id).second) return;
   log("ignores experiment '" + experiment_id + "' on the bus: this worker's experiment is '" + experiment_ + "'" +
       (opt_.experiment.empty() ? " (the first one it joined; --experiment chooses)" : ""));
+  events_.write("foreign", {{"experiment_id", printable(experiment_id, 100)}});
 }
 
 void WorkerApp::poll_weights() {
@@ -340,6 +367,7 @@ void WorkerApp::poll_weights() {
       refusals_.weights = n;
       log("weights of experiment '" + experiment_ + "' from a participant other than its learner are not run (" +
           std::to_string(n) + " so far)");
+      events_.write("weights_refused", {{"count", n}});
     }
   }
   if (!got) return;
@@ -373,6 +401,10 @@ void WorkerApp::finish() {
   log("finished: " + std::to_string(sent) + " batches sent (sequence 0.." + std::to_string(sent ? sent - 1 : 0) +
       "), " + std::to_string(tp_.steps.total()) + " env steps, mean " + std::to_string(int64_t(tp_.steps.mean_rate())) +
       " steps/s");
+  events_.write("finished", {{"batches_sent", sent},
+                             {"last_sequence", sent ? sent - 1 : 0},
+                             {"env_steps", tp_.steps.total()},
+                             {"mean_steps_per_s", tp_.steps.mean_rate()}});
 }
 
 void WorkerApp::heartbeat(bool force) {
@@ -401,11 +433,24 @@ void WorkerApp::heartbeat(bool force) {
     // Steps/s over the same interval as the time split (the heartbeat's rate covers the last second).
     if (tp_.last_log > 0) rate = double(tp_.steps.total() - tp_.log_steps) / (t - tp_.last_log);
     const uint64_t sent = sender_.sent();  // then the steps: collected ahead of what was sent, never behind
-    log(state + ": " + std::to_string(int64_t(rate)) + " steps/s" + time_split(t) + ", " + std::to_string(sent) +
-        " batches sent, " + std::to_string(tp_.steps.total()) + " env steps, policy v" +
+    const uint64_t steps = tp_.steps.total();
+    const TimeSplit split = time_split(t);
+    log(state + ": " + std::to_string(int64_t(rate)) + " steps/s" + split.text() + ", " + std::to_string(sent) +
+        " batches sent, " + std::to_string(steps) + " env steps, policy v" +
         std::to_string(rollout_->policy_version()));
+    const auto share = [&](double x) { return split.valid ? nlohmann::json(x) : nlohmann::json(nullptr); };
+    events_.write("progress", {{"state", state},
+                               {"steps_per_s", rate},
+                               {"batches_sent", sent},
+                               {"env_steps", steps},
+                               {"policy_version", rollout_->policy_version()},
+                               {"simulate", share(split.simulate)},
+                               {"infer", share(split.infer)},
+                               {"backpressure", share(split.backpressure)},
+                               {"throttled", share(split.throttled)},
+                               {"publish", share(split.publish)}});
     tp_.last_log = t;
-    tp_.log_steps = tp_.steps.total();
+    tp_.log_steps = steps;
   }
 }
 
@@ -414,23 +459,31 @@ void WorkerApp::heartbeat(bool force) {
 // worker simulated), waiting for a free buffer (back-pressure: both with the sender) and waiting on
 // the learner (throttled: quota spent, no weights or no learner); the rest is bookkeeping. The
 // sender thread, beside it: serializing and writing batches, retries on a full history included.
-std::string WorkerApp::time_split(double t) {
+WorkerApp::TimeSplit WorkerApp::time_split(double t) {
   const Rollout::Timing now = rollout_->timing();
   const double wall = t - tp_.last_log, k = rollout_->num_threads();
   const double publish_s = sender_.publish_seconds(t), backpressure_s = sender_.backpressure_seconds();
-  std::string s;
+  TimeSplit s;
   if (tp_.last_log > 0 && wall > 0) {
-    auto pct = [&](double x) { return std::to_string(int(std::lround(100.0 * x / wall))) + "%"; };
-    s = " (collect: simulate " + pct((now.simulate_s - tp_.at_rollout.simulate_s) / k) + ", infer " +
-        pct((now.infer_s - tp_.at_rollout.infer_s) / k) + ", backpressure " +
-        pct(backpressure_s - tp_.at_backpressure_s) + ", throttled " + pct(tp_.throttled_s - tp_.at_throttled_s) +
-        "; sender: publish " + pct(publish_s - tp_.at_publish_s) + ")";
+    s.valid = true;
+    s.simulate = (now.simulate_s - tp_.at_rollout.simulate_s) / k / wall;
+    s.infer = (now.infer_s - tp_.at_rollout.infer_s) / k / wall;
+    s.backpressure = (backpressure_s - tp_.at_backpressure_s) / wall;
+    s.throttled = (tp_.throttled_s - tp_.at_throttled_s) / wall;
+    s.publish = (publish_s - tp_.at_publish_s) / wall;
   }
   tp_.at_rollout = now;
   tp_.at_publish_s = publish_s;
   tp_.at_backpressure_s = backpressure_s;
   tp_.at_throttled_s = tp_.throttled_s;
   return s;
+}
+
+std::string WorkerApp::TimeSplit::text() const {
+  if (!valid) return "";
+  auto pct = [](double x) { return std::to_string(int(std::lround(100.0 * x))) + "%"; };
+  return " (collect: simulate " + pct(simulate) + ", infer " + pct(infer) + ", backpressure " + pct(backpressure) +
+         ", throttled " + pct(throttled) + "; sender: publish " + pct(publish) + ")";
 }
 
 }  // namespace farm

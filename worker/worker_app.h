@@ -10,6 +10,26 @@
 // rollout (rollout.h), the batch sender (batch_sender.h), the evaluations (evaluations.h) and the
 // heartbeat (heartbeat.h). This class runs the collect loop: it joins, follows the learner's
 // versions and quotas, collects batches and hands them to the sender, and builds the status.
+// With --events FILE it keeps a record for programs beside its log (common/event_log.h), one JSON
+// object a line with "event" and "elapsed_s" (seconds since the worker started). Kinds:
+//   start              worker_id, session, domain, experiment (--experiment; "" for any),
+//                      security_dir ("" without DDS Security)
+//   waiting            for a learner: no spec of its experiment yet (as often as the log says so)
+//   joined             experiment_id, task, envs, threads, steps_per_batch, nice (worker.nice),
+//                      session
+//   join_failed        experiment_id, error: a spec it cannot run (it joins nothing)
+//   foreign            experiment_id: another experiment on the bus, ignored (once each, bounded)
+//   spec_refused       experiment_id, count, reason (at most one each 10 s, as the log)
+//   weights_refused    count: weights of its experiment from another participant than its learner
+//   learner_restarted  learner_session: a new learner of the same experiment, followed
+//   learner_finished   experiment_id
+//   progress           at each log line: state, steps_per_s, batches_sent, env_steps,
+//                      policy_version, and where the wall time went since the last one, as
+//                      fractions (simulate, infer, backpressure, throttled, publish; null at the first)
+//   eval_request       request_id, episodes, policy_version: a request of its learner taken
+//   eval_refused       request_id, why: answered with what was wrong
+//   eval_answered      request_id, episodes, mean_return, seconds, error ("" when none)
+//   finished           batches_sent, last_sequence, env_steps, mean_steps_per_s
 #pragma once
 
 #include <atomic>
@@ -23,6 +43,7 @@
 #include "batch_sender.h"
 #include "dds.h"
 #include "evaluations.h"
+#include "event_log.h"
 #include "heartbeat.h"
 #include "intake.h"
 #include "meter.h"
@@ -43,6 +64,8 @@ struct WorkerOptions {
   int64_t inject_nan_batch = -1;
   // Fault injection: the sender waits this long before each write, as if DDS were slow to take it.
   int inject_publish_delay_ms = 0;
+  // The worker's events file (JSON lines); empty: none.
+  std::string events;
 };
 
 class WorkerApp {
@@ -63,16 +86,26 @@ class WorkerApp {
   // the checks of join() against the running task (config, sizes, its task section unchanged).
   std::string check_spec_update(const farm::msg::ExperimentSpec& s) const;
   void refuse_spec(const std::string& why);
+  // A spec of a new learner session of the joined experiment: said in the log and the events.
+  void learner_restarted(const farm::msg::ExperimentSpec& s);
   // One log line the first time an experiment other than this worker's shows up.
   void note_foreign(const std::string& experiment_id);
   void poll_weights();
   void finish();
   void heartbeat(bool force = false);
   BatchSender::Stream stream() const { return {joined_.spec.experiment_id(), session_}; }
-  std::string time_split(double t);
+  // Where the wall time since the last log line went (fractions; valid false at the first line),
+  // and the log line's words for it.
+  struct TimeSplit {
+    bool valid = false;
+    double simulate = 0, infer = 0, backpressure = 0, throttled = 0, publish = 0;
+    std::string text() const;
+  };
+  TimeSplit time_split(double t);
 
   WorkerOptions opt_;
   const std::atomic<bool>& stop_;
+  EventLog events_;
   farm::dds::Bus bus_;
   WorkerIntake intake_;
   BatchSender sender_;
