@@ -1,6 +1,6 @@
 // Worker throughput against the physics alone: how much of raw mj_step speed survives policy
 // inference, batching and threading.
-//   bench_worker [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only]
+//   bench_worker [--task NAME | --config FILE] [--envs N] [--threads K] [--seconds S] [--raw-only | --env-only]
 // The limit is mj_step alone on the task's own simulations over states its episodes visit: the
 // worker's envs as the task makes them (each its own mjData, and its own mjModel where the task
 // randomizes dynamics), the visited states dealt to them round-robin, each restored with the
@@ -15,12 +15,16 @@
 // activation, head), else a 64-64 relu actor. --inference-only measures only policy inference:
 // rows/s for calls of 1, 8 and 64 rows and of --envs rows (FARM_MLP_ISA=baseline forces the
 // kernel's baseline path, see common/mlp.h).
+// --env-only measures only the envs, without a policy: the farm::VecEnv that farm.make_vec steps, of
+// the task as farm.make_vec makes it, stepped from C++ as farm.make_vec's pool steps it
+// (tests/bench/bench_python_vec.py sets the Python loop against this one).
 // --against FILE sets the worker on --config's task beside a worker on FILE's task, with the same
 // envs, threads and policy sizes, measured in turn (twice each, the mean), and prints the ratio:
 //   bench_worker --config deploy/configs/a1_terms_ppo.txtpb --against deploy/configs/a1_ppo.txtpb
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -39,6 +43,7 @@
 #include "rollout.h"
 #include "task.h"
 #include "task_specs.h"
+#include "vec_env.h"
 
 namespace {
 
@@ -210,6 +215,70 @@ double worker_steps_per_second(std::shared_ptr<const farm::robots::Task> task, c
   return double(rollout.env_steps() - start_steps) / elapsed;
 }
 
+// The envs alone: the farm::VecEnv that farm.make_vec steps, its envs split in `threads` contiguous
+// ranges that are stepped at once and joined every step (the calling thread steps the first range,
+// as farm.make_vec's pool does), with actions drawn before timing as bench_python_vec.py draws them
+// (N(0, 0.5) clipped to [-1, 1], or uniform action indices for a discrete task), the steps cycling
+// through 16 batches. Env steps/s, resets on episode ends included.
+double env_only_steps_per_second(std::shared_ptr<const farm::robots::Task> task, int envs, int threads,
+                                 double seconds) {
+  farm::VecEnv env(std::move(task), envs, 1);
+  env.reset_all();
+  const int n = env.num_envs(), discrete = env.spec().num_actions;
+  const int k_threads = std::clamp(threads, 1, n);
+  std::mt19937_64 rng(1);
+  std::normal_distribution<float> noise(0.f, 0.5f);
+  std::vector<std::vector<float>> batches(16, std::vector<float>(size_t(n) * env.act_dim()));
+  for (auto& b : batches)
+    for (auto& a : b)
+      a = discrete > 0 ? float(std::uniform_int_distribution<int>(0, discrete - 1)(rng))
+                       : std::clamp(noise(rng), -1.f, 1.f);
+  std::vector<float> rewards(n);
+  std::vector<uint8_t> terminated(n), truncated(n);
+  std::vector<farm::EpisodeEnds> ends(k_threads);
+  const float* actions = nullptr;  // written before `generation` moves on, read after
+  auto step_range = [&](int k) {
+    ends[k].clear();
+    env.step_range(int(int64_t(n) * k / k_threads), int(int64_t(n) * (k + 1) / k_threads), actions, rewards.data(),
+                   terminated.data(), truncated.data(), ends[k]);
+  };
+  std::atomic<uint64_t> generation{0};
+  std::atomic<int> pending{0};
+  std::atomic<bool> stop{false};
+  std::vector<std::thread> pool;
+  for (int k = 1; k < k_threads; ++k) {
+    pool.emplace_back([&, k] {
+      uint64_t seen = 0;
+      for (;;) {
+        while (generation.load() == seen && !stop.load()) std::this_thread::yield();
+        if (stop.load()) return;
+        seen = generation.load();
+        step_range(k);
+        pending.fetch_sub(1);
+      }
+    });
+  }
+  auto step_all = [&](const std::vector<float>& a) {
+    actions = a.data();
+    pending.store(k_threads - 1);
+    generation.fetch_add(1);
+    step_range(0);
+    while (pending.load() != 0) std::this_thread::yield();
+  };
+  for (int k = 0; k < 20; ++k) step_all(batches[k % batches.size()]);  // warm-up
+  uint64_t steps = 0;
+  const auto t0 = Clock::now();
+  double elapsed = 0;
+  do {
+    for (const auto& a : batches) step_all(a);
+    steps += uint64_t(batches.size()) * n;
+    elapsed = seconds_since(t0);
+  } while (elapsed < seconds);
+  stop.store(true);
+  for (auto& t : pool) t.join();
+  return double(steps) / elapsed;
+}
+
 double policy_rows_per_second(const farm::PolicyParams& params, int rows, double seconds) {
   farm::Policy policy(params);
   std::vector<float> obs(size_t(rows) * policy.obs_dim(), 0.5f), act(size_t(rows) * policy.act_dim()), lp(rows);
@@ -271,7 +340,7 @@ int main(int argc, char** argv) {
   int envs = 16, threads = int(std::thread::hardware_concurrency());
   double seconds = 2.0;
   std::string task_name = "pendulum", config_path, against_path;
-  bool raw_only = false, inference_only = false, envs_given = false, task_given = false;
+  bool raw_only = false, inference_only = false, env_only = false, envs_given = false, task_given = false;
   const int T = 32;
   farm::cli::App app("bench_worker");
   app.description(
@@ -290,19 +359,20 @@ int main(int argc, char** argv) {
   bench::add_seconds(app, seconds);
   app.add_flag("--raw-only", raw_only, "Measure only the raw physics");
   app.add_flag("--inference-only", inference_only, "Measure only the policy inference");
+  app.add_flag("--env-only", env_only, "Measure only the envs, stepped as farm.make_vec steps them, without a policy");
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
   if (task_given && !config_path.empty()) {
     std::fprintf(stderr, "--task and --config both name the task: give one\n");
     return 2;
   }
-  if (!against_path.empty() && (config_path.empty() || raw_only || inference_only)) {
+  if (!against_path.empty() && (config_path.empty() || raw_only || inference_only || env_only)) {
     std::fprintf(stderr,
-                 "--against sets one config's worker beside --config's: give --config, not --raw-only or "
-                 "--inference-only\n");
+                 "--against sets one config's worker beside --config's: give --config, not --raw-only, "
+                 "--inference-only or --env-only\n");
     return 2;
   }
-  if (raw_only && inference_only) {
-    std::fprintf(stderr, "--raw-only and --inference-only exclude each other: give one\n");
+  if (int(raw_only) + int(inference_only) + int(env_only) > 1) {
+    std::fprintf(stderr, "--raw-only, --inference-only and --env-only exclude each other: give one\n");
     return 2;
   }
 
@@ -326,6 +396,27 @@ int main(int argc, char** argv) {
   // half the action range.
   const double action_std =
       !config_path.empty() && cfg.algorithm() == "ppo" ? std::exp(cfg.ppo().initial_log_std()) : 0.5;
+  if (env_only) {
+    // The task as farm.make_vec makes it: a task name gets its config section's defaults (noise,
+    // pushes, randomized dynamics), as a config file would, where --task alone sets only the name.
+    std::shared_ptr<const farm::robots::Task> made = task;
+    if (config_path.empty()) {
+      try {
+        made = farm::robots::make_task(
+            farm::robots::parse_config_text("experiment_id: \"python\" task { name: \"" + task_name + "\" }", task_name)
+                .task());
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "bench_worker: %s\n", e.what());
+        return 2;
+      }
+    }
+    std::printf("task %s as farm.make_vec makes it, %d envs, %.1f s per measurement, no policy\n",
+                made->spec().name.c_str(), envs, seconds);
+    const int k = std::min(threads, envs);
+    std::printf("env-only VecEnv %d thread(s): %.0f env steps/s\n", k,
+                env_only_steps_per_second(made, envs, k, seconds));
+    return 0;
+  }
   if (raw_only) {
     // Only the limit: K loops at once, each one's env steps/s (what one single-threaded worker
     // among K on this host can reach at most) and their mean; the limit is mj_step over the states
