@@ -6,8 +6,10 @@
 # 2000 --beat-every 0.1), at nice 19: it stands for another host, and on two cores its own work
 # must not be what the learner loses. From the learner's record: its updates/s over 5 s of the flood
 # (learner.csv) are at least 0.9 of those over the 5 s just before it, the roster refused the flood
-# past the participant's share (`refusal` events counting at least 500), the real worker was never marked dead (no `worker` event of change `dead` for
-# hw; the flood's own sessions go dead once it stops), and the run ends with nothing lost or invalid.
+# past the participant's share (`refusal` events counting at least 500), the real worker was never
+# marked dead (no `worker` event of change `dead` for hw; the flood's own sessions go dead once it
+# stops), and the run ends with nothing lost or invalid. On a machine shared with other work the
+# updates/s drift by more than a tenth within seconds, and the test can miss its bound there.
 #   tests/integration/test_heartbeat_flood.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
