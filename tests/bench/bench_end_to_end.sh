@@ -25,8 +25,11 @@ for n in $counts; do
   set -e
   t1=$(date +%s.%N)
   for p in "${pids[@]}"; do wait "$p" 2>/dev/null || kill "$p" 2>/dev/null || true; done
-  reason=$(grep -m1 "^stopped because" "$run/learner/summary.txt" 2>/dev/null | tr -s ' ' || echo "rc $rc")
-  steps=$(grep -m1 "^env steps" "$run/learner/summary.txt" 2>/dev/null | tr -s ' ' || true)
-  upd=$(grep -m1 "^updates" "$run/learner/summary.txt" 2>/dev/null | tr -s ' ' || true)
-  printf '%8d %10.1f  %s | %s | %s\n' "$n" "$(awk "BEGIN{print $t1 - $t0}")" "$reason" "$steps" "$upd"
+  # The learner's summary event (RUN/events.jsonl): why it stopped, env steps and updates.
+  ended=$(python3 -c '
+import json, sys
+s = [e for e in map(json.loads, open(sys.argv[1])) if e.get("event") == "summary"][-1]
+print("stopped because %s | env steps %d | updates %d" % (s["reason"], s["env_steps"], s["updates"]))
+' "$run/learner/events.jsonl" 2>/dev/null || echo "rc $rc")
+  printf '%8d %10.1f  %s\n' "$n" "$(awk "BEGIN{print $t1 - $t0}")" "$ended"
 done

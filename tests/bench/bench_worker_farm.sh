@@ -77,7 +77,10 @@ done
 t_stop=$EPOCHREALTIME
 load_during=$(cut -d' ' -f1-3 /proc/loadavg)
 if ! kill -0 "$learner_pid" 2>/dev/null; then
-  grep -m1 "^stopped because" "$dir/run/summary.txt" 2>/dev/null || tail -n 5 "$dir/learner.log"
+  python3 -c '
+import json, sys
+print("stopped because", [e for e in map(json.loads, open(sys.argv[1])) if e.get("event") == "stop"][-1]["reason"])
+' "$dir/run/events.jsonl" 2>/dev/null || tail -n 5 "$dir/learner.log"
   echo "the learner ended after about $s s: the measurement ends there"
 fi
 # Workers first (each sends what it holds and closes its stream), then the learner.

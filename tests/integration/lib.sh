@@ -54,6 +54,77 @@ batches_ok() {
 # a line as the learner writes them (keys sorted, no spaces).  events RUN_DIR KIND
 events() { grep -F "\"event\":\"$2\"" "$1/events.jsonl" 2>/dev/null; }
 
+# What the run's summary event says (the last "summary" event of RUN/events.jsonl), by a Python
+# expression over the event as s, with w(ID) the list of worker ID's streams in it (one a session);
+# printed as event_of prints.  summary_of RUN 's["batches_lost"], s["batches_invalid"]'
+summary_of() { event_of "$1/events.jsonl" summary "$2"; }
+
+# The events of one kind in a worker's events file (farm-worker --events FILE), one JSON object a
+# line (keys sorted, no spaces).  worker_events FILE KIND
+worker_events() { grep -F "\"event\":\"$2\"" "$1" 2>/dev/null; }
+
+# Polls a worker's events file every 0.2 s until it holds an event of KIND (with TEXT in its line,
+# a fixed string, where given); false after SECONDS.  wait_worker_event FILE KIND SECONDS [TEXT]
+wait_worker_event() {
+  for _ in $(seq $(($3 * 5))); do worker_events "$1" "$2" | grep -qF -- "${4:-}" && return 0; sleep 0.2; done
+  return 1
+}
+
+# The events of one kind of an events file, for the readers below: read(FILE, KIND), in order; a
+# line that is not JSON (one cut short by a full disk) is skipped.
+_read_events_py='
+import json, sys
+def read(path, kind):
+    out = []
+    for line in open(path, errors="replace"):
+        try:
+            e = json.loads(line)
+        except ValueError:
+            continue
+        if e.get("event") == kind:
+            out.append(e)
+    return out
+'
+
+# What the last event of KIND in an events file (a worker's --events FILE, or RUN/events.jsonl)
+# says, by a Python expression over it as e (also s; w(ID): the streams of worker ID in a summary
+# event). A tuple prints space-separated; true/false/null, lists and objects as JSON. Prints nothing
+# and is false when the file has no such event.  event_of FILE KIND EXPR
+event_of() {
+  python3 -c "$_read_events_py"'
+found = read(sys.argv[1], sys.argv[2])
+if not found:
+    sys.exit(1)
+e = s = found[-1]
+w = lambda i: [x for x in s.get("streams", []) if x["worker_id"] == i]
+v = eval(sys.argv[3])
+out = lambda x: json.dumps(x) if x is None or isinstance(x, (bool, list, dict)) else str(x)
+print(" ".join(out(x) for x in v) if isinstance(v, tuple) else out(v))
+' "$1" "$2" "$3" 2>/dev/null
+}
+
+# Whether an events file holds an event of KIND whose fields hold each KEY=VALUE given (VALUE as
+# JSON: 5, "ev-1", true).  has_event FILE KIND KEY=VALUE...
+has_event() {
+  python3 -c "$_read_events_py"'
+want = {k: json.loads(v) for k, v in (a.split("=", 1) for a in sys.argv[3:])}
+sys.exit(not any(all(e.get(k) == v for k, v in want.items()) for e in read(sys.argv[1], sys.argv[2])))
+' "$@" 2>/dev/null
+}
+
+# Polls RUN/events.jsonl every 0.2 s until it holds an event of KIND (with TEXT in its line, a fixed
+# string, where given); false after SECONDS.  wait_event RUN KIND SECONDS [TEXT]
+wait_event() {
+  for _ in $(seq $(($3 * 5))); do events "$1" "$2" | grep -qF -- "${4:-}" && return 0; sleep 0.2; done
+  return 1
+}
+
+# Whether the run's summary counts batches accepted (at least MIN, 1 without it) and none lost,
+# duplicated or invalid.  summary_batches_whole RUN [MIN]
+summary_batches_whole() {
+  [ "$(summary_of "$1" 's["batches_ok"] >= '"${2:-1}"' and s["batches_lost"] + s["batches_duplicate"] + s["batches_invalid"] == 0')" = true ]
+}
+
 # A process's peak resident memory in kB (VmHWM), or nothing once it has ended.  peak_kb PID
 peak_kb() { sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$1/status" 2>/dev/null; }
 

@@ -102,36 +102,21 @@ inline bool wait_for_match(const std::string& path, const std::string& pattern, 
       path, [&](const std::string& t) { return std::regex_search(t, re); }, timeout_s);
 }
 
-// What is wrong with the best policy a learner kept in <run>/best, given the run's summary: the
-// folder must hold the algorithm's networks (sub-folder algo, not empty) and no buffers, and its
-// manifest the best evaluation return the summary reports. "" when nothing is wrong.
-inline std::string best_policy_problem(const std::string& run, const std::string& summary, const std::string& algo) {
-  namespace fs = std::filesystem;
-  const fs::path best = fs::path(run) / "best";
-  if (!fs::is_directory(best / algo) || fs::is_empty(best / algo))
-    return (best / algo).string() + " is missing or empty";
-  if (fs::exists(best / "replay.pt")) return best.string() + " holds the replay buffer; it should hold networks only";
-  std::smatch s, m;
-  if (!std::regex_search(summary, s, std::regex(R"(best eval return\s+(-?[0-9.]+))")))
-    return "the summary has no best eval return:\n" + summary;
-  const std::string manifest = slurp((best / "manifest.txtpb").string());
-  if (!std::regex_search(manifest, m, std::regex(R"(best_eval_return: (-?[0-9.eE+-]+))")))
-    return (best / "manifest.txtpb").string() + " has no best_eval_return:\n" + manifest;
-  if (std::fabs(std::stod(s[1]) - std::stod(m[1])) > 0.051)
-    return "best/manifest.txtpb says " + std::string(m[1]) + ", the summary " + std::string(s[1]);
-  return "";
-}
-
-// The events of one kind in RUN/events.jsonl, the learner's record for programs ("" kind: all),
-// in order; a line that is not JSON is skipped.
-inline std::vector<nlohmann::json> events(const std::string& run, const std::string& kind = "") {
+// The events of one kind in an events file (JSON lines: the learner's RUN/events.jsonl, a worker's
+// --events file) ("" kind: all), in order; a line that is not JSON is skipped.
+inline std::vector<nlohmann::json> events_in(const std::string& file, const std::string& kind = "") {
   std::vector<nlohmann::json> out;
-  std::ifstream in(run + "/events.jsonl");
+  std::ifstream in(file);
   for (std::string line; std::getline(in, line);) {
     const nlohmann::json e = nlohmann::json::parse(line, nullptr, false);
     if (e.is_object() && (kind.empty() || e.value("event", "") == kind)) out.push_back(e);
   }
   return out;
+}
+
+// The events of one kind in RUN/events.jsonl, the learner's record for programs.
+inline std::vector<nlohmann::json> events(const std::string& run, const std::string& kind = "") {
+  return events_in(run + "/events.jsonl", kind);
 }
 
 // The first event of `kind` whose field `key` holds a text containing `part`; null when none.
@@ -140,6 +125,68 @@ inline nlohmann::json event_with(const std::string& run, const std::string& kind
   for (const auto& e : events(run, kind))
     if (e.contains(key) && e[key].is_string() && e[key].get<std::string>().find(part) != std::string::npos) return e;
   return nullptr;
+}
+
+// The run's summary event (the last "summary" of RUN/events.jsonl: what summary.txt says, as data);
+// an empty object when the run wrote none.
+inline nlohmann::json summary_event(const std::string& run) {
+  const auto all = events(run, "summary");
+  return all.empty() ? nlohmann::json::object() : all.back();
+}
+
+// The summary's streams of worker `id`, one a session, in session order.
+inline std::vector<nlohmann::json> streams_of(const nlohmann::json& summary, const std::string& id) {
+  std::vector<nlohmann::json> out;
+  for (const auto& s : summary.value("streams", nlohmann::json::array()))
+    if (s.value("worker_id", "") == id) out.push_back(s);
+  return out;
+}
+
+// The summary's batch counts: ok, lost, duplicate, invalid (-1 each without a summary event).
+struct BatchCounts {
+  long long ok = -1, lost = -1, duplicate = -1, invalid = -1;
+};
+inline BatchCounts batch_counts(const nlohmann::json& summary) {
+  return {summary.value("batches_ok", -1LL), summary.value("batches_lost", -1LL),
+          summary.value("batches_duplicate", -1LL), summary.value("batches_invalid", -1LL)};
+}
+// Whether the summary event counts no batch lost, duplicated or invalid (false without one).
+inline bool no_batch_lost_or_refused(const nlohmann::json& summary) {
+  const BatchCounts c = batch_counts(summary);
+  return c.ok >= 0 && c.lost == 0 && c.duplicate == 0 && c.invalid == 0;
+}
+
+// The batches received on worker `id`'s one stream when the summary has exactly one, closed, that
+// took sequence 0 on without a gap, a duplicate or an invalid batch; -1 otherwise.
+inline long long closed_whole_stream(const nlohmann::json& summary, const std::string& id) {
+  const auto s = streams_of(summary, id);
+  if (s.size() != 1 || !s[0].value("closed", false)) return -1;
+  const long long received = s[0].value("received", -1LL);
+  if (s[0].value("lost", -1) != 0 || s[0].value("duplicate", -1) != 0 || s[0].value("invalid", -1) != 0 ||
+      s[0].value("last_sequence", -2LL) != received - 1)
+    return -1;
+  return received;
+}
+
+// What is wrong with the best policy a learner kept in <run>/best, given the run's summary event:
+// the folder must hold the algorithm's networks (sub-folder algo, not empty) and no buffers, and its
+// manifest the best evaluation the summary reports (best_eval). "" when nothing is wrong.
+inline std::string best_policy_problem(const std::string& run, const nlohmann::json& summary, const std::string& algo) {
+  namespace fs = std::filesystem;
+  const fs::path best = fs::path(run) / "best";
+  if (!fs::is_directory(best / algo) || fs::is_empty(best / algo))
+    return (best / algo).string() + " is missing or empty";
+  if (fs::exists(best / "replay.pt")) return best.string() + " holds the replay buffer; it should hold networks only";
+  if (!summary.contains("best_eval") || !summary["best_eval"].is_number())
+    return "the summary event has no best evaluation: " + summary.dump();
+  std::smatch m;
+  const std::string manifest = slurp((best / "manifest.txtpb").string());
+  if (!std::regex_search(manifest, m, std::regex(R"(best_eval_return: (-?[0-9.eE+-]+))")))
+    return (best / "manifest.txtpb").string() + " has no best_eval_return:\n" + manifest;
+  const double reported = summary["best_eval"].get<double>();
+  if (std::fabs(reported - std::stod(m[1])) > 1e-3 * std::max(1.0, std::fabs(reported)))
+    return "best/manifest.txtpb says " + std::string(m[1]) + ", the summary " + std::to_string(reported);
+  return "";
 }
 
 // The workers the roster announced (worker events with change "joined"), by worker id, in order.
@@ -201,11 +248,27 @@ class ProcessSet {
     else
       std::cerr << "logs kept in " << dir_ << "\n";
   }
-  Proc& start(const std::vector<std::string>& argv, const std::string& name) {
+  // Starts argv with its output in DIR/NAME.log; a farm-worker also writes its events to
+  // DIR/NAME.jsonl (--events), read by worker_events.
+  Proc& start(std::vector<std::string> argv, const std::string& name) {
+    for (const std::string& a : argv)
+      if (std::filesystem::path(a).filename() == "farm-worker") {
+        argv.insert(argv.end(), {"--events", dir_ + "/" + name + ".jsonl"});
+        break;
+      }
     procs_.push_back(spawn(argv, dir_ + "/" + name + ".log"));
     return procs_.back();
   }
   std::string log(const std::string& name) const { return slurp(dir_ + "/" + name + ".log"); }
+  // The events of one kind of the worker started as NAME ("" kind: all).
+  std::vector<nlohmann::json> worker_events(const std::string& name, const std::string& kind = "") const {
+    return events_in(dir_ + "/" + name + ".jsonl", kind);
+  }
+  // The batches the worker started as NAME sent in all, from its finished event; -1 before it.
+  long long batches_sent(const std::string& name) const {
+    const auto f = worker_events(name, "finished");
+    return f.empty() ? -1 : f.back().value("batches_sent", -1LL);
+  }
   const std::string& dir() const { return dir_; }
   std::deque<Proc>& procs() { return procs_; }
 

@@ -35,19 +35,18 @@ base_peak=$peak
 domain=$((domain + 1))
 run flooded 1
 flood_peak=$peak
-summary="$dir/flooded/summary.txt"
-[ -r "$summary" ] || { fail "no summary of the flooded run"; farm_test_end; }
-line=$(grep "^worker  *fw session" "$summary")
-received=$(echo "$line" | sed -n 's/.*received \([0-9]*\) of sequence 0\.\.\([0-9]*\), lost \([0-9]*\), duplicate 0, invalid \([0-9]*\).*/\1 \2 \3 \4/p')
-read -r got last lost invalid <<<"$received"
-[ "${got:-0}" -gt 0 ] || fail "the real worker's batches were not taken after the flood: '$line'"
-[ "${lost:-1}" = 0 ] && [ "${invalid:-1}" = 0 ] || fail "the real worker's stream lost or had refused batches: '$line'"
-[ "${got:-0}" = "$(( ${last:-0} + 1 ))" ] || fail "the real worker's stream is not whole: '$line'"
-open=$(sed -n 's/^streams *\([0-9]*\) open, \([0-9]*\) retired.*/\1/p' "$summary")
-retired=$(sed -n 's/^streams *\([0-9]*\) open, \([0-9]*\) retired.*/\2/p' "$summary")
+run_dir="$dir/flooded"
+summary_of "$run_dir" 's["reason"]' >/dev/null || { fail "no summary event of the flooded run"; farm_test_end; }
+# The real worker's stream: whole (every sequence number from 0 received), nothing lost or refused.
+read -r got last lost invalid < <(summary_of "$run_dir" 'tuple(x for f in w("fw") for x in (f["received"], f["last_sequence"], f["lost"], f["invalid"]))')
+line="received ${got:-none} of sequence 0..${last:-none}, lost ${lost:-none}, invalid ${invalid:-none}"
+[ "${got:-0}" -gt 0 ] || fail "the real worker's batches were not taken after the flood: $line"
+[ "${lost:-1}" = 0 ] && [ "${invalid:-1}" = 0 ] || fail "the real worker's stream lost or had refused batches: $line"
+[ "${got:-0}" = "$(( ${last:-0} + 1 ))" ] || fail "the real worker's stream is not whole: $line"
+read -r open retired listed < <(summary_of "$run_dir" 's["streams_open"], s["streams_retired"], len(s["streams"])')
 [ -n "$open" ] && [ "$open" -le 4096 ] && [ "${retired:-0}" -ge 500 ] ||
-  fail "open streams not held at the bound: $(grep '^streams' "$summary")"
-[ "$(grep -c '^worker ' "$summary")" -le 70 ] || fail "the summary lists $(grep -c '^worker ' "$summary") streams"
+  fail "open streams not held at the bound: ${open:-none} open, ${retired:-none} retired"
+[ "${listed:-71}" -le 70 ] || fail "the summary lists $listed streams"
 events "$dir/flooded" refusal | grep -F '"what":"heartbeat sample"' | grep -c '"count":[1-9]' >/dev/null ||
   fail "no refusal of the 100 MB heartbeats: $(events "$dir/flooded" refusal | head -5)"
 log_bytes=$(stat -c %s "$dir/flooded.log")

@@ -19,12 +19,12 @@ sed -i "0,/mclari {/s||mclari {\n    hfield_png: \"$dir/forged.png\"|" "$dir/for
 grep -q "hfield_png: \"$dir/forged.png\"" "$dir/forged.txtpb" || fail "test set-up: no hfield_png in the forged config"
 "$intruder" --domain $domain --experiment it_forged --id impostor --obs 4 --act 2 --seconds 15 \
   --spec-config "$dir/forged.txtpb" >"$dir/impostor.log" 2>&1 & pids+=($!)
-"$worker" --domain $domain --id bw >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
-wait_text "$dir/worker.log" "hfield_png' names a file for this host to write" 20 ||
+"$worker" --domain $domain --id bw --events "$dir/worker.jsonl" >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+wait_worker_event "$dir/worker.jsonl" join_failed 20 "hfield_png' names a file for this host to write" ||
   fail "the worker did not refuse the spec: $(tail -5 "$dir/worker.log")"
 sleep 1
 [ -e "$dir/forged.png" ] && fail "the worker wrote $dir/forged.png, named by a spec from the bus"
-grep -q "joined experiment 'it_forged'" "$dir/worker.log" && fail "the worker joined the forged experiment"
+worker_events "$dir/worker.jsonl" joined | grep -qF '"experiment_id":"it_forged"' && fail "the worker joined the forged experiment"
 kill -9 $wp 2>/dev/null; wait $wp 2>/dev/null
 
 # 2. The learner's own config names one: the learner builds no task, so it writes none and says so;
@@ -33,8 +33,8 @@ domain2=$((domain + 1))
 sed -e 's/experiment_id: "it_forged"/experiment_id: "it_own"/' -e "s|$dir/forged.png|$dir/own.png|" \
   -e 's/max_seconds: 1500/max_seconds: 10/' "$dir/forged.txtpb" >"$dir/own.txtpb"
 "$learner" --config "$dir/own.txtpb" --run-dir "$dir/run" --domain $domain2 >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-"$worker" --domain $domain2 --id ow --envs 1 >"$dir/worker2.log" 2>&1 & pids+=($!)
-wait_text "$dir/worker2.log" "joined experiment 'it_own'" 30 || fail "the learner's worker did not join: $(tail -5 "$dir/worker2.log")"
+"$worker" --domain $domain2 --id ow --envs 1 --events "$dir/worker2.jsonl" >"$dir/worker2.log" 2>&1 & pids+=($!)
+wait_worker_event "$dir/worker2.jsonl" joined 30 '"experiment_id":"it_own"' || fail "the learner's worker did not join: $(tail -5 "$dir/worker2.log")"
 grep -q "task.mclari.hfield_png names a file that a program building the task writes" "$dir/learner.log" ||
   fail "the learner did not say it leaves task.mclari.hfield_png to the programs that build the task"
 [ -e "$dir/own.png" ] && fail "$dir/own.png was written: the learner builds no task, and a worker must not"
@@ -43,8 +43,8 @@ grep -q "task.mclari.hfield_png names a file that a program building the task wr
 sed -e "s|hfield_png: \"$dir/forged.png\"||" "$dir/forged.txtpb" >"$dir/huge.txtpb"
 "$intruder" --domain $((domain + 2)) --experiment it_huge --id impostor2 --obs 4 --act 2 --seconds 15 \
   --spec-config "$dir/huge.txtpb" --spec-steps 1000000 >"$dir/impostor2.log" 2>&1 & pids+=($!)
-"$worker" --domain $((domain + 2)) --id hw >"$dir/worker3.log" 2>&1 & pids+=($!)
-wait_text "$dir/worker3.log" "spec's steps_per_batch 1000000 x 4 envs is outside" 20 ||
+"$worker" --domain $((domain + 2)) --id hw --events "$dir/worker3.jsonl" >"$dir/worker3.log" 2>&1 & pids+=($!)
+wait_worker_event "$dir/worker3.jsonl" join_failed 20 "spec's steps_per_batch 1000000 x 4 envs is outside" ||
   fail "the worker did not refuse a million steps per batch: $(tail -5 "$dir/worker3.log")"
 out=$(timeout 10 "$worker" --envs 100000 2>&1); rc=$?
 [ $rc = 2 ] && grep -q -- "--envs: Value 100000 not in range 1 to 4096" <<<"$out" || fail "--envs 100000: rc $rc, '$out'"
@@ -74,10 +74,12 @@ task { name: "terms" terms {
 EOF
   "$intruder" --domain $((domain + 3 + n)) --experiment it_terms$n --id impostor-t$n --obs 1 --act 1 --seconds 15 \
     --spec-config "$dir/terms$n.txtpb" >"$dir/impostor-t$n.log" 2>&1 & pids+=($!)
-  "$worker" --domain $((domain + 3 + n)) --id tw$n >"$dir/worker-t$n.log" 2>&1 & twp=$!; pids+=($twp)
-  wait_text "$dir/worker-t$n.log" "is an absolute path or leaves its folder" 20 ||
+  "$worker" --domain $((domain + 3 + n)) --id tw$n --events "$dir/worker-t$n.jsonl" >"$dir/worker-t$n.log" 2>&1 &
+  twp=$!; pids+=($twp)
+  wait_worker_event "$dir/worker-t$n.jsonl" join_failed 20 "is an absolute path or leaves its folder" ||
     fail "the worker did not refuse a model naming '$file': $(tail -5 "$dir/worker-t$n.log")"
-  grep -q "joined experiment 'it_terms$n'" "$dir/worker-t$n.log" && fail "the worker joined a model naming '$file'"
+  worker_events "$dir/worker-t$n.jsonl" joined | grep -qF "\"experiment_id\":\"it_terms$n\"" &&
+    fail "the worker joined a model naming '$file'"
   kill -9 $twp 2>/dev/null; wait $twp 2>/dev/null
 done
 

@@ -54,7 +54,7 @@ sleep 5
 [ "$(checkpoints_ok)" -gt "$ok_full" ] || fail "no checkpoint succeeded after space came back"
 wait $lp; rc=$?
 [ $rc = 0 ] || fail "learner exited $rc: $(tail -5 "$dir/learner.log")"
-grep -q "batches  *ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$run/summary.txt" || fail "summary: $(cat "$run/summary.txt")"
+summary_batches_whole "$run" || fail "summary: $(events "$run" summary)"
 fails=$(events "$run" summary | tail -1 | grep -o '"checkpoints_failed":[0-9]*' | grep -o "[0-9]*$")
 [ "${fails:-0}" -ge 1 ] || fail "the summary event counts no failed checkpoint: $(events "$run" summary)"
 echo "before the full disk: $good; $fails failed checkpoint(s) while full; now: $(grep -o "^updates: [0-9]*" "$run/checkpoint/manifest.txtpb")"

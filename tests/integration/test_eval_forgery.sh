@@ -25,15 +25,12 @@ grep -q '^eval { episodes: 4' "$dir/forge.txtpb" || fail "test set-up: no eval b
 "$worker" --domain $domain --id fw --envs 4 >"$dir/worker.log" 2>&1 & pids+=($!)
 wait $lp; lrc=$?
 [ $lrc = 0 ] || fail "the learner exited with $lrc: $(tail -5 "$dir/learner.log")"
-summary="$dir/run/summary.txt"
-[ -r "$summary" ] || { fail "no summary"; farm_test_end; }
-grep -q "^stopped because   time limit" "$summary" || fail "the run did not end at its time limit: $(grep '^stopped' "$summary")"
-read -r asked answered invalid < <(sed -n 's/^evaluations *asked \([0-9]*\), answered \([0-9]*\), lost [0-9]*, invalid \([0-9]*\).*/\1 \2 \3/p' "$summary")
-[ "${answered:-0}" -ge 1 ] || fail "no real answer was used: $(grep '^evaluations' "$summary")"
-[ "${invalid:-0}" -ge 1 ] || fail "no forged answer was refused (did the forger answer?): $(grep '^evaluations' "$summary"); $(tail -1 "$dir/forger.log")"
-best=$(sed -n 's/^best eval return *\([-0-9.]*\).*/\1/p' "$summary")
-[ -n "$best" ] || fail "no best evaluation in the summary"
+read -r timed asked answered invalid best < <(summary_of "$dir/run" 's["reason"].startswith("time limit "), s["evals_asked"], s["evals_answered"], s["evals_invalid"], s["best_eval"]')
+[ -n "${timed:-}" ] || { fail "no summary event"; farm_test_end; }
+[ "$timed" = true ] || fail "the run did not end at its time limit: $(events "$dir/run" stop)"
+[ "${answered:-0}" -ge 1 ] || fail "no real answer was used: asked $asked, answered $answered, invalid $invalid"
+[ "${invalid:-0}" -ge 1 ] || fail "no forged answer was refused (did the forger answer?): invalid $invalid; $(tail -1 "$dir/forger.log")"
+[ "${best:-null}" != null ] || fail "no best evaluation in the summary event"
 awk -v b="${best:-0}" 'BEGIN { exit !(b < -5) }' || fail "the kept best, $best, is better than -5: a forgery's (-1 an episode)"
-grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$summary" ||
-  fail "batches lost or invalid: $(grep '^batches' "$summary")"
+summary_batches_whole "$dir/run" 0 || fail "batches lost or invalid: $(events "$dir/run" summary)"
 farm_test_end "evaluations asked $asked, answered $answered, forgeries refused $invalid; best $best; $(tail -1 "$dir/forger.log")"

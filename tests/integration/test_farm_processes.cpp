@@ -24,6 +24,7 @@ class FarmProcesses : public ::testing::Test {
   }
   void TearDown() override { set_.cleanup(HasFailure()); }
   Proc& start(const std::vector<std::string>& argv, const std::string& name) { return set_.start(argv, name); }
+  long long batches_sent(const std::string& name) const { return set_.batches_sent(name); }
 
   ProcessSet set_;
   std::string dir_, domain_;
@@ -49,13 +50,6 @@ checkpoint_every_seconds: 30
 log_every_seconds: 2
 )";
 
-double number_after(const std::string& text, const std::string& key) {
-  std::smatch m;
-  std::regex re(key + R"(\s+(-?[0-9.]+))");
-  if (!std::regex_search(text, m, re)) return std::nan("");
-  return std::stod(m[1]);
-}
-
 TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   const std::string cfg = dir_ + "/it.txtpb", run = dir_ + "/run";
   write_file(cfg, kConfig);
@@ -64,8 +58,7 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
         "worker-a");
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-b", "--log-every", "2"}, "worker-b");
   std::this_thread::sleep_for(std::chrono::seconds(3));
-  for (auto w : {"worker-a", "worker-b"})
-    EXPECT_NE(slurp(dir_ + "/" + w + ".log").find("waiting for a learner"), std::string::npos) << w;
+  for (auto w : {"worker-a", "worker-b"}) EXPECT_FALSE(set_.worker_events(w, "waiting").empty()) << w;
 
   Proc& learner = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner");
   const int learner_rc = wait_for(learner, 600);
@@ -100,16 +93,13 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
   EXPECT_EQ(refusal.value("worker_id", ""), "it-a") << refusal;
   EXPECT_EQ(refusal.value("sequence_number", -1), 5) << refusal;
 
-  const std::string summary = slurp(run + "/summary.txt");
+  const nlohmann::json summary = summary_event(run);
   ASSERT_FALSE(summary.empty()) << learner_log;
-  std::smatch m;
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
-      << summary;
-  EXPECT_GT(std::stoll(m[1]), 0);
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_EQ(m[3], "0") << summary;
-  EXPECT_EQ(m[4], "1") << summary;
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_GT(c.ok, 0);
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_EQ(c.duplicate, 0) << summary;
+  EXPECT_EQ(c.invalid, 1) << summary;
 
   // Every sequence number each worker says it sent reached the learner exactly once.
   struct Expect {
@@ -118,26 +108,23 @@ TEST_F(FarmProcesses, TrainsOverDdsAndEveryBatchArrivesExactlyOnce) {
     int invalid;
   };
   for (Expect e : {Expect{"it-a", "worker-a", 1}, Expect{"it-b", "worker-b", 0}}) {
-    const std::string wlog = slurp(dir_ + "/" + e.log + ".log");
-    std::smatch sent;
-    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent \(sequence 0\.\.(\d+)\))")))
-        << wlog;
-    const long long n = std::stoll(sent[1]);
-    ASSERT_GT(n, 6) << e.id;
-    std::smatch got;
-    std::regex line(std::string(e.id) + R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+),)"
-                                        R"( duplicate (\d+), invalid (\d+), stream closed)");
-    ASSERT_TRUE(std::regex_search(summary, got, line)) << e.id << "\n" << summary;
-    EXPECT_EQ(std::stoll(got[1]) + std::stoll(got[5]), n) << e.id;
-    EXPECT_EQ(std::stoll(got[2]), n - 1) << e.id;
-    EXPECT_EQ(got[3], "0") << e.id;
-    EXPECT_EQ(got[4], "0") << e.id;
-    EXPECT_EQ(std::stoll(got[5]), e.invalid) << e.id;
+    const long long n = batches_sent(e.log);
+    ASSERT_GT(n, 6) << e.id << "\n" << slurp(dir_ + "/" + e.log + ".log");
+    const auto streams = streams_of(summary, e.id);
+    ASSERT_EQ(streams.size(), 1u) << e.id << "\n" << summary;
+    const nlohmann::json& got = streams[0];
+    EXPECT_TRUE(got.value("closed", false)) << got;
+    EXPECT_EQ(got.value("received", -1LL) + got.value("invalid", -1LL), n) << got;
+    EXPECT_EQ(got.value("last_sequence", -1LL), n - 1) << got;
+    EXPECT_EQ(got.value("lost", -1), 0) << got;
+    EXPECT_EQ(got.value("duplicate", -1), 0) << got;
+    EXPECT_EQ(got.value("invalid", -1), e.invalid) << got;
   }
 
   // Learning progressed: a random policy scores about -1200 on Pendulum-v1; the target is -250.
-  const double final_return = number_after(summary, "final eval return");
-  EXPECT_GT(final_return, -400.0) << summary;
+  const nlohmann::json final_eval = event_with(run, "evaluation", "label", "final");
+  ASSERT_TRUE(final_eval.contains("mean") && final_eval["mean"].is_number()) << slurp(run + "/events.jsonl");
+  EXPECT_GT(final_eval["mean"].get<double>(), -400.0) << final_eval;
   EXPECT_TRUE(fs::exists(run + "/checkpoint/manifest.txtpb"));
   // The best evaluation's networks were kept beside the checkpoint.
   EXPECT_EQ(best_policy_problem(run, summary, "sac"), "");
@@ -180,7 +167,7 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   start({FARM_WORKER_BIN, "--domain", domain_, "--id", "it-r"}, "worker");
   Proc& first = start({FARM_LEARNER_BIN, "--config", cfg, "--run-dir", run, "--domain", domain_}, "learner-1");
   ASSERT_EQ(wait_for(first, 300), 0) << slurp(dir_ + "/learner-1.log");
-  const double updates_1 = number_after(slurp(run + "/summary.txt"), "updates");
+  const double updates_1 = summary_event(run).value("updates", -1.0);
   EXPECT_GE(updates_1, 1500);
 
   std::string more = text;
@@ -194,7 +181,7 @@ TEST_F(FarmProcesses, ResumeCarriesOnFromTheCheckpoint) {
   ASSERT_EQ(starts.size(), 2u) << slurp(dir_ + "/learner-2.log");
   EXPECT_FALSE(starts[0].value("resumed", true));
   EXPECT_TRUE(starts[1].value("resumed", false));
-  const double updates_2 = number_after(slurp(run + "/summary.txt"), "updates");
+  const double updates_2 = summary_event(run).value("updates", -1.0);
   EXPECT_GE(updates_2, 2500);
   EXPECT_LT(updates_2 - updates_1, 1500) << "the resumed run started from scratch";
 }
@@ -227,20 +214,14 @@ TEST_F(FarmProcesses, CleanStopAndResumeLoseNothing) {
   ASSERT_EQ(wait_for(second, 120), 0) << slurp(dir_ + "/learner-2.log");
   EXPECT_EQ(wait_for(wa, 60), 0) << slurp(dir_ + "/worker-a.log");
   EXPECT_EQ(wait_for(wb, 60), 0) << slurp(dir_ + "/worker-b.log");
-  const std::string summary = slurp(run + "/summary.txt");
+  const nlohmann::json summary = summary_event(run);
   for (const char* id : {"it-sa", "it-sb"}) {
-    const std::string wlog = slurp(dir_ + "/worker-" + std::string(id).substr(4) + ".log");
-    std::smatch sent, got;
-    ASSERT_TRUE(std::regex_search(wlog, sent, std::regex(R"(finished: (\d+) batches sent)"))) << wlog;
-    ASSERT_TRUE(std::regex_search(
-        summary, got,
-        std::regex(
-            std::string(id) +
-            R"( session \d+: received (\d+) of sequence 0\.\.\d+, lost (\d+), duplicate 0, invalid 0, stream closed)")))
-        << id << "\n"
-        << summary;
-    EXPECT_EQ(got[2], "0") << id << "\n" << summary << "\n" << slurp(dir_ + "/learner-1.log");
-    EXPECT_EQ(got[1], sent[1]) << id << "\n" << summary;
+    const std::string name = "worker-" + std::string(id).substr(4);
+    const long long sent = batches_sent(name);
+    ASSERT_GE(sent, 0) << slurp(dir_ + "/" + name + ".log");
+    EXPECT_EQ(closed_whole_stream(summary, id), sent) << id << "\n"
+                                                      << summary << "\n"
+                                                      << slurp(dir_ + "/learner-1.log");
   }
 }
 

@@ -49,12 +49,6 @@ long long last_updates(const std::string& csv_path) {
   return -1;
 }
 
-std::smatch batches_line(const std::string& summary) {
-  std::smatch m;
-  std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))"));
-  return m;
-}
-
 TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   ProcessSet set;
   const std::string d = set.dir(), domain = std::to_string(private_domain(41)), run = d + "/run";
@@ -66,7 +60,12 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   ASSERT_TRUE(wait_for_join(run, "it-b", 30)) << set.log("learner");
   // it-b is producing: its status line counts batches sent. Not its state word: on a busy machine a
   // worker that outpaces the learner is "throttled" at every status line while it sends.
-  ASSERT_TRUE(wait_for_match(d + "/worker-b.log", R"(: \d+ steps/s.*, [1-9]\d* batches sent)", 30))
+  ASSERT_TRUE(wait_until(
+      [&] {
+        const auto p = set.worker_events("worker-b", "progress");
+        return !p.empty() && p.back().value("batches_sent", 0) > 0;
+      },
+      30))
       << set.log("worker-b");
   std::this_thread::sleep_for(std::chrono::seconds(3));
 
@@ -85,24 +84,16 @@ TEST(Faults, KilledWorkerIsMarkedDeadTrainingGoesOnAndARestartRejoins) {
   EXPECT_EQ(wait_for(b2, 30), 0) << set.log("worker-b2");
   EXPECT_EQ(wait_for(set.procs()[1], 30), 0) << set.log("worker-a");
 
-  const std::string summary = slurp(run + "/summary.txt");
-  auto m = batches_line(summary);
-  ASSERT_FALSE(m.empty()) << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_EQ(m[3], "0") << summary;
-  EXPECT_EQ(m[4], "0") << summary;
+  const nlohmann::json summary = summary_event(run);
+  EXPECT_TRUE(no_batch_lost_or_refused(summary)) << summary << slurp(run + "/events.jsonl");
   // Two sessions of it-b: the killed one (stream left open) and the restarted one.
-  std::smatch s;
-  std::regex session(
-      R"(it-b session \d+: received (\d+) of sequence 0\.\.\d+, lost 0, duplicate 0, invalid 0, stream (\w+))");
-  std::vector<std::pair<long long, std::string>> sessions;
-  for (auto it = std::sregex_iterator(summary.begin(), summary.end(), session); it != std::sregex_iterator(); ++it)
-    sessions.push_back({std::stoll((*it)[1]), (*it)[2]});
+  const auto sessions = streams_of(summary, "it-b");
   ASSERT_EQ(sessions.size(), 2u) << summary;
   int open = 0, closed_with_data = 0;
-  for (auto& [n, state] : sessions) {
-    open += state == "open";
-    closed_with_data += state == "closed" && n > 10;
+  for (const auto& s : sessions) {
+    EXPECT_EQ(s.value("lost", -1) + s.value("duplicate", -1) + s.value("invalid", -1), 0) << s;
+    open += !s.value("closed", true);
+    closed_with_data += s.value("closed", false) && s.value("received", 0) > 10;
   }
   EXPECT_EQ(open, 1) << summary;
   EXPECT_EQ(closed_with_data, 1) << summary;
@@ -158,23 +149,20 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
   EXPECT_FALSE(starts[0].value("resumed", true));
   EXPECT_TRUE(starts[1].value("resumed", false));
   for (const char* w : {"worker-a", "worker-b"})
-    EXPECT_NE(set.log(w).find("learner restarted"), std::string::npos) << set.log(w);
+    EXPECT_FALSE(set.worker_events(w, "learner_restarted").empty()) << set.log(w);
 
-  const std::string summary = slurp(run + "/summary.txt");
-  m = batches_line(summary);
-  ASSERT_FALSE(m.empty()) << summary;
-  EXPECT_GT(std::stoll(m[1]), ok_at_checkpoint + 50) << "no new batches accepted after the resume\n" << summary;
-  EXPECT_EQ(m[3], "0") << summary;
-  EXPECT_EQ(m[4], "0") << summary;
+  const nlohmann::json summary = summary_event(run);
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_GT(c.ok, ok_at_checkpoint + 50) << "no new batches accepted after the resume\n" << summary;
+  EXPECT_EQ(c.duplicate, 0) << summary;
+  EXPECT_EQ(c.invalid, 0) << summary;
   // One session per worker: they never restarted, the resumed learner carried their accounting on.
   for (const char* id : {"it-a", "it-b"}) {
-    std::regex line(
-        std::string(id) +
-        R"( session \d+: received \d+ of sequence 0\.\.\d+, lost \d+, duplicate 0, invalid 0, stream closed)");
-    auto n = std::distance(std::sregex_iterator(summary.begin(), summary.end(), line), std::sregex_iterator());
-    EXPECT_EQ(n, 1) << id << "\n" << summary;
+    const auto streams = streams_of(summary, id);
+    ASSERT_EQ(streams.size(), 1u) << id << "\n" << summary;
+    EXPECT_EQ(streams[0].value("duplicate", -1) + streams[0].value("invalid", -1), 0) << streams[0];
+    EXPECT_TRUE(streams[0].value("closed", false)) << streams[0];
   }
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(evaluations +asked (\d+), answered (\d+))"))) << summary;
   // The resumed learner counts on from its checkpoint: the parts answered then, and each answer
   // it took itself (an `answer` event after its start).
   long long answered_after_resume = 0, started = 0;
@@ -183,10 +171,9 @@ TEST(Faults, KilledLearnerResumesAndTheWorkersThatStayedUpCarryOn) {
     if (started == 2 && e.value("event", "") == "answer") ++answered_after_resume;
   }
   EXPECT_GT(answered_at_checkpoint, 0) << manifest;
-  EXPECT_EQ(std::stoll(m[2]), answered_at_checkpoint + answered_after_resume) << summary;
-  EXPECT_GT(std::stoll(m[1]), asked_at_checkpoint) << summary;
-  const std::string updates_line = std::regex_search(summary, m, std::regex(R"(updates\s+(\d+))")) ? m[1].str() : "0";
-  EXPECT_GE(std::stoll(updates_line), 9000) << summary;
+  EXPECT_EQ(summary.value("evals_answered", -1LL), answered_at_checkpoint + answered_after_resume) << summary;
+  EXPECT_GT(summary.value("evals_asked", -1LL), asked_at_checkpoint) << summary;
+  EXPECT_GE(summary.value("updates", -1LL), 9000) << summary;
   set.cleanup(::testing::Test::HasFailure());
 }
 

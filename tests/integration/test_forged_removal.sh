@@ -39,6 +39,5 @@ awk -v b="$before" -v d="$during" 'BEGIN { exit !(b > 0 && d >= 0.9 * b) }' ||
 
 wait $lp; lrc=$?
 [ $lrc = 0 ] || fail "the learner exited with $lrc: $(tail -5 "$dir/learner.log")"
-grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
-  fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"
+summary_batches_whole "$dir/run" 0 || fail "batches lost or invalid: $(events "$dir/run" summary)"
 farm_test_end "env steps/s $before before the forged removals, $during during them"

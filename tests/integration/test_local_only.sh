@@ -58,8 +58,8 @@ else
 fi
 wait "$lpid"; rc=$?
 [ $rc = 0 ] || fail "learner exited $rc: $(tail -5 "$dir/learner.log")"
-grep -Eq 'batches +ok [1-9]' "$dir/run/summary.txt" 2>/dev/null ||
-  fail "no batch arrived over shared memory: $(cat "$dir/run/summary.txt" 2>/dev/null)"
+[ "$(summary_of "$dir/run" 's["batches_ok"] > 0')" = true ] ||
+  fail "no batch arrived over shared memory: $(events "$dir/run" summary)"
 
 # 3. The control: the default profile listens on every interface, and the checker sees it.
 "$intruder" --domain "$domain" --id control --seconds 4 >"$dir/control.log" 2>&1 &

@@ -38,10 +38,12 @@ log_every_seconds: 1
 stop { max_seconds: 45 }
 EOF
 "$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & pids+=($!)
-"$worker" --domain $domain --id mon-a >"$dir/worker-a.log" 2>&1 & pids+=($!)
-"$worker" --domain $domain --id mon-b >"$dir/worker-b.log" 2>&1 & pid_b=$!; pids+=($pid_b)
+"$worker" --domain $domain --id mon-a --events "$dir/worker-a.jsonl" >"$dir/worker-a.log" 2>&1 & pids+=($!)
+"$worker" --domain $domain --id mon-b --events "$dir/worker-b.jsonl" >"$dir/worker-b.log" 2>&1 & pid_b=$!; pids+=($pid_b)
 
-for w in a b; do wait_text "$dir/worker-$w.log" "joined experiment" 30 || fail "worker mon-$w did not join: $(tail -5 "$dir/worker-$w.log")"; done
+for w in a b; do
+  wait_worker_event "$dir/worker-$w.jsonl" joined 30 || fail "worker mon-$w did not join: $(tail -5 "$dir/worker-$w.log")"
+done
 sleep 4
 
 # 1. One snapshot: both workers, non-zero steps/s, the learner's block.
@@ -60,8 +62,8 @@ grep -q "ingest .*steps/s" "$dir/once.txt" || fail "no learner statistics in the
 sleep 4
 { kill -9 $pid_b; wait $pid_b; } 2>/dev/null
 sleep 7
-"$worker" --domain $domain --id mon-c >"$dir/worker-c.log" 2>&1 & pids+=($!)
-wait_text "$dir/worker-c.log" "joined experiment" 30 || fail "worker mon-c did not join"
+"$worker" --domain $domain --id mon-c --events "$dir/worker-c.jsonl" >"$dir/worker-c.log" 2>&1 & pids+=($!)
+wait_worker_event "$dir/worker-c.jsonl" joined 30 || fail "worker mon-c did not join"
 sleep 5
 kill -INT $mon; wait $mon; rc=$?
 [ $rc = 0 ] || fail "farm-monitor (live) exited $rc on SIGINT"

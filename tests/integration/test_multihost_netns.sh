@@ -16,6 +16,7 @@
 #   tests/integration/test_multihost_netns.sh LEARNER_BIN WORKER_BIN MONITOR_BIN SOURCE_DIR INTRUDER_BIN
 # Needs root (ip netns); exits 77 (skipped) without it. Commands: docs/guides/hosts-and-security.md.
 set -uo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"  # the readers of the records: events, summary_of, worker_events
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") monitor=$(readlink -f "$3") src=$(readlink -f "$4")
 intruder=$(readlink -f "$5")
 SKIP=77
@@ -118,9 +119,9 @@ EOF
 ip netns exec $A "$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run" --domain $domain \
   --dds-profiles "$client_profiles" >"$dir/learner.log" 2>&1 & learner_pid=$!; pids+=($learner_pid)
 ip netns exec $B "$worker" --domain $domain --dds-profiles "$client_profiles" --id host-b --envs 8 --threads 1 \
-  --log-every 2 >"$dir/worker-b.log" 2>&1 & wb=$!; pids+=($wb)
+  --log-every 2 --events "$dir/worker-b.jsonl" >"$dir/worker-b.log" 2>&1 & wb=$!; pids+=($wb)
 ip netns exec $C "$worker" --domain $domain --dds-profiles "$client_profiles" --id host-c --envs 8 --threads 1 \
-  --log-every 2 >"$dir/worker-c.log" 2>&1 & wc=$!; pids+=($wc)
+  --log-every 2 --events "$dir/worker-c.jsonl" >"$dir/worker-c.log" 2>&1 & wc=$!; pids+=($wc)
 
 # The secured farm: no Discovery Server (ROS_DISCOVERY_SERVER would make its participants clients).
 sed 's/it_multihost/it_multihost_secure/; s/max_seconds: 40/max_seconds: 34/' "$dir/cfg.txtpb" >"$dir/cfg-secure.txtpb"
@@ -130,9 +131,11 @@ secure() {  # NAMESPACE PROGRAM ARGS...: a process of the secured farm
 }
 secure $A "$learner" --config "$dir/cfg-secure.txtpb" --run-dir "$dir/run-secure" --security "$pki/learner" \
   >"$dir/learner-secure.log" 2>&1 & slearner_pid=$!; pids+=($slearner_pid)
-secure $B "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-b" >"$dir/worker-sb.log" 2>&1 &
+secure $B "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-b" --events "$dir/worker-sb.jsonl" \
+  >"$dir/worker-sb.log" 2>&1 &
 swb=$!; pids+=($swb)
-secure $C "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-c" >"$dir/worker-sc.log" 2>&1 &
+secure $C "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-c" --events "$dir/worker-sc.jsonl" \
+  >"$dir/worker-sc.log" 2>&1 &
 swc=$!; pids+=($swc)
 # No certificate, in C: well-formed batches of the experiment, and reads for its spec and weights.
 secure $C "$intruder" --experiment it_multihost_secure --id intruder-c --seconds 16 >"$dir/intruder.log" 2>&1 &
@@ -142,9 +145,9 @@ wait_text() {  # FILE REGEX SECONDS
   for _ in $(seq $(($3 * 5))); do grep -qE "$2" "$1" 2>/dev/null && return 0; sleep 0.2; done; return 1
 }
 for w in b c; do
-  wait_text "$dir/worker-$w.log" "^\[worker host-$w\] running" 40 ||
+  wait_worker_event "$dir/worker-$w.jsonl" progress 40 '"state":"running"' ||
     fail "worker host-$w is not running over the discovery server: $(tail -3 "$dir/worker-$w.log")"
-  wait_text "$dir/worker-s$w.log" "^\[worker host-$w\] running" 40 ||
+  wait_worker_event "$dir/worker-s$w.jsonl" progress 40 '"state":"running"' ||
     fail "secured worker host-$w is not running: $(tail -3 "$dir/worker-s$w.log")"
 done
 sleep 2
@@ -192,28 +195,27 @@ for p in $wb $wc; do
   for _ in $(seq 150); do kill -0 $p 2>/dev/null || break; sleep 0.2; done
 done
 
-check_run() {  # RUN_DIR WORKER_LOG_PREFIX: both workers' batches arrived, nothing lost, new weights reached them
-  local summary line v
-  summary=$(cat "$1/summary.txt" 2>/dev/null)
-  echo "--- $1/summary.txt:"; echo "$summary"
-  grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" ||
-    fail "$1: batch totals: $(grep ^batches <<<"$summary")"
-  grep -q "intruder" <<<"$summary" && fail "$1: the learner accounted the intruder: $(grep intruder <<<"$summary")"
+check_run() {  # RUN_DIR WORKER_EVENTS_PREFIX: both workers' batches arrived, nothing lost, new weights reached them
+  local v
+  echo "--- $1/summary.txt:"; cat "$1/summary.txt" 2>/dev/null
+  summary_batches_whole "$1" || fail "$1: batch totals: $(events "$1" summary)"
+  [ "$(summary_of "$1" 'all(not f["worker_id"].startswith("intruder") for f in s["streams"])')" = true ] ||
+    fail "$1: the learner accounted the intruder: $(summary_of "$1" 's["streams"]')"
   for w in b c; do
-    line=$(grep -E "^worker +host-$w session" <<<"$summary")
-    [[ "$line" =~ received\ ([0-9]+)\ of\ sequence.*lost\ 0,\ duplicate\ 0,\ invalid\ 0 ]] && [ "${BASH_REMATCH[1]}" -gt 0 ] ||
-      fail "$1: worker host-$w in summary: '$line'"
-    # New weights reached the worker: its throughput lines name the policy version it runs.
-    v=$(grep -oE "policy v[0-9]+" "$2$w.log" | tail -1 | tr -dc 0-9)
-    echo "worker host-$w: last policy version v${v:-none}; $(grep -E 'finished: [0-9]+ batches sent' "$2$w.log" | sed 's/^\[worker [^]]*\] //')"
-    [ "${v:-0}" -gt 0 ] || fail "$2$w.log: worker host-$w never ran a policy version > 0"
+    [ "$(summary_of "$1" 'len(w("host-'$w'")) > 0 and all(f["received"] > 0 and f["lost"] + f["duplicate"] + f["invalid"] == 0 for f in w("host-'$w'"))')" = true ] ||
+      fail "$1: worker host-$w in summary: $(summary_of "$1" 'w("host-'$w'")')"
+    # New weights reached the worker: its progress events name the policy version it runs.
+    v=$(event_of "$2$w.jsonl" progress 'e["policy_version"]')
+    echo "worker host-$w: last policy version v${v:-none}; $(worker_events "$2$w.jsonl" finished)"
+    [ "${v:-0}" -gt 0 ] || fail "$2$w.jsonl: worker host-$w never ran a policy version > 0"
   done
 }
 check_run "$dir/run" "$dir/worker-"
 
 wait $slearner_pid; rc=$?
 [ $rc = 0 ] || fail "secured farm-learner exited $rc: $(tail -5 "$dir/learner-secure.log")"
-grep -q "DDS Security from $pki/learner" "$dir/learner-secure.log" || fail "the secured learner ran without DDS Security"
+[ "$(event_of "$dir/run-secure/events.jsonl" start 'e["security_dir"]')" = "$pki/learner" ] ||
+  fail "the secured learner ran without DDS Security: $(events "$dir/run-secure" start)"
 for p in $swb $swc; do
   for _ in $(seq 150); do kill -0 $p 2>/dev/null || break; sleep 0.2; done
 done

@@ -49,33 +49,25 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
   EXPECT_EQ(wait_for(set.procs()[1], 60), 0) << slurp(d + "/worker-a.log");
   EXPECT_EQ(wait_for(set.procs()[2], 60), 0) << slurp(d + "/worker-b.log");
 
-  const std::string summary = slurp(run + "/summary.txt");
+  const nlohmann::json summary = summary_event(run);
   ASSERT_FALSE(summary.empty()) << log;
-  EXPECT_NE(summary.find("reached the target"), std::string::npos) << summary;
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(final eval return\s+(-?[0-9.]+))"))) << summary;
+  EXPECT_NE(summary.value("reason", "").find("reached the target"), std::string::npos) << summary;
+  const nlohmann::json final_eval = event_with(run, "evaluation", "label", "final");
+  ASSERT_TRUE(final_eval.contains("mean") && final_eval["mean"].is_number()) << slurp(run + "/events.jsonl");
   // The final, larger evaluation is of the policy after one more fit, on the steps held at the stop,
   // and one PPO fit moves this task's evaluation by tens either way. What the run keeps is its best
   // (RUN/best, checked next); the final must still be a learned policy, far above the untrained one.
-  EXPECT_GE(std::stod(m[1]), kLearnedReturn) << summary;
+  EXPECT_GE(final_eval["mean"].get<double>(), kLearnedReturn) << final_eval;
   EXPECT_EQ(best_policy_problem(run, summary, "ppo"), "");  // the best evaluation's networks, kept
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(best eval return\s+(-?[0-9.]+))"))) << summary;
-  EXPECT_GE(std::stod(m[1]), kTargetReturn) << summary;  // and they met the target
-  ASSERT_TRUE(std::regex_search(
-      summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+), stale (\d+))")))
-      << summary;
-  EXPECT_GT(std::stoll(m[1]), 0);
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_EQ(m[3], "0") << summary;
-  EXPECT_EQ(m[4], "0") << summary;
+  ASSERT_TRUE(summary["best_eval"].is_number()) << summary;
+  EXPECT_GE(summary["best_eval"].get<double>(), kTargetReturn) << summary;  // and they met the target
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_GT(c.ok, 0);
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_EQ(c.duplicate, 0) << summary;
+  EXPECT_EQ(c.invalid, 0) << summary;
   // Each worker's stream: every number it sent arrived once.
-  for (const char* id : {"ppo-a", "ppo-b"}) {
-    std::regex line(
-        std::string(id) +
-        R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0, stream closed)");
-    ASSERT_TRUE(std::regex_search(summary, m, line)) << id << "\n" << summary;
-    EXPECT_EQ(std::stoll(m[1]), std::stoll(m[2]) + 1) << id;
-  }
+  for (const char* id : {"ppo-a", "ppo-b"}) EXPECT_GT(closed_whole_stream(summary, id), 0) << id << "\n" << summary;
 
   // Every fit is a progress event (its learner.csv row) with version, steps used and carried,
   // stale drops, lag, KL, rate, clip fraction, value loss, entropy and mean return; steps used is
@@ -103,7 +95,9 @@ TEST(PpoProcesses, CartpoleSwingUpTrainsOverDdsAndEveryFitIsLogged) {
                           "clip_fraction", "value_loss", "entropy", "mean_return"})
     EXPECT_NE(header.find(col), std::string::npos) << col << " not in " << header;
   // The synchronous mode fits the version it published, and only that one.
-  EXPECT_NE(summary.find("lag of fitted     0: 100.0 %"), std::string::npos) << summary;
+  EXPECT_EQ(summary.value("steps_fitted_by_lag", nlohmann::json::object()),
+            nlohmann::json({{"0", summary.value("steps_fitted", -1)}}))
+      << summary;
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -127,33 +121,27 @@ TEST(PpoProcesses, AsynchronousModeFitsRecentVersionsAndAccountsForEveryStep) {
   const int rc = wait_for(learner, 560);
   const std::string log = slurp(d + "/learner.log");
   ASSERT_EQ(rc, 0) << log;
-  const std::string summary = slurp(run + "/summary.txt");
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(
-      summary, m, std::regex(R"(stopped because\s+evaluation goal reached: upright_fraction ([0-9.]+) >= 0.5)")))
-      << summary;
-  EXPECT_GE(std::stod(m[1]), 0.5);
-  EXPECT_NE(summary.find("mode              async, max policy lag 2"), std::string::npos) << summary;
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
-      << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_EQ(m[4], "0") << summary;
+  const nlohmann::json summary = summary_event(run);
+  ASSERT_FALSE(summary.empty()) << log;
+  // Stopped on the goal: the last evaluation's upright_fraction at least 0.5.
+  EXPECT_EQ(summary.value("reason", "").rfind("evaluation goal reached: upright_fraction ", 0), 0u) << summary;
+  EXPECT_EQ(summary.value("mode", ""), "async") << summary;
+  EXPECT_EQ(summary.value("max_policy_lag", -1), 2) << summary;
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_EQ(c.invalid, 0) << summary;
   // Every simulated step the learner took is fitted, stale or held: the total is the run's steps.
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(env steps\s+(\d+))"))) << summary;
-  const long long env_steps = std::stoll(m[1]);
-  ASSERT_TRUE(std::regex_search(
-      summary, m,
-      std::regex(R"(steps unused\s+(\d+) of (\d+) \([0-9.]+ %\): stale (\d+), not fitted at the end (\d+))")))
+  const long long env_steps = summary.value("env_steps", -1LL);
+  EXPECT_EQ(
+      summary.value("steps_fitted", -1LL) + summary.value("steps_stale", -1LL) + summary.value("steps_held", -1LL),
+      env_steps)
       << summary;
-  EXPECT_EQ(std::stoll(m[2]), env_steps) << summary;
-  EXPECT_EQ(std::stoll(m[1]), std::stoll(m[3]) + std::stoll(m[4])) << summary;
-  const long long held_at_end = std::stoll(m[4]);
+  const long long held_at_end = summary.value("steps_held", -1LL);
   // The workers are held at the stop: while the final evaluation runs, each sends at most the
   // batches it had made or begun (two sender buffers and the one it collects, or its one of a
   // version just published), not the rest of its quota (16 envs x 64 steps a batch).
-  ASSERT_TRUE(std::regex_search(summary, m, std::regex(R"(after the stop\s+(\d+) env steps arrived)"))) << summary;
-  EXPECT_LE(std::stoll(m[1]), 2 * 4 * 16 * 64) << summary;
+  ASSERT_TRUE(summary.contains("env_steps_after_stop")) << summary;
+  EXPECT_LE(summary.value("env_steps_after_stop", -1LL), 2 * 4 * 16 * 64) << summary;
   // What had arrived before the stop, and what the held workers had made, went into a last fit,
   // unless it was less than a mini-batch (2,048 steps; a fit takes 8,192): left unfitted is that
   // little, and at most one batch (1,024 steps) that came later still.
@@ -217,15 +205,13 @@ TEST(PpoProcesses, FitsCompleteWithTheRemainingWorkerWhenOneIsKilled) {
   ASSERT_EQ(rc, 0) << log;
   // At least two more fits after the kill, made with one worker's data.
   EXPECT_GE(last_fit(), fits_at_kill + 2) << slurp(run + "/events.jsonl");
-  const std::string summary = slurp(run + "/summary.txt");
-  std::smatch m;
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
-      << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_EQ(m[4], "0") << summary;
-  EXPECT_NE(summary.find("ppo-b session"), std::string::npos) << summary;
-  EXPECT_NE(summary.find("stream open"), std::string::npos) << summary;  // the killed worker's
+  const nlohmann::json summary = summary_event(run);
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_EQ(c.invalid, 0) << summary;
+  const auto killed = streams_of(summary, "ppo-b");
+  ASSERT_EQ(killed.size(), 1u) << summary;
+  EXPECT_FALSE(killed[0].value("closed", true)) << summary;  // the killed worker's stream stays open
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -253,15 +239,15 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
   kill(first.pid, SIGKILL);
   wait_for(first, 10);
   // The versions the killed learner published: each fit's row names the version fitted, and the
-  // fit publishes the next; rows that waited for an evaluation at the kill are in the worker's log.
-  const std::regex status_version(R"(policy v(\d+))");
-  auto highest_version = [&](const std::string& text) {
+  // fit publishes the next; rows that waited for an evaluation at the kill are in the worker's
+  // progress events (the version it runs).
+  auto highest_version = [&] {
     uint64_t v = 0;
-    for (auto it = std::sregex_iterator(text.begin(), text.end(), status_version); it != std::sregex_iterator(); ++it)
-      v = std::max<uint64_t>(v, std::stoull((*it)[1]));
+    for (const auto& e : set.worker_events("worker", "progress"))
+      v = std::max<uint64_t>(v, e.value("policy_version", uint64_t(0)));
     return v;
   };
-  uint64_t published = highest_version(set.log("worker"));
+  uint64_t published = highest_version();
   for (const auto& e : events(run, "progress"))
     published = std::max<uint64_t>(published, e.value("policy_version", uint64_t(0)) + 1);
   ASSERT_GT(published, 0u) << slurp(run + "/events.jsonl");
@@ -295,8 +281,7 @@ TEST(PpoProcesses, ResumeAfterSigkillPublishesVersionsNoWorkerHolds) {
   for (const auto& f : fits) EXPECT_GE(f.value("policy_version", uint64_t(0)), next) << f.dump();
   EXPECT_TRUE(resumed("refusal").empty()) << slurp(run + "/events.jsonl");
   // The worker ran the resumed learner's weights.
-  const std::string wlog = set.log("worker");
-  EXPECT_GE(highest_version(wlog), next) << wlog;
+  EXPECT_GE(highest_version(), next) << set.log("worker");
   set.cleanup(::testing::Test::HasFailure());
 }
 

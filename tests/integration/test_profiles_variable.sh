@@ -48,9 +48,9 @@ for way in var flag both; do
   mkdir -p "$out"
   run_with $way "$learner" --config "$dir/cfg.txtpb" --run-dir "$out/run" --domain $d >"$out/learner.log" 2>&1 &
   lp=$!; pids+=($lp)
-  run_with $way "$worker" --domain $d --id pw --envs 3 >"$out/worker.log" 2>&1 &
+  run_with $way "$worker" --domain $d --id pw --envs 3 --events "$out/worker.jsonl" >"$out/worker.log" 2>&1 &
   wp=$!; pids+=($wp)
-  wait_text "$out/worker.log" "joined experiment" 30 || fail "$way: worker did not join: $(tail -3 "$out/worker.log")"
+  wait_worker_event "$out/worker.jsonl" joined 30 || fail "$way: worker did not join: $(tail -3 "$out/worker.log")"
   sleep 2
   run_with $way "$monitor" --domain $d --once --wait 10 >"$out/monitor.txt" 2>&1 ||
     fail "$way: farm-monitor --once failed: $(tail -3 "$out/monitor.txt")"
@@ -58,8 +58,7 @@ for way in var flag both; do
     fail "$way: farm-monitor does not list worker pw: $(cat "$out/monitor.txt")"
   wait $lp; rc=$?
   [ $rc = 0 ] || fail "$way: learner exited $rc: $(tail -5 "$out/learner.log")"
-  grep -q "batches  *ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" "$out/run/summary.txt" ||
-    fail "$way: summary: $(cat "$out/run/summary.txt" 2>/dev/null)"
+  summary_batches_whole "$out/run" || fail "$way: summary: $(events "$out/run" summary)"
   # The roster's events of the worker: its join, then (once it built them) its 3 envs on 1 thread.
   events "$out/run" worker | grep -F '"worker_id":"pw"' | grep -c '"change":"joined"' >/dev/null ||
     fail "$way: no join event of pw: $(events "$out/run" worker)"

@@ -52,8 +52,8 @@ sed -e 's/^experiment_id: .*/experiment_id: "it_prometheus"/' -e 's/^log_every_s
 grep -q '^log_every_seconds: 1$' "$dir/cfg.txtpb" && grep -q 'target_eval_return: 1$' "$dir/cfg.txtpb" ||
   fail "could not set log_every_seconds and target_eval_return in the copy: $(cat "$dir/cfg.txtpb")"
 "$learner" --config "$dir/cfg.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & pids+=($!)
-"$worker" --domain $domain --id prom-a >"$dir/worker-a.log" 2>&1 & pids+=($!)
-"$worker" --domain $domain --id prom-b >"$dir/worker-b.log" 2>&1 & pids+=($!)
+"$worker" --domain $domain --id prom-a --events "$dir/worker-a.jsonl" >"$dir/worker-a.log" 2>&1 & pids+=($!)
+"$worker" --domain $domain --id prom-b --events "$dir/worker-b.jsonl" >"$dir/worker-b.log" 2>&1 & pids+=($!)
 "$monitor" --domain $domain --quiet --prometheus 127.0.0.1:$mport --log "$dir/monitor.jsonl" \
   >"$dir/monitor.out" 2>&1 & mon=$!; pids+=($mon)
 wait_text "$dir/monitor.out" "Prometheus metrics at http://127.0.0.1:$mport/metrics" 15 ||
@@ -71,7 +71,7 @@ prometheus --config.file="$dir/prometheus.yml" --storage.tsdb.path="$dir/tsdb" \
   --web.listen-address=127.0.0.1:$pport >"$dir/prometheus.log" 2>&1 & pids+=($!)
 
 for w in a b; do
-  wait_text "$dir/worker-$w.log" "joined experiment" 30 || fail "worker prom-$w did not join: $(tail -3 "$dir/worker-$w.log")"
+  wait_worker_event "$dir/worker-$w.jsonl" joined 30 || fail "worker prom-$w did not join: $(tail -3 "$dir/worker-$w.log")"
 done
 
 # 2. The endpoint itself (python3's urllib: no HTTP client to install).

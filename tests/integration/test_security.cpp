@@ -25,6 +25,30 @@ using namespace farm::testing;
 
 namespace {
 
+// Worker `name`'s stream in the summary event: its batches received and lost, where it has one
+// stream with no duplicate batch; false otherwise.
+bool worker_stream(const nlohmann::json& summary, const std::string& name, long long& received, long long& lost) {
+  const auto s = streams_of(summary, name);
+  if (s.size() != 1 || s[0].value("duplicate", -1) != 0) return false;
+  received = s[0].value("received", -1LL);
+  lost = s[0].value("lost", -1LL);
+  return true;
+}
+
+// The summary of a run where w2's batches were refused: no stream of w2; w1's stream whole (more than
+// 10 batches, none lost) and the run's accepted batches all w1's; one refused batch or more.
+void expect_w1_alone_accounted(const nlohmann::json& summary) {
+  EXPECT_TRUE(streams_of(summary, "w2").empty()) << summary;
+  long long w1_received = 0, w1_lost = -1;
+  ASSERT_TRUE(worker_stream(summary, "w1", w1_received, w1_lost)) << summary;
+  EXPECT_GT(w1_received, 10) << summary;
+  EXPECT_EQ(w1_lost, 0) << summary;
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_EQ(c.ok, w1_received) << summary;
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_GE(c.invalid, 1) << summary;
+}
+
 // Debian's faketime (libfaketime): runs a program on a shifted clock.
 const char* kFaketime = "/usr/bin/faketime";
 
@@ -108,14 +132,15 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
   }
 
   // The learner trained with the real worker and never heard of the outsiders.
-  const std::string summary = slurp(d + "/run/summary.txt");
-  EXPECT_NE(summary.find("worker-a session"), std::string::npos) << summary;
-  EXPECT_NE(summary.find("insider session"), std::string::npos) << summary;
-  EXPECT_EQ(summary.find("intruder"), std::string::npos) << summary;
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
-  EXPECT_GT(std::stoll(m[1]), 100);
-  EXPECT_EQ(m[4], "0") << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  EXPECT_FALSE(streams_of(summary, "worker-a").empty()) << summary;
+  EXPECT_FALSE(streams_of(summary, "insider").empty()) << summary;
+  EXPECT_EQ(summary.value("streams", nlohmann::json::array()).size(),
+            streams_of(summary, "worker-a").size() + streams_of(summary, "insider").size())
+      << summary;  // no intruder's
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_GT(c.ok, 100) << summary;
+  EXPECT_EQ(c.invalid, 0) << summary;
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -164,13 +189,11 @@ TEST(Security, FuzzedSamplesFromCertifiedParticipantsEndNoProcess) {
       reached |= (*it)[1] == topic && std::stoi((*it)[2]) > 0 && std::stoi((*it)[3]) >= 1;
     EXPECT_TRUE(reached) << id << " wrote no matched " << topic << ":\n" << out;
   }
-  const std::string summary = slurp(d + "/run/summary.txt");
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")))
-      << summary;
-  EXPECT_GT(std::stoll(m[1]), 100) << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_GT(std::stoll(m[4]), 0) << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_GT(c.ok, 100) << summary;
+  EXPECT_EQ(c.lost, 0) << summary;
+  EXPECT_GT(c.invalid, 0) << summary;
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -213,7 +236,9 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
   EXPECT_EQ(wait_for(forger, 60), 0) << set.log("forger");
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
-  EXPECT_NE(set.log("worker").find("[worker w1] started"), std::string::npos) << set.log("worker");
+  const auto started = set.worker_events("worker", "start");
+  ASSERT_EQ(started.size(), 1u) << set.log("worker");
+  EXPECT_EQ(started[0].value("worker_id", ""), "w1") << started[0];
   // The monitor shows w1 and never the forger's w2: a heartbeat says only what its certificate may.
   kill(monitor.pid, SIGTERM);
   wait_for(monitor, 10);
@@ -254,19 +279,9 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
   EXPECT_FALSE(joined(run, "w2")) << slurp(run + "/events.jsonl");
 
   // Nothing of w2 was trained on or accounted; w1's own stream is exactly what it sent.
-  const std::string summary = slurp(d + "/run/summary.txt");
-  EXPECT_EQ(summary.find("w2 session"), std::string::npos) << summary;
-  ASSERT_TRUE(std::regex_search(
-      summary, m,
-      std::regex(R"(worker\s+w1 session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0)")))
-      << summary;
-  EXPECT_GT(std::stoll(m[1]), 10) << summary;
-  const long long w1_received = std::stoll(m[1]);
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
-  EXPECT_EQ(std::stoll(m[1]), w1_received) << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_GE(std::stoll(m[4]), 1) << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  expect_w1_alone_accounted(summary);
+  EXPECT_EQ(streams_of(summary, "w1")[0].value("invalid", -1), 0) << summary;
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -437,37 +452,19 @@ TEST(Security, WorkerWhoseClockIsAnHourBehindJoins) {
   // libfaketime 0.9.10 it was killed by SIGSEGV after its last line in 2 of 6 runs here (faketime
   // printed `Caught Segmentation fault`), which the same worker without faketime has not shown.
   EXPECT_NE(wait_for(worker, 30), -1) << set.log("worker");
-  EXPECT_NE(set.log("worker").find("[worker worker-a] finished: "), std::string::npos) << set.log("worker");
-  EXPECT_NE(set.log("worker").find("[worker worker-a] joined experiment 'it_secure'"), std::string::npos)
-      << set.log("worker");
+  EXPECT_GE(set.batches_sent("worker"), 0) << set.log("worker");
+  const auto joined_it = set.worker_events("worker", "joined");
+  ASSERT_EQ(joined_it.size(), 1u) << set.log("worker");
+  EXPECT_EQ(joined_it[0].value("experiment_id", ""), "it_secure") << joined_it[0];
 
-  std::smatch m;
-  const std::string summary = slurp(d + "/run/summary.txt");
-  ASSERT_TRUE(std::regex_search(
-      summary, m,
-      std::regex(
-          R"(worker\s+worker-a session \d+: received (\d+) of sequence 0\.\.(\d+), lost 0, duplicate 0, invalid 0)")))
-      << summary;
-  EXPECT_GT(std::stoll(m[1]), 0) << summary;
-  EXPECT_EQ(summary.find("worker-late"), std::string::npos) << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  long long received = 0, lost = -1;
+  ASSERT_TRUE(worker_stream(summary, "worker-a", received, lost)) << summary;
+  EXPECT_GT(received, 0) << summary;
+  EXPECT_EQ(lost, 0) << summary;
+  EXPECT_EQ(streams_of(summary, "worker-a")[0].value("invalid", -1), 0) << summary;
+  EXPECT_TRUE(streams_of(summary, "worker-late").empty()) << summary;
   set.cleanup(::testing::Test::HasFailure());
-}
-
-}  // namespace
-
-namespace {
-
-// Parses "worker NAME session S: received R of sequence 0..K, lost L, duplicate D, invalid I" of a
-// summary: R and L, or false.
-bool worker_line(const std::string& summary, const std::string& name, long long& received, long long& lost) {
-  std::smatch m;
-  if (!std::regex_search(summary, m,
-                         std::regex("worker\\s+" + name +
-                                    R"( session \d+: received (\d+) of sequence 0\.\.(\d+), lost (\d+), duplicate 0)")))
-    return false;
-  received = std::stoll(m[1]);
-  lost = std::stoll(m[3]);
-  return true;
 }
 
 }  // namespace
@@ -518,17 +515,8 @@ TEST(Security, IdentityTokenDoesNotNameTheWorker) {
   EXPECT_FALSE(joined(run, "w2")) << slurp(run + "/events.jsonl");
 
   // Nothing of w2 accounted; w1's stream whole; the refused batches counted invalid.
-  const std::string summary = slurp(d + "/run/summary.txt");
-  EXPECT_EQ(summary.find("w2 session"), std::string::npos) << summary;
-  long long w1_received = 0, w1_lost = -1;
-  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
-  EXPECT_GT(w1_received, 10) << summary;
-  EXPECT_EQ(w1_lost, 0) << summary;
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
-  EXPECT_EQ(std::stoll(m[1]), w1_received) << summary;
-  EXPECT_EQ(m[2], "0") << summary;
-  EXPECT_GE(std::stoll(m[4]), 1) << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  expect_w1_alone_accounted(summary);
   set.cleanup(::testing::Test::HasFailure());
 }
 
@@ -569,12 +557,12 @@ TEST(Security, OneWorkersAnswersAloneDecideNoBestAndNoStop) {
   ASSERT_TRUE(std::regex_search(lied, m, std::regex(R"(forged (\d+) evaluation answers)"))) << lied;
   EXPECT_GE(std::stoi(m[1]), 1) << "the liar was never asked: the test shows nothing\n" << lied;
 
-  const std::string summary = slurp(d + "/run/summary.txt");
-  EXPECT_NE(summary.find("stopped because   time limit"), std::string::npos) << summary;
-  if (std::regex_search(summary, m, std::regex(R"(best eval return\s+(\S+))")))
-    EXPECT_FALSE(std::stod(m[1]) > -90) << "a kept best rests on the liar's answers\n" << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  EXPECT_EQ(summary.value("reason", "").rfind("time limit ", 0), 0u) << summary;
+  if (summary.contains("best_eval") && summary["best_eval"].is_number())
+    EXPECT_FALSE(summary["best_eval"].get<double>() > -90) << "a kept best rests on the liar's answers\n" << summary;
   long long w1_received = 0, w1_lost = -1;
-  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
+  ASSERT_TRUE(worker_stream(summary, "w1", w1_received, w1_lost)) << summary;
   EXPECT_GT(w1_received, 10) << summary;
   EXPECT_EQ(w1_lost, 0) << summary;
   set.cleanup(::testing::Test::HasFailure());
@@ -640,8 +628,8 @@ TEST(Security, RolesAreExplicitAndRevokedWorkersAreRefused) {
   ASSERT_TRUE(std::regex_search(w3, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << w3;
   EXPECT_GT(std::stoi(m[1]), 0) << w3;
   EXPECT_EQ(m[2], "0") << w3;
-  const std::string summary = slurp(d + "/run/summary.txt");
-  EXPECT_EQ(summary.find("w3 session"), std::string::npos) << summary;
+  const nlohmann::json summary = summary_event(d + "/run");
+  EXPECT_TRUE(streams_of(summary, "w3").empty()) << summary;
 
   // (c): the reload dropped w2, and w2's batches after it were refused, not accounted.
   const auto grants = events(d + "/run", "grants");
@@ -654,14 +642,13 @@ TEST(Security, RolesAreExplicitAndRevokedWorkersAreRefused) {
           .is_null())
       << slurp(d + "/run/events.jsonl");
   long long w1_received = 0, w1_lost = -1, w2_received = 0, w2_lost = -1;
-  ASSERT_TRUE(worker_line(summary, "w1", w1_received, w1_lost)) << summary;
-  ASSERT_TRUE(worker_line(summary, "w2", w2_received, w2_lost)) << summary;
+  ASSERT_TRUE(worker_stream(summary, "w1", w1_received, w1_lost)) << summary;
+  ASSERT_TRUE(worker_stream(summary, "w2", w2_received, w2_lost)) << summary;
   EXPECT_GT(w1_received, 10) << summary;
   EXPECT_EQ(w1_lost, 0) << summary;
   EXPECT_GT(w2_received, 0) << summary;  // before its revocation
-  ASSERT_TRUE(
-      std::regex_search(summary, m, std::regex(R"(batches\s+ok (\d+), lost (\d+), duplicate (\d+), invalid (\d+))")));
-  EXPECT_EQ(std::stoll(m[1]), w1_received + w2_received) << summary;
-  EXPECT_GE(std::stoll(m[4]), 3) << summary;  // w2's batches after the reload
+  const BatchCounts c = batch_counts(summary);
+  EXPECT_EQ(c.ok, w1_received + w2_received) << summary;
+  EXPECT_GE(c.invalid, 3) << summary;  // w2's batches after the reload
   set.cleanup(::testing::Test::HasFailure());
 }

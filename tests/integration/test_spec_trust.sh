@@ -44,6 +44,5 @@ wait $wp; wrc=$?
 [ $wrc = 0 ] || fail "the worker exited with $wrc: $(tail -5 "$dir/worker.log")"
 final=$(batches_ok "$dir/run")
 [ "$final" -gt "$during" ] || fail "no batch arrived after the attack: batches_ok $during then, $final at the end"
-grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
-  fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"
+summary_batches_whole "$dir/run" 0 || fail "batches lost or invalid: $(events "$dir/run" summary)"
 farm_test_end "batches_ok $before before the attack, $during after it, $final at the end; nothing lost"

@@ -25,17 +25,18 @@ CFG
   "$worker" --domain $domain --id sw >"$dir/$1-worker.log" 2>&1 & pids+=($!)
   wait $lp; local rc=$?
   [ $rc = 0 ] || fail "$1: learner exited $rc: $(tail -5 "$dir/$1.log")"
-  grep -q "stopped because   env step limit 100000" "$dir/$1/summary.txt" ||
-    fail "$1: did not stop on the step limit: $(cat "$dir/$1/summary.txt" 2>/dev/null)"
+  [ "$(summary_of "$dir/$1" 's["reason"]')" = "env step limit 100000" ] ||
+    fail "$1: did not stop on the step limit: $(events "$dir/$1" summary)"
 }
 
 run unevaluated 600
 cat "$dir/unevaluated/summary.txt"
 note="the run stopped on its env step limit before its first evaluation (eval.every_seconds 600)"
-grep -q "^note              $note" "$dir/unevaluated/summary.txt" || fail "no note in the summary"
+summary_of "$dir/unevaluated" 's["note"]' | grep -qF "$note" || fail "no note in the summary: $(events "$dir/unevaluated" summary)"
 
 run evaluated 0.2
 events "$dir/evaluated" evaluation | grep -cF '"label":"eval"' >/dev/null || fail "evaluated: no evaluation before the limit"
-grep -q "^note" "$dir/evaluated/summary.txt" && fail "evaluated: a note where the run was evaluated: $(cat "$dir/evaluated/summary.txt")"
+[ "$(summary_of "$dir/evaluated" 's["note"] == ""')" = true ] ||
+  fail "evaluated: a note where the run was evaluated: $(events "$dir/evaluated" summary)"
 
 farm_test_end

@@ -19,7 +19,7 @@ pendulum_config "$src" it_thief "max_seconds: 16" "$dir/thief.txtpb"
 tp=$!; pids+=($tp)
 wait_text "$dir/thief.log" "joined domain" 15 || fail "the thief did not start: $(cat "$dir/thief.log")"
 sleep 1
-"$worker" --domain $domain --id tw --envs 4 >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+"$worker" --domain $domain --id tw --envs 4 --events "$dir/worker.jsonl" >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
 for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 20 ] && break; sleep 0.2; done
 [ "$(batches_ok "$dir/run")" -gt 20 ] || fail "the worker's batches were not taken: batches_ok $(batches_ok "$dir/run")"
 wait_text "$dir/thief.log" "stealing the stream of tw session" 15 ||
@@ -34,12 +34,12 @@ for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
 wait $wp || fail "the worker exited with $?: $(tail -3 "$dir/worker.log")"
 kill $tp 2>/dev/null
 
-sent=$(sed -n 's/.*finished: \([0-9]*\) batches sent.*/\1/p' "$dir/worker.log")
-line=$(grep -E "^worker +tw session" "$dir/run/summary.txt")
-[ "$(grep -cE "^worker +tw session" "$dir/run/summary.txt")" = 1 ] || fail "tw has not one session in the summary: $line"
-echo "$line" | grep -Eq "received $sent of sequence 0\.\.$((sent - 1)), lost 0, duplicate 0, invalid 0, stream closed" ||
-  fail "the worker sent $sent batches; the learner's account: $line"
-invalid=$(sed -n 's/^batches .*invalid \([0-9]*\).*/\1/p' "$dir/run/summary.txt")
-[ "${invalid:-0}" -gt 0 ] || fail "no batch of the thief was refused, the test shows nothing: $(grep '^batches' "$dir/run/summary.txt")"
+sent=$(event_of "$dir/worker.jsonl" finished 'e["batches_sent"]')
+streams=$(summary_of "$dir/run" 'w("tw")')
+[ "$(summary_of "$dir/run" 'len(w("tw"))')" = 1 ] || fail "tw has not one session in the summary: $streams"
+[ "$(summary_of "$dir/run" '[(f["received"], f["last_sequence"], f["lost"], f["duplicate"], f["invalid"], f["closed"]) for f in w("tw")] == [('"${sent:-0}, $((${sent:-0} - 1))"', 0, 0, 0, True)]')" = true ] ||
+  fail "the worker sent $sent batches; the learner's account: $streams"
+invalid=$(summary_of "$dir/run" 's["batches_invalid"]')
+[ "${invalid:-0}" -gt 0 ] || fail "no batch of the thief was refused, the test shows nothing: $(events "$dir/run" summary)"
 first=$(events "$dir/run" refusal | grep -c "whose heartbeats announced it")
 farm_test_end "tw's $sent batches all taken across the resume, $invalid of the thief's refused ($first refusal event(s) of a thief's first batch)"

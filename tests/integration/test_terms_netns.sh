@@ -64,22 +64,21 @@ done
 
 (cd "$dir/user" && exec ip netns exec $A "$learner" --config my_robot/my_robot.txtpb --run-dir "$dir/run" \
   --domain $domain --dds-profiles "$profiles") >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-wait_text "$dir/learner.log" "waiting for workers" 30 || { fail "the learner did not start: $(tail -5 "$dir/learner.log")"; exit 1; }
+wait_event "$dir/run" start 30 || { fail "the learner did not start: $(tail -5 "$dir/learner.log")"; exit 1; }
 rm -rf "$dir/user/my_robot/model"
 (cd "$dir/empty" && exec ip netns exec $B "$worker" --domain $domain --dds-profiles "$profiles" --id host-b \
-  --envs 8 --threads 1 --log-every 5) >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
+  --envs 8 --threads 1 --log-every 5 --events "$dir/worker.jsonl") >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
 for _ in $(seq 300); do kill -0 $lp 2>/dev/null || break; sleep 0.2; done
 kill -0 $lp 2>/dev/null && fail "the learner runs past 60 s with max_seconds 20: $(tail -3 "$dir/learner.log")"
 wait $lp; rc=$?
 [ $rc = 0 ] || fail "farm-learner exited $rc: $(tail -5 "$dir/learner.log")"
 for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
-grep -q "joined experiment 'my_robot'" "$dir/worker.log" || fail "the worker did not join: $(tail -5 "$dir/worker.log")"
+worker_events "$dir/worker.jsonl" joined | grep -qF '"experiment_id":"my_robot"' || fail "the worker did not join: $(tail -5 "$dir/worker.log")"
 [ -z "$(ls -A "$dir/empty")" ] || fail "the worker wrote into its folder: $(ls -A "$dir/empty")"
-summary=$(cat "$dir/run/summary.txt" 2>/dev/null)
-echo "$summary"
-grep -qE "^batches +ok [1-9][0-9]*, lost 0, duplicate 0, invalid 0" <<<"$summary" ||
-  fail "batch totals: $(grep ^batches <<<"$summary")"
-grep -qE "^evaluations +asked ([1-9][0-9]*), answered \1, lost 0, invalid 0" <<<"$summary" ||
-  fail "evaluations: $(grep ^evaluations <<<"$summary")"
-grep -qE "^worker +host-b session .*lost 0, duplicate 0, invalid 0" <<<"$summary" || fail "worker host-b not in the summary"
+cat "$dir/run/summary.txt" 2>/dev/null
+summary_batches_whole "$dir/run" || fail "batch totals: $(events "$dir/run" summary)"
+[ "$(summary_of "$dir/run" 's["evals_asked"] >= 1 and s["evals_answered"] == s["evals_asked"] and s["evals_lost"] + s["evals_invalid"] == 0')" = true ] ||
+  fail "evaluations: $(events "$dir/run" summary)"
+[ "$(summary_of "$dir/run" 'len(w("host-b")) > 0 and all(f["lost"] + f["duplicate"] + f["invalid"] == 0 for f in w("host-b"))')" = true ] ||
+  fail "worker host-b not in the summary, or its stream lost batches: $(events "$dir/run" summary)"
 farm_test_end

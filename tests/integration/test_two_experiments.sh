@@ -47,16 +47,16 @@ wait_exit() {
 start=$(date +%s)
 "$learner" --config "$dir/sac.txtpb" --run-dir "$dir/sac" --domain $domain >"$dir/sac.log" 2>&1 & sac_pid=$!
 pids+=($sac_pid)
-wait_text "$dir/sac.log" "waiting for workers" 20 || fail "the SAC learner did not start: $(tail -5 "$dir/sac.log")"
+wait_event "$dir/sac" start 20 || fail "the SAC learner did not start: $(tail -5 "$dir/sac.log")"
 # The unbound worker sees only the SAC experiment at first: that one is its experiment for good.
-"$worker" --domain $domain --id free >"$dir/free.log" 2>&1 & free_pid=$!
+"$worker" --domain $domain --id free --events "$dir/free.jsonl" >"$dir/free.log" 2>&1 & free_pid=$!
 pids+=($free_pid)
-wait_text "$dir/free.log" "joined experiment '$sac'" 20 || fail "the unbound worker did not join '$sac'"
+wait_worker_event "$dir/free.jsonl" joined 20 "\"experiment_id\":\"$sac\"" || fail "the unbound worker did not join '$sac'"
 "$learner" --config "$dir/ppo.txtpb" --run-dir "$dir/ppo" --domain $domain >"$dir/ppo.log" 2>&1 & ppo_pid=$!
 pids+=($ppo_pid)
-"$worker" --domain $domain --id sw --experiment $sac >"$dir/sw.log" 2>&1 & sw_pid=$!
+"$worker" --domain $domain --id sw --experiment $sac --events "$dir/sw.jsonl" >"$dir/sw.log" 2>&1 & sw_pid=$!
 pids+=($sw_pid)
-"$worker" --domain $domain --id pw --experiment $ppo >"$dir/pw.log" 2>&1 & pw_pid=$!
+"$worker" --domain $domain --id pw --experiment $ppo --events "$dir/pw.jsonl" >"$dir/pw.log" 2>&1 & pw_pid=$!
 pids+=($pw_pid)
 
 wait_exit $sac_pid 40; rc=$?
@@ -73,17 +73,16 @@ done
 # lost or duplicate, and its log names no other worker.
 check_learner() {
   local name=$1; shift
-  local summary="$dir/$name/summary.txt"
-  [ -f "$summary" ] || { fail "$name: no summary"; return; }
-  echo "--- $name summary"; cat "$summary"
+  local run="$dir/$name"
+  summary_of "$run" 's["reason"]' >/dev/null || { fail "$name: no summary event"; return; }
+  echo "--- $name summary"; cat "$run/summary.txt"
   local ids
-  ids=$(grep '^worker ' "$summary" | awk '{print $2}' | sort | tr '\n' ' ')
-  [ "$ids" = "$(printf '%s\n' "$@" | sort | tr '\n' ' ')" ] || fail "$name: summary has workers '$ids', expected '$*'"
-  grep '^worker ' "$summary" | grep -v ', lost 0, duplicate 0, invalid 0, stream closed' |
-    while read -r line; do echo "FAIL: $name: $line"; done | grep . && failed=1
-  grep -q '^batches .* lost 0, duplicate 0, invalid 0' "$summary" ||
-    fail "$name: batches lost, duplicate or invalid: $(grep '^batches' "$summary")"
-  grep -q '^other experiments [1-9][0-9]* batches of other experiments on the domain, not used' "$summary" ||
+  ids=$(summary_of "$run" '" ".join(sorted(f["worker_id"] for f in s["streams"]))')
+  [ "$ids" = "$(printf '%s\n' "$@" | sort | tr '\n' ' ' | sed 's/ $//')" ] || fail "$name: summary has workers '$ids', expected '$*'"
+  [ "$(summary_of "$run" 'all(f["lost"] + f["duplicate"] + f["invalid"] == 0 and f["closed"] for f in s["streams"])')" = true ] ||
+    fail "$name: a stream lost batches or was not closed: $(summary_of "$run" 's["streams"]')"
+  summary_batches_whole "$run" || fail "$name: batches lost, duplicate or invalid: $(events "$run" summary)"
+  [ "$(summary_of "$run" 's["batches_other_experiments"]')" -gt 0 ] ||
     fail "$name: the other experiment's batches are not counted apart"
   # The live workers of every progress event (what PPO divides its quota by) are its own only.
   live=$(grep '"event":"progress"' "$dir/$name/events.jsonl" | grep -o '"workers":[0-9]*' | cut -d: -f2 | sort -un |
@@ -92,7 +91,7 @@ check_learner() {
   for n in $live; do [ "$n" -le $# ] || fail "$name: counted more than its $# workers live: $live"; done
   for w in free sw pw; do
     printf '%s\n' "$@" | grep -qx "$w" && continue
-    grep -q "worker $w on [^ ]* \(joined\|runs\|is back\|silent\)" "$dir/$name.log" &&
+    events "$dir/$name" worker | grep -qF "\"worker_id\":\"$w\"" &&
       fail "$name: its roster counts worker $w of the other experiment"
   done
 }
@@ -101,10 +100,10 @@ check_learner ppo pw
 
 # Each worker stayed with its experiment; the unbound one noted the other experiment once.
 for w in free sw; do
-  grep -q "joined experiment '$ppo'" "$dir/$w.log" && fail "worker $w joined '$ppo'"
+  worker_events "$dir/$w.jsonl" joined | grep -qF "\"experiment_id\":\"$ppo\"" && fail "worker $w joined '$ppo'"
 done
-grep -q "joined experiment '$sac'" "$dir/pw.log" && fail "worker pw joined '$sac'"
-n=$(grep -c "ignores experiment '$ppo'" "$dir/free.log")
+worker_events "$dir/pw.jsonl" joined | grep -qF "\"experiment_id\":\"$sac\"" && fail "worker pw joined '$sac'"
+n=$(worker_events "$dir/free.jsonl" foreign | grep -cF "\"experiment_id\":\"$ppo\"")
 [ "$n" = 1 ] || fail "worker free noted the experiment '$ppo' $n times, expected once"
 echo "--- worker free"; cat "$dir/free.log"
 echo "run time $(($(date +%s) - start)) s"

@@ -35,25 +35,26 @@ timeout 120 "$learner" --config "$dir/alone.txtpb" --run-dir "$dir/alone" --doma
 rc=$?
 [ $rc = 0 ] || fail "alone: learner exited $rc: $(tail -5 "$dir/alone.log")"
 # It gave up after worker_timeout_seconds (2 s) without a worker, far below the 60 s answer timeout.
-waited=$(sed -n 's/.*final evaluation of policy v0 not answered (no live worker took it) after \([0-9]*\) s.*/\1/p' "$dir/alone.log")
+waited=$(event_of "$dir/alone/events.jsonl" eval_not_answered 'int(e["waited_s"]) if e["label"] == "final" and e["worker_id"] == "" else ""')
 [ -n "$waited" ] && [ "$waited" -le 10 ] || fail "alone: the final evaluation was waited for '${waited:-?}' s without workers"
-grep -q "waits for a live worker (none now)" "$dir/alone.log" || fail "alone: no line saying the evaluation waits"
-grep -q "^evaluations       asked 0, answered 0, lost 0, invalid 0" "$dir/alone/summary.txt" ||
-  fail "alone: summary: $(grep evaluations "$dir/alone/summary.txt")"
+events "$dir/alone" eval_waits | grep -qF '"label":"final"' || fail "alone: no event saying the evaluation waits"
+[ "$(summary_of "$dir/alone" 's["evals_asked"], s["evals_answered"], s["evals_lost"], s["evals_invalid"]')" = "0 0 0 0" ] ||
+  fail "alone: summary: $(events "$dir/alone" summary)"
 
 # 2. Two workers, one killed while it evaluates.
 config two 8000 25
-"$learner" --config "$dir/two.txtpb" --run-dir "$dir/two" --domain $domain >"$dir/two.log" 2>&1 & lp=$!
+run="$dir/two"
+"$learner" --config "$dir/two.txtpb" --run-dir "$run" --domain $domain >"$dir/two.log" 2>&1 & lp=$!
 pids+=($lp)
-"$worker" --domain $domain --id ev-1 >"$dir/ev-1.log" 2>&1 & w1=$!
-"$worker" --domain $domain --id ev-2 >"$dir/ev-2.log" 2>&1 & w2=$!
+"$worker" --domain $domain --id ev-1 --events "$dir/ev-1.jsonl" >"$dir/ev-1.log" 2>&1 & w1=$!
+"$worker" --domain $domain --id ev-2 --events "$dir/ev-2.jsonl" >"$dir/ev-2.log" 2>&1 & w2=$!
 pids+=($w1 $w2)
 # Both workers answer before the kill.
 for w in ev-1 ev-2; do
-  wait_text "$dir/two.log" "answered by $w " 60 || fail "no evaluation answered by $w within 60 s"
+  wait_event "$run" answer 60 "\"worker_id\":\"$w\"" || fail "no evaluation answered by $w within 60 s"
 done
 # worker.nice: each worker's threads, its evaluation thread among them, at nice 7 (this shell's own
-# nice, if higher, is what they keep); the join line says so.
+# nice, if higher, is what they keep); its joined event says so.
 base=$(nice)
 want=$((base > 7 ? base : 7))
 for w in ev-1:$w1 ev-2:$w2; do
@@ -62,55 +63,78 @@ for w in ev-1:$w1 ev-2:$w2; do
   n=$(wc -w <<<"$nices")
   [ "$n" -ge 3 ] && [ -z "$(tr ' ' '\n' <<<"$nices" | grep -v "^$want\$" | grep -v '^$')" ] ||
     fail "${w%%:*}: its $n threads' nice values are '$nices', not all $want (worker.nice 7)"
-  grep -q "joined experiment .*, nice 7 (worker.nice) on [0-9]* threads" "$dir/${w%%:*}.log" ||
-    fail "${w%%:*}: the join line does not give its nice: $(grep joined "$dir/${w%%:*}.log")"
+  [ "$(event_of "$dir/${w%%:*}.jsonl" joined 'e["nice"]')" = 7 ] ||
+    fail "${w%%:*}: the joined event does not give its nice: $(worker_events "$dir/${w%%:*}.jsonl" joined)"
 done
 # Each evaluation is split over the two workers (eval.min_episodes_per_worker: 4 by default): 4,000
 # episodes each, asked of both, reported once as 8,000.
-wait_text "$dir/two.log" "complete: 8000 episodes from 2 workers" 60 ||
-  fail "no evaluation reported as 8000 episodes from 2 workers: $(grep 'asked of worker' "$dir/two.log" | head -4)"
-first=$(grep "asked of worker" "$dir/two.log" | grep -A1 -m1 "4000 episodes, part 1 of 2, 8000 in all, #0-3999 of seed ")
-grep -q "(eval, policy v[0-9]*, 4000 episodes, part 2 of 2, 8000 in all, #4000-7999 of seed [0-9]*) asked of worker ev-" \
-  <<<"$first" && [ "$(grep -o 'asked of worker ev-[12]' <<<"$first" | sort -u | wc -l)" = 2 ] ||
-  fail "no evaluation asked as two parts of 4000 of the two workers: $first"
-# Both parts carry the evaluation's seed (episode k of it is reset from that seed and k on any
-# worker), so the split runs the episodes one worker would run whole.
-[ "$(grep -o ' of seed [0-9]*)' <<<"$first" | sort -u | wc -l)" = 1 ] ||
-  fail "the two parts of one evaluation carry different seeds: $first"
-# The next request: its worker is killed as soon as it says it has it.
-asked=$(grep -c "asked of worker" "$dir/two.log")
-for _ in $(seq 150); do [ "$(grep -c "asked of worker" "$dir/two.log")" -gt "$asked" ] && break; sleep 0.1; done
-line=$(grep "asked of worker" "$dir/two.log" | sed -n "$((asked + 1))p")
-id=$(sed -n 's/.*evaluation \([0-9]*\) (eval.*/\1/p' <<<"$line") victim=$(sed -n 's/.*asked of worker \(ev-[12]\)$/\1/p' <<<"$line")
-[ -n "$id" ] && [ -n "$victim" ] || fail "no new evaluation request to kill a worker on: '$line'"
-if [ -n "$id" ] && [ -n "$victim" ]; then
-  wait_text "$dir/$victim.log" "evaluation request $id:" 20 || fail "$victim never said it has request $id"
+for _ in $(seq 300); do has_event "$run/events.jsonl" evaluation episodes=8000 workers=2 && break; sleep 0.2; done
+has_event "$run/events.jsonl" evaluation episodes=8000 workers=2 ||
+  fail "no evaluation reported as 8000 episodes from 2 workers: $(events "$run" evaluation | head -4)"
+# The first split evaluation's two parts: 4000 episodes each, #0-3999 and #4000-7999 of one seed
+# (episode k of it is reset from that seed and k on any worker, so the split runs the episodes one
+# worker would run whole), asked of the two workers.
+parts=$(python3 -c "$_read_events_py"'
+asks = [a for a in read(sys.argv[1], "ask") if a["label"] == "eval" and a["attempt"] == 1]
+first = [a for a in asks if a["part"] == 1 and a["parts"] == 2][:1]
+first += [a for a in asks if first and a["policy_version"] == first[0]["policy_version"] and a["part"] == 2][:1]
+ok = (len(first) == 2 and [(a["episodes"], a["total_episodes"], a["first_episode"]) for a in first]
+      == [(4000, 8000, 0), (4000, 8000, 4000)] and first[0]["seed"] == first[1]["seed"]
+      and {a["worker_id"] for a in first} == {"ev-1", "ev-2"})
+print("ok" if ok else first)
+' "$run/events.jsonl" 2>&1)
+[ "$parts" = ok ] || fail "no evaluation asked as two parts of 4000 of one seed of the two workers: $parts"
+# A request out now (asked, neither answered nor lost): its worker is killed as soon as it says it
+# has it.
+id="" victim=""
+for _ in $(seq 60); do
+  read -r id victim < <(python3 -c "$_read_events_py"'
+done = {e["request_id"] for kind in ("answer", "eval_lost") for e in read(sys.argv[1], kind)}
+out = [a for a in read(sys.argv[1], "ask") if a["label"] == "eval" and a["request_id"] not in done]
+print(out[-1]["request_id"], out[-1]["worker_id"]) if out else print()
+' "$run/events.jsonl" 2>/dev/null)
+  [ -n "${id:-}" ] && break
+  sleep 0.25
+done
+[ -n "${id:-}" ] && [ -n "${victim:-}" ] || fail "no evaluation request out to kill a worker on"
+if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
+  for _ in $(seq 100); do has_event "$dir/$victim.jsonl" eval_request request_id=$id && break; sleep 0.2; done
+  has_event "$dir/$victim.jsonl" eval_request request_id=$id || fail "$victim never said it has request $id"
   # Before the kill every evaluation asked was answered.
-  grep -q "evals asked \([0-9]*\) answered \1 lost 0 invalid 0" "$dir/two.log" ||
-    fail "no progress line with asked == answered, lost 0, invalid 0 before the kill"
+  events "$run" progress | python3 -c '
+import json, sys
+sys.exit(not any(e["evals_asked"] == e["evals_answered"] and e["evals_lost"] == 0 and e["evals_invalid"] == 0
+                 for e in map(json.loads, sys.stdin)))' ||
+    fail "no progress event with asked == answered, lost 0, invalid 0 before the kill"
   if [ "$victim" = ev-1 ]; then kill -9 $w1; other=ev-2; else kill -9 $w2; other=ev-1; fi
   echo "killed $victim holding evaluation $id"
-  grep -q "evaluation $id answered" "$dir/$victim.log" && fail "$victim answered $id before the kill: the test proves nothing"
+  has_event "$dir/$victim.jsonl" eval_answered request_id=$id &&
+    fail "$victim answered $id before the kill: the test proves nothing"
 fi
 wait $lp; rc=$?
 [ $rc = 0 ] || fail "learner exited $rc: $(tail -5 "$dir/two.log")"
-grep "evaluation\|eval:" "$dir/two.log" | tail -12
+events "$run" ask | tail -6
 if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
-  grep -q "evaluation $id (policy v[0-9]*) asked of $victim lost: its worker is no longer live; asked again" \
-    "$dir/two.log" || fail "request $id not counted lost when $victim died"
-  # The second try is the first one asked after the loss (it may wait for a live worker first).
-  retry=$(sed -n "/evaluation $id (policy v[0-9]*) asked of $victim lost/,\$p" "$dir/two.log" | grep -m1 "second try, #[^)]*) asked of" |
-    sed -n 's/.*evaluation \([0-9]*\) (eval, policy v[0-9]*, [0-9]* episodes[^)]*, second try, #[^)]*) asked of worker \(ev-[12]\)$/\1 \2/p')
-  [ "${retry#* }" = "$other" ] || fail "the lost request was not asked again of $other: '$retry'"
-  grep -q "evaluation ${retry%% *} answered by $other " "$dir/two.log" || fail "the second try was not answered"
+  has_event "$run/events.jsonl" eval_lost request_id=$id "worker_id=\"$victim\"" ||
+    fail "request $id not counted lost when $victim died: $(events "$run" eval_lost)"
+  # The second try is the first part asked again after the loss (it may wait for a live worker first).
+  read -r retry retried_of < <(events "$run" ask | python3 -c '
+import json, sys
+for e in map(json.loads, sys.stdin):
+    if e["attempt"] == 2 and e["label"] == "eval":
+        print(e["request_id"], e["worker_id"])
+        break' 2>/dev/null)
+  [ "${retried_of:-}" = "$other" ] || fail "the lost request was not asked again of $other: '${retry:-} ${retried_of:-}'"
+  has_event "$run/events.jsonl" answer request_id=${retry:-0} "worker_id=\"$other\"" ||
+    fail "the second try was not answered"
 fi
-summary=$(grep "^evaluations" "$dir/two/summary.txt")
-echo "$summary"
-read -r a b l i <<<"$(sed -n 's/^evaluations *asked \([0-9]*\), answered \([0-9]*\), lost \([0-9]*\), invalid \([0-9]*\).*/\1 \2 \3 \4/p' <<<"$summary")"
+read -r a b l i < <(summary_of "$run" 's["evals_asked"], s["evals_answered"], s["evals_lost"], s["evals_invalid"]')
+summary="asked ${a:-none}, answered ${b:-none}, lost ${l:-none}, invalid ${i:-none}"
+echo "evaluations $summary"
 [ -n "${l:-}" ] && [ "$l" -ge 1 ] && [ "${i:-}" = 0 ] && [ "$a" = $((b + l)) ] || fail "summary counts: $summary"
 # Each part counted lost has its eval_lost event. All were asked of the killed worker: the one it
 # held, and any the learner asked of it before it saw the worker gone (worker_timeout_seconds 2).
-lost_events=$(events "$dir/two" eval_lost)
+lost_events=$(events "$run" eval_lost)
 [ "$(grep -c . <<<"$lost_events")" = "${l:-}" ] || fail "summary says $l lost, events say: $lost_events"
 if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
   grep -q "\"request_id\":$id,.*\"worker_id\":\"$victim\"" <<<"$lost_events" ||
@@ -118,5 +142,6 @@ if [ -n "${id:-}" ] && [ -n "${victim:-}" ]; then
   [ -z "$(grep -v "\"worker_id\":\"$victim\"" <<<"$lost_events")" ] ||
     fail "a part asked of another worker than $victim was lost: $lost_events"
 fi
-grep -q "^final eval return  *-\?[0-9]" "$dir/two/summary.txt" || fail "no final eval return: $(cat "$dir/two/summary.txt")"
+events "$run" evaluation | grep -F '"label":"final"' | grep -q '"mean":-\?[0-9]' ||
+  fail "no final evaluation's return: $(events "$run" evaluation)"
 farm_test_end "evaluations answered by workers; a killed worker's request lost and answered by the other"

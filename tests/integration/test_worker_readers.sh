@@ -21,6 +21,5 @@ peak_after=$(peak_kb $wp)
 during=$(batches_ok "$dir/run")
 [ "$during" -gt "$before" ] || fail "no batch arrived during the attack: $before before, $during after"
 wait $lp || fail "the learner exited with $?: $(tail -3 "$dir/learner.log")"
-grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$dir/run/summary.txt" ||
-  fail "batches lost or invalid: $(grep '^batches' "$dir/run/summary.txt")"
+summary_batches_whole "$dir/run" 0 || fail "batches lost or invalid: $(events "$dir/run" summary)"
 farm_test_end "worker peak ${peak_before} kB before, ${peak_after} kB after; batches_ok $before, $during; $(tail -1 "$dir/intruder.log")"

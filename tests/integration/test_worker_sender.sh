@@ -36,9 +36,10 @@ wait_exit() {
   return 124
 }
 
-"$worker" --domain $domain --id slow --inject-publish-delay 800 --log-every 1 >"$dir/slow.log" 2>&1 & slow_pid=$!
+"$worker" --domain $domain --id slow --inject-publish-delay 800 --log-every 1 --events "$dir/slow.jsonl" \
+  >"$dir/slow.log" 2>&1 & slow_pid=$!
 pids+=($slow_pid)
-"$worker" --domain $domain --id fast --log-every 1 >"$dir/fast.log" 2>&1 & fast_pid=$!
+"$worker" --domain $domain --id fast --log-every 1 --events "$dir/fast.jsonl" >"$dir/fast.log" 2>&1 & fast_pid=$!
 pids+=($fast_pid)
 "$learner" --config "$dir/sac.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & learner_pid=$!
 pids+=($learner_pid)
@@ -51,26 +52,31 @@ for w in slow fast; do
   [ $rc = 0 ] || fail "worker $w exit $rc: $(tail -5 "$dir/$w.log")"
 done
 
-# Simulation went on during a write: a line with two batches' steps beyond what was written, in
-# back-pressure, with most of the interval spent waiting for a free buffer.
-ahead=$(sed -n 's/.* backpressure: [0-9]* steps\/s (collect: .*backpressure \([0-9]*\)%.*; sender: publish [0-9]*%), \([0-9]*\) batches sent, \([0-9]*\) env steps,.*/\1 \2 \3/p' "$dir/slow.log" |
-  awk -v batch=$batch '$3 >= ($2 + 2) * batch && $1 >= 50 { n++ } END { print n + 0 }')
+# Simulation went on during a write: a progress event of the slowed worker with two batches' steps
+# beyond what was written, in back-pressure, with half the interval or more spent waiting for a free
+# buffer.
+ahead=$(python3 -c '
+import json, sys
+batch = int(sys.argv[2])
+n = 0
+for line in open(sys.argv[1]):
+    e = json.loads(line)
+    if e.get("event") == "progress" and e["state"] == "backpressure" and e["backpressure"] is not None:
+        n += e["env_steps"] >= (e["batches_sent"] + 2) * batch and e["backpressure"] >= 0.495
+print(n)
+' "$dir/slow.jsonl" "$batch" 2>/dev/null || echo 0)
 [ "$ahead" -ge 2 ] ||
-  fail "the slowed worker never collected two batches beyond those written while in back-pressure ($ahead lines):
-$(grep -E 'steps/s' "$dir/slow.log" | head -8)"
+  fail "the slowed worker never collected two batches beyond those written while in back-pressure ($ahead events):
+$(worker_events "$dir/slow.jsonl" progress | head -8)"
 
-summary="$dir/run/summary.txt"
-[ -s "$summary" ] || fail "no summary: $(tail -5 "$dir/learner.log")"
-grep -Eq "^batches +ok [0-9]+, lost 0, duplicate 0, invalid 0" "$summary" ||
-  fail "batches lost, duplicate or invalid: $(grep '^batches' "$summary")"
+summary_of "$dir/run" 's["reason"]' >/dev/null || fail "no summary event: $(tail -5 "$dir/learner.log")"
+summary_batches_whole "$dir/run" 0 || fail "batches lost, duplicate or invalid: $(events "$dir/run" summary)"
 for w in slow fast; do
-  sent=$(sed -n 's/.*finished: \([0-9]*\) batches sent (sequence 0\.\.\([0-9]*\)).*/\1/p' "$dir/$w.log")
+  sent=$(event_of "$dir/$w.jsonl" finished 'e["batches_sent"]')
   [ -n "$sent" ] && [ "$sent" -ge 5 ] || fail "worker $w sent ${sent:-no} batches (5 or more expected)"
-  line=$(grep -E "^worker +$w session [0-9]+:" "$summary")
-  [[ "$line" =~ received\ ([0-9]+)\ of\ sequence\ 0\.\.([0-9]+),\ lost\ 0,\ duplicate\ 0,\ invalid\ 0,\ stream\ closed ]] ||
-    fail "worker $w's stream at the learner: '$line'"
-  [ "${BASH_REMATCH[1]:-x}" = "${sent:-y}" ] && [ "${BASH_REMATCH[2]:-x}" = "$((${sent:-0} - 1))" ] ||
+  line=$(summary_of "$dir/run" 'w("'"$w"'")')
+  [ "$(summary_of "$dir/run" '[(f["received"], f["last_sequence"], f["lost"], f["duplicate"], f["invalid"], f["closed"]) for f in w("'"$w"'")] == [('"${sent:-0}, $((${sent:-0} - 1))"', 0, 0, 0, True)]')" = true ] ||
     fail "worker $w sent $sent batches, the learner: '$line'"
 done
-echo "slowed worker: $ahead lines two batches ahead of its writes; $(grep -E '^worker ' "$summary" | tr -s ' ' | paste -sd ';')"
+echo "slowed worker: $ahead lines two batches ahead of its writes; $(summary_of "$dir/run" 's["streams"]')"
 farm_test_end "a slowed worker simulates ahead of its writes; every batch once, in order, streams closed"
