@@ -16,7 +16,7 @@
 #include "meter.h"
 #include "pacing.h"
 #include "pacing_stats.h"
-#include "samples_per_insert.h"
+#include "replay_schedule.h"
 
 namespace farm {
 
@@ -76,8 +76,9 @@ class ReplayPacing final : public Pacing {
       : Pacing(std::move(algo), cfg, spec),
         batch_size_(int(section_number(cfg_, "batch_size"))),
         per_step_(updates_per_step(cfg_)),
-        publish_every_(int(section_number(cfg_, "publish_every_updates"))),
-        limiter_(int64_t(section_number(cfg_, "learning_starts")), per_step_, cfg_.stop().max_updates()) {}
+        schedule_{
+            SamplesPerInsert(int64_t(section_number(cfg_, "learning_starts")), per_step_, cfg_.stop().max_updates()),
+            kUpdatesPerGroup, int(section_number(cfg_, "publish_every_updates")), cfg_.eval().every_seconds()} {}
 
   const StatsSchema& row_schema() const override { return schema_; }
   uint64_t version() const override { return version_ > 0 ? version_ - 1 : 0; }
@@ -96,30 +97,25 @@ class ReplayPacing final : public Pacing {
 
   double train(Farm& farm, bool got_data) override {
     if (!diverged_.empty()) throw std::runtime_error(diverged_);
-    // One group of updates between looks at the bus: on a GPU the algorithm queues them back to
+    // What this pass does (replay_schedule.h), from counts and clocks; carried out below. The
+    // updates are one group between looks at the bus: on a GPU the algorithm queues them back to
     // back, and returns while the last still run.
-    const int ready = int(std::min<int64_t>(algo_->ready(), kUpdatesPerGroup));
-    const int n = limiter_.allowed(algo_->updates(), algo_->holding().rows, farm.env_steps(), ready);
-    if (n > 0) {
-      check(algo_->update(n, version_));
-      samples_ += double(n) * batch_size_ * step_scale_;
-      updates_meter_.add(n);
-      updates_since_publish_ += n;
+    const ReplayDecision d =
+        schedule_.decide({algo_->updates(), algo_->holding().rows, farm.env_steps(), algo_->ready(),
+                          updates_since_publish_, batches_since_publish_, got_data, now_seconds() - last_eval_time_});
+    if (d.updates > 0) {
+      check(algo_->update(d.updates, version_));
+      samples_ += double(d.updates) * batch_size_ * step_scale_;
+      updates_meter_.add(d.updates);
+      updates_since_publish_ += d.updates;
     }
     if (algo_->max_step_scale() > 1) adapt_step(farm);
-    if (updates_since_publish_ >= publish_every_) publish_weights(farm);
-    double wait = 0;
-    if (n == 0) {
-      // Starved (no data, or the limiter holds): let the workers' throttle go with a new version,
-      // so neither side waits for the other.
-      if (updates_since_publish_ > 0 || batches_since_publish_ > 0) publish_weights(farm);
-      if (!got_data) wait = 0.01;
-    }
-    if (now_seconds() - last_eval_time_ >= cfg_.eval().every_seconds() && algo_->updates() > 0) {
+    if (d.publish) publish_weights(farm);
+    if (d.evaluate) {
       ask_evaluation(farm, cfg_.eval().episodes(), farm.elapsed(), "eval");  // answered later: evaluated()
       last_eval_time_ = now_seconds();
     }
-    return wait;
+    return d.wait;
   }
 
   void hold_workers(Farm& farm) override { farm.publish(policy(), 1); }
@@ -229,8 +225,7 @@ class ReplayPacing final : public Pacing {
   const StatsSchema schema_ = stats::replay_schema();
   const int batch_size_;  // the config's; the step scale multiplies it
   const double per_step_;
-  const int publish_every_;
-  const SamplesPerInsert limiter_;
+  const ReplaySchedule schedule_;
   Meter updates_meter_;
   int updates_since_publish_ = 0, batches_since_publish_ = 0;
   double last_eval_ = NAN, last_eval_time_ = 0, final_return_ = NAN;

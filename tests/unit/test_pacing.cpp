@@ -1,8 +1,9 @@
-// The replay pacing (learner/replay_pacing.cpp, samples_per_insert.h): the samples-per-insert
-// limiter; sac.max_step_scale's rule, SAC keeping the configured step on the CPU, and the pacing
-// growing and shrinking the step against the env steps a farm reports; and updates that are still
-// running on a GPU when update() returns: their figures are checked before any weights leave the
-// learner. Then PPO's resume: the steps not yet fitted and the round pacing's accounts.
+// The replay pacing (learner/replay_pacing.cpp, samples_per_insert.h, replay_schedule.h): the
+// samples-per-insert limiter; each pass's decision from counts and clocks alone; sac.max_step_scale's
+// rule, SAC keeping the configured step on the CPU, and the pacing growing and shrinking the step
+// against the env steps a farm reports; and updates that are still running on a GPU when update()
+// returns: their figures are checked before any weights leave the learner. Then PPO's resume: the
+// steps not yet fitted and the round pacing's accounts.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -24,6 +25,7 @@
 #include "pacing.h"
 #include "paths.h"  // remove_tree: std::filesystem::remove_all crashes the GPU build
 #include "registry.h"
+#include "replay_schedule.h"
 #include "samples_per_insert.h"
 #include "step_size.h"
 #include "task_specs.h"
@@ -228,6 +230,50 @@ TEST(SamplesPerInsert, HoldsUpdatesToTheDataAndTheLimit) {
   EXPECT_EQ(lim.allowed(0, 100, 1000000, 8), 8) << "at most `most`";
   EXPECT_EQ(lim.allowed(996, 100, 1000000, 8), 4) << "none past max_updates";
   EXPECT_EQ(SamplesPerInsert(0, 2.0, 0).allowed(5000, 1, 10000, 3), 3) << "no max_updates";
+}
+
+// A pass's decision from counts and clocks alone: updates as the limiter allows within a group, a
+// version after every publish_every updates or whenever the pass is starved with something new, an
+// evaluation on its timer once an update has run, and a short wait only when nothing came.
+TEST(ReplaySchedule, DecidesUpdatesPublishingAndEvaluationsFromCountsAndClocks) {
+  const ReplaySchedule sched{SamplesPerInsert(100, 0.5, 0), 8, 25, 5.0};
+  ReplaySnapshot s;
+  s.rows = 99;
+  s.ready = 8;
+  s.env_steps = 1000;
+  ReplayDecision d = sched.decide(s);
+  EXPECT_EQ(d.updates, 0) << "below learning_starts";
+  EXPECT_FALSE(d.publish) << "nothing new since the last version";
+  EXPECT_FALSE(d.evaluate);
+  EXPECT_DOUBLE_EQ(d.wait, 0.01) << "no update and no data: the runner may wait";
+  s.got_data = true;
+  s.batches_since_publish = 3;
+  d = sched.decide(s);
+  EXPECT_TRUE(d.publish) << "starved with batches since the last version: a new one lets the workers go";
+  EXPECT_DOUBLE_EQ(d.wait, 0.0);
+
+  s.rows = 1000;
+  s.batches_since_publish = 0;
+  d = sched.decide(s);
+  EXPECT_EQ(d.updates, 8) << "a group";
+  EXPECT_FALSE(d.publish) << "8 of 25 updates";
+  s.ready = 3;
+  EXPECT_EQ(sched.decide(s).updates, 3) << "what the algorithm has the data for";
+  s.ready = 8;
+  s.updates = 495;  // 0.5 x 1000 + 1 allows updates 0..500
+  EXPECT_EQ(sched.decide(s).updates, 6) << "what the data received allows";
+  s.updates = 100;
+  s.updates_since_publish = 20;
+  d = sched.decide(s);
+  EXPECT_TRUE(d.publish) << "20 + 8 updates since the last version";
+
+  s.since_eval = 4.9;
+  EXPECT_FALSE(sched.decide(s).evaluate);
+  s.since_eval = 5.0;
+  EXPECT_TRUE(sched.decide(s).evaluate);
+  s.updates = 0;
+  s.rows = 10;
+  EXPECT_FALSE(sched.decide(s).evaluate) << "no update has run yet";
 }
 
 // The driver's side of sac.max_step_scale: while the env steps received allow far more updates
