@@ -39,6 +39,7 @@ bench_scale|tests/bench_scale|--envs|abc|2
 bench_transport|tests/bench_transport|--seconds|abc|2
 bench_worker|tests/bench_worker|--envs|abc|2
 discovery_participant|tests/discovery_participant|--expect|abc|2
+farm_eval_actions|tests/farm_eval_actions|--episodes|abc|2
 "
 
 checked=0
