@@ -20,7 +20,7 @@
 # A run that ends on a limit, not at the goal, shows "-" and counts as not within the bound. Below
 # the table: each count's median time to goal (and the median ratio) over the seeds that reached
 # it, a sign test of the ratios against the bound, then each run's evaluations from its learner's
-# log (the goal's metric at the time asked), then per count the updates made when the goal's
+# events (the goal's metric at the time asked), then per count the updates made when the goal's
 # evaluation was asked.
 set -euo pipefail
 if [ $# -lt 5 ]; then
@@ -140,42 +140,63 @@ for c in "${count_list[@]:1}"; do
   }'
 done
 
-# Each run's evaluations, from its learner's log: the goal's metric (else the mean return) and
-# the time the evaluation was asked.
+# A run's training evaluations (label "eval", not the final one) from its learner's events
+# (RUN/events.jsonl, "evaluation" events):
+#   evaluations EVENTS curve METRIC  " VALUE@ASKED ...": METRIC "mean return" the mean return (to
+#                                    0.1), another that metric's mean (to 0.001), and the seconds of
+#                                    the run when it was asked (to 0.1); one without the value left out
+#   evaluations EVENTS updates T     the updates made when the one asked at T s (to 0.1) was asked,
+#                                    else "-"
+evaluations() {
+  python3 - "$@" <<'PY'
+import json, sys
+path, mode, arg = sys.argv[1:4]
+found = []
+for line in open(path, errors="replace"):
+    try:
+        e = json.loads(line)
+    except ValueError:
+        continue  # a line cut short by a killed run
+    if e.get("event") == "evaluation" and e.get("label") == "eval" and e.get("asked_elapsed_s") is not None:
+        found.append(e)
+if mode == "curve":
+    out = ""
+    for e in found:
+        v = e.get("mean") if arg == "mean return" else (e.get("metrics") or {}).get(arg)
+        if v is not None:
+            out += (" %.1f@%.1f" if arg == "mean return" else " %.3f@%.1f") % (v, e["asked_elapsed_s"])
+    print(out)
+else:
+    at = [e["updates"] for e in found if "%.1f" % e["asked_elapsed_s"] == arg and e.get("updates") is not None]
+    print(at[-1] if at else "-")
+PY
+}
+
+# Each run's evaluations: the goal's metric (else the mean return) and the time it was asked.
 metric=$(sed -n 's/.*metric: *"\([a-z_]*\)".*/\1/p' <<<"$stop")
 metric=${metric:-mean return}
 echo
 echo "evaluations ($metric at the time asked):"
 for s in "${seed_list[@]}"; do
   for c in "${count_list[@]}"; do
-    log="$out/seed$s/w$c/learner.log"
+    events="$out/seed$s/w$c/learner/events.jsonl"
     evals=""
-    if [ -r "$log" ]; then
-      evals=$(awk -v m="$metric" '/\] eval: / {
-          v = ""; tm = ""
-          if (match($0, m " -?[0-9.]+")) v = substr($0, RSTART + length(m) + 1, RLENGTH - length(m) - 1)
-          if (match($0, ", [0-9.]+ s\)$")) tm = substr($0, RSTART + 2, RLENGTH - 5)
-          if (v != "") printf " %s@%s", v, tm
-        }' "$log")
-    fi
+    if [ -r "$events" ]; then evals=$(evaluations "$events" curve "$metric"); fi
     echo "seed $s, $c workers:${evals:- none}"
   done
 done
 
-# The updates made when the goal's evaluation was asked (its learner's `eval:` line at the time to
-# goal), per count in the seeds' order: whether more workers reached the goal with fewer updates or
-# only with more updates per second. "-" where a run missed the goal or its log has no such line.
+# The updates made when the goal's evaluation was asked (the learner's evaluation asked at the time
+# to goal), per count in the seeds' order: whether more workers reached the goal with fewer updates
+# or only with more updates per second. "-" where a run missed the goal or its events have no such
+# evaluation.
 echo
 echo "updates when the goal's evaluation was asked:"
 for c in "${count_list[@]}"; do
   list="" vals=""
   for s in "${seed_list[@]}"; do
-    t=${time_at["$s $c"]} log="$out/seed$s/w$c/learner.log" u="-"
-    if [ "$t" != "-" ] && [ -r "$log" ]; then
-      u=$(awk -v t="$t" '/\] eval: / && index($0, ", " t " s)") {
-          if (match($0, "[0-9]+ updates, ")) u = substr($0, RSTART, RLENGTH - 10) }
-        END { print (u == "" ? "-" : u) }' "$log")
-    fi
+    t=${time_at["$s $c"]} events="$out/seed$s/w$c/learner/events.jsonl" u="-"
+    if [ "$t" != "-" ] && [ -r "$events" ]; then u=$(evaluations "$events" updates "$t"); fi
     list+=" $u"
     vals+="$u"$'\n'
   done

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # tests/bench/bench_seeds.sh REPORT_ONLY=1: its table from runs already made (bench_workers.sh
-# rows and learner logs; with GOAL_RETURN, their events): each ratio, the count within the bound (a run that missed the goal is
-# not), the medians over the seeds that reached the goal, each run's evaluations, the updates at
+# rows and the learners' events): each ratio, the count within the bound (a run that missed the goal
+# is not), the medians over the seeds that reached the goal, each run's evaluations, the updates at
 # each run's goal evaluation, and the errors.
 # usage: test_bench_seeds.sh SOURCE_DIR
 set -euo pipefail
@@ -21,18 +21,21 @@ row 1 2 35.1 1131 0.2477; row 1 15 5.0 2460 0.0815
 row 2 2 25.0 1228 0.2463; row 2 15 12.5 2561 0.0860   # exactly half: within
 row 3 2 30.0 1090 0.2471; row 3 15 25.1 2784 0.0949
 row 4 2 40.1 1372 0.2482; row 4 15 - 2577 0.0613       # stopped on a limit
-mkdir -p "$T/out/seed1/w2"
-cat >"$T/out/seed1/w2/learner.log" <<'LOG'
-[learner] eval: mean return 9.7 over 30 deterministic episodes, success 0.000, time_s 8.1 (policy v38, 1200 updates, 5.0 s)
-[learner] sac step x4 from update 3008
-[learner] eval: mean return 13.0 over 30 deterministic episodes, success 0.967, time_s 6.7 (policy v829, 26304 updates, 35.1 s)
-LOG
-mkdir -p "$T/out/seed1/w15"
-cat >"$T/out/seed1/w15/learner.log" <<'LOG'
-[learner] eval: mean return 2.0 over 30 deterministic episodes, success 0.500, time_s 9.0 (policy v20, 1500 updates, 2.5 s)
-[learner] eval: mean return 12.0 over 30 deterministic episodes, success 0.967, time_s 6.0 (policy v430, 13864 updates, 5.0 s)
-[learner] final: mean return 12.5 over 100 deterministic episodes, success 0.980, time_s 6.0 (policy v431, 14100 updates, 6.1 s)
-LOG
+# The learners' evaluation events (learner/events.h): an evaluation given up (no answer) and other
+# kinds are not evaluations; the final one is not a training evaluation.
+mkdir -p "$T/out/seed1/w2/learner"
+cat >"$T/out/seed1/w2/learner/events.jsonl" <<'EV'
+{"event":"evaluation","elapsed_s":5.9,"label":"eval","policy_version":38,"updates":1200,"asked_elapsed_s":5.0,"episodes":30,"mean":9.7,"min":1.0,"max":12.0,"metrics":{"success":0.0,"time_s":8.1},"confirmed":true}
+{"event":"progress","elapsed_s":10.0,"updates":3008,"eval_return":9.7}
+{"event":"evaluation","elapsed_s":30.2,"label":"eval","policy_version":700,"episodes":0,"given_up":true}
+{"event":"evaluation","elapsed_s":35.8,"label":"eval","policy_version":829,"updates":26304,"asked_elapsed_s":35.1,"episodes":30,"mean":13.0,"min":11.0,"max":14.0,"metrics":{"success":0.9666666666666667,"time_s":6.7},"confirmed":true}
+EV
+mkdir -p "$T/out/seed1/w15/learner"
+cat >"$T/out/seed1/w15/learner/events.jsonl" <<'EV'
+{"event":"evaluation","elapsed_s":3.1,"label":"eval","policy_version":20,"updates":1500,"asked_elapsed_s":2.5,"episodes":30,"mean":2.0,"min":0.0,"max":4.0,"metrics":{"success":0.5,"time_s":9.0},"confirmed":true}
+{"event":"evaluation","elapsed_s":5.6,"label":"eval","policy_version":430,"updates":13864,"asked_elapsed_s":5.0,"episodes":30,"mean":12.0,"min":10.0,"max":13.0,"metrics":{"success":0.9666666666666667,"time_s":6.0},"confirmed":true}
+{"event":"evaluation","elapsed_s":7.0,"label":"final","policy_version":431,"updates":14100,"asked_elapsed_s":6.1,"episodes":100,"mean":12.5,"min":10.0,"max":13.0,"metrics":{"success":0.98,"time_s":6.0},"confirmed":true}
+EV
 bs() { REPORT_ONLY=1 bash "$SRC/tests/bench/bench_seeds.sh" /nonexistent/learner /nonexistent/worker "$@"; }
 out=$(bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "report: exit non-zero: $out"
 echo "$out"
@@ -49,10 +52,10 @@ grep -qxF "15 workers: median ratio to 2 workers at most 0.5 by a sign test over
   <<<"$out" || fail "sign test"
 grep -qF "evaluations (success at the time asked):" <<<"$out" || fail "evaluations header"
 grep -qxF "seed 1, 2 workers: 0.000@5.0 0.967@35.1" <<<"$out" || fail "seed 1 evaluations"
-grep -qxF "seed 2, 15 workers: none" <<<"$out" || fail "a run without a log"
+grep -qxF "seed 2, 15 workers: none" <<<"$out" || fail "a run without events"
 grep -qxF "seed 1, 15 workers: 0.500@2.5 0.967@5.0" <<<"$out" || fail "seed 1 evaluations, 15 workers"
 # The updates at the goal's evaluation (the one asked at the time to goal, not the final one), per
-# count in the seeds' order: "-" where a run has no log or missed the goal (seed 4, 15 workers).
+# count in the seeds' order: "-" where a run has no events or missed the goal (seed 4, 15 workers).
 grep -qF "updates when the goal's evaluation was asked:" <<<"$out" || fail "updates header"
 grep -qxF "2 workers: 26304 - - - (median 26304)" <<<"$out" || fail "updates at the goal, 2 workers"
 grep -qxF "15 workers: 13864 - - - (median 13864)" <<<"$out" || fail "updates at the goal, 15 workers"
@@ -60,13 +63,16 @@ grep -qxF "15 workers: 13864 - - - (median 13864)" <<<"$out" || fail "updates at
 out=$(RATIO_AT_MOST=0.2 bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "bound: $out"
 grep -qF "15 workers within 0.2 of 2 workers' time: 1 of 4 seeds" <<<"$out" || fail "RATIO_AT_MOST 0.2: $out"
 grep -qF "at most 0.2 by a sign test over 4 seeds: 1 within, p = 0.9375" <<<"$out" || fail "sign test, 0.2: $out"
+# A stop without a metric: the evaluations' mean return.
+out=$(STOP='target_eval_return: 12 max_seconds: 60' bs "$T/kaya.txtpb" "1 2 3 4" "2 15" "$T/out" 2>&1) || fail "mean return: $out"
+grep -qxF "seed 1, 2 workers: 9.7@5.0 13.0@35.1" <<<"$out" || fail "mean return evaluations: $out"
 # GOAL_RETURN: from each run's events, the time its evaluations first reached the goal and whether
 # the final and every evaluation from then on stayed within KEEP_WITHIN of the kept best.
 ev() {  # DIR LABEL MEAN ASKED_S CONFIRMED
   printf '{"event":"evaluation","label":"%s","mean":%s,"asked_elapsed_s":%s,"elapsed_s":%s,"confirmed":%s}\n' \
     "$2" "$3" "$4" "$4" "$5" >>"$1/learner/events.jsonl"
 }
-for r in seed1/w2 seed1/w15; do mkdir -p "$T/out/$r/learner"; done
+for r in seed1/w2 seed1/w15; do rm -f "$T/out/$r/learner/events.jsonl"; done
 ev "$T/out/seed1/w2" eval 8 10 true; ev "$T/out/seed1/w2" eval 12.5 20 true; ev "$T/out/seed1/w2" eval 3 25 false
 ev "$T/out/seed1/w2" eval 11.5 30 true; ev "$T/out/seed1/w2" final 12.0 40 true
 echo '{"event":"best","score":12.5}' >>"$T/out/seed1/w2/learner/events.jsonl"
