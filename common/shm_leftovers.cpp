@@ -6,12 +6,16 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cctype>
 #include <ctime>
 #include <vector>
 
 namespace farm::dds {
 namespace {
+
+std::atomic<int> g_removed_segments{0};
+std::atomic<uint64_t> g_removed_bytes{0};
 
 // fastrtps_ + 16 lower-case letters or digits + _el or _sl: a data segment's lock file.
 bool is_segment_lock(const std::string& name) {
@@ -64,6 +68,15 @@ ShmLeftovers remove_dead_segments(const std::string& dir, double min_age_seconds
     }
     close(fd);
   }
+  g_removed_segments += out.segments;
+  g_removed_bytes += out.bytes;
+  return out;
+}
+
+ShmLeftovers removed_by_this_process() {
+  ShmLeftovers out;
+  out.segments = g_removed_segments.load();
+  out.bytes = g_removed_bytes.load();
   return out;
 }
 

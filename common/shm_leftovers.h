@@ -26,4 +26,8 @@ struct ShmLeftovers {
 // Files the caller may not open or remove (another user's) count as in use.
 ShmLeftovers remove_dead_segments(const std::string& dir = "/dev/shm", double min_age_seconds = 30.0);
 
+// The segments and bytes remove_dead_segments has removed in this process so far, every call
+// summed (in_use is 0): what a program's participants cleared before they started, for its record.
+ShmLeftovers removed_by_this_process();
+
 }  // namespace farm::dds

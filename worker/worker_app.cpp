@@ -21,6 +21,7 @@
 
 #include "config.h"
 #include "printable.h"
+#include "shm_leftovers.h"
 #include "task.h"
 #include "task_specs.h"
 
@@ -63,11 +64,16 @@ int WorkerApp::run() {
       bus_.participant_label() + ")" + (experiment_.empty() ? "" : ", experiment '" + experiment_ + "'") +
       ", DDS profiles " + bus_.profiles_file() +
       (bus_.security_dir().empty() ? "" : ", DDS Security from " + bus_.security_dir()));
+  const farm::dds::ShmLeftovers removed = farm::dds::removed_by_this_process();
   events_.write("start", {{"worker_id", opt_.id},
                           {"session", session_},
                           {"domain", bus_.domain()},
                           {"experiment", experiment_},
-                          {"security_dir", bus_.security_dir()}});
+                          {"security_dir", bus_.security_dir()},
+                          {"participant_id", bus_.participant_id() >= 0 ? nlohmann::json(bus_.participant_id())
+                                                                        : nlohmann::json(nullptr)},
+                          {"shm_segments_removed", removed.segments},
+                          {"shm_bytes_removed", removed.bytes}});
   sender_.start();
   beat_.start();
   double last_wait_note = -1e9;
@@ -439,7 +445,10 @@ void WorkerApp::heartbeat(bool force) {
         " batches sent, " + std::to_string(steps) + " env steps, policy v" +
         std::to_string(rollout_->policy_version()));
     const auto share = [&](double x) { return split.valid ? nlohmann::json(x) : nlohmann::json(nullptr); };
+    // The wall-clock time of the line, which scripts set against other processes' clocks.
+    const double unix_s = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
     events_.write("progress", {{"state", state},
+                               {"unix_s", unix_s},
                                {"steps_per_s", rate},
                                {"batches_sent", sent},
                                {"env_steps", steps},

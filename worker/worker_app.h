@@ -13,7 +13,10 @@
 // With --events FILE it keeps a record for programs beside its log (common/event_log.h), one JSON
 // object a line with "event" and "elapsed_s" (seconds since the worker started). Kinds:
 //   start              worker_id, session, domain, experiment (--experiment; "" for any),
-//                      security_dir ("" without DDS Security)
+//                      security_dir ("" without DDS Security), participant_id (the DDS participant
+//                      id it asked for; null when Fast DDS chose: a profile without shared memory),
+//                      shm_segments_removed and shm_bytes_removed (data segments of ended Fast DDS
+//                      processes it removed from /dev/shm before it started, and their bytes)
 //   waiting            for a learner: no spec of its experiment yet (as often as the log says so)
 //   joined             experiment_id, task, envs, threads, steps_per_batch, nice (worker.nice),
 //                      session
@@ -23,7 +26,8 @@
 //   weights_refused    count: weights of its experiment from another participant than its learner
 //   learner_restarted  learner_session: a new learner of the same experiment, followed
 //   learner_finished   experiment_id
-//   progress           at each log line: state, steps_per_s, batches_sent, env_steps,
+//   progress           at each log line: state, unix_s (its wall-clock time, Unix seconds: to set
+//                      against other processes' clocks), steps_per_s, batches_sent, env_steps,
 //                      policy_version, and where the wall time went since the last one, as
 //                      fractions (simulate, infer, backpressure, throttled, publish; null at the first)
 //   eval_request       request_id, episodes, policy_version: a request of its learner taken

@@ -141,3 +141,13 @@ start_pendulum_pair() {
   before=$(batches_ok "$dir/run")
   [ "$before" -gt 0 ] || fail "no batch of the worker reached the learner: $(tail -3 "$dir/worker.log")"
 }
+
+# Polls an events file (RUN/events.jsonl, a worker's or farm_intruder's --events FILE) every 0.2 s
+# until it holds an event of KIND whose fields hold each KEY=VALUE given (VALUE as JSON, as
+# has_event takes them); false after SECONDS.  wait_has_event FILE KIND SECONDS [KEY=VALUE...]
+wait_has_event() {
+  local file=$1 kind=$2 seconds=$3
+  shift 3
+  for _ in $(seq $((seconds * 5))); do has_event "$file" "$kind" "$@" && return 0; sleep 0.2; done
+  return 1
+}

@@ -1,5 +1,6 @@
 // remove_dead_segments: a Fast DDS data segment whose lock file no process holds, and that is old
-// enough, goes with its lock file; one whose lock is held, a young one, ports and other names stay.
+// enough, goes with its lock file; one whose lock is held, a young one, ports and other names stay;
+// removed_by_this_process sums what every call removed.
 // Locks are real flocks on real files (a second open file description conflicts like another
 // process would); integration.restart_ports does the same with a SIGKILLed worker's segment.
 #include <fcntl.h>
@@ -97,6 +98,20 @@ TEST_F(ShmDir, SharedLockCountsAsInUseAndLockWithoutSegmentIsTidied) {
   EXPECT_EQ(gone.segments, 1);  // the _sl one, now unlocked
   EXPECT_FALSE(fs::exists(orphan));
   EXPECT_FALSE(fs::exists(seg));
+}
+
+// The process's sum (a worker's start event reports it) grows by what each call removed.
+TEST_F(ShmDir, ThisProcessSumsWhatEveryCallRemoved) {
+  const auto before = farm::dds::removed_by_this_process();
+  make("fastrtps_00000000000000cc", 8192, 120);
+  make("fastrtps_00000000000000cc_el", 0, 120);
+  const auto gone = remove_dead_segments(dir.string(), 30.0);
+  ASSERT_EQ(gone.segments, 1);
+  EXPECT_EQ(remove_dead_segments(dir.string(), 30.0).segments, 0);
+  const auto after = farm::dds::removed_by_this_process();
+  EXPECT_EQ(after.segments, before.segments + 1);
+  EXPECT_EQ(after.bytes, before.bytes + gone.bytes);
+  EXPECT_EQ(after.in_use, 0);
 }
 
 TEST_F(ShmDir, MissingFolderRemovesNothing) {
