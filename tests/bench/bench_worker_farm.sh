@@ -3,16 +3,16 @@
 # (bench_worker --raw-only: WORKERS loops at once, each mj_step alone over states the config's
 # task visits, in the ENVS simulations a worker holds; the env steps/s of each and their mean,
 # with the older one-resting-state figure beside it), then one farm-learner with CONFIG and WORKERS
-# farm-workers (one thread each) for SECONDS, and per worker its env steps/s from its throughput
-# lines, set against the per-loop limit. Only lines in state `running` count, and none from a
-# worker's first WARMUP_SECONDS of running.
+# farm-workers (one thread each) for SECONDS, and per worker its env steps/s from its progress
+# events (--events, one a second), set against the per-loop limit. Only events in state `running`
+# count, and none from a worker's first WARMUP_SECONDS of running.
 #   tests/bench/bench_worker_farm.sh LEARNER_BIN WORKER_BIN CONFIG WORKERS SECONDS [ENVS]
 # e.g. tests/bench/bench_worker_farm.sh build/learner/farm-learner build/worker/farm-worker \
 #        deploy/configs/a1_ppo.txtpb 15 120
 # ENVS: each worker's --envs (default: the config's worker.envs_per_worker).
 # Environment: BENCH_WORKER_BIN (default: tests/bench_worker in the learner's build folder),
 # WARMUP_SECONDS (default 5), RAW_SECONDS (default 3), DOMAIN (default 20 + pid mod 200),
-# FARM_KEEP_LOGS=1 keeps the folder with the logs.
+# FARM_KEEP_LOGS=1 keeps the folder with the logs and events.
 # Exit status: 0 when every worker reached 0.9 of the limit, 1 when one did not, 2 on an error.
 set -euo pipefail
 
@@ -56,15 +56,14 @@ echo "host: $(nproc) cores, load average $(cut -d' ' -f1-3 /proc/loadavg) before
 limit=$(sed -n 's/^raw per loop ([0-9]* at once): \([0-9.]*\) env steps\/s$/\1/p' "$dir/raw.txt")
 [ -n "$limit" ] || die "bench_worker printed no per-loop figure"
 
-# 2. The training run. Each worker line gets the time it was printed (the worker's lines carry none).
-stamp() { while IFS= read -r line; do printf '%s %s\n' "$EPOCHREALTIME" "$line"; done; }
+# 2. The training run.
 "$learner" --config "$config" --run-dir "$dir/run" --domain "$domain" >"$dir/learner.log" 2>&1 &
 pids+=($!)
 learner_pid=$!
 worker_pids=()
 for i in $(seq 1 "$workers"); do
   "$worker" --domain "$domain" --id "bench-$i" --threads 1 --log-every 1 ${envs:+--envs "$envs"} \
-    > >(stamp >"$dir/worker-$i.log") 2>&1 &
+    --events "$dir/worker-$i.jsonl" >"$dir/worker-$i.log" 2>&1 &
   pids+=($!)
   worker_pids+=($!)
 done
@@ -90,36 +89,58 @@ for p in "${worker_pids[@]}"; do
 done
 kill -TERM "$learner_pid" 2>/dev/null || true
 for _ in $(seq 150); do kill -0 "$learner_pid" 2>/dev/null || break; sleep 0.2; done
-sleep 0.5  # the last stamped lines
 
-# 3. Per worker: the mean of its running lines after warm-up, against the per-loop limit.
+# 3. Per worker: the mean of its running events after warm-up, against the per-loop limit.
+# One worker's row from its progress events (worker/worker_app.h): those up to STOP (Unix seconds,
+# the measurement's end) by state; from WARMUP s after its first `running` one, the running ones
+# with a time split (not the first) give the means. "STEPS/S LIMIT RATIO EVENTS  SHARES | STATES".
+worker_row() {  # EVENTS LIMIT WARMUP STOP
+  python3 - "$@" <<'PY'
+import json, sys
+path, limit, warmup, stop = sys.argv[1], float(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+try:
+    lines = open(path, errors="replace").readlines()
+except OSError:
+    lines = []
+seen, states, first = {}, {}, None
+n = rate = sim = bp = thr = pub = 0
+for line in lines:
+    try:
+        e = json.loads(line)
+    except ValueError:
+        continue  # a line cut short by a killed worker
+    if e.get("event") != "progress":
+        continue
+    t, state = e["unix_s"], e["state"]
+    if t <= stop:
+        seen[state] = seen.get(state, 0) + 1
+    if state == "running" and first is None:
+        first = t
+    if first is None or t < first + warmup or t > stop:
+        continue
+    states[state] = states.get(state, 0) + 1
+    if state != "running" or e.get("simulate") is None:
+        continue
+    n += 1
+    rate += e["steps_per_s"]
+    sim += e["simulate"] + e["infer"]
+    bp += e["backpressure"]
+    thr += e["throttled"]
+    pub += e["publish"]
+s = ", ".join(f"{k} {v}" for k, v in (states or seen).items()) or "none"
+if n == 0:
+    print("%12s %12.0f %7s %6d  no running line after warm-up (lines: %s)" % ("-", limit, "0.000", 0, s))
+else:
+    print("%12.0f %12.0f %7.3f %6d  %.0f%%, %.0f%%, %.0f%%; %.0f%% | %s" % (rate / n, limit, rate / n / limit, n,
+          100 * sim / n, 100 * bp / n, 100 * thr / n, 100 * pub / n, s))
+PY
+}
 echo "host: load average $load_during at the end of the run"
 printf '%-10s %12s %12s %7s %6s  %s\n' worker "env steps/s" "limit/loop" ratio lines \
   "collect: simulate+infer, backpressure, throttled; sender: publish (means); states after warm-up"
 summary=()
 for i in $(seq 1 "$workers"); do
-  row=$(awk -v limit="$limit" -v warmup="$warmup" -v stop="$t_stop" '
-    # <time> [worker ID] STATE: N steps/s (collect: simulate A%, infer B%, backpressure C%, throttled D%; sender: publish E%), ...
-    $2 == "[worker" && $4 ~ /:$/ && $6 == "steps/s" {
-      t = $1 + 0; state = substr($4, 1, length($4) - 1)
-      if (t <= stop) seen[state]++
-      if (state == "running" && first == "") first = t
-      if (first == "" || t < first + warmup || t > stop) next
-      states[state]++
-      if (state != "running" || $7 != "(collect:") next
-      n++; rate += $5
-      gsub(/[%,;)]/, "")
-      sim += $9 + $11; bp += $13; thr += $15; pub += $18
-    }
-    END {
-      s = ""
-      for (k in states) s = s (s == "" ? "" : ", ") k " " states[k]
-      if (s == "") for (k in seen) s = s (s == "" ? "" : ", ") k " " seen[k]
-      if (s == "") s = "none"
-      if (n == 0) { printf "%12s %12.0f %7s %6d  no running line after warm-up (lines: %s)\n", "-", limit, "0.000", 0, s; exit }
-      printf "%12.0f %12.0f %7.3f %6d  %.0f%%, %.0f%%, %.0f%%; %.0f%% | %s\n", rate / n, limit, rate / n / limit, n,
-             sim / n, bp / n, thr / n, pub / n, s
-    }' "$dir/worker-$i.log")
+  row=$(worker_row "$dir/worker-$i.jsonl" "$limit" "$warmup" "$t_stop")
   printf '%-10s %s\n' "bench-$i" "$row"
   summary+=("$(awk '{print $3}' <<<"$row")")
 done
