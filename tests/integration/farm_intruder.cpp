@@ -4,7 +4,7 @@
 //   farm_intruder --domain D --experiment ID --id NAME --obs N --act M --seconds S [--security DIR]
 //                 [--hostile 1] [--oversize 1] [--spec-config FILE [--spec-steps T]] [--try-writers 1]
 //                 [--heartbeat 1] [--eval-requests WORKER] [--spec-finished 1] [--spec-max-batches N]
-//                 [--spec-only 1] [--status-host TEXT] [--status-error TEXT]
+//                 [--spec-only 1] [--status-host TEXT] [--status-error TEXT] [--events FILE]
 // --id NAME names the participant and the worker id of its batches; with --security DIR of another
 // participant's certificate it is a modified sender writing under an id that is not its own.
 // --heartbeat 1: also publish a WorkerStatus heartbeat (worker NAME, state running) with each batch
@@ -63,6 +63,28 @@
 // The floods (--flood-*, --hostile, --oversize, --big-to-workers) are in intruder_floods.cpp, the
 // forgeries (--forge-*, --eval-requests, --steal-streams) in intruder_forgeries.cpp, --malformed in
 // intruder_malformed.cpp; this file has the plain stream, the spec impostor and the options.
+// What it did is printed for people; --events FILE also writes it for programs (common/event_log.h):
+// one JSON object a line with "event" (its kind), "id" (--id) and "elapsed_s" (seconds since it
+// started). The tests read this record. Kinds:
+//   joined          domain, security (the --security folder; "" without): its participant exists
+//   refused         what: the error that ended it, a certificate or profile refused among them (exit 3)
+//   writers         created, refused: the farm topics of --try-writers, lists of names
+//   spec_published  experiment_id, steps_per_batch, max_batches_per_version, finished (--spec-only)
+//   serialized      steps, envs, bytes: one --oversize batch and its size serialized
+//   sent            batches, batch_readers_matched (the most at once), weights_received,
+//                   specs_received: the end of the plain stream, of --hostile or of --oversize
+//   flooded         batches, heartbeats (--flood-streams, --flood-heartbeats)
+//   big_sent        samples, mib (--big-to-workers)
+//   eval_requests   worker, sent, readers_matched, answers_received (--eval-requests)
+//   forged_answers  count (--forge-answers)
+//   forged_weights  count, readers_matched (--forge-weights)
+//   naming_learner  learner: the GUID prefix (hex) the --forge-removal messages name, before the first
+//   no_learner      experiment_id: --forge-removal read no spec of it in 15 s, sent nothing (exit 4)
+//   removals        sent, learner: the --forge-removal datagrams sent, at its end
+//   stealing        worker_id, session: a stream --steal-streams writes under from then on
+//   stolen          batches, sessions: the end of --steal-streams
+//   not_permitted   topic: a topic --malformed may not write under its certificate, skipped
+//   malformed       kind, seed, topic, written, matched: one a topic, at the end of --malformed
 #include <dlfcn.h>
 #include <openssl/x509.h>
 
@@ -80,6 +102,8 @@
 #include "cli.h"
 #include "config.h"
 #include "dds.h"
+#include "event_log.h"
+#include "intruder_events.h"
 #include "intruder_floods.h"
 #include "intruder_forgeries.h"
 #include "intruder_malformed.h"
@@ -89,8 +113,15 @@ namespace {
 
 std::string g_token_name;  // --token-name
 std::string g_own_name;    // the CN of its own certificate, which the token's subject replaces
+farm::EventLog g_events;   // --events
+std::string g_id;          // --id, in every event
 
 }  // namespace
+
+void record(const std::string& kind, nlohmann::json fields) {
+  fields["id"] = g_id;
+  g_events.write(kind, std::move(fields));
+}
 
 // Replaces OpenSSL's X509_NAME_oneline for Fast DDS's calls (this program exports it: ENABLE_EXPORTS),
 // so that with --token-name the subject of its own certificate, as Fast DDS puts it in this
@@ -141,11 +172,14 @@ int try_every_writer(farm::dds::Bus& bus, const std::string& id) {
        writer_created<WorkerStatus, WorkerStatusPubSubType>(bus, d::kWorkerStatusTopic, "status_writer")},
   };
   std::string created, refused;
+  nlohmann::json created_list = nlohmann::json::array(), refused_list = nlohmann::json::array();
   for (const auto& [topic, ok] : tries) {
     std::string& list = ok ? created : refused;
     list += (list.empty() ? "" : " ") + std::string(topic);
+    (ok ? created_list : refused_list).push_back(topic);
   }
   std::printf("%s: writers created [%s], refused [%s]\n", id.c_str(), created.c_str(), refused.c_str());
+  record("writers", {{"created", created_list}, {"refused", refused_list}});
   return 0;
 }
 
@@ -160,6 +194,7 @@ int main(int argc, char** argv) {
   bool spec_finished = false, spec_only = false, forge_removal_on = false, steal = false, deliver = true;
   double removal_every_ms = 50;
   std::string spec_config, eval_worker, status_host = farm::dds::hostname(), status_error, malformed, dump_dir;
+  std::string events_file;
   uint64_t fuzz_seed = 1;
   unsigned spec_steps = 4, spec_max_batches = 4;
   double forge_return = NAN, beat_every = 0;
@@ -225,8 +260,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--token-name", g_token_name,
                  "NAME: its identity token says CN=NAME while it authenticates with the certificate of --security");
+  app.add_option("--events", events_file,
+                 "FILE: also write what it did as JSON lines, one event a line (kinds: farm_intruder.cpp's top)");
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
+  g_id = id;
+  g_events.set_start(farm::now_seconds());
   try {
+    if (!events_file.empty()) g_events.open(events_file);
     if (!g_token_name.empty()) g_own_name = farm::dds::certificate_name(farm::dds::security_dir_of(bus_opts));
     farm::dds::Bus bus(bus_opts, id);
     // Said once the participant exists, so a test can tell a participant that ran and got nothing
@@ -235,6 +275,7 @@ int main(int argc, char** argv) {
         bus.security_dir().empty() ? "without security" : "with security from " + bus.security_dir();
     std::printf("%s: joined domain %d %s\n", id.c_str(), bus.domain(), how.c_str());
     std::fflush(stdout);
+    record("joined", {{"domain", bus.domain()}, {"security", bus.security_dir()}});
     if (try_writers) return try_every_writer(bus, id);
     if (!std::isnan(forge_return))
       return forge_answers(bus, id, experiment, seconds, forge_return, forge_length, forge_metrics, heartbeat, obs, act,
@@ -280,6 +321,10 @@ int main(int argc, char** argv) {
         std::printf("%s: published a spec of experiment '%s' (steps_per_batch %u, max_batches_per_version %u%s)\n",
                     id.c_str(), experiment.c_str(), spec_steps, spec_max_batches, spec_finished ? ", finished" : "");
         std::fflush(stdout);
+        record("spec_published", {{"experiment_id", experiment},
+                                  {"steps_per_batch", spec_steps},
+                                  {"max_batches_per_version", spec_max_batches},
+                                  {"finished", spec_finished}});
         std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
         return 0;
       }
@@ -326,10 +371,15 @@ int main(int argc, char** argv) {
     std::printf("%s: sent %llu batches, batch readers matched %d, weights received %llu, specs received %llu\n",
                 id.c_str(), (unsigned long long)sent, max_matched, (unsigned long long)weights_seen,
                 (unsigned long long)specs_seen);
+    record("sent", {{"batches", sent},
+                    {"batch_readers_matched", max_matched},
+                    {"weights_received", weights_seen},
+                    {"specs_received", specs_seen}});
     return 0;
   } catch (const std::exception& e) {
     // A participant whose certificate is rejected cannot even be created: that is a refusal too.
     std::printf("%s: refused: %s\n", id.c_str(), e.what());
+    record("refused", {{"what", e.what()}});
     return 3;
   }
 }

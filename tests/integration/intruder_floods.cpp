@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "config.h"
+#include "intruder_events.h"
 #include "meter.h"
 
 void make_oversized(farm::msg::TransitionBatch& b, std::mt19937_64& rng, const std::string& id, unsigned obs,
@@ -24,9 +25,10 @@ void make_oversized(farm::msg::TransitionBatch& b, std::mt19937_64& rng, const s
   b.truncated(std::vector<uint8_t>(TN, 0));
   b.log_probs(std::vector<float>(TN, 0.0f));
   b.next_observations(std::vector<float>(size_t(ON) * obs, 0.5f));
-  std::printf("%s: oversized batches of %ux%u transitions, %zu bytes serialized\n", id.c_str(), OT, ON,
-              farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4);
+  const size_t bytes = farm::msg::TransitionBatch::getCdrSerializedSize(b) + 4;
+  std::printf("%s: oversized batches of %ux%u transitions, %zu bytes serialized\n", id.c_str(), OT, ON, bytes);
   std::fflush(stdout);
+  record("serialized", {{"steps", OT}, {"envs", ON}, {"bytes", bytes}});
 }
 
 void send_oversized(BatchWriter& out, farm::msg::TransitionBatch& b, double t0, double seconds, uint64_t& sent,
@@ -92,6 +94,7 @@ int flood(farm::dds::Bus& bus, BatchWriter& out, farm::msg::TransitionBatch& b, 
   std::printf("%s: flooded %llu batches of invented streams, %llu heartbeats of invented sessions\n", id.c_str(),
               (unsigned long long)batches, (unsigned long long)beats);
   std::fflush(stdout);
+  record("flooded", {{"batches", batches}, {"heartbeats", beats}});
   if (f.beat_every <= 0) std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
   return 0;
 }
@@ -129,6 +132,7 @@ int big_to_workers(farm::dds::Bus& bus, const std::string& id, const std::string
   const int sent = int(spec_out.write(s)) + int(weights_out.write(w)) + int(request_out.write(q));
   std::printf("%s: sent %d samples of %u MiB to the workers\n", id.c_str(), sent, mib);
   std::fflush(stdout);
+  record("big_sent", {{"samples", sent}, {"mib", mib}});
   std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
   return 0;
 }

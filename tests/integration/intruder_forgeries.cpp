@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "intruder_events.h"
 #include "intruder_malformed.h"
 #include "meter.h"
 
@@ -166,6 +167,7 @@ int forge_answers(farm::dds::Bus& bus, const std::string& id, const std::string&
     requests.wait(0.005);
   }
   std::printf("%s: forged %llu evaluation answers\n", id.c_str(), (unsigned long long)answered);
+  record("forged_answers", {{"count", answered}});
   return 0;
 }
 
@@ -196,6 +198,8 @@ int bad_eval_requests(farm::dds::Bus& bus, const std::string& id, const std::str
   }
   std::printf("%s: sent %llu evaluation requests to %s, readers matched %d, answers received %u\n", id.c_str(),
               (unsigned long long)sent, worker.c_str(), requests.matched(), answers);
+  record("eval_requests",
+         {{"worker", worker}, {"sent", sent}, {"readers_matched", requests.matched()}, {"answers_received", answers}});
   return 0;
 }
 
@@ -217,6 +221,7 @@ int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string&
   }
   if (!found) {
     std::printf("%s: no spec of experiment '%s' in 15 s: no learner to name\n", id.c_str(), experiment.c_str());
+    record("no_learner", {{"experiment_id", experiment}});
     return 4;
   }
   const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
@@ -238,6 +243,7 @@ int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string&
   for (int k = 0; k < 12; ++k) std::snprintf(hex + 2 * k, 3, "%02x", learner.value[k]);
   std::printf("%s: naming learner %s in participant removals\n", id.c_str(), hex);
   std::fflush(stdout);
+  record("naming_learner", {{"learner", std::string(hex)}});
   uint64_t sent = 0;
   uint32_t seq = 1000;
   for (const double t0 = farm::now_seconds(); farm::now_seconds() - t0 < seconds;) {
@@ -248,6 +254,7 @@ int forge_removal(farm::dds::Bus& bus, const std::string& id, const std::string&
   }
   ::close(fd);
   std::printf("%s: sent %llu participant removals in the learner's name\n", id.c_str(), (unsigned long long)sent);
+  record("removals", {{"sent", sent}, {"learner", std::string(hex)}});
   return 0;
 }
 
@@ -268,6 +275,7 @@ int steal_streams(farm::dds::Bus& bus, const std::string& id, const std::string&
         std::printf("%s: stealing the stream of %s session %llu\n", id.c_str(), st.worker_id().c_str(),
                     (unsigned long long)st.worker_session());
         std::fflush(stdout);
+        record("stealing", {{"worker_id", st.worker_id()}, {"session", st.worker_session()}});
       }
     for (auto& [stream, seq] : next) {
       farm::msg::TransitionBatch b = one_step_batch(experiment, stream.first, obs, act);
@@ -282,6 +290,7 @@ int steal_streams(farm::dds::Bus& bus, const std::string& id, const std::string&
   }
   std::printf("%s: sent %llu batches under %zu worker sessions not its own\n", id.c_str(), (unsigned long long)sent,
               next.size());
+  record("stolen", {{"batches", sent}, {"sessions", next.size()}});
   return 0;
 }
 
@@ -305,5 +314,6 @@ int forge_weights(farm::dds::Bus& bus, const std::string& id, const std::string&
     in.wait(0.1);
   }
   std::printf("%s: forged %u weights, readers matched %d\n", id.c_str(), forged, out.matched());
+  record("forged_weights", {{"count", forged}, {"readers_matched", out.matched()}});
   return 0;
 }

@@ -11,7 +11,7 @@
 //             sample cut anywhere, bytes inserted or removed
 // To the learner: TransitionBatch, WorkerStatus, EvaluationAnswer; to the workers: ExperimentSpec,
 // PolicyWeights, EvaluationRequest. One of each every 100 ms for --seconds once matched; it prints
-// how many of each it wrote.
+// how many of each it wrote and records them (a malformed event a topic).
 #include "intruder_malformed.h"
 
 #include <cstdio>
@@ -24,6 +24,7 @@
 #include <thread>
 #include <vector>
 
+#include "intruder_events.h"
 #include "meter.h"
 #include "wire_check.h"
 
@@ -280,6 +281,7 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
       // Under security a certificate may write only its role's topics: the others are skipped.
       if (bus.security_dir().empty()) throw;
       std::printf("%s: not permitted to write %s: skipped\n", id.c_str(), t.topic);
+      record("not_permitted", {{"topic", t.topic}});
       continue;
     }
     writers.back()->sample.bytes = t.bytes;
@@ -306,9 +308,15 @@ int send_malformed(farm::dds::Bus& bus, const std::string& id, const std::string
   for (auto& w : writers) w->writer->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(2.0));
   std::printf("%s: malformed (%s, seed %llu) samples written:", id.c_str(), kind.c_str(),
               (unsigned long long)fuzz_seed);
-  for (const auto& w : writers)
+  for (const auto& w : writers) {
     std::printf(" %s %llu (matched %d)", w->writer->get_topic()->get_name().c_str(), (unsigned long long)w->sent,
                 w->matched());
+    record("malformed", {{"kind", kind},
+                         {"seed", fuzz_seed},
+                         {"topic", w->writer->get_topic()->get_name()},
+                         {"written", w->sent},
+                         {"matched", w->matched()}});
+  }
   std::printf("\n");
   std::fflush(stdout);
   return 0;

@@ -248,11 +248,12 @@ class ProcessSet {
     else
       std::cerr << "logs kept in " << dir_ << "\n";
   }
-  // Starts argv with its output in DIR/NAME.log; a farm-worker also writes its events to
-  // DIR/NAME.jsonl (--events), read by worker_events.
+  // Starts argv with its output in DIR/NAME.log; a farm-worker or a farm_intruder also writes its
+  // events to DIR/NAME.jsonl (--events), read by worker_events and last_event.
   Proc& start(std::vector<std::string> argv, const std::string& name) {
     for (const std::string& a : argv)
-      if (std::filesystem::path(a).filename() == "farm-worker") {
+      if (const auto program = std::filesystem::path(a).filename();
+          program == "farm-worker" || program == "farm_intruder") {
         argv.insert(argv.end(), {"--events", dir_ + "/" + name + ".jsonl"});
         break;
       }
@@ -263,6 +264,13 @@ class ProcessSet {
   // The events of one kind of the worker started as NAME ("" kind: all).
   std::vector<nlohmann::json> worker_events(const std::string& name, const std::string& kind = "") const {
     return events_in(dir_ + "/" + name + ".jsonl", kind);
+  }
+  // The last event of one kind of the program started as NAME (a farm-worker's or a farm_intruder's
+  // record: worker/worker_app.h and tests/integration/farm_intruder.cpp list their kinds); an empty
+  // object when it wrote none.
+  nlohmann::json last_event(const std::string& name, const std::string& kind) const {
+    const auto all = worker_events(name, kind);
+    return all.empty() ? nlohmann::json::object() : all.back();
   }
   // The batches the worker started as NAME sent in all, from its finished event; -1 before it.
   long long batches_sent(const std::string& name) const {

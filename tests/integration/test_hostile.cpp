@@ -11,7 +11,6 @@
 #include <algorithm>
 #include <chrono>
 #include <fstream>
-#include <regex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -123,12 +122,11 @@ TEST(Hostile, ForgedSequencesAndInventedSessionsAreRefusedAndTrainingGoesOn) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
 
-  std::smatch m;
-  const std::string h = set.log("hostile");
-  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << h;
-  const long long sent = std::stoll(m[1]);
-  EXPECT_GE(sent, 1000) << h;
-  EXPECT_GE(std::stoi(m[2]), 1) << h;
+  const nlohmann::json attack = set.last_event("hostile", "sent");
+  ASSERT_FALSE(attack.empty()) << set.log("hostile");
+  const long long sent = attack.value("batches", -1LL);
+  EXPECT_GE(sent, 1000) << attack;
+  EXPECT_GE(attack.value("batch_readers_matched", -1), 1) << attack;
 
   const nlohmann::json summary = summary_event(d + "/run");
   const BatchCounts c = batch_counts(summary);
@@ -188,14 +186,14 @@ TEST(Hostile, OversizedBatchesAreRefusedBeforeMemoryAndTrainingGoesOn) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
 
-  std::smatch m;
-  const std::string h = set.log("oversize");
-  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"((\d+) bytes serialized)"))) << h;
-  const double sample_mib = std::stod(m[1]) / (1 << 20);
-  ASSERT_TRUE(std::regex_search(h, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << h;
-  const long long sent = std::stoll(m[1]);
-  EXPECT_GE(sent, 5) << h;
-  EXPECT_GE(std::stoi(m[2]), 1) << h;
+  const nlohmann::json sample = set.last_event("oversize", "serialized");
+  ASSERT_FALSE(sample.empty()) << set.log("oversize");
+  const double sample_mib = sample.value("bytes", -1.0) / (1 << 20);
+  const nlohmann::json attack = set.last_event("oversize", "sent");
+  ASSERT_FALSE(attack.empty()) << set.log("oversize");
+  const long long sent = attack.value("batches", -1LL);
+  EXPECT_GE(sent, 5) << attack;
+  EXPECT_GE(attack.value("batch_readers_matched", -1), 1) << attack;
 
   const nlohmann::json summary = summary_event(d + "/run");
   const BatchCounts c = batch_counts(summary);
@@ -244,14 +242,12 @@ TEST(Hostile, ForgedEvaluationRequestsAreNotRunAndTheWorkerGoesOn) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   ASSERT_EQ(wait_for(worker, 60), 0) << set.log("worker");
 
-  std::smatch m;
-  const std::string h = set.log("forger");
-  ASSERT_TRUE(std::regex_search(
-      h, m, std::regex(R"(sent (\d+) evaluation requests to hw, readers matched (\d+), answers received (\d+))")))
-      << h;
-  EXPECT_GE(std::stoll(m[1]), 60) << h;
-  EXPECT_GE(std::stoi(m[2]), 1) << h;
-  EXPECT_EQ(m[3], "0") << h << set.log("worker").substr(0, 4000);
+  const nlohmann::json requests = set.last_event("forger", "eval_requests");
+  ASSERT_FALSE(requests.empty()) << set.log("forger");
+  EXPECT_EQ(requests.value("worker", ""), "hw") << requests;
+  EXPECT_GE(requests.value("sent", -1LL), 60) << requests;
+  EXPECT_GE(requests.value("readers_matched", -1), 1) << requests;
+  EXPECT_EQ(requests.value("answers_received", -1), 0) << requests << set.log("worker").substr(0, 4000);
   const long long sent = set.batches_sent("worker");
   ASSERT_GE(sent, 0) << set.log("worker");
 
