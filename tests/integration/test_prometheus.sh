@@ -56,8 +56,11 @@ grep -q '^log_every_seconds: 1$' "$dir/cfg.txtpb" && grep -q 'target_eval_return
 "$worker" --domain $domain --id prom-b --events "$dir/worker-b.jsonl" >"$dir/worker-b.log" 2>&1 & pids+=($!)
 "$monitor" --domain $domain --quiet --prometheus 127.0.0.1:$mport --log "$dir/monitor.jsonl" \
   >"$dir/monitor.out" 2>&1 & mon=$!; pids+=($mon)
-wait_text "$dir/monitor.out" "Prometheus metrics at http://127.0.0.1:$mport/metrics" 15 ||
-  fail "the monitor did not say where it serves: $(cat "$dir/monitor.out")"
+# Whether URL answers a GET with 200 within 2 s.
+answers() { python3 -c 'import sys, urllib.request; sys.exit(urllib.request.urlopen(sys.argv[1], timeout=2).status != 200)' "$1" 2>/dev/null; }
+for _ in $(seq 75); do answers "http://127.0.0.1:$mport/metrics" && break; sleep 0.2; done
+answers "http://127.0.0.1:$mport/metrics" ||
+  fail "the monitor does not serve http://127.0.0.1:$mport/metrics: $(cat "$dir/monitor.out")"
 expect_error 1 "cannot serve there: .*Address already in use" --prometheus 127.0.0.1:$mport
 
 sed -e "s/127.0.0.1:9469/127.0.0.1:$mport/" -e 's/scrape_interval: 5s/scrape_interval: 1s/' \
