@@ -62,9 +62,9 @@ wait "$lpid"; rc=$?
   fail "no batch arrived over shared memory: $(events "$dir/run" summary)"
 
 # 3. The control: the default profile listens on every interface, and the checker sees it.
-"$intruder" --domain "$domain" --id control --seconds 4 >"$dir/control.log" 2>&1 &
+"$intruder" --domain "$domain" --id control --seconds 4 --events "$dir/control.jsonl" >"$dir/control.log" 2>&1 &
 cpid=$!; pids+=($cpid)
-wait_text "$dir/control.log" 'joined domain' 10 || fail "control never joined: $(cat "$dir/control.log")"
+wait_has_event "$dir/control.jsonl" joined 10 || fail "control never joined: $(cat "$dir/control.log")"
 sleep 1
 control=$(outside_sockets "$cpid")
 [ -n "$control" ] || fail "the checker found no socket off loopback for the default profile: it sees nothing"

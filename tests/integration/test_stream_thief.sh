@@ -15,14 +15,15 @@ farm_test_init stream-thief 191
 
 pendulum_config "$src" it_thief "max_seconds: 16" "$dir/thief.txtpb"
 "$learner" --config "$dir/thief.txtpb" --run-dir "$dir/run" --domain $domain >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
-"$intruder" --domain $domain --experiment it_thief --id thief --seconds 45 --steal-streams 1 >"$dir/thief.log" 2>&1 &
+"$intruder" --domain $domain --experiment it_thief --id thief --seconds 45 --steal-streams 1 --events "$dir/thief.jsonl" \
+  >"$dir/thief.log" 2>&1 &
 tp=$!; pids+=($tp)
-wait_text "$dir/thief.log" "joined domain" 15 || fail "the thief did not start: $(cat "$dir/thief.log")"
+wait_has_event "$dir/thief.jsonl" joined 15 || fail "the thief did not start: $(cat "$dir/thief.log")"
 sleep 1
 "$worker" --domain $domain --id tw --envs 4 --events "$dir/worker.jsonl" >"$dir/worker.log" 2>&1 & wp=$!; pids+=($wp)
 for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 20 ] && break; sleep 0.2; done
 [ "$(batches_ok "$dir/run")" -gt 20 ] || fail "the worker's batches were not taken: batches_ok $(batches_ok "$dir/run")"
-wait_text "$dir/thief.log" "stealing the stream of tw session" 15 ||
+wait_has_event "$dir/thief.jsonl" stealing 15 worker_id='"tw"' ||
   fail "the thief heard no session of tw: $(cat "$dir/thief.log")"
 kill -INT $lp
 wait $lp; rc=$?
