@@ -131,6 +131,36 @@ counters() {
   echo $lb $lp
 }
 
+# UDP port PORT bound in namespace NS (a Discovery Server's participant listens there).
+udp_bound() {  # NS PORT
+  [ -n "$(ip netns exec "$1" ss -Hlun "sport = :$2")" ]
+}
+# From the participants' events (RUN/p*.jsonl): "GOT LAUNCH ALL AFTER MEDIAN": how many matched,
+# the time to start them all (T0 to TL), the last match from T0 and from TL (-1.00 when none
+# matched), and the median of each one's own time from its start to its match (-1 when none).
+match_times() {  # RUN T0 TL
+  python3 - "$@" <<'PY'
+import glob, json, sys
+run, t0, tl = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
+started, matched = {}, {}
+for path in glob.glob(run + "/p*.jsonl"):
+    for line in open(path, errors="replace"):
+        try:
+            e = json.loads(line)
+        except ValueError:
+            continue  # a line cut short by a killed participant
+        if e.get("event") == "started":
+            started[e["name"]] = e["unix_s"]
+        elif e.get("event") == "matched":
+            matched[e["name"]] = e["unix_s"]
+k = len(matched)
+last = max(matched.values(), default=0)
+own = sorted(float("%.3f" % (t - started.get(p, 0))) for p, t in matched.items())
+med = "%.2f" % own[(k + 1) // 2 - 1] if k else "-1"
+print("%d %.2f %.2f %.2f %s" % (k, tl - t0, last - t0 if k else -1, last - tl if k else -1, med))
+PY
+}
+
 echo "bench_discovery: nproc $(nproc), 1-minute load average $(cut -d' ' -f1 /proc/loadavg) at start"
 echo "bench_discovery: $nns namespaces on one bridge, participants spread round-robin; profiles $profiles"
 printf '%-7s %-5s %5s %9s %11s %11s %11s %12s %10s %12s %10s %11s %6s\n' mode layout N launch_s all_matched_s \
@@ -150,9 +180,10 @@ for mode in ${modes//,/ }; do
         groups+=($!)
         setsid ip netns exec $HUB fastdds discovery -i 1 -l 10.79.0.1 -p 11812 >"$run/ds1.log" 2>&1 &
         groups+=($!)
+        # Each up when its UDP port is bound (its participant exists), within 10 s.
         for i in 0 1; do
-          for _ in $(seq 100); do grep -q "Server is running" "$run/ds$i.log" && break; sleep 0.1; done
-          grep -q "Server is running" "$run/ds$i.log" || { echo "discovery server $i did not start: $(cat "$run/ds$i.log")"; status=1; }
+          for _ in $(seq 100); do udp_bound $HUB $((11811 + i)) && break; sleep 0.1; done
+          udp_bound $HUB $((11811 + i)) || { echo "discovery server $i did not start: $(cat "$run/ds$i.log")"; status=1; }
         done
         export ROS_DISCOVERY_SERVER="10.79.0.1:11811;10.79.0.1:11812"
       fi
@@ -164,13 +195,14 @@ for mode in ${modes//,/ }; do
           if [ $p = 0 ]; then role=learner; else role=worker expect=1; fi
         fi
         ip netns exec fdn$((p % nns))_$tag "$bin" --name p$p --role $role --expect $expect \
-          --max-seconds $((timeout + 60)) --domain $domain --dds-profiles "$profiles" >"$run/p$p.log" 2>&1 &
+          --max-seconds $((timeout + 60)) --domain $domain --dds-profiles "$profiles" --events "$run/p$p.jsonl" \
+          >"$run/p$p.log" 2>&1 &
         pids+=($!)
       done
       t_launched=$(date +%s.%N)
       deadline=$(($(date +%s) + timeout))
       while :; do
-        done_n=$(grep -l '^matched ' "$run"/p*.log 2>/dev/null | wc -l)
+        done_n=$(grep -lF '"event":"matched"' "$run"/p*.jsonl 2>/dev/null | wc -l)
         [ "$done_n" -ge "$n" ] && break
         [ "$(date +%s)" -ge "$deadline" ] && break
         sleep 0.2
@@ -178,16 +210,7 @@ for mode in ${modes//,/ }; do
       read -r rb1 rp1 tb1 tp1 lb1 lp1 < <(counters | tr '\n' ' ')
       stop_run
       unset ROS_DISCOVERY_SERVER
-      # Each participant's own time to match: its matched time less its start time.
-      summary=$(awk -v t0="$t_start" -v tl="$t_launched" '
-        $1 == "started" { s[$2] = $3 } $1 == "matched" { m[$2] = $4 }
-        END { k = 0; last = 0
-              for (p in m) { ++k; if (m[p] > last) last = m[p] }
-              printf "%d %.2f %.2f %.2f", k, tl - t0, k ? last - t0 : -1, k ? last - tl : -1 }' "$run"/p*.log)
-      med=$(awk '$1 == "started" { s[$2] = $3 } $1 == "matched" { m[$2] = $4 }
-        END { for (p in m) printf "%.3f\n", m[p] - s[p] }' "$run"/p*.log | sort -n |
-        awk '{ v[NR] = $1 } END { if (NR) printf "%.2f", v[int((NR + 1) / 2)]; else printf "-1" }')
-      read -r got launch all after <<<"$summary"
+      read -r got launch all after med < <(match_times "$run" "$t_start" "$t_launched")
       sent=$((rb1 - rb0)) sentp=$((rp1 - rp0)) deliv=$((tb1 - tb0)) lo=$((lb1 - lb0))
       printf '%-7s %-5s %5d %9s %11s %11s %11s %12d %10d %12d %10d %11d %6d\n' $mode $layout $n $launch $all $after $med \
         $sent $sentp $deliv $lo $(((sent + lo) / n)) $((n - got))
