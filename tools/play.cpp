@@ -3,6 +3,20 @@
 // OSMesa, frames piped to ffmpeg at the video's rate (not once per physics or control step), a
 // camera that follows the robot, the episode's return and the task's metrics drawn on the frame
 // and printed per episode.
+// With --events FILE it also keeps a record for programs (common/event_log.h): one JSON object a
+// line with "event" and "elapsed_s" (seconds since farm-play started). Kinds:
+//   start    task, policy (the policy's folder; "" for --config's untrained one), config (--config;
+//            "" without), algorithm, policy_version, episodes, seed, out, width, height, fps
+//   episode  one per episode as it ends, as its printed line: index (1 ..), of, return, steps, how
+//            it ended (terminated, truncated, cut_short: by --max-steps or --max-seconds), seconds
+//            (simulated), frames, metrics (the task's episode metrics by name)
+//   wrote    the video written: path, frames, width, height, fps, seconds (of video)
+//   view     with --view-check, as its printed line: root_body (the robot: that body and what hangs
+//            from it), frames, min_share, min_pixels, mean_share (of the scene the robot covers),
+//            lost_frame (the first frame where it covers fewer than min_robot_pixels; null: none),
+//            cut_frame (the first frame whose overlay has a row wider than its column; null:
+//            none), cut_rows (the most such rows of a frame); exit 3 when either is not null
+// Human output (stdout and stderr) stays what it is; tests and tools read the record.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -17,6 +31,8 @@
 
 #include "cli.h"
 #include "config_policy.h"
+#include "event_log.h"
+#include "meter.h"
 #include "mlp.h"
 #include "offscreen_renderer.h"
 #include "play_view.h"
@@ -34,7 +50,7 @@ constexpr int64_t kMinRobotPixels = 20;
 constexpr double kFrameSlack = 1e-3;
 
 struct Options {
-  std::string run, checkpoint, config, out, ffmpeg = "ffmpeg";
+  std::string run, checkpoint, config, out, events, ffmpeg = "ffmpeg";
   bool best = false, overlay = true, view_check = false;
   int episodes = 1, width = 640, height = 480, fps = 25, max_steps = 0;
   double max_seconds = 0;
@@ -90,6 +106,9 @@ void add_options(CLI::App& app, Options& o) {
                "Also measure the share of each frame the robot covers; exit 3 when it leaves the picture (covers "
                "fewer than 20 pixels) or a row of the overlay is wider than its column");
   app.add_option("--ffmpeg", o.ffmpeg, "The ffmpeg program (default: ffmpeg on PATH)");
+  app.add_option("--events", o.events,
+                 "Also write a record for programs to this file (JSON lines, appended): the start, each episode, "
+                 "the video written and the view check");
 }
 
 // The combinations of options that name one policy and an output.
@@ -110,8 +129,11 @@ int main(int argc, char** argv) {
   farm::cli::App app("farm-play");
   add_options(app, o);
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
+  EventLog events;
+  events.set_start(now_seconds());
   try {
     check_combinations(o);
+    if (!o.events.empty()) events.open(o.events);
     // What can fail quickly fails before the policy is loaded and anything is rendered.
     tools::video_kind(o.out);
     const std::string ffmpeg = tools::find_ffmpeg(o.ffmpeg);
@@ -130,6 +152,17 @@ int main(int argc, char** argv) {
         dir.empty() ? (o.config + " (untrained)").c_str() : dir.c_str(), spec.name.c_str(),
         rp.config.algorithm().c_str(), (unsigned long long)rp.policy.version, rp.policy.layout.describe().c_str(),
         o.episodes, o.episodes == 1 ? "" : "s", (unsigned long long)o.seed, o.out.c_str(), o.width, o.height, o.fps);
+    events.write("start", {{"task", spec.name},
+                           {"policy", dir},
+                           {"config", o.config},
+                           {"algorithm", rp.config.algorithm()},
+                           {"policy_version", rp.policy.version},
+                           {"episodes", o.episodes},
+                           {"seed", o.seed},
+                           {"out", o.out},
+                           {"width", o.width},
+                           {"height", o.height},
+                           {"fps", o.fps}});
 
     tools::OffscreenRenderer renderer(o.width, o.height);
     tools::VideoWriter writer(o.out, o.width, o.height, o.fps, ffmpeg);
@@ -231,19 +264,50 @@ int main(int argc, char** argv) {
                           : r.truncated ? "truncated"
                                         : "cut short") +
                          "), " + fmt("%.2f s", state->data->time - t0) + ", " + std::to_string(frame) + " frames";
-      for (size_t k = 0; k < metrics.size(); ++k) line += ", " + spec.metric_names[k] + " " + fmt("%.4f", metrics[k]);
+      nlohmann::json named = nlohmann::json::object();
+      for (size_t k = 0; k < metrics.size(); ++k) {
+        line += ", " + spec.metric_names[k] + " " + fmt("%.4f", metrics[k]);
+        named[spec.metric_names[k]] = metrics[k];
+      }
       std::printf("%s\n", line.c_str());
       std::fflush(stdout);
+      const bool cut_short = !r.terminated && !r.truncated;
+      events.write("episode", {{"index", e + 1},
+                               {"of", o.episodes},
+                               {"return", state->episode_return},
+                               {"steps", state->step},
+                               {"terminated", r.terminated},
+                               {"truncated", r.truncated},
+                               {"cut_short", cut_short},
+                               {"seconds", state->data->time - t0},
+                               {"frames", frame},
+                               {"metrics", named}});
     }
     writer.finish();
     std::printf("wrote %s: %lld frames, %dx%d at %d fps (%.2f s)\n", o.out.c_str(), (long long)writer.frames(), o.width,
                 o.height, o.fps, double(writer.frames()) / o.fps);
+    events.write("wrote", {{"path", o.out},
+                           {"frames", writer.frames()},
+                           {"width", o.width},
+                           {"height", o.height},
+                           {"fps", o.fps},
+                           {"seconds", double(writer.frames()) / o.fps}});
     if (o.view_check) {
       std::printf(
           "view: the robot (body '%s' and what hangs from it) covers %.2f %% (%lld pixels) to %.2f %% (mean) of the "
           "scene in %lld frames\n",
           view.root_name().c_str(), 100 * min_coverage, (long long)min_pixels,
           100 * sum_coverage / std::max<int64_t>(1, coverage_frames), (long long)coverage_frames);
+      auto frame_or_null = [](int64_t f) { return f < 0 ? nlohmann::json(nullptr) : nlohmann::json(f); };
+      events.write("view", {{"root_body", view.root_name()},
+                            {"frames", coverage_frames},
+                            {"min_share", min_coverage},
+                            {"min_pixels", min_pixels},
+                            {"mean_share", sum_coverage / std::max<int64_t>(1, coverage_frames)},
+                            {"min_robot_pixels", kMinRobotPixels},
+                            {"lost_frame", frame_or_null(first_lost)},
+                            {"cut_frame", frame_or_null(first_cut)},
+                            {"cut_rows", most_cut}});
       if (first_lost >= 0) {
         std::fprintf(stderr, "farm-play: the robot left the picture at frame %lld (covers fewer than %lld pixels)\n",
                      (long long)first_lost, (long long)kMinRobotPixels);

@@ -151,3 +151,19 @@ wait_has_event() {
   for _ in $(seq $((seconds * 5))); do has_event "$file" "$kind" "$@" && return 0; sleep 0.2; done
   return 1
 }
+
+# Whether two events files (farm-play's or farm-mclari-eval's --events, say) hold the same events
+# of KIND, in the same order, with the same fields apart from elapsed_s; prints the first that
+# differs when not.  events_same_but_time FILE1 FILE2 KIND
+events_same_but_time() {
+  python3 -c "$_read_events_py"'
+a, b = ([{k: v for k, v in e.items() if k != "elapsed_s"} for e in read(p, sys.argv[3])] for p in sys.argv[1:3])
+for x, y in zip(a, b):
+    if x != y:
+        print("%s: %s\n%s: %s" % (sys.argv[1], json.dumps(x), sys.argv[2], json.dumps(y)))
+        break
+if len(a) != len(b):
+    print("%d %s events in %s, %d in %s" % (len(a), sys.argv[3], sys.argv[1], len(b), sys.argv[2]))
+sys.exit(a != b or not a)
+' "$@"
+}

@@ -3,12 +3,13 @@
 #   tests/integration/test_play.sh LEARNER WORKER PLAY SOURCE_DIR
 # 1. A learner and a worker (real DDS) train deploy/configs/pendulum_sac.txtpb for a few seconds.
 # 2. farm-play writes its checkpoint's policy to an MP4 that ffprobe decodes with the frame count
-#    the episodes' simulated time gives at the video's rate (and that farm-play printed), H.264 in
+#    the episodes' simulated time gives at the video's rate (and that its record says), H.264 in
 #    yuv420p at the asked size; two frames, compared outside the text overlay, differ (the rod moves).
 # 3. RUN/best to an animated GIF that ffprobe reads; --view-check finds the rod in every frame and
 #    every row of the overlay within its column.
 # 4. Clear errors: a run folder without a policy, a run folder passed as a checkpoint, an unknown
 #    task in a checkpoint's config, ffmpeg missing, an unwritable output, an unknown output kind.
+# What farm-play did is read from its --events record (its kinds: tools/play.cpp).
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") play=$(readlink -f "$3") src=$(readlink -f "$4")
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
@@ -29,11 +30,18 @@ wait $lp || fail "learner exited $?: $(tail -5 "$dir/learner.log")"
 # 2. MP4: 2 episodes of 40 steps of 0.05 s (Pendulum-v1's dt) at 20 fps: 2 s each, 41 frames each
 # (the reset's and one per 0.05 s).
 "$play" --run "$dir/run" --out "$dir/p.mp4" --episodes 2 --max-steps 40 --width 320 --height 240 --fps 20 \
-    --seed 3 >"$dir/play.out" 2>"$dir/play.err" || fail "farm-play to MP4 exited $?: $(cat "$dir/play.err")"
+    --seed 3 --events "$dir/play.jsonl" >"$dir/play.out" 2>"$dir/play.err" ||
+  fail "farm-play to MP4 exited $?: $(cat "$dir/play.err")"
 cat "$dir/play.out"
-[ "$(grep -c '^episode [12] of 2: return -[0-9.]*, 40 steps (cut short), 2.00 s, 41 frames, upright_fraction' \
-    "$dir/play.out")" = 2 ] || fail "not two 41-frame episode lines"
-grep -q "^wrote $dir/p.mp4: 82 frames, 320x240 at 20 fps" "$dir/play.out" || fail "no 82-frame summary"
+python3 -c '
+import json, sys
+ep = [e for e in map(json.loads, open(sys.argv[1])) if e["event"] == "episode"]
+ok = [e for e in ep if e["of"] == 2 and e["return"] < 0 and e["steps"] == 40 and e["cut_short"]
+      and abs(e["seconds"] - 2.0) < 0.005 and e["frames"] == 41 and "upright_fraction" in e["metrics"]]
+sys.exit(not (len(ep) == 2 and [e["index"] for e in ok] == [1, 2]))
+' "$dir/play.jsonl" || fail "not two 41-frame episodes of 40 steps cut short at 2 s: $(cat "$dir/play.jsonl")"
+has_event "$dir/play.jsonl" wrote path="\"$dir/p.mp4\"" frames=82 width=320 height=240 fps=20 ||
+  fail "no 82-frame video written: $(cat "$dir/play.jsonl")"
 probe=$(ffprobe -v error -count_frames -select_streams v:0 \
     -show_entries stream=codec_name,pix_fmt,width,height,nb_read_frames -of default=nw=1 "$dir/p.mp4")
 echo "$probe"
@@ -55,14 +63,16 @@ assert changed > 100, changed
 PY
 # The same seed gives the same episodes (the policy is deterministic): the same returns.
 "$play" --run "$dir/run" --out "$dir/again.mp4" --episodes 2 --max-steps 40 --width 320 --height 240 --fps 20 \
-    --seed 3 >"$dir/again.out" 2>/dev/null || fail "second farm-play exited $?"
-diff <(grep '^episode' "$dir/play.out") <(grep '^episode' "$dir/again.out") || fail "same seed, other episodes"
+    --seed 3 --events "$dir/again.jsonl" >/dev/null 2>&1 || fail "second farm-play exited $?"
+events_same_but_time "$dir/play.jsonl" "$dir/again.jsonl" episode || fail "same seed, other episodes"
 
 # 3. GIF from RUN/best, with the robot in view of every frame.
 "$play" --run "$dir/run" --best --out "$dir/p.gif" --max-steps 20 --width 320 --height 240 --fps 10 --view-check \
-    >"$dir/gif.out" 2>"$dir/gif.err" || fail "farm-play to GIF exited $?: $(cat "$dir/gif.err")"
+    --events "$dir/gif.jsonl" >"$dir/gif.out" 2>"$dir/gif.err" ||
+  fail "farm-play to GIF exited $?: $(cat "$dir/gif.err")"
 cat "$dir/gif.out"
-grep -q "^view: the robot (body 'rod' and what hangs from it) covers" "$dir/gif.out" || fail "no view line"
+has_event "$dir/gif.jsonl" view root_body='"rod"' lost_frame=null cut_frame=null ||
+  fail "no view check of the rod: $(cat "$dir/gif.jsonl")"
 probe=$(ffprobe -v error -count_frames -select_streams v:0 -show_entries stream=codec_name,width,height,nb_read_frames \
     -of default=nw=1 "$dir/p.gif")
 echo "$probe"
