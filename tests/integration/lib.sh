@@ -46,6 +46,7 @@ pendulum_config() {
 # The batches a learner has accepted so far, from the last row of RUN_DIR/learner.csv (column
 # batches_ok); 0 before the first row.  batches_ok RUN_DIR
 batches_ok() {
+  [ -f "$1/learner.csv" ] || { echo 0; return; }
   awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
     "$1/learner.csv" 2>/dev/null
 }
@@ -166,4 +167,37 @@ if len(a) != len(b):
     print("%d %s events in %s, %d in %s" % (len(a), sys.argv[3], sys.argv[1], len(b), sys.argv[2]))
 sys.exit(a != b or not a)
 ' "$@"
+}
+
+# elapsed_s and COLUMN at the last row of RUN/learner.csv ("0 0" before the first).  csv_last RUN COLUMN
+csv_last() {
+  awk -F, -v want="$2" 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == want) c = i; if ($i == "elapsed_s") e = i }; next }
+                        { le = $e; lv = $c } END { print le + 0, lv + 0 }' "$1/learner.csv" 2>/dev/null || echo 0 0
+}
+
+# An attack's cost, measured against the same learner's rate with the attack paused: ROUNDS times,
+# the attacking process PID stopped (SIGSTOP) for SECONDS, then running (SIGCONT) for SECONDS, each
+# window measured from 0.5 s after the switch. Sets quiet_rate and attack_rate: COLUMN of
+# RUN/learner.csv per second over all stopped windows and over all running windows together. A
+# shared 2-core machine moves a learner's rate by more than a tenth on its own for tens of seconds;
+# alternating short windows puts such a swing on both sides alike. Leaves PID running.
+#   alternate_attack PID RUN COLUMN ROUNDS SECONDS
+alternate_attack() {
+  local pid=$1 run=$2 col=$3 rounds=$4 secs=$5 r e1 v1 e2 v2 tq=0 vq=0 ta=0 va=0
+  for r in $(seq "$rounds"); do
+    for phase in quiet attack; do
+      if [ $phase = quiet ]; then kill -STOP "$pid" 2>/dev/null; else kill -CONT "$pid" 2>/dev/null; fi
+      sleep 0.5
+      read -r e1 v1 < <(csv_last "$run" "$col")
+      sleep "$secs"
+      read -r e2 v2 < <(csv_last "$run" "$col")
+      if [ $phase = quiet ]; then read -r tq vq < <(awk -v a="$tq" -v b="$vq" -v t="$e1 $e2" -v v="$v1 $v2" \
+        'BEGIN { split(t, T, " "); split(v, V, " "); print a + T[2] - T[1], b + V[2] - V[1] }')
+      else read -r ta va < <(awk -v a="$ta" -v b="$va" -v t="$e1 $e2" -v v="$v1 $v2" \
+        'BEGIN { split(t, T, " "); split(v, V, " "); print a + T[2] - T[1], b + V[2] - V[1] }'); fi
+    done
+  done
+  kill -CONT "$pid" 2>/dev/null
+  quiet_rate=$(awk -v t="$tq" -v v="$vq" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
+  attack_rate=$(awk -v t="$ta" -v v="$va" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
 }
