@@ -97,38 +97,34 @@ TEST(Security, OnlyCertifiedParticipantsTrainOrSeeTheFarm) {
   Proc& insider = outsider("insider", {"--security", d + "/pki/insider"}, "36");
 
   // Every outsider must have run: its participant created (a certificate from another CA is valid
-  // to its own participant; only the farm refuses it) and its counts printed. An outsider that
+  // to its own participant; only the farm refuses it) and its counts recorded. An outsider that
   // never started (bad folder, missing file, crash) would get nothing through for the wrong reason.
-  for (Proc* p : {&plain, &rogue, &insider}) {
-    int rc = wait_for(*p, 60);
-    const std::string out = slurp(p->log);
-    EXPECT_EQ(rc, 0) << p->log << "\n" << out;
-    EXPECT_NE(out.find(": joined domain " + domain), std::string::npos) << p->log << "\n" << out;
+  for (const auto& [p, id] :
+       {std::pair{&plain, "intruder-plain"}, std::pair{&rogue, "intruder-rogue"}, std::pair{&insider, "insider"}}) {
+    EXPECT_EQ(wait_for(*p, 60), 0) << p->log << "\n" << set.log(id);
+    const nlohmann::json join = set.last_event(id, "joined");
+    EXPECT_EQ(join.value("domain", -1), std::stoi(domain)) << p->log << "\n" << set.log(id);
   }
-  EXPECT_NE(set.log("intruder-rogue").find("with security from " + d + "/rogue/worker-a"), std::string::npos)
+  EXPECT_EQ(set.last_event("intruder-plain", "joined").value("security", "?"), "") << set.log("intruder-plain");
+  EXPECT_EQ(set.last_event("intruder-rogue", "joined").value("security", ""), d + "/rogue/worker-a")
       << set.log("intruder-rogue");
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
 
   // The control got through both ways, so the outsider program can get through.
-  std::smatch m;
-  const std::string ins = set.log("insider");
-  ASSERT_TRUE(std::regex_search(
-      ins, m, std::regex(R"(batch readers matched (\d+), weights received (\d+), specs received (\d+))")))
-      << ins;
-  EXPECT_GE(std::stoi(m[1]), 1) << ins;
-  EXPECT_GE(std::stoi(m[2]), 1) << ins;
-  EXPECT_GE(std::stoi(m[3]), 1) << ins;
+  const nlohmann::json ins = set.last_event("insider", "sent");
+  ASSERT_FALSE(ins.empty()) << set.log("insider");
+  EXPECT_GE(ins.value("batch_readers_matched", -1), 1) << ins;
+  EXPECT_GE(ins.value("weights_received", -1), 1) << ins;
+  EXPECT_GE(ins.value("specs_received", -1), 1) << ins;
 
   // The outsiders got nothing: no learner matched them, no weights or spec reached them.
   for (const char* id : {"intruder-plain", "intruder-rogue"}) {
-    const std::string out = set.log(id);
-    ASSERT_TRUE(std::regex_search(
-        out, m, std::regex(R"(batch readers matched (\d+), weights received (\d+), specs received (\d+))")))
-        << out;
-    EXPECT_EQ(m[1], "0") << id << ": " << out;
-    EXPECT_EQ(m[2], "0") << id << ": " << out;
-    EXPECT_EQ(m[3], "0") << id << ": " << out;
+    const nlohmann::json out = set.last_event(id, "sent");
+    ASSERT_FALSE(out.empty()) << set.log(id);
+    EXPECT_EQ(out.value("batch_readers_matched", -1), 0) << id << ": " << out;
+    EXPECT_EQ(out.value("weights_received", -1), 0) << id << ": " << out;
+    EXPECT_EQ(out.value("specs_received", -1), 0) << id << ": " << out;
   }
 
   // The learner trained with the real worker and never heard of the outsiders.
@@ -179,15 +175,12 @@ TEST(Security, FuzzedSamplesFromCertifiedParticipantsEndNoProcess) {
   EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
 
   // Each fuzzer reached the readers it aimed at: matched on its topics, samples written.
-  std::smatch m;
-  const std::regex wrote(R"((\S+) (\d+) \(matched (\d+)\))");
   for (const auto& [id, topic] :
        {std::pair{"fuzz-w", "farm/TransitionBatch"}, std::pair{"fuzz-l", "farm/PolicyWeights"}}) {
-    const std::string out = set.log(id);
     bool reached = false;
-    for (auto it = std::sregex_iterator(out.begin(), out.end(), wrote); it != std::sregex_iterator(); ++it)
-      reached |= (*it)[1] == topic && std::stoi((*it)[2]) > 0 && std::stoi((*it)[3]) >= 1;
-    EXPECT_TRUE(reached) << id << " wrote no matched " << topic << ":\n" << out;
+    for (const nlohmann::json& e : set.worker_events(id, "malformed"))
+      reached |= e.value("topic", "") == topic && e.value("written", 0) > 0 && e.value("matched", 0) >= 1;
+    EXPECT_TRUE(reached) << id << " wrote no matched " << topic << ":\n" << set.log(id);
   }
   const nlohmann::json summary = summary_event(d + "/run");
   const BatchCounts c = batch_counts(summary);
@@ -259,11 +252,10 @@ TEST(Security, WorkerIdIsBoundToItsCertificateName) {
 
   // The forger was authenticated and matched by the learner (its certificate is a worker's), so
   // its batches reached the learner: they were refused there, not lost on the way.
-  std::smatch m;
-  const std::string forged = set.log("forger");
-  ASSERT_TRUE(std::regex_search(forged, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << forged;
-  EXPECT_GT(std::stoi(m[1]), 0) << forged;
-  EXPECT_GE(std::stoi(m[2]), 1) << forged;
+  const nlohmann::json forged = set.last_event("forger", "sent");
+  ASSERT_FALSE(forged.empty()) << set.log("forger");
+  EXPECT_GT(forged.value("batches", -1), 0) << forged;
+  EXPECT_GE(forged.value("batch_readers_matched", -1), 1) << forged;
   const std::string run = d + "/run";
   const nlohmann::json refused =
       event_with(run, "refusal", "reason", "worker id 'w2' is not 'w1', the certificate name of the participant");
@@ -307,22 +299,31 @@ TEST(Security, DiscoveryServerWithSecurityIsRefusedAtStart) {
                                    "(ROS_DISCOVERY_SERVER=127.0.0.1:11811 is set)"),
             std::string::npos)
       << set.log("client");
-  EXPECT_NE(set.log("super-client").find("(the profile's discovery is a Discovery Server's)"), std::string::npos)
+  EXPECT_NE(set.last_event("super-client", "refused")
+                .value("what", "")
+                .find("(the profile's discovery is a Discovery Server's)"),
+            std::string::npos)
       << set.log("super-client");
   set.cleanup(::testing::Test::HasFailure());
 }
 
-// The writers a certificate may create, as farm_intruder --try-writers prints them.
+// The writers a certificate may create, from farm_intruder --try-writers' writers event, as
+// "created [TOPIC ...], refused [TOPIC ...]".
 std::string writers_of(ProcessSet& set, const std::string& domain, const std::string& dir, const std::string& id) {
   Proc& p = set.start({FARM_INTRUDER_BIN, "--domain", domain, "--id", id, "--security", dir, "--try-writers", "1"}, id);
   EXPECT_EQ(wait_for(p, 60), 0) << set.log(id);
-  std::smatch m;
-  const std::string out = set.log(id);
-  if (!std::regex_search(out, m, std::regex(R"(writers created \[([^\]]*)\], refused \[([^\]]*)\])"))) {
-    ADD_FAILURE() << id << " printed no writers line:\n" << out;
+  const nlohmann::json writers = set.last_event(id, "writers");
+  if (writers.empty()) {
+    ADD_FAILURE() << id << " recorded no writers event:\n" << set.log(id);
     return "";
   }
-  return "created [" + m[1].str() + "], refused [" + m[2].str() + "]";
+  const auto topics = [&writers](const char* key) {
+    std::string list;
+    for (const auto& t : writers.value(key, nlohmann::json::array()))
+      list += (list.empty() ? "" : " ") + t.get<std::string>();
+    return list;
+  };
+  return "created [" + topics("created") + "], refused [" + topics("refused") + "]";
 }
 
 // Access control where it matters: weights and a spec are what every worker runs and trains on. A
@@ -501,11 +502,10 @@ TEST(Security, IdentityTokenDoesNotNameTheWorker) {
 
   // The liar was authenticated and matched (its certificate is a worker's): its batches reached the
   // learner, whose log shows the token's claim.
-  std::smatch m;
-  const std::string lied = set.log("liar");
-  ASSERT_TRUE(std::regex_search(lied, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << lied;
-  EXPECT_GT(std::stoi(m[1]), 0) << lied;
-  EXPECT_GE(std::stoi(m[2]), 1) << lied;
+  const nlohmann::json lied = set.last_event("liar", "sent");
+  ASSERT_FALSE(lied.empty()) << set.log("liar");
+  EXPECT_GT(lied.value("batches", -1), 0) << lied;
+  EXPECT_GE(lied.value("batch_readers_matched", -1), 1) << lied;
   const std::string run = d + "/run";
   const nlohmann::json refused =
       event_with(run, "refusal", "reason", "worker id 'w2' is not 'w1', the certificate name of the participant");
@@ -552,10 +552,9 @@ TEST(Security, OneWorkersAnswersAloneDecideNoBestAndNoStop) {
   ASSERT_EQ(wait_for(learner, 120), 0) << set.log("learner");
   EXPECT_EQ(wait_for(worker, 60), 0) << set.log("worker");
   EXPECT_EQ(wait_for(liar, 60), 0) << set.log("liar");
-  std::smatch m;
-  const std::string lied = set.log("liar");
-  ASSERT_TRUE(std::regex_search(lied, m, std::regex(R"(forged (\d+) evaluation answers)"))) << lied;
-  EXPECT_GE(std::stoi(m[1]), 1) << "the liar was never asked: the test shows nothing\n" << lied;
+  const nlohmann::json lied = set.last_event("liar", "forged_answers");
+  ASSERT_FALSE(lied.empty()) << set.log("liar");
+  EXPECT_GE(lied.value("count", -1), 1) << "the liar was never asked: the test shows nothing\n" << set.log("liar");
 
   const nlohmann::json summary = summary_event(d + "/run");
   EXPECT_EQ(summary.value("reason", "").rfind("time limit ", 0), 0u) << summary;
@@ -623,11 +622,10 @@ TEST(Security, RolesAreExplicitAndRevokedWorkersAreRefused) {
   wait_for(w2, 60);  // refused from the reload on: how it ends is not the point
 
   // (b): the revoked certificate matched no learner reader.
-  std::smatch m;
-  const std::string w3 = set.log("w3");
-  ASSERT_TRUE(std::regex_search(w3, m, std::regex(R"(sent (\d+) batches, batch readers matched (\d+))"))) << w3;
-  EXPECT_GT(std::stoi(m[1]), 0) << w3;
-  EXPECT_EQ(m[2], "0") << w3;
+  const nlohmann::json w3 = set.last_event("w3", "sent");
+  ASSERT_FALSE(w3.empty()) << set.log("w3");
+  EXPECT_GT(w3.value("batches", -1), 0) << w3;
+  EXPECT_EQ(w3.value("batch_readers_matched", -1), 0) << w3;
   const nlohmann::json summary = summary_event(d + "/run");
   EXPECT_TRUE(streams_of(summary, "w3").empty()) << summary;
 
