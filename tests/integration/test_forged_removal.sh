@@ -23,14 +23,16 @@ read -r e0 s0 < <(steps_row)
 sleep 5
 read -r e1 s1 < <(steps_row)
 "$intruder" --domain $domain --experiment it_removal --id remover --seconds 9 --forge-removal 1 \
-  >"$dir/intruder.log" 2>&1 & ip=$!; pids+=($ip)
-wait_text "$dir/intruder.log" "naming learner" 20 || fail "the intruder found no learner to name: $(cat "$dir/intruder.log")"
+  --events "$dir/intruder.jsonl" >"$dir/intruder.log" 2>&1 & ip=$!; pids+=($ip)
+# Its record (an events file, read as a worker's is) says whom the removals name before the first.
+wait_worker_event "$dir/intruder.jsonl" naming_learner 20 ||
+  fail "the intruder found no learner to name: $(cat "$dir/intruder.log")"
 sleep 1
 read -r e2 s2 < <(steps_row)
 sleep 5
 read -r e3 s3 < <(steps_row)
 wait $ip || fail "the intruder failed: $(cat "$dir/intruder.log")"
-grep -Eq "sent [1-9][0-9]* participant removals" "$dir/intruder.log" ||
+[ "$(event_of "$dir/intruder.jsonl" removals 'e["sent"] > 0')" = true ] ||
   fail "the intruder sent no removal, the test shows nothing: $(cat "$dir/intruder.log")"
 before=$(rate "$e0" "$s0" "$e1" "$s1") during=$(rate "$e2" "$s2" "$e3" "$s3")
 echo "env steps/s before the attack $before, during it $during"
