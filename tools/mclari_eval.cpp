@@ -2,6 +2,21 @@
 // episodes from a learner checkpoint, reporting mean efficiency, falls and targets reached per
 // terrain against the best fixed (group, f) of a characterization sweep (farm-mclari-sweep's
 // best.csv). Prints a Markdown table; --out also writes it to a file.
+// With --events FILE it also keeps a record for programs (common/event_log.h): one JSON object a
+// line with "event" and "elapsed_s" (seconds since farm-mclari-eval started). Kinds:
+//   policy  as the printed "policy:" line: checkpoint, updates, layout; and episodes (a terrain),
+//           seed, best (--best's file; "" without)
+//   row     one per terrain, as its row of the table: terrain (0 ..), terrain_name, episodes,
+//           efficiency, falls, reached, frequency_hz (the means and counts of its episodes),
+//           distance (mean), fixed (the sweep's best fixed point on it: group_name, frequency_hz,
+//           efficiency, seconds (0: best.csv does not say); null without --best or a row for the
+//           terrain) and share_of_fixed (efficiency / fixed efficiency; null without fixed)
+//   note    the table's note on a comparison that is not like for like: kind "unequal_lengths"
+//           (ran_s: how long the fixed points ran, episodes_up_to_s) or "lengths_unknown"
+//           (episodes_up_to_s); best (the file); text (the note as printed)
+//   wrote   the table written to --out: path
+//   trace   the --trace file written: path, episodes (one a terrain), steps (its rows)
+// Human output (stdout and stderr) stays what it is; tests and tools read the record.
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -23,9 +38,11 @@
 #include "cli.h"
 #include "config.h"
 #include "config_policy.h"
+#include "event_log.h"
 #include "mclari/mclari_task.h"
 #include "mclari/phase_groups.h"
 #include "mclari/terrain.h"
+#include "meter.h"
 #include "mlp.h"
 #include "rollout.h"
 #include "task_specs.h"
@@ -116,9 +133,9 @@ std::map<int, Best> read_best(const std::string& path) {
 }
 
 // One deterministic episode per terrain, each step's gait and figures as CSV rows: what the
-// policy does, where the table shows only its means.
-void write_trace(const std::string& path, const farm::config::MclariConfig& mc_cfg, const farm::PolicyParams& params,
-                 uint64_t seed) {
+// policy does, where the table shows only its means. Returns the steps (rows) written.
+int write_trace(const std::string& path, const farm::config::MclariConfig& mc_cfg, const farm::PolicyParams& params,
+                uint64_t seed) {
   std::ofstream out(path);
   if (!out) throw std::runtime_error("cannot write " + path);
   out << "terrain,terrain_name,step,frequency_hz,group,group_name,power_w,speed_mm_s,efficiency,reward,end\n";
@@ -129,6 +146,7 @@ void write_trace(const std::string& path, const farm::config::MclariConfig& mc_c
   const farm::robots::McLariTask task(mc);  // holds all six terrain models; reset_on picks one
   auto state = task.make_state();
   std::vector<float> obs(size_t(task.spec().obs_dim)), act(size_t(task.spec().act_dim));
+  int rows = 0;
   for (int t = 0; t < mclari::kNumTerrains; ++t) {
     task.reset_on(*state, seed + 1000 * t, t, obs.data());
     for (int k = 1; k <= task.spec().max_episode_steps; ++k) {
@@ -141,10 +159,12 @@ void write_trace(const std::string& path, const farm::config::MclariConfig& mc_c
                     f.frequency, f.group, mclari::group_name(f.group).c_str(), f.power, f.speed_mm_s, f.efficiency,
                     r.reward, end);
       out << line;
+      ++rows;
       if (r.terminated || r.truncated) break;
     }
   }
   if (!out) throw std::runtime_error("write failed: " + path);
+  return rows;
 }
 
 struct TerrainResult {
@@ -155,7 +175,7 @@ struct TerrainResult {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string config_path, checkpoint, best_path, out_path, trace_path;
+  std::string config_path, checkpoint, best_path, out_path, trace_path, events_path;
   int episodes = 10, threads = int(std::max(1u, std::thread::hardware_concurrency()));
   uint64_t seed = 7;
   farm::cli::App app("farm-mclari-eval");
@@ -182,8 +202,14 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--trace", trace_path,
                  "Also run one episode per terrain and write the gait and figures of each step (STEPS.csv)");
+  app.add_option("--events", events_path,
+                 "Also write a record for programs to this file (JSON lines, appended): the policy, each row of the "
+                 "table, its note, the table and trace written");
   if (const int rc = farm::cli::parse(app, argc, argv); rc >= 0) return rc;
+  farm::EventLog events;
+  events.set_start(farm::now_seconds());
   try {
+    if (!events_path.empty()) events.open(events_path);
     const auto cfg = farm::robots::load_config_file(config_path);
     if (cfg.task().name() != "mclari")
       throw std::invalid_argument(config_path + ": task.name is '" + cfg.task().name() + "', expected 'mclari'");
@@ -261,11 +287,27 @@ int main(int argc, char** argv) {
              "best fixed efficiency | SAC / best |\n"
           << "| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     char line[512];
+    std::vector<nlohmann::json> rows;
     for (int t = 0; t < mclari::kNumTerrains; ++t) {
       const auto& r = results[t];
       std::string fixed = "-", fixed_eff = "-", ratio = "-";
+      nlohmann::json row = {{"terrain", t},
+                            {"terrain_name", mclari::terrain_name(t)},
+                            {"episodes", r.episodes},
+                            {"efficiency", r.efficiency},
+                            {"falls", r.falls},
+                            {"reached", r.reached},
+                            {"frequency_hz", r.frequency},
+                            {"distance", r.distance},
+                            {"fixed", nullptr},
+                            {"share_of_fixed", nullptr}};
       if (best.count(t)) {
         const Best& b = best[t];
+        row["fixed"] = {{"group_name", b.group_name},
+                        {"frequency_hz", b.frequency},
+                        {"efficiency", b.efficiency},
+                        {"seconds", b.seconds}};
+        row["share_of_fixed"] = r.efficiency / b.efficiency;
         fixed = b.group_name + ", " + std::to_string(b.frequency) + " Hz";
         std::snprintf(line, sizeof line, "%.4f", b.efficiency);
         fixed_eff = line;
@@ -276,25 +318,32 @@ int main(int argc, char** argv) {
                     mclari::terrain_name(t), r.episodes, r.efficiency, r.falls, r.episodes, r.reached, r.episodes,
                     r.frequency, fixed.c_str(), fixed_eff.c_str(), ratio.c_str());
       table << line;
+      rows.push_back(std::move(row));
     }
     // Rough ground's fixed gaits slow down over a long run (the robot settles into the height
     // field), so the fixed points only compare with episodes of the same length.
     const double episode_s = cfg.task().mclari().max_episode_steps() * cfg.task().mclari().step_seconds();
     std::string note;
+    nlohmann::json note_event;
     for (const auto& [t, b] : best) {
       char text[400];
-      if (b.seconds == 0)
+      if (b.seconds == 0) {
+        note_event = {{"kind", "lengths_unknown"}, {"episodes_up_to_s", episode_s}};
         std::snprintf(text, sizeof text,
                       "note: %s does not say how long its fixed points ran; these episodes run up to %g s\n",
                       best_path.c_str(), episode_s);
-      else if (std::abs(b.seconds - episode_s) > 1e-9)
+      } else if (std::abs(b.seconds - episode_s) > 1e-9) {
+        note_event = {{"kind", "unequal_lengths"}, {"ran_s", b.seconds}, {"episodes_up_to_s", episode_s}};
         std::snprintf(text, sizeof text,
                       "note: not like for like: the fixed points of %s ran %g s, these episodes up to %g s "
                       "(farm-mclari-sweep --seconds %g)\n",
                       best_path.c_str(), b.seconds, episode_s, episode_s);
-      else
+      } else {
         continue;
+      }
       note = text;
+      note_event["best"] = best_path;
+      note_event["text"] = note.substr(0, note.size() - 1);  // without its newline
       break;
     }
     if (!note.empty()) {
@@ -303,14 +352,26 @@ int main(int argc, char** argv) {
     }
     std::cout << "policy: " << checkpoint << " (" << rp.updates << " updates, " << policy.layout.describe() << ")\n"
               << table.str();
+    events.write("policy", {{"checkpoint", checkpoint},
+                            {"updates", rp.updates},
+                            {"layout", policy.layout.describe()},
+                            {"episodes", episodes},
+                            {"seed", seed},
+                            {"best", best_path}});
+    for (auto& row : rows) events.write("row", std::move(row));
+    if (!note.empty()) events.write("note", note_event);
     if (!out_path.empty()) {
       std::ofstream out(out_path);
       if (!out) throw std::runtime_error("cannot write " + out_path);
       out << table.str();
+      out.close();
+      if (!out) throw std::runtime_error("write failed: " + out_path);
+      events.write("wrote", {{"path", out_path}});
     }
     if (!trace_path.empty()) {
-      write_trace(trace_path, cfg.task().mclari(), policy, seed);
+      const int steps = write_trace(trace_path, cfg.task().mclari(), policy, seed);
       std::cout << "trace: one episode per terrain, every step, in " << trace_path << "\n";
+      events.write("trace", {{"path", trace_path}, {"episodes", mclari::kNumTerrains}, {"steps", steps}});
     }
     return 0;
   } catch (const std::exception& e) {
