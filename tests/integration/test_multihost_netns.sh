@@ -142,7 +142,8 @@ secure $C "$worker" --envs 8 --threads 1 --log-every 2 --security "$pki/host-c" 
   >"$dir/worker-sc.log" 2>&1 &
 swc=$!; pids+=($swc)
 # No certificate, in C: well-formed batches of the experiment, and reads for its spec and weights.
-secure $C "$intruder" --experiment it_multihost_secure --id intruder-c --seconds 16 >"$dir/intruder.log" 2>&1 &
+secure $C "$intruder" --experiment it_multihost_secure --id intruder-c --seconds 16 --events "$dir/intruder.jsonl" \
+  >"$dir/intruder.log" 2>&1 &
 wi=$!; pids+=($wi)
 
 wait_text() {  # FILE REGEX SECONDS
@@ -233,10 +234,10 @@ check_run "$dir/run-secure" "$dir/worker-s"
 # The intruder ran (its participant was created) and got nothing either way.
 wait $wi; rc=$?
 echo "--- intruder: $(cat "$dir/intruder.log")"
-[ $rc = 0 ] && grep -q "intruder-c: joined domain $sdomain without security" "$dir/intruder.log" ||
-  fail "the intruder did not run (exit $rc)"
-grep -q "batch readers matched 0, weights received 0, specs received 0" "$dir/intruder.log" ||
-  fail "the intruder got through: $(tail -1 "$dir/intruder.log")"
+[ $rc = 0 ] && has_event "$dir/intruder.jsonl" joined id='"intruder-c"' domain=$sdomain security='""' ||
+  fail "the intruder did not run (exit $rc): $(cat "$dir/intruder.jsonl")"
+has_event "$dir/intruder.jsonl" sent batch_readers_matched=0 weights_received=0 specs_received=0 ||
+  fail "the intruder got through: $(worker_events "$dir/intruder.jsonl" sent)"
 
 if [ "$failed" = 0 ]; then echo "PASS"; exit 0; fi
 echo "--- learner log tails:"; tail -n 5 "$dir/learner.log" "$dir/learner-secure.log"
