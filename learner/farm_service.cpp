@@ -1,10 +1,14 @@
 #include "farm_service.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <stdexcept>
+#include <thread>
 
+#include "announce_wait.h"
 #include "checkpoint.h"
 #include "config.h"
 #include "eval_answer.h"
@@ -42,11 +46,19 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             in.set_num_actions(task_spec_.num_actions);
             in.set_reward_bound(task_spec_.reward_bound, task_spec_.reward_min, task_spec_.reward_max);
             in.set_max_episode_steps(task_spec_.max_episode_steps);
-            // Called on the ingest thread; roster_ is made before any batch is taken (start()).
-            in.set_announcer([this](const std::string& id, uint64_t session) {
-              roster_.take_pending();
-              const auto w = roster_.find(id + "#" + std::to_string(session));
-              return w ? w->view.writer : std::string();
+            // Called on the ingest thread; roster_ is made before any batch is taken (start()). A
+            // first batch whose announcing heartbeat is not taken yet waits a little for it
+            // (AnnounceWait: the race with a thief that copied the session off that heartbeat).
+            in.set_announcer([this, wait = std::make_shared<AnnounceWait>()](const std::string& id, uint64_t session) {
+              const std::string key = id + "#" + std::to_string(session);
+              return wait->await(
+                  [&] {
+                    roster_.take_pending();
+                    const auto w = roster_.find(key);
+                    return w ? w->view.writer : std::string();
+                  },
+                  [] { return now_seconds(); },
+                  [](double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); });
             });
             return in;
           }(),

@@ -148,7 +148,8 @@ class Ingest {
   // (worker id, session), "" when none was heard. A stream then opens only from that participant:
   // a session number is random and first read off the bus in its worker's own heartbeat, so a
   // participant that copies it and writes the first batch under it (a stream thief) is refused,
-  // counted invalid on no account. A stream whose heartbeat is not heard yet opens from its writer.
+  // counted invalid on no account. A stream whose heartbeat is not heard yet opens from its writer
+  // (the learner's announcer first waits a little for that heartbeat: learner/announce_wait.h).
   using Announcer = std::function<std::string(const std::string& worker_id, uint64_t session)>;
   void set_announcer(Announcer announcer) { announcer_ = std::move(announcer); }
 

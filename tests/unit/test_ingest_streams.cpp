@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "announce_wait.h"
 #include "config.h"
 #include "ingest.h"
 #include "ingest_accounts.h"
@@ -334,4 +335,41 @@ TEST_F(Fixture, EndOfStreamMayBeEmpty) {
   b.end_of_stream(false);
   b.sequence_number(1);
   EXPECT_NE(take(b).find("empty batch"), std::string::npos);
+}
+
+// The wait for a session's announcing heartbeat: it ends as soon as the heartbeat is heard, lasts
+// at most its limit, and draws on a budget earned at a share of the wall time, so a flood of first
+// batches under invented sessions stops being waited for.
+TEST(AnnounceWait, WaitsForTheAnnouncementWithinItsLimitAndBudget) {
+  double clock = 100;
+  const auto now = [&] { return clock; };
+  const auto sleep = [&](double s) { clock += s; };
+  farm::AnnounceWait wait(0.5, 0.1, 2.0, 0.01);
+
+  // Heard on the third ask: the wait ends there, having cost 0.02 s.
+  int asks = 0;
+  EXPECT_EQ(wait.await([&] { return ++asks >= 3 ? std::string("worker-participant") : std::string(); }, now, sleep),
+            "worker-participant");
+  EXPECT_EQ(asks, 3);
+  EXPECT_NEAR(clock, 100.02, 1e-9);
+
+  // Never heard: each wait lasts its limit, 0.5 s, until the 2 s saved are spent.
+  const auto never = [] { return std::string(); };
+  for (int i = 0; i < 3; ++i) {
+    const double t0 = clock;
+    EXPECT_EQ(wait.await(never, now, sleep), "");
+    EXPECT_NEAR(clock - t0, 0.5, 0.011) << "wait " << i;
+  }
+  double t0 = clock;
+  wait.await(never, now, sleep);
+  EXPECT_NEAR(clock - t0, 0.48, 0.011);  // what was left of the budget
+  t0 = clock;
+  wait.await(never, now, sleep);
+  EXPECT_LT(clock - t0, 0.011);  // spent: decided at once
+
+  // Earned back at 0.1 s a second: 3 s later, a wait of 0.3 s.
+  clock += 3;
+  t0 = clock;
+  wait.await(never, now, sleep);
+  EXPECT_NEAR(clock - t0, 0.3, 0.011);
 }
