@@ -201,3 +201,11 @@ alternate_attack() {
   quiet_rate=$(awk -v t="$tq" -v v="$vq" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
   attack_rate=$(awk -v t="$ta" -v v="$va" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
 }
+
+# Waits for process PID (a child of this shell) to end, at most SECONDS; returns its exit status, or
+# 124 when it still runs then (left running, for the test's cleanup).  wait_pid PID SECONDS
+wait_pid() {
+  for _ in $(seq $(($2 * 5))); do kill -0 "$1" 2>/dev/null || break; sleep 0.2; done
+  kill -0 "$1" 2>/dev/null && return 124
+  wait "$1"
+}

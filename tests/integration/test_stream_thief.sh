@@ -26,13 +26,14 @@ for _ in $(seq 150); do [ "$(batches_ok "$dir/run")" -gt 20 ] && break; sleep 0.
 wait_has_event "$dir/thief.jsonl" stealing 15 worker_id='"tw"' ||
   fail "the thief heard no session of tw: $(cat "$dir/thief.log")"
 kill -INT $lp
-wait $lp; rc=$?
-[ $rc = 130 ] || fail "the learner stopped with SIGINT exited with $rc, not 130: $(tail -3 "$dir/learner.log")"
+wait_pid $lp 30; rc=$?
+[ $rc = 130 ] || fail "the learner stopped with SIGINT exited with $rc, not 130 (124: still running 30 s later): $(tail -3 "$dir/learner.log")"
 "$learner" --config "$dir/thief.txtpb" --run-dir "$dir/run" --domain $domain --resume >"$dir/resumed.log" 2>&1 &
 lp=$!; pids+=($lp)
-wait $lp || fail "the resumed learner exited with $?: $(tail -5 "$dir/resumed.log")"
-for _ in $(seq 100); do kill -0 $wp 2>/dev/null || break; sleep 0.2; done
-wait $wp || fail "the worker exited with $?: $(tail -3 "$dir/worker.log")"
+wait_pid $lp 60; rc=$?
+[ $rc = 0 ] || fail "the resumed learner exited with $rc (124: still running 60 s later): $(tail -5 "$dir/resumed.log")"
+wait_pid $wp 20; rc=$?
+[ $rc = 0 ] || fail "the worker exited with $rc (124: still running 20 s after its learner): $(tail -3 "$dir/worker.log")"
 kill $tp 2>/dev/null
 
 sent=$(event_of "$dir/worker.jsonl" finished 'e["batches_sent"]')
