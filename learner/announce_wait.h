@@ -3,10 +3,11 @@
 // at about the moment it reaches a participant that copies the session off it and writes a batch
 // under it at once (a stream thief); on a loaded host the copy's batch can be taken a few
 // milliseconds before the heartbeat it copied, and a stream whose announcement is not heard yet
-// opens from its first writer. Waiting up to `most` seconds for the announcement closes that race.
-// Time spent waiting is a budget earned at `share` seconds a second (at most `saved` seconds kept),
-// so a flood of first batches under invented sessions costs the ingest at most that share of its
-// time; once the budget is spent a first batch is decided at once, as without the wait.
+// opens from its first writer. Waiting up to `most` seconds for the announcement closes that race;
+// it is asked only for a participant that has opened no stream yet (Ingest::Announcer). Time spent
+// waiting is a budget earned at `share` seconds a second (at most `saved` seconds kept), so first
+// batches under invented sessions from ever new participants cost the ingest at most that share of
+// its time; once the budget is spent a first batch is decided at once, as without the wait.
 #pragma once
 
 #include <algorithm>
@@ -16,7 +17,7 @@ namespace farm {
 
 class AnnounceWait {
  public:
-  explicit AnnounceWait(double most = 0.5, double share = 0.1, double saved = 2.0, double step = 0.005)
+  explicit AnnounceWait(double most = 0.1, double share = 0.02, double saved = 0.2, double step = 0.002)
       : most_(most), share_(share), saved_(saved), step_(step), budget_(saved) {}
 
   // Asks announced() (the announcing participant, "" while none is known) until it names one or

@@ -49,15 +49,17 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             // Called on the ingest thread; roster_ is made before any batch is taken (start()). A
             // first batch whose announcing heartbeat is not taken yet waits a little for it
             // (AnnounceWait: the race with a thief that copied the session off that heartbeat).
-            in.set_announcer([this, wait = std::make_shared<AnnounceWait>()](const std::string& id, uint64_t session) {
+            in.set_announcer([this, wait = std::make_shared<AnnounceWait>()](const std::string& id, uint64_t session,
+                                                                             bool may_wait) {
               const std::string key = id + "#" + std::to_string(session);
+              const auto announced = [&] {
+                roster_.take_pending();
+                const auto w = roster_.find(key);
+                return w ? w->view.writer : std::string();
+              };
+              if (!may_wait) return announced();
               return wait->await(
-                  [&] {
-                    roster_.take_pending();
-                    const auto w = roster_.find(key);
-                    return w ? w->view.writer : std::string();
-                  },
-                  [] { return now_seconds(); },
+                  announced, [] { return now_seconds(); },
                   [](double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); });
             });
             return in;

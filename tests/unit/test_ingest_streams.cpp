@@ -207,7 +207,7 @@ TEST_F(Fixture, StreamTakesBatchesOnlyFromItsWriter) {
 // does not open the stream: the participant of the heartbeat does. A session whose heartbeat was
 // not heard opens from its writer, as before.
 TEST_F(Fixture, AStreamOpensOnlyFromTheParticipantThatAnnouncedIt) {
-  ingest.set_announcer([](const std::string& id, uint64_t session) {
+  ingest.set_announcer([](const std::string& id, uint64_t session, bool) {
     return id == "w1" && session == 7 ? std::string("WORKER") : std::string();
   });
   const std::string why = ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "THIEF");
@@ -220,6 +220,28 @@ TEST_F(Fixture, AStreamOpensOnlyFromTheParticipantThatAnnouncedIt) {
   auto unheard = make_batch(0);
   unheard.worker_session(8);
   EXPECT_EQ(ingest.accept(unheard, 5, 0.0, out, eps, nullptr, "OTHER"), "");
+}
+
+// The announcer may wait for a heartbeat only for a participant that has opened no stream yet: a
+// thief's first batches are waited for, a participant's further sessions (a flood of invented
+// ones) are not.
+TEST_F(Fixture, TheAnnouncerWaitsOnlyForAParticipantWithoutAStream) {
+  std::vector<std::pair<std::string, bool>> asked;
+  ingest.set_announcer([&](const std::string& id, uint64_t session, bool may_wait) {
+    asked.emplace_back(id + "#" + std::to_string(session), may_wait);
+    return session == 7 ? std::string("WORKER") : std::string();
+  });
+  EXPECT_NE(ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "THIEF"), "");
+  auto other = make_batch(0);
+  other.worker_session(9);
+  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");  // unheard: opens from its writer
+  other.worker_session(10);
+  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");
+  other.worker_session(11);
+  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");
+  const std::vector<std::pair<std::string, bool>> expected{
+      {"w1#7", true}, {"w1#9", true}, {"w1#10", false}, {"w1#11", false}};
+  EXPECT_EQ(asked, expected);
 }
 
 // The binding survives a checkpoint: after a resume, a participant that writes first under an
