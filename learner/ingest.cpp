@@ -245,8 +245,10 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     ++counters_.invalid;
     return far;
   }
-  if (it->second.writer.empty()) it->second.writer = writer;
-  if (!writer.empty() && opened_by_.size() < kMaxAccounts) opened_by_.insert(writer);
+  if (it->second.writer.empty()) {
+    it->second.writer = writer;
+    if (!writer.empty() && opened_by_.size() < kMaxAccounts) opened_by_.insert(writer);
+  }
   WorkerAccount& w = it->second;
   w.last_seen = now;
 

@@ -46,9 +46,9 @@ pendulum_config() {
 # The batches a learner has accepted so far, from the last row of RUN_DIR/learner.csv (column
 # batches_ok); 0 before the first row.  batches_ok RUN_DIR
 batches_ok() {
-  [ -f "$1/learner.csv" ] || { echo 0; return; }
-  awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "batches_ok") c = i; next } c { v = $c } END { print v + 0 }' \
-    "$1/learner.csv" 2>/dev/null
+  local e v
+  read -r e v < <(csv_elapsed_last "$1" batches_ok)
+  echo "${v:-0}"
 }
 
 # The events of one kind (RUN_DIR/events.jsonl, the learner's record for programs), one JSON object
@@ -169,10 +169,11 @@ sys.exit(a != b or not a)
 ' "$@"
 }
 
-# elapsed_s and COLUMN at the last row of RUN/learner.csv ("0 0" before the first).  csv_last RUN COLUMN
-csv_last() {
+# elapsed_s and COLUMN at the last row of RUN/learner.csv ("0 0" before the first).  csv_elapsed_last RUN COLUMN
+csv_elapsed_last() {
+  [ -f "$1/learner.csv" ] || { echo 0 0; return; }
   awk -F, -v want="$2" 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == want) c = i; if ($i == "elapsed_s") e = i }; next }
-                        { le = $e; lv = $c } END { print le + 0, lv + 0 }' "$1/learner.csv" 2>/dev/null || echo 0 0
+                        c { le = $e; lv = $c } END { print le + 0, lv + 0 }' "$1/learner.csv" 2>/dev/null || echo 0 0
 }
 
 # An attack's cost, measured against the same learner's rate with the attack paused: ROUNDS times,
@@ -183,23 +184,20 @@ csv_last() {
 # alternating short windows puts such a swing on both sides alike. Leaves PID running.
 #   alternate_attack PID RUN COLUMN ROUNDS SECONDS
 alternate_attack() {
-  local pid=$1 run=$2 col=$3 rounds=$4 secs=$5 r e1 v1 e2 v2 tq=0 vq=0 ta=0 va=0
+  local pid=$1 run=$2 col=$3 rounds=$4 secs=$5 r phase e1 v1 e2 v2 windows=""
   for r in $(seq "$rounds"); do
     for phase in quiet attack; do
       if [ $phase = quiet ]; then kill -STOP "$pid" 2>/dev/null; else kill -CONT "$pid" 2>/dev/null; fi
       sleep 0.5
-      read -r e1 v1 < <(csv_last "$run" "$col")
+      read -r e1 v1 < <(csv_elapsed_last "$run" "$col")
       sleep "$secs"
-      read -r e2 v2 < <(csv_last "$run" "$col")
-      if [ $phase = quiet ]; then read -r tq vq < <(awk -v a="$tq" -v b="$vq" -v t="$e1 $e2" -v v="$v1 $v2" \
-        'BEGIN { split(t, T, " "); split(v, V, " "); print a + T[2] - T[1], b + V[2] - V[1] }')
-      else read -r ta va < <(awk -v a="$ta" -v b="$va" -v t="$e1 $e2" -v v="$v1 $v2" \
-        'BEGIN { split(t, T, " "); split(v, V, " "); print a + T[2] - T[1], b + V[2] - V[1] }'); fi
+      read -r e2 v2 < <(csv_elapsed_last "$run" "$col")
+      windows+="$phase $e1 $v1 $e2 $v2"$'\n'
     done
   done
   kill -CONT "$pid" 2>/dev/null
-  quiet_rate=$(awk -v t="$tq" -v v="$vq" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
-  attack_rate=$(awk -v t="$ta" -v v="$va" 'BEGIN { printf "%.0f", (t > 0 ? v / t : 0) }')
+  read -r quiet_rate attack_rate < <(awk '{ t[$1] += $4 - $2; v[$1] += $5 - $3 }
+    END { printf "%.0f %.0f\n", (t["quiet"] > 0 ? v["quiet"] / t["quiet"] : 0), (t["attack"] > 0 ? v["attack"] / t["attack"] : 0) }' <<<"$windows")
 }
 
 # Waits for process PID (a child of this shell) to end, at most SECONDS; returns its exit status, or

@@ -12,8 +12,8 @@
 # (SIGSTOP) and 3 s running (alternate_attack in lib.sh: a rate that swings by itself weighs on
 # both sides alike). The issue's bound of 0.9 is measured by tests/bench/bench_attacks.sh (attack
 # 15), not here: on two cores Fast DDS's decryption of 20,000 heartbeats a second, before the share
-# sees them, costs the learner near a tenth by itself (0.88 in one run of this test on the 2-core
-# machine with nothing beside it), so a test held to 0.9 passes or fails by the run.
+# sees them, costs the learner near a tenth by itself, so a test held to 0.9 would pass or fail
+# by the run (docs/record/reliability.md).
 #   tests/integration/test_heartbeat_flood.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
@@ -28,7 +28,7 @@ pendulum_config "$src" it_beatflood "max_seconds: 45" "$dir/flood.txtpb"
   >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$worker" --domain $domain --envs 4 --security "$pki/hw" >"$dir/worker.log" 2>&1 & pids+=($!)
 # Training for 3 s first: the rate before the flood is one of steady training, not of its start.
-for _ in $(seq 150); do read -r e u < <(csv_last "$dir/run" updates); [ "${u:-0}" -gt 0 ] && break; sleep 0.2; done
+for _ in $(seq 150); do read -r e u < <(csv_elapsed_last "$dir/run" updates); [ "${u:-0}" -gt 0 ] && break; sleep 0.2; done
 [ "${u:-0}" -gt 0 ] || { fail "the learner made no update in 30 s: $(tail -3 "$dir/worker.log")"; farm_test_end; }
 sleep 3
 nice -n 19 "$intruder" --domain $domain --experiment it_beatflood --id w2 --security "$pki/w2" --seconds 40 \
