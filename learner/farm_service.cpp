@@ -8,7 +8,6 @@
 #include <stdexcept>
 #include <thread>
 
-#include "announce_wait.h"
 #include "checkpoint.h"
 #include "config.h"
 #include "eval_answer.h"
@@ -46,21 +45,17 @@ FarmService::FarmService(const LearnerRunOptions& o, const config::ExperimentCon
             in.set_num_actions(task_spec_.num_actions);
             in.set_reward_bound(task_spec_.reward_bound, task_spec_.reward_min, task_spec_.reward_max);
             in.set_max_episode_steps(task_spec_.max_episode_steps);
-            // Called on the ingest thread; roster_ is made before any batch is taken (start()). A
-            // first batch whose announcing heartbeat is not taken yet waits a little for it
-            // (AnnounceWait: the race with a thief that copied the session off that heartbeat).
-            in.set_announcer([this, wait = std::make_shared<AnnounceWait>()](const std::string& id, uint64_t session,
-                                                                             bool may_wait) {
-              const std::string key = id + "#" + std::to_string(session);
-              const auto announced = [&] {
+            // Called on the ingest thread; roster_ is made before any batch is taken (start()).
+            // The heartbeats that have arrived are taken first (at most every 5 ms: the ingest
+            // asks again for every session it holds), so a batch right behind the heartbeat it
+            // copied finds the binding.
+            in.set_announcer([this, last = std::make_shared<double>(0)](const std::string& id, uint64_t session) {
+              if (const double now = now_seconds(); now - *last >= 0.005) {
+                *last = now;
                 roster_.take_pending();
-                const auto w = roster_.find(key);
-                return w ? w->view.writer : std::string();
-              };
-              if (!may_wait) return announced();
-              return wait->await(
-                  announced, [] { return now_seconds(); },
-                  [](double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); });
+              }
+              const auto w = roster_.find(id + "#" + std::to_string(session));
+              return w ? w->view.writer : std::string();
             });
             return in;
           }(),

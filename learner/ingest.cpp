@@ -198,8 +198,7 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
         back->second.writer != writer)
       why = "a batch of " + b.worker_id() + "'s stream from another participant than the one that opened it";
     if (why.empty() && back == retired_.end() && announcer_ && !writer.empty()) {
-      const bool may_wait = opened_by_.size() < kMaxAccounts && !opened_by_.count(writer);
-      const std::string announced = announcer_(b.worker_id(), b.worker_session(), may_wait);
+      const std::string announced = announcer_(b.worker_id(), b.worker_session());
       if (!announced.empty() && announced != writer)
         why = "the first batch of " + b.worker_id() + " session " + std::to_string(b.worker_session()) +
               " from another participant than the one whose heartbeats announced it";
@@ -245,10 +244,7 @@ std::string Ingest::accept(const farm::msg::TransitionBatch& b, uint64_t current
     ++counters_.invalid;
     return far;
   }
-  if (it->second.writer.empty()) {
-    it->second.writer = writer;
-    if (!writer.empty() && opened_by_.size() < kMaxAccounts) opened_by_.insert(writer);
-  }
+  if (it->second.writer.empty()) it->second.writer = writer;
   WorkerAccount& w = it->second;
   w.last_seen = now;
 

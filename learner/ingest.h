@@ -149,12 +149,18 @@ class Ingest {
   // (worker id, session), "" when none was heard. A stream then opens only from that participant:
   // a session number is random and first read off the bus in its worker's own heartbeat, so a
   // participant that copies it and writes the first batch under it (a stream thief) is refused,
-  // counted invalid on no account. A stream whose heartbeat is not heard yet opens from its writer.
-  // may_wait: the writer has opened no stream here yet, so the announcer may wait a little for that
-  // heartbeat (learner/announce_wait.h); a participant that already writes streams of its own is
-  // not waited for, so a flood of invented sessions from it costs no waiting.
-  using Announcer = std::function<std::string(const std::string& worker_id, uint64_t session, bool may_wait)>;
+  // counted invalid on no account. A stream whose heartbeat is not heard opens from its writer;
+  // the ingest thread holds such a first batch a while for its announcement (first_batch_hold.h).
+  using Announcer = std::function<std::string(const std::string& worker_id, uint64_t session)>;
   void set_announcer(Announcer announcer) { announcer_ = std::move(announcer); }
+  // Whether a batch under (worker id, session) would open a stream the announcer knows nothing of
+  // yet: no stream of that key open or retired here, an announcer set, and no announcement heard.
+  bool unannounced_opening(const Key& key) const {
+    return announcer_ && !workers_.count(key) && !retired_.count(key) && announced(key).empty();
+  }
+  // The announcer's answer ("" when none is set or nothing was heard).
+  std::string announced(const Key& key) const { return announcer_ ? announcer_(key.first, key.second) : ""; }
+  const std::string& experiment_id() const { return experiment_id_; }
 
   // No task observes or is rewarded beyond this magnitude: a batch with an observation or reward
   // beyond it is refused. Squared (a critic's or a value's error), it stays a float32, so one
@@ -171,7 +177,6 @@ class Ingest {
   double reward_bound_ = HUGE_VAL, reward_min_ = -HUGE_VAL, reward_max_ = HUGE_VAL;
   int max_episode_steps_ = 0;
   Announcer announcer_;
-  std::set<std::string> opened_by_;  // participants that opened a stream (at most kMaxAccounts kept)
   IngestCounters counters_;
   size_t missing_total_ = 0;  // the sizes of every account's `missing`, open and retired
   // Moves an open account to retired_ (bounded, oldest out first).

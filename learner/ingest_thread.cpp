@@ -8,7 +8,7 @@
 namespace farm {
 
 IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity_bytes,
-                           Log log, EventLog& events)
+                           Log log, EventLog& events, Hold::Limits hold)
     : bus_(bus),
       ingest_(std::move(ingest)),
       // Samples over what this experiment's workers can send are refused before memory is taken for
@@ -16,7 +16,8 @@ IngestThread::IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_samp
       reader_(bus, farm::dds::kBatchTopic, "batch_reader", max_sample_bytes, {}, true),
       capacity_(std::max<size_t>(1, capacity_bytes)),
       log_(std::move(log)),
-      events_(events) {}
+      events_(events),
+      hold_(hold) {}
 
 IngestThread::~IngestThread() {
   {
@@ -60,9 +61,10 @@ void IngestThread::loop() {
       }
     }
     if (reader_.take(batch_, info_))
-      accept();
+      offer();
     else
-      reader_.wait(0.05);
+      reader_.wait(hold_.empty() ? 0.05 : 0.01);
+    release_held();
     ingest_event(false);
   }
 }
@@ -87,31 +89,69 @@ void IngestThread::refused_malformed(uint64_t n) {
     events_.write("refusal", {{"what", "batch sample"}, {"count", n}, {"reason", "malformed"}, {"detail", why}});
 }
 
-bool IngestThread::accept() {
+void IngestThread::offer() {
+  const Ingest::Key key{batch_.worker_id(), batch_.worker_session()};
+  bool wait_for_announcement = hold_.holds(key);
+  if (!wait_for_announcement) {
+    std::lock_guard<std::mutex> lk(mu_);
+    wait_for_announcement = batch_.experiment_id() == ingest_.experiment_id() && ingest_.unannounced_opening(key);
+  }
+  if (wait_for_announcement) {
+    const size_t bytes =
+        4 * (batch_.observations().size() + batch_.actions().size() + batch_.rewards().size() +
+             batch_.log_probs().size() + batch_.next_observations().size() + batch_.final_observations().size()) +
+        batch_.terminated().size() + batch_.truncated().size() + 64 * batch_.episodes().size() + 256;
+    Held h{std::move(batch_), info_};
+    if (hold_.hold(key, farm::dds::participant_key(info_.sample_identity.writer_guid()), bytes, now_seconds(), h)) {
+      held_batches_.store(hold_.batches(), std::memory_order_relaxed);
+      return;
+    }
+    // No room: the session's held batches are decided now, then this one, in the order taken.
+    hold_.release(key, [this](const Ingest::Key&, Held& held) { accept(held.batch, held.info); });
+    held_batches_.store(hold_.batches(), std::memory_order_relaxed);
+    accept(h.batch, h.info);
+    return;
+  }
+  accept(batch_, info_);
+}
+
+void IngestThread::release_held() {
+  if (hold_.empty()) return;
+  hold_.release(
+      now_seconds(),
+      [this](const Ingest::Key& key) {
+        std::lock_guard<std::mutex> lk(mu_);
+        return !ingest_.announced(key).empty();
+      },
+      [this](const Ingest::Key&, Held& held) { accept(held.batch, held.info); });
+  held_batches_.store(hold_.batches(), std::memory_order_relaxed);
+}
+
+bool IngestThread::accept(const farm::msg::TransitionBatch& batch, const eprosima::fastdds::dds::SampleInfo& info) {
   auto a = std::make_unique<AcceptedBatch>();
   // Under DDS Security a batch must come from the participant whose certificate bears its worker id.
   std::string writer, unnamed_why;
   const bool secure = !bus_.security_dir().empty();
-  if (secure) writer = bus_.authenticated_name(info_.sample_identity.writer_guid(), &unnamed_why);
-  const std::string participant = farm::dds::participant_key(info_.sample_identity.writer_guid());
+  if (secure) writer = bus_.authenticated_name(info.sample_identity.writer_guid(), &unnamed_why);
+  const std::string participant = farm::dds::participant_key(info.sample_identity.writer_guid());
   std::string why, retired_note;
   bool foreign = false;
   {
     std::lock_guard<std::mutex> lk(mu_);
     const uint64_t foreign_before = ingest_.counters().foreign, retired = ingest_.retired();
-    why = ingest_.accept(batch_, version_.load(), now_seconds(), a->rows, a->episodes, secure ? &writer : nullptr,
+    why = ingest_.accept(batch, version_.load(), now_seconds(), a->rows, a->episodes, secure ? &writer : nullptr,
                          participant);
     if (ingest_.retired() > retired) retired_note = ingest_.last_retired();
     foreign = ingest_.counters().foreign > foreign_before;
     env_steps_.store(ingest_.counters().env_steps, std::memory_order_relaxed);
     accepted_.store(ingest_.counters().ok, std::memory_order_relaxed);
     if (why.empty()) {
-      a->worker_id = batch_.worker_id();
-      a->policy_version = batch_.policy_version();
-      a->num_steps = int(batch_.num_steps());
-      a->num_envs = int(batch_.num_envs());
-      a->truncated.assign(batch_.truncated().begin(), batch_.truncated().end());
-      a->log_probs.assign(batch_.log_probs().begin(), batch_.log_probs().end());
+      a->worker_id = batch.worker_id();
+      a->policy_version = batch.policy_version();
+      a->num_steps = int(batch.num_steps());
+      a->num_envs = int(batch.num_envs());
+      a->truncated.assign(batch.truncated().begin(), batch.truncated().end());
+      a->log_probs.assign(batch.log_probs().begin(), batch.log_probs().end());
       queued_bytes_ += a->bytes();
       queue_.push_back(std::move(a));
     }
@@ -119,30 +159,30 @@ bool IngestThread::accept() {
   if (why.empty()) queued_cv_.notify_all();
   if (!retired_note.empty() && ++said_.retirements <= kMaxRefusalLines)
     log_("worker stream " + printable(retired_note, 200) + " retired to make room for " +
-         printable(batch_.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) +
-         " streams open, " + std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
+         printable(batch.worker_id(), 100) + "'s (at most " + std::to_string(Ingest::kMaxAccounts) + " streams open, " +
+         std::to_string(Ingest::kMaxSessionsPerWorker) + " of one worker id)" +
          (said_.retirements == kMaxRefusalLines ? "; no more such lines (the summary counts them)" : ""));
   if (why.empty()) return true;
   if (foreign) {
     // Another experiment shares the domain: said once per experiment, not once per batch.
-    if (said_.foreign.size() < 16 && said_.foreign.insert(batch_.experiment_id()).second)
-      log_("batches of experiment '" + printable(batch_.experiment_id(), 100) +
+    if (said_.foreign.size() < 16 && said_.foreign.insert(batch.experiment_id()).second)
+      log_("batches of experiment '" + printable(batch.experiment_id(), 100) +
            "' (another learner's, on this domain) are not used here; the summary counts them");
     return false;
   }
   // Under security: why the writer has no name (a revoked worker), and an identity token that names
   // another than the writer's certificate.
   const std::string detail = (writer.empty() && secure ? " (" + unnamed_why + ")" : "") +
-                             token_note(info_.sample_identity.writer_guid(), writer);
+                             token_note(info.sample_identity.writer_guid(), writer);
   // Capped per participant: one participant's refusals never use up another's lines and events.
   Caps& caps = caps_for("participant " + participant);
   if (++caps.lines <= kMaxRefusalLines)
-    log_("rejected batch " + std::to_string(batch_.sequence_number()) + " from " + printable(batch_.worker_id(), 100) +
+    log_("rejected batch " + std::to_string(batch.sequence_number()) + " from " + printable(batch.worker_id(), 100) +
          ": " + why + detail);
   if (++caps.events <= kMaxRefusalEvents)
     events_.write("refusal", {{"what", "batch"},
-                              {"worker_id", printable(batch_.worker_id(), 100)},
-                              {"sequence_number", batch_.sequence_number()},
+                              {"worker_id", printable(batch.worker_id(), 100)},
+                              {"sequence_number", batch.sequence_number()},
                               {"reason", printable(why, 500)},
                               {"detail", printable(detail, 500)}});
   return false;
@@ -172,6 +212,7 @@ void IngestThread::ingest_event(bool force) {
   last_event_.ok = c.ok;
   last_event_.invalid = c.invalid;
   events_.write("ingest", {{"batches_ok", c.ok},
+                           {"held", held_batches_.load(std::memory_order_relaxed)},
                            {"batches_lost", c.lost},
                            {"batches_duplicate", c.duplicate},
                            {"batches_invalid", c.invalid},

@@ -20,6 +20,7 @@
 
 #include "dds.h"
 #include "events.h"
+#include "first_batch_hold.h"
 #include "ingest.h"
 
 namespace farm {
@@ -52,8 +53,15 @@ class IngestThread {
   // queued batches may hold (AcceptedBatch::bytes) before the thread stops taking. The bound is in
   // bytes, not batches, so that small batches are not held back at the DDS reader: while its
   // history was full, 40 workers' heartbeats stopped reaching the learner (integration.heartbeats).
+  // hold: how first batches of sessions not announced yet wait for their announcement
+  // (first_batch_hold.h).
+  struct Held {
+    farm::msg::TransitionBatch batch;
+    eprosima::fastdds::dds::SampleInfo info;
+  };
+  using Hold = FirstBatchHold<Ingest::Key, Held>;
   IngestThread(farm::dds::Bus& bus, Ingest ingest, uint32_t max_sample_bytes, size_t capacity_bytes, Log log,
-               EventLog& events);
+               EventLog& events, Hold::Limits hold = Hold::Limits());
   ~IngestThread();
   IngestThread(const IngestThread&) = delete;
   IngestThread& operator=(const IngestThread&) = delete;
@@ -93,11 +101,17 @@ class IngestThread {
   static constexpr size_t kMaxCauses = 64;
   // Batches the thread could not take because the queue was full, counted once per wait.
   uint64_t full_waits() const { return full_waits_.load(); }
+  // Batches held now for their session's announcement (first_batch_hold.h).
+  size_t held() const { return held_batches_.load(std::memory_order_relaxed); }
 
  private:
   void loop();
-  // Checks batch_ (just taken) and queues it; false when refused (with a line for the first ones).
-  bool accept();
+  // Holds batch_ (just taken) while its session's announcement is awaited, or accepts it.
+  void offer();
+  // Hands the held batches whose announcement was heard, or whose time is up, to accept().
+  void release_held();
+  // Checks a batch and queues it; false when refused (with a line for the first ones).
+  bool accept(const farm::msg::TransitionBatch& batch, const eprosima::fastdds::dds::SampleInfo& info);
   std::string token_note(const eprosima::fastrtps::rtps::GUID_t& writer, const std::string& name) const;
   void ingest_event(bool force);
   // Said in the log and the events (capped): samples the reader refused, for their size or malformed.
@@ -116,11 +130,13 @@ class IngestThread {
   size_t queued_bytes_ = 0;                           // of queue_; guarded by mu_
   bool stop_ = false;                                 // guarded by mu_
   std::atomic<uint64_t> version_{0}, env_steps_{0}, accepted_{0}, full_waits_{0};
+  std::atomic<size_t> held_batches_{0};
   std::thread thread_;
   // The loop thread's own:
   farm::msg::TransitionBatch batch_;
   eprosima::fastdds::dds::SampleInfo info_;
   uint64_t malformed_seen_ = 0;  // the reader's malformed count when last booked
+  Hold hold_;
   // What the log and the events have said, to keep them bounded: refusal lines and events, stream
   // retirements, other experiments whose batches were seen.
   // Refusal lines and events said so far for one cause: batches of one participant, samples too

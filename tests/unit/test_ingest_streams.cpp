@@ -5,7 +5,6 @@
 
 #include <algorithm>
 
-#include "announce_wait.h"
 #include "config.h"
 #include "ingest.h"
 #include "ingest_accounts.h"
@@ -207,7 +206,7 @@ TEST_F(Fixture, StreamTakesBatchesOnlyFromItsWriter) {
 // does not open the stream: the participant of the heartbeat does. A session whose heartbeat was
 // not heard opens from its writer, as before.
 TEST_F(Fixture, AStreamOpensOnlyFromTheParticipantThatAnnouncedIt) {
-  ingest.set_announcer([](const std::string& id, uint64_t session, bool) {
+  ingest.set_announcer([](const std::string& id, uint64_t session) {
     return id == "w1" && session == 7 ? std::string("WORKER") : std::string();
   });
   const std::string why = ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "THIEF");
@@ -220,28 +219,6 @@ TEST_F(Fixture, AStreamOpensOnlyFromTheParticipantThatAnnouncedIt) {
   auto unheard = make_batch(0);
   unheard.worker_session(8);
   EXPECT_EQ(ingest.accept(unheard, 5, 0.0, out, eps, nullptr, "OTHER"), "");
-}
-
-// The announcer may wait for a heartbeat only for a participant that has opened no stream yet: a
-// thief's first batches are waited for, a participant's further sessions (a flood of invented
-// ones) are not.
-TEST_F(Fixture, TheAnnouncerWaitsOnlyForAParticipantWithoutAStream) {
-  std::vector<std::pair<std::string, bool>> asked;
-  ingest.set_announcer([&](const std::string& id, uint64_t session, bool may_wait) {
-    asked.emplace_back(id + "#" + std::to_string(session), may_wait);
-    return session == 7 ? std::string("WORKER") : std::string();
-  });
-  EXPECT_NE(ingest.accept(make_batch(0), 5, 0.0, out, eps, nullptr, "THIEF"), "");
-  auto other = make_batch(0);
-  other.worker_session(9);
-  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");  // unheard: opens from its writer
-  other.worker_session(10);
-  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");
-  other.worker_session(11);
-  EXPECT_EQ(ingest.accept(other, 5, 0.0, out, eps, nullptr, "FLOOD"), "");
-  const std::vector<std::pair<std::string, bool>> expected{
-      {"w1#7", true}, {"w1#9", true}, {"w1#10", false}, {"w1#11", false}};
-  EXPECT_EQ(asked, expected);
 }
 
 // The binding survives a checkpoint: after a resume, a participant that writes first under an
@@ -357,41 +334,4 @@ TEST_F(Fixture, EndOfStreamMayBeEmpty) {
   b.end_of_stream(false);
   b.sequence_number(1);
   EXPECT_NE(take(b).find("empty batch"), std::string::npos);
-}
-
-// The wait for a session's announcing heartbeat: it ends as soon as the heartbeat is heard, lasts
-// at most its limit, and draws on a budget earned at a share of the wall time, so a flood of first
-// batches under invented sessions stops being waited for.
-TEST(AnnounceWait, WaitsForTheAnnouncementWithinItsLimitAndBudget) {
-  double clock = 100;
-  const auto now = [&] { return clock; };
-  const auto sleep = [&](double s) { clock += s; };
-  farm::AnnounceWait wait(0.5, 0.1, 2.0, 0.01);
-
-  // Heard on the third ask: the wait ends there, having cost 0.02 s.
-  int asks = 0;
-  EXPECT_EQ(wait.await([&] { return ++asks >= 3 ? std::string("worker-participant") : std::string(); }, now, sleep),
-            "worker-participant");
-  EXPECT_EQ(asks, 3);
-  EXPECT_NEAR(clock, 100.02, 1e-9);
-
-  // Never heard: each wait lasts its limit, 0.5 s, until the 2 s saved are spent.
-  const auto never = [] { return std::string(); };
-  for (int i = 0; i < 3; ++i) {
-    const double t0 = clock;
-    EXPECT_EQ(wait.await(never, now, sleep), "");
-    EXPECT_NEAR(clock - t0, 0.5, 0.011) << "wait " << i;
-  }
-  double t0 = clock;
-  wait.await(never, now, sleep);
-  EXPECT_NEAR(clock - t0, 0.48, 0.011);  // what was left of the budget
-  t0 = clock;
-  wait.await(never, now, sleep);
-  EXPECT_LT(clock - t0, 0.011);  // spent: decided at once
-
-  // Earned back at 0.1 s a second: 3 s later, a wait of 0.3 s.
-  clock += 3;
-  t0 = clock;
-  wait.await(never, now, sleep);
-  EXPECT_NEAR(clock - t0, 0.3, 0.011);
 }

@@ -12,7 +12,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <mutex>
+#include <set>
 #include <thread>
 
 #include "events.h"
@@ -168,6 +170,115 @@ TEST(IngestThread, OneParticipantsRefusalsDoNotSilenceAnothers) {
   EXPECT_EQ(w1, 1);
   std::lock_guard<std::mutex> lk(lines_mu);
   EXPECT_EQ(lines.size(), size_t(farm::IngestThread::kMaxRefusalLines) + 1);
+}
+
+// The hold's rules on a clock of its own: a session is released when announced or when its time
+// is up, its batches in the order held; one participant's bound and the total's refuse room
+// without touching the item; a release settles the counts.
+TEST(FirstBatchHold, ReleasesOnAnnouncementOrTimeInOrderWithinBounds) {
+  using Hold = farm::FirstBatchHold<int, std::string>;
+  Hold hold(Hold::Limits{3.0, 2, 100});
+  std::vector<std::pair<int, std::string>> out;
+  const auto take = [&](int key, std::string& item) { out.emplace_back(key, item); };
+  std::string a = "t0", b = "w0", c = "t1", d = "x0", e = "t2", f = "big";
+  EXPECT_TRUE(hold.hold(1, "thief", 10, 0.0, a));
+  EXPECT_TRUE(hold.hold(1, "worker", 10, 0.5, b));
+  EXPECT_TRUE(hold.hold(1, "thief", 10, 0.6, c));
+  EXPECT_TRUE(hold.hold(2, "other", 10, 1.0, d));
+  EXPECT_FALSE(hold.hold(2, "thief", 10, 1.1, e));  // the thief has its 2 held
+  EXPECT_EQ(e, "t2");                               // refused room: the item is the caller's still
+  EXPECT_FALSE(hold.hold(3, "new", 61, 1.2, f));    // 40 + 61 bytes > 100
+  EXPECT_EQ(hold.batches(), 4u);
+  EXPECT_EQ(hold.bytes(), 40u);
+  std::set<int> announced;
+  EXPECT_EQ(hold.release(
+                2.0, [&](int k) { return announced.count(k) > 0; }, take),
+            0u);
+  announced.insert(1);
+  EXPECT_EQ(hold.release(
+                2.1, [&](int k) { return announced.count(k) > 0; }, take),
+            3u);
+  const std::vector<std::pair<int, std::string>> first{{1, "t0"}, {1, "w0"}, {1, "t1"}};
+  EXPECT_EQ(out, first);
+  EXPECT_TRUE(hold.hold(5, "thief", 10, 2.2, e));  // its room came back with the release
+  EXPECT_EQ(hold.release(
+                3.9, [](int) { return false; }, take),
+            0u);
+  EXPECT_EQ(hold.release(
+                4.0, [](int) { return false; }, take),
+            1u);  // key 2: held at 1.0, 3 s up
+  EXPECT_EQ(out.back(), std::make_pair(2, std::string("x0")));
+  EXPECT_EQ(hold.release(5, take), 1u);  // at once, out of room
+  EXPECT_TRUE(hold.empty());
+  EXPECT_EQ(hold.bytes(), 0u);
+}
+
+// A thief writes the first batches of w1's session 7 before the learner hears the heartbeat that
+// announces it (the learner's reader matched the worker's heartbeat writer after its first beat):
+// they are held, with the worker's own, until the announcement, then the thief's are refused and
+// the stream opens from the worker. A session never announced opens from its writer once its time
+// is up.
+TEST(IngestThread, AFirstBatchWaitsForItsSessionsAnnouncement) {
+  const int domain = test_domain() + 2;
+  farm::dds::BusOptions o;
+  o.domain = domain;
+  farm::dds::Bus learner_bus(o, "test learner"), thief_bus(o, "test thief"), worker_bus(o, "test worker");
+  const std::string worker_key = farm::dds::participant_key(worker_bus.participant()->guid());
+  std::mutex mu;
+  std::string announcer;  // the participant of w1#7's first heartbeat, "" while none was heard
+  farm::Ingest ingest("exp", kObs, kAct, 0);
+  ingest.set_announcer([&](const std::string& id, uint64_t session) {
+    std::lock_guard<std::mutex> lk(mu);
+    return id == "w1" && session == 7 ? announcer : std::string();
+  });
+  farm::EventLog events;
+  farm::IngestThread intake(
+      learner_bus, std::move(ingest), uint32_t(farm::Ingest::max_batch_bytes(kObs, kAct, 0, 1)), 1 << 20,
+      [](const std::string&) {}, events);
+  intake.start(kVersion);
+  using BatchWriter = farm::dds::Writer<farm::msg::TransitionBatch, farm::msg::TransitionBatchPubSubType>;
+  BatchWriter thief(thief_bus, farm::dds::kBatchTopic, "batch_writer"),
+      worker(worker_bus, farm::dds::kBatchTopic, "batch_writer");
+  for (int i = 0; i < 400 && (thief.matched() == 0 || worker.matched() == 0); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  ASSERT_GT(thief.matched() * worker.matched(), 0);
+  const auto until = [&](const std::function<bool()>& done, double seconds) {
+    const double t_end = farm::now_seconds() + seconds;
+    while (!done() && farm::now_seconds() < t_end) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    return done();
+  };
+
+  const double t0 = farm::now_seconds();
+  auto unheard = batch(0);
+  unheard.worker_session(8);
+  ASSERT_TRUE(thief.write(unheard));
+  for (uint64_t s = 0; s < 2; ++s) {
+    auto b = batch(s);
+    ASSERT_TRUE(thief.write(b));
+  }
+  ASSERT_TRUE(until([&] { return intake.held() == 3; }, 2)) << "held " << intake.held();
+  for (uint64_t s = 0; s < 3; ++s) {
+    auto b = batch(s);
+    ASSERT_TRUE(worker.write(b));
+  }
+  ASSERT_TRUE(until([&] { return intake.held() == 6; }, 2)) << "held " << intake.held();
+  EXPECT_EQ(intake.counters().ok + intake.counters().invalid, 0u);
+  {
+    std::lock_guard<std::mutex> lk(mu);
+    announcer = worker_key;
+  }
+  ASSERT_TRUE(until([&] { return intake.counters().ok == 3; }, 2)) << "accepted " << intake.counters().ok;
+  EXPECT_EQ(intake.counters().invalid, 2u);
+  EXPECT_LT(farm::now_seconds() - t0, 3.0) << "session 8's time ran out first: the test shows nothing";
+  intake.with_ingest([&](farm::Ingest& in) {
+    const farm::WorkerAccount& w = in.workers().at({"w1", 7});
+    EXPECT_EQ(w.received, 3u);
+    EXPECT_EQ(w.lost, 0u);
+    EXPECT_EQ(w.writer, worker_key);
+  });
+  ASSERT_TRUE(until([&] { return intake.counters().ok == 4; }, 5)) << "session 8 was never decided";
+  EXPECT_GE(farm::now_seconds() - t0, 2.9);
+  EXPECT_EQ(intake.held(), 0u);
 }
 
 TEST(EventLog, OneObjectALineWithItsOwnElapsedKept) {
