@@ -11,12 +11,12 @@
 # the end. The attacks marked "security" run the farm with DDS Security (a PKI from
 # deploy/make-pki.sh; the attacker holds a worker certificate of its own, w2: a leaked one).
 #   tests/bench/bench_attacks.sh LEARNER WORKER INTRUDER SOURCE_DIR [OUT_DIR]
-# Environment: WARM (default 8), BEFORE (default 6), ROUNDS (default 3), DOMAIN (default 150), ONLY
+# Environment: WARM (default 8), BEFORE (default 6), ROUNDS (default 5), DOMAIN (default 150), ONLY
 # (the attacks to run, by number, e.g. "3 4"; default all), ATTACKER_NICE (the attacker's nice value).
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
 out=${5:-/tmp/farm_bench_attacks}
-warm=${WARM:-8} before=${BEFORE:-6} rounds=${ROUNDS:-3} domain=${DOMAIN:-150} only=${ONLY:-} nice=${ATTACKER_NICE:+nice -n $ATTACKER_NICE}
+warm=${WARM:-8} before=${BEFORE:-6} rounds=${ROUNDS:-5} domain=${DOMAIN:-150} only=${ONLY:-} nice=${ATTACKER_NICE:+nice -n $ATTACKER_NICE}
 mkdir -p "$out"
 # elapsed seconds, updates and env steps at the last row of CSV
 last_row() { awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) { if ($i == "updates") u = i; if ($i == "elapsed_s") e = i; if ($i == "env_steps") s = i }; next }
