@@ -7,7 +7,7 @@
 // already. So the first batch of a session not announced yet is held, and every later batch of
 // that session with it, in the order taken, until the announcement is heard (then each is decided
 // against it: the thief's refused, the worker's taken) or `seconds` have passed since the first
-// was held (then they are decided as before: the session opens from its first writer). The ingest
+// was held (then they are decided without it: the session opens from its first writer). The ingest
 // goes on with other streams meanwhile.
 //
 // Bounded: at most `per_participant` batches of one participant and `bytes` in all are held. A

@@ -153,14 +153,16 @@ class Ingest {
   // the ingest thread holds such a first batch a while for its announcement (first_batch_hold.h).
   using Announcer = std::function<std::string(const std::string& worker_id, uint64_t session)>;
   void set_announcer(Announcer announcer) { announcer_ = std::move(announcer); }
-  // Whether a batch under (worker id, session) would open a stream the announcer knows nothing of
-  // yet: no stream of that key open or retired here, an announcer set, and no announcement heard.
-  bool unannounced_opening(const Key& key) const {
-    return announcer_ && !workers_.count(key) && !retired_.count(key) && announced(key).empty();
+  // Whether batch b of this experiment would open a stream the announcer knows nothing of yet: no
+  // stream of its (worker id, session) open or retired here, an announcer set, and no announcement
+  // heard.
+  bool unannounced_opening(const farm::msg::TransitionBatch& b) const {
+    const Key key{b.worker_id(), b.worker_session()};
+    return announcer_ && b.experiment_id() == experiment_id_ && !workers_.count(key) && !retired_.count(key) &&
+           announced(key).empty();
   }
   // The announcer's answer ("" when none is set or nothing was heard).
   std::string announced(const Key& key) const { return announcer_ ? announcer_(key.first, key.second) : ""; }
-  const std::string& experiment_id() const { return experiment_id_; }
 
   // No task observes or is rewarded beyond this magnitude: a batch with an observation or reward
   // beyond it is refused. Squared (a critic's or a value's error), it stays a float32, so one

@@ -89,30 +89,36 @@ void IngestThread::refused_malformed(uint64_t n) {
     events_.write("refusal", {{"what", "batch sample"}, {"count", n}, {"reason", "malformed"}, {"detail", why}});
 }
 
+namespace {
+
+// What a held batch holds, for the hold's bound: its arrays and a little for the rest.
+size_t held_bytes(const farm::msg::TransitionBatch& b) {
+  return 4 * (b.observations().size() + b.actions().size() + b.rewards().size() + b.log_probs().size() +
+              b.next_observations().size() + b.final_observations().size()) +
+         b.terminated().size() + b.truncated().size() + 64 * b.episodes().size() + 256;
+}
+
+}  // namespace
+
 void IngestThread::offer() {
   const Ingest::Key key{batch_.worker_id(), batch_.worker_session()};
   bool wait_for_announcement = hold_.holds(key);
   if (!wait_for_announcement) {
     std::lock_guard<std::mutex> lk(mu_);
-    wait_for_announcement = batch_.experiment_id() == ingest_.experiment_id() && ingest_.unannounced_opening(key);
+    wait_for_announcement = ingest_.unannounced_opening(batch_);
   }
-  if (wait_for_announcement) {
-    const size_t bytes =
-        4 * (batch_.observations().size() + batch_.actions().size() + batch_.rewards().size() +
-             batch_.log_probs().size() + batch_.next_observations().size() + batch_.final_observations().size()) +
-        batch_.terminated().size() + batch_.truncated().size() + 64 * batch_.episodes().size() + 256;
-    Held h{std::move(batch_), info_};
-    if (hold_.hold(key, farm::dds::participant_key(info_.sample_identity.writer_guid()), bytes, now_seconds(), h)) {
-      held_batches_.store(hold_.batches(), std::memory_order_relaxed);
-      return;
-    }
-    // No room: the session's held batches are decided now, then this one, in the order taken.
-    hold_.release(key, [this](const Ingest::Key&, Held& held) { accept(held.batch, held.info); });
-    held_batches_.store(hold_.batches(), std::memory_order_relaxed);
-    accept(h.batch, h.info);
+  if (!wait_for_announcement) {
+    accept(batch_, info_);
     return;
   }
-  accept(batch_, info_);
+  const size_t bytes = held_bytes(batch_);
+  Held h{std::move(batch_), info_};
+  if (!hold_.hold(key, farm::dds::participant_key(info_.sample_identity.writer_guid()), bytes, now_seconds(), h)) {
+    // No room: the session's held batches are decided now, then this one, in the order taken.
+    hold_.release(key, [this](const Ingest::Key&, Held& held) { accept(held.batch, held.info); });
+    accept(h.batch, h.info);
+  }
+  held_batches_.store(hold_.batches(), std::memory_order_relaxed);
 }
 
 void IngestThread::release_held() {

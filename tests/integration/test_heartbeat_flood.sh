@@ -5,12 +5,12 @@
 # under its own name, 2,000 invented sessions every 0.1 s (farm_intruder --flood-heartbeats
 # 2000 --beat-every 0.1), at nice 19: it stands for another host, and on two cores its own work
 # must not be what the learner loses. From the learner's record: the roster refused the flood past
-# the participant's share (`refusal` events counting at least 500; none without the share), the real
+# the participant's share (`refusal` events counting at least 500), the real
 # worker was never marked dead (no `worker` event of change `dead` for hw; the flood's own sessions
 # go dead once it stops), the run ends with nothing lost or invalid, and its updates/s (learner.csv)
 # with the flood running are at least 0.8 of those with it paused, over three rounds of 3 s paused
 # (SIGSTOP) and 3 s running (alternate_attack in lib.sh: a rate that swings by itself weighs on
-# both sides alike). The bound of 0.9 is measured by tests/bench/bench_attacks.sh (attack
+# both sides alike). The bound of 0.9 is measured by tests/bench/bench_attacks.sh (attack
 # 15), not here: on two cores Fast DDS's decryption of 20,000 heartbeats a second, before the share
 # sees them, costs the learner near a tenth by itself, so a test held to 0.9 would pass or fail
 # by the run (docs/record/reliability.md).
