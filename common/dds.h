@@ -341,6 +341,7 @@ class Reader : public fdds::DataReaderListener {
   }
   // Takes the next valid sample, if any; never blocks. info: its SampleInfo (the writer's GUID).
   bool take(T& out) { return take_from(reader_, out); }
+  fdds::DataReader* dds_reader() const { return reader_; }
   bool take(T& out, fdds::SampleInfo& info) { return take_from(reader_, out, info); }
   static bool take_from(fdds::DataReader* reader, T& out) {
     fdds::SampleInfo info;

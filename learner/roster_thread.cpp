@@ -11,11 +11,18 @@ namespace farm {
 
 RosterThread::RosterThread(farm::dds::Bus& bus, WorkerRoster roster, Log log, EventLog& events)
     : bus_(bus),
-      // A heartbeat over the bound is refused before memory is taken for it.
-      reader_(bus, farm::dds::kWorkerStatusTopic, "status_reader", farm::dds::kMaxStatusBytes),
       log_(std::move(log)),
       events_(events),
-      roster_(std::move(roster)) {}
+      roster_(std::move(roster)),
+      // A heartbeat over the bound is refused before memory is taken for it.
+      reader_(bus, farm::dds::kWorkerStatusTopic, "status_reader", farm::dds::kMaxStatusBytes,
+              [this](eprosima::fastdds::dds::DataReader* r) {
+                if (!started_.load() || stop_.load()) return;
+                // This runs under the reader's own lock, which a taker holding take_mu_ waits for:
+                // where another takes, it takes this heartbeat too, once this returns.
+                std::unique_lock<std::mutex> taking(take_mu_, std::try_to_lock);
+                if (taking.owns_lock()) take_all(r);
+              }) {}
 
 RosterThread::~RosterThread() {
   stop_ = true;
@@ -23,15 +30,15 @@ RosterThread::~RosterThread() {
 }
 
 void RosterThread::start() {
+  started_ = true;
   thread_ = std::thread([this] { loop(); });
 }
 
 void RosterThread::loop() {
   double last_check = 0;
   while (!stop_) {
-    reader_.wait(0.05);
-    take_all();
-    std::this_thread::sleep_for(std::chrono::duration<double>(kTakeEveryS));
+    take_pending();  // what arrived before start()
+    std::this_thread::sleep_for(std::chrono::duration<double>(kLoopEveryS));
     const double now = now_seconds();
     if (now - last_check >= kCheckEveryS) {
       last_check = now;
@@ -77,13 +84,15 @@ void RosterThread::loop() {
   }
 }
 
-void RosterThread::take_pending() { take_all(); }
-
-void RosterThread::take_all() {
+void RosterThread::take_pending() {
   std::lock_guard<std::mutex> taking(take_mu_);
+  take_all(reader_.dds_reader());
+}
+
+void RosterThread::take_all(eprosima::fastdds::dds::DataReader* reader) {
   farm::msg::WorkerStatus s;
   eprosima::fastdds::dds::SampleInfo info;
-  while (reader_.take(s, info)) {
+  while (decltype(reader_)::take_from(reader, s, info)) {
     const double now = now_seconds();
     const std::string participant = farm::dds::participant_key(info.sample_identity.writer_guid());
     if (!within_share(participant, now)) {

@@ -57,16 +57,19 @@ class RosterThread {
   // one at most every 1.5 s); past kMaxBeatsPerSecond on average, with a burst of kBeatBurst, what a
   // participant sends is dropped before the roster looks at it, so a flood from one participant
   // (a leaked certificate under security) cannot crowd out the workers' heartbeats or the roster's
-  // time. The loop takes heartbeats at most every kTakeEveryS, not once per sample.
-  static constexpr double kMaxBeatsPerSecond = 20, kBeatBurst = 40, kTakeEveryS = 0.01;
+  // time. Once started, heartbeats are taken as they arrive, on Fast DDS's listener thread: the
+  // reader's history (KEEP_LAST 16, one for every writer) never fills, so a burst of thousands from
+  // one participant pushes no other participant's heartbeat out of it. The loop looks for the
+  // silent every kCheckEveryS and tells refusals every kLoopEveryS.
+  static constexpr double kMaxBeatsPerSecond = 20, kBeatBurst = 40, kLoopEveryS = 0.01;
   static constexpr size_t kMaxRatedParticipants = 4096;
 
  private:
   void loop();
-  void take_all();
+  // Takes every heartbeat in `reader`'s history; the caller holds take_mu_.
+  void take_all(eprosima::fastdds::dds::DataReader* reader);
 
   farm::dds::Bus& bus_;
-  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> reader_;
   Log log_;
   EventLog& events_;
   mutable std::mutex mu_;
@@ -76,6 +79,7 @@ class RosterThread {
   std::atomic<uint64_t> refused_for_name_{0};
   std::atomic<uint64_t> refused_for_rate_{0};
   std::atomic<bool> stop_{false};
+  std::atomic<bool> started_{false};  // heartbeats are taken on arrival from start() on
   std::thread thread_;
   // The thread's own:
   uint64_t refused_noted_ = 0, oversized_noted_ = 0, rate_noted_ = 0;  // refusals already told
@@ -87,6 +91,8 @@ class RosterThread {
   double rate_noted_at_ = -1e9;
   int refusal_notes_ = 0, rate_notes_ = 0;  // the lines told so far: by name or size, by rate
   std::string refused_last_;
+  // Last: its listener uses the members above, and it is gone (no listener running) before they are.
+  farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> reader_;
 };
 
 }  // namespace farm

@@ -8,12 +8,9 @@
 # the participant's share (`refusal` events counting at least 500), the real
 # worker was never marked dead (no `worker` event of change `dead` for hw; the flood's own sessions
 # go dead once it stops), the run ends with nothing lost or invalid, and its updates/s (learner.csv)
-# with the flood running are at least 0.8 of those with it paused, over three rounds of 3 s paused
+# with the flood running are at least 0.9 of those with it paused, over five rounds of 3 s paused
 # (SIGSTOP) and 3 s running (alternate_attack in lib.sh: a rate that swings by itself weighs on
-# both sides alike). The bound of 0.9 is measured by tests/bench/bench_attacks.sh (attack
-# 15), not here: on two cores Fast DDS's decryption of 20,000 heartbeats a second, before the share
-# sees them, costs the learner near a tenth by itself, so a test held to 0.9 would pass or fail
-# by the run (docs/record/reliability.md).
+# both sides alike).
 #   tests/integration/test_heartbeat_flood.sh LEARNER WORKER INTRUDER SOURCE_DIR
 set -uo pipefail
 learner=$(readlink -f "$1") worker=$(readlink -f "$2") intruder=$(readlink -f "$3") src=$(readlink -f "$4")
@@ -23,7 +20,7 @@ farm_test_init heartbeat-flood 181
 pki="$dir/pki"
 bash "$src/deploy/make-pki.sh" "$pki" learner:learner worker:hw worker:w2 >"$dir/pki.log" 2>&1 ||
   { fail "deploy/make-pki.sh failed: $(tail -3 "$dir/pki.log")"; farm_test_end; }
-pendulum_config "$src" it_beatflood "max_seconds: 45" "$dir/flood.txtpb"
+pendulum_config "$src" it_beatflood "max_seconds: 58" "$dir/flood.txtpb"
 "$learner" --config "$dir/flood.txtpb" --run-dir "$dir/run" --domain $domain --security "$pki/learner" \
   >"$dir/learner.log" 2>&1 & lp=$!; pids+=($lp)
 "$worker" --domain $domain --envs 4 --security "$pki/hw" >"$dir/worker.log" 2>&1 & pids+=($!)
@@ -31,16 +28,16 @@ pendulum_config "$src" it_beatflood "max_seconds: 45" "$dir/flood.txtpb"
 for _ in $(seq 150); do read -r e u < <(csv_elapsed_last "$dir/run" updates); [ "${u:-0}" -gt 0 ] && break; sleep 0.2; done
 [ "${u:-0}" -gt 0 ] || { fail "the learner made no update in 30 s: $(tail -3 "$dir/worker.log")"; farm_test_end; }
 sleep 3
-nice -n 19 "$intruder" --domain $domain --experiment it_beatflood --id w2 --security "$pki/w2" --seconds 40 \
+nice -n 19 "$intruder" --domain $domain --experiment it_beatflood --id w2 --security "$pki/w2" --seconds 50 \
   --flood-heartbeats 2000 --beat-every 0.1 >"$dir/intruder.log" 2>&1 & ip=$!; pids+=($ip)
 # Measured once the flood is under way (the roster has taken a heartbeat of it: a `worker` event of
 # w2), so that what is measured is the flood and not the participant's authentication.
 for _ in $(seq 100); do events "$dir/run" worker | grep -cF '"worker_id":"w2"' >/dev/null && break; sleep 0.2; done
-alternate_attack $ip "$dir/run" updates 3 3
+alternate_attack $ip "$dir/run" updates 5 3
 before=$quiet_rate during=$attack_rate
 kill $ip 2>/dev/null
 echo "updates/s with the flood paused $before, running $during"
-awk -v b="$before" -v d="$during" 'BEGIN { exit !(b > 0 && d >= 0.8 * b) }' ||
+awk -v b="$before" -v d="$during" 'BEGIN { exit !(b > 0 && d >= 0.9 * b) }' ||
   fail "updates/s fell from $before to $during during the heartbeat flood"
 
 wait $lp || fail "the learner exited with $?: $(tail -5 "$dir/learner.log")"

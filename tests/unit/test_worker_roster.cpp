@@ -6,6 +6,7 @@
 
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +15,8 @@
 #include <string>
 #include <thread>
 #include <vector>
+
+#include <fastrtps/xmlparser/XMLProfileManager.h>
 
 #include "config.h"
 #include "events.h"
@@ -277,4 +280,73 @@ TEST(RosterThread, HearsAndMarksDeadWhileTheLoopIsBusy) {
   }
   EXPECT_EQ(changes, (std::vector<std::string>{"joined", "dead"}));
   std::remove(events_path.c_str());
+}
+
+// A flood of heartbeats from one participant, thousands a burst, pushes no other worker's heartbeat
+// out of the reader's history (KEEP_LAST 16): the real worker, beating every 0.2 s against a 1 s
+// timeout, is never marked dead while the flood runs, and the flood is refused past its share. The
+// three participants talk through their transports as separate processes do: Fast DDS 2.9's
+// delivery within a process deadlocks (its writer liveliness against discovery) under such a flood.
+TEST(RosterThread, AFloodFromOneParticipantPushesNoOtherWorkersHeartbeatOut) {
+  const auto library = eprosima::fastrtps::xmlparser::XMLProfileManager::library_settings();
+  auto apart = library;
+  apart.intraprocess_delivery = eprosima::fastrtps::INTRAPROCESS_OFF;
+  eprosima::fastrtps::xmlparser::XMLProfileManager::library_settings(apart);
+  const std::string events_path =
+      (std::filesystem::temp_directory_path() / ("farm_roster_flood_" + std::to_string(getpid()) + ".jsonl")).string();
+  farm::dds::BusOptions o;
+  o.domain = 40 + int(getpid() % 80);
+  farm::dds::Bus learner_bus(o, "test learner"), worker_bus(o, "test worker"), flood_bus(o, "test flood");
+  farm::EventLog events;
+  events.open(events_path);
+  auto log = [](const std::string&) {};
+  farm::WorkerRoster roster(1.0, log, "exp");
+  roster.on_event([&](const nlohmann::json& e) { events.write("worker", e); });
+  farm::RosterThread thread(learner_bus, std::move(roster), log, events);
+  thread.start();
+  using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
+  StatusWriter out(worker_bus, farm::dds::kWorkerStatusTopic, "status_writer");
+  StatusWriter flood_out(flood_bus, farm::dds::kWorkerStatusTopic, "status_writer");
+  farm::msg::WorkerStatus s;
+  s.experiment_id("exp");
+  s.worker_id("w1");
+  s.worker_session(1);
+  s.host("h");
+  s.envs(4);
+  s.threads(1);
+  s.state("running");
+  const double t0 = farm::now_seconds();
+  while (thread.live_count() == 0 && farm::now_seconds() - t0 < 10) {
+    out.write(s);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(thread.live_count(), 1);
+  std::atomic<bool> flooding{true};
+  uint64_t flooded = 0;
+  std::thread flood([&] {
+    farm::msg::WorkerStatus f = s;
+    f.worker_id("flood");
+    for (uint64_t k = 0; flooding.load(); ++k) {
+      f.worker_session(1000 + k % 2000);
+      flooded += flood_out.write(f);
+    }
+  });
+  const double t1 = farm::now_seconds();
+  while (farm::now_seconds() - t1 < 4) {
+    out.write(s);
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  flooding = false;
+  flood.join();
+  std::ifstream in(events_path);
+  std::vector<std::string> changes;
+  for (std::string line; std::getline(in, line);) {
+    const auto e = nlohmann::json::parse(line, nullptr, false);
+    if (e.is_object() && e.value("worker_id", "") == "w1") changes.push_back(e.value("change", ""));
+  }
+  EXPECT_EQ(changes, (std::vector<std::string>{"joined"}));
+  EXPECT_GT(flooded, 10000u);
+  EXPECT_GT(thread.refused_for_rate(), 1000u) << flooded << " written";
+  std::remove(events_path.c_str());
+  eprosima::fastrtps::xmlparser::XMLProfileManager::library_settings(library);
 }
