@@ -44,6 +44,42 @@ struct Lines {
   }
 };
 
+using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
+
+// A heartbeat of worker w1, session 1, running in experiment "exp".
+farm::msg::WorkerStatus running_w1() {
+  farm::msg::WorkerStatus s;
+  s.experiment_id("exp");
+  s.worker_id("w1");
+  s.worker_session(1);
+  s.host("h");
+  s.envs(4);
+  s.threads(1);
+  s.state("running");
+  return s;
+}
+
+// Beats every 0.1 s until the roster has the worker live (10 s at most); true once it has.
+bool beat_until_live(const farm::RosterThread& thread, StatusWriter& out, farm::msg::WorkerStatus& s) {
+  const double t0 = farm::now_seconds();
+  while (thread.live_count() == 0 && farm::now_seconds() - t0 < 10) {
+    out.write(s);
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  return thread.live_count() == 1;
+}
+
+// The roster's changes of w1 (joined, dead, back), in order, from an events file.
+std::vector<std::string> w1_changes(const std::string& events_path) {
+  std::ifstream in(events_path);
+  std::vector<std::string> changes;
+  for (std::string line; std::getline(in, line);) {
+    const auto e = nlohmann::json::parse(line, nullptr, false);
+    if (e.is_object() && e.value("worker_id", "") == "w1") changes.push_back(e.value("change", ""));
+  }
+  return changes;
+}
+
 }  // namespace
 
 TEST(WorkerRoster, JoinBeforeTheSpecSaysSoThenTheSize) {
@@ -242,23 +278,10 @@ TEST(RosterThread, HearsAndMarksDeadWhileTheLoopIsBusy) {
   roster.on_event([&](const nlohmann::json& e) { events.write("worker", e); });
   farm::RosterThread thread(learner_bus, std::move(roster), log, events);
   thread.start();
-  farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> out(
-      worker_bus, farm::dds::kWorkerStatusTopic, "status_writer");
-  farm::msg::WorkerStatus s;
-  s.experiment_id("exp");
-  s.worker_id("w1");
-  s.worker_session(1);
-  s.host("h");
-  s.envs(4);
-  s.threads(1);
-  s.state("running");
-  // Beats every 0.1 s until the roster has it live (10 s at most), then 1 s more.
-  const double t0 = farm::now_seconds();
-  while (thread.live_count() == 0 && farm::now_seconds() - t0 < 10) {
-    out.write(s);
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  }
-  ASSERT_EQ(thread.live_count(), 1);
+  StatusWriter out(worker_bus, farm::dds::kWorkerStatusTopic, "status_writer");
+  farm::msg::WorkerStatus s = running_w1();
+  // Live, then 1 s more of beats.
+  ASSERT_TRUE(beat_until_live(thread, out, s));
   for (int i = 0; i < 10; ++i) {
     out.write(s);
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
@@ -272,13 +295,7 @@ TEST(RosterThread, HearsAndMarksDeadWhileTheLoopIsBusy) {
   // roster's own thread marks it dead within the 1 s timeout.
   std::this_thread::sleep_for(std::chrono::milliseconds(2500));
   EXPECT_EQ(thread.live_count(), 0);
-  std::ifstream in(events_path);
-  std::vector<std::string> changes;
-  for (std::string line; std::getline(in, line);) {
-    const auto e = nlohmann::json::parse(line, nullptr, false);
-    if (e.is_object() && e.value("worker_id", "") == "w1") changes.push_back(e.value("change", ""));
-  }
-  EXPECT_EQ(changes, (std::vector<std::string>{"joined", "dead"}));
+  EXPECT_EQ(w1_changes(events_path), (std::vector<std::string>{"joined", "dead"}));
   std::remove(events_path.c_str());
 }
 
@@ -304,23 +321,10 @@ TEST(RosterThread, AFloodFromOneParticipantPushesNoOtherWorkersHeartbeatOut) {
   roster.on_event([&](const nlohmann::json& e) { events.write("worker", e); });
   farm::RosterThread thread(learner_bus, std::move(roster), log, events);
   thread.start();
-  using StatusWriter = farm::dds::Writer<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType>;
   StatusWriter out(worker_bus, farm::dds::kWorkerStatusTopic, "status_writer");
   StatusWriter flood_out(flood_bus, farm::dds::kWorkerStatusTopic, "status_writer");
-  farm::msg::WorkerStatus s;
-  s.experiment_id("exp");
-  s.worker_id("w1");
-  s.worker_session(1);
-  s.host("h");
-  s.envs(4);
-  s.threads(1);
-  s.state("running");
-  const double t0 = farm::now_seconds();
-  while (thread.live_count() == 0 && farm::now_seconds() - t0 < 10) {
-    out.write(s);
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  }
-  ASSERT_EQ(thread.live_count(), 1);
+  farm::msg::WorkerStatus s = running_w1();
+  ASSERT_TRUE(beat_until_live(thread, out, s));
   std::atomic<bool> flooding{true};
   uint64_t flooded = 0;
   std::thread flood([&] {
@@ -338,13 +342,7 @@ TEST(RosterThread, AFloodFromOneParticipantPushesNoOtherWorkersHeartbeatOut) {
   }
   flooding = false;
   flood.join();
-  std::ifstream in(events_path);
-  std::vector<std::string> changes;
-  for (std::string line; std::getline(in, line);) {
-    const auto e = nlohmann::json::parse(line, nullptr, false);
-    if (e.is_object() && e.value("worker_id", "") == "w1") changes.push_back(e.value("change", ""));
-  }
-  EXPECT_EQ(changes, (std::vector<std::string>{"joined"}));
+  EXPECT_EQ(w1_changes(events_path), (std::vector<std::string>{"joined"}));
   EXPECT_GT(flooded, 10000u);
   EXPECT_GT(thread.refused_for_rate(), 1000u) << flooded << " written";
   std::remove(events_path.c_str());
