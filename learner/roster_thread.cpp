@@ -37,7 +37,7 @@ void RosterThread::start() {
 void RosterThread::loop() {
   double last_check = 0;
   while (!stop_) {
-    take_pending();  // what arrived before start()
+    take_pending();  // what the listener did not take: what arrived before start()
     std::this_thread::sleep_for(std::chrono::duration<double>(kLoopEveryS));
     const double now = now_seconds();
     if (now - last_check >= kCheckEveryS) {
@@ -50,7 +50,7 @@ void RosterThread::loop() {
       ++refusal_notes_;
       std::string last;
       {
-        std::lock_guard<std::mutex> taking(take_mu_);  // take_pending() may write it
+        std::lock_guard<std::mutex> lk(mu_);  // a taker writes it
         last = refused_last_;
       }
       log_("ignored " + std::to_string(refused - refused_noted_) +
@@ -106,8 +106,10 @@ void RosterThread::take_all(eprosima::fastdds::dds::DataReader* reader) {
       const std::string by = bus_.authenticated_name(info.sample_identity.writer_guid(), &why);
       if (by != s.worker_id()) {
         refused_for_name_.fetch_add(1);
-        refused_last_ = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'" +
-                        (by.empty() ? ": " + why : "");
+        std::string last = "'" + printable(s.worker_id(), 100) + "' from '" + printable(by, 100) + "'" +
+                           (by.empty() ? ": " + why : "");
+        std::lock_guard<std::mutex> lk(mu_);
+        refused_last_ = std::move(last);
         continue;
       }
     }

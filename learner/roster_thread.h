@@ -74,7 +74,7 @@ class RosterThread {
   EventLog& events_;
   mutable std::mutex mu_;
   WorkerRoster roster_;  // guarded by mu_
-  std::mutex take_mu_;   // one taker at a time: the roster's thread or take_pending()
+  std::mutex take_mu_;   // one taker at a time (the listener, the loop, take_pending()), held only to take
   std::atomic<double> first_heard_{0};
   std::atomic<uint64_t> refused_for_name_{0};
   std::atomic<uint64_t> refused_for_rate_{0};
@@ -90,7 +90,7 @@ class RosterThread {
   bool within_share(const std::string& participant, double now);
   double rate_noted_at_ = -1e9;
   int refusal_notes_ = 0, rate_notes_ = 0;  // the lines told so far: by name or size, by rate
-  std::string refused_last_;
+  std::string refused_last_;                // guarded by mu_
   // Last: its listener uses the members above, and it is gone (no listener running) before they are.
   farm::dds::Reader<farm::msg::WorkerStatus, farm::msg::WorkerStatusPubSubType> reader_;
 };
